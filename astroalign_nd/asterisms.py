@@ -1,0 +1,114 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Stage 2 of the method: triangles (asterisms) and their invariants.
+
+Each star and its 4 nearest neighbours give the 10 triangles of those 5
+stars; duplicates are removed.  A triangle with sides ``L0 <= L1 <= L2`` is
+described by the invariant pair ``(L2/L1, L1/L0)`` of the astroalign paper,
+stored as logarithms so that a centroid error moves every triangle by about
+the same distance in invariant space (the plain ratios of a thin triangle
+blow up).  The vertices are put in a canonical order (by the length of the
+opposite side), which gives the vertex correspondence of two matched
+triangles, and the sign of the canonical triangle's area tells whether a
+match is mirrored.
+"""
+
+from dataclasses import dataclass
+from itertools import combinations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["Asterisms", "build_asterisms"]
+
+_COMBOS = np.array(list(combinations(range(5), 3)))
+
+
+@dataclass
+class Asterisms:
+    """
+    Triangles of a point set and their invariants.
+
+    Attributes
+    ----------
+    points : (N, 2) ndarray
+        The star positions the triangles index.
+    triangles : (M, 3) int ndarray
+        Vertex indices in canonical order: the vertex opposite the shortest
+        side first, the vertex opposite the longest side last.
+    invariants : (M, 2) ndarray
+        ``(log(L2/L1), log(L1/L0))``.
+    orientation : (M,) ndarray
+        +1 or -1, the sign of the canonical triangle's signed area.
+    size : (M,) ndarray
+        Longest side ``L2`` in pixels.
+    """
+
+    points: np.ndarray
+    triangles: np.ndarray
+    invariants: np.ndarray
+    orientation: np.ndarray
+    size: np.ndarray
+
+    def __len__(self):
+        return len(self.triangles)
+
+    @property
+    def tree(self):
+        """k-d tree of the invariants (built on first use)."""
+        if getattr(self, "_tree", None) is None:
+            self._tree = cKDTree(self.invariants)
+        return self._tree
+
+
+def build_asterisms(points, *, n_neighbors=4, min_side=1.0):
+    """
+    Build the nearest-neighbour triangles of a point set.
+
+    Parameters
+    ----------
+    points : (N, 2) array-like
+        Star positions (x, y).
+    n_neighbors : int, optional
+        Neighbours per star (4 gives the paper's 10 triangles per star).
+    min_side : float, optional
+        Triangles with a side shorter than this (pixels) are dropped: their
+        invariants are dominated by centroid noise.
+
+    Returns
+    -------
+    asterisms : `Asterisms`
+    """
+    pts = np.asarray(points, dtype=float)
+    n = len(pts)
+    empty = Asterisms(pts, np.empty((0, 3), int), np.empty((0, 2)), np.empty(0), np.empty(0))
+    if n < 3:
+        return empty
+    k = min(n_neighbors + 1, n)
+    _, nbr = cKDTree(pts).query(pts, k)
+    nbr = np.asarray(nbr).reshape(n, k)
+    combos = np.array(list(combinations(range(k), 3)))
+    tri = nbr[:, combos].reshape(-1, 3)
+    # Each triangle appears once per star whose neighbourhood holds it.
+    tri = np.unique(np.sort(tri, axis=1), axis=0)
+
+    p = pts[tri]  # (M, 3, 2)
+    # side[i] is the length of the side opposite vertex i.
+    side = np.stack([
+        np.hypot(*(p[:, 1] - p[:, 2]).T),
+        np.hypot(*(p[:, 0] - p[:, 2]).T),
+        np.hypot(*(p[:, 0] - p[:, 1]).T),
+    ], axis=1)
+    order = np.argsort(side, axis=1, kind="stable")
+    tri = np.take_along_axis(tri, order, axis=1)
+    side = np.take_along_axis(side, order, axis=1)
+    keep = side[:, 0] >= min_side
+    tri, side = tri[keep], side[keep]
+    if len(tri) == 0:
+        return empty
+    inv = np.column_stack([np.log(side[:, 2] / side[:, 1]), np.log(side[:, 1] / side[:, 0])])
+    p = pts[tri]
+    cross = ((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])
+             - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0]))
+    orient = np.where(cross >= 0, 1.0, -1.0)
+    return Asterisms(pts, tri, inv, orient, side[:, 2])

@@ -1,0 +1,312 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Write a linear 2-D transform into a FITS header and read it back.
+
+The transform is stored as ``<prefix>*`` keywords (``AAT*`` by default):
+
+==============  ===========================================================
+Keyword         Content
+==============  ===========================================================
+``AATTYPE``     Transform class: 'translation', 'euclidean', 'similarity'
+                or 'affine'
+``AATM00`` ...  The elements ``(i, j)`` of the 3x3 homogeneous matrix
+``AATM12``      ``[[M00, M01, M02], [M10, M11, M12], [0, 0, 1]]`` (floats)
+``AATM00S`` ..  The same elements as strings with all 17 significant
+``AATM12S``     digits (``repr``): a FITS float card holds 20 characters,
+                which astropy fills by rounding the mantissa
+``AATSCALE``    Scale (translation, euclidean, similarity), or
+``AATSCALX``,   scale along x and y (affine)
+``AATSCALY``
+``AATROT``      Rotation in degrees, counter-clockwise
+``AATSHEAR``    Shear in degrees (affine only)
+``AATTX``       Translation along x, target pixels
+``AATTY``       Translation along y, target pixels
+``AATPAR``      Parity: +1 proper, -1 mirrored
+==============  ===========================================================
+
+The transform is rebuilt from ``AATTYPE`` and the matrix (the strings when
+present, else the floats); the other keywords are for people reading the
+header.  The matrix maps 0-based source pixel coordinates ``(x, y)`` onto
+target pixel coordinates, like the models of `astroalign_nd.transforms`.
+"""
+
+import re
+import warnings
+
+import numpy as np
+from astropy.io import fits
+from astropy.modeling import Model
+from astropy.utils.exceptions import AstropyUserWarning
+
+from ..transforms import (
+    TRANSFORM_TYPES,
+    AffineTransform,
+    LinearTransform2D,
+    as_matrix,
+    transform_class,
+)
+
+__all__ = ["transform_to_header", "transform_from_header"]
+
+_MATRIX_INDICES = ("00", "01", "02", "10", "11", "12")
+_HUMAN_SUFFIXES = ("SCALE", "SCALX", "SCALY", "ROT", "SHEAR", "TX", "TY", "PAR")
+# Every suffix must fit the 8-character FITS keyword with the prefix.
+_MAX_PREFIX = 8 - max(len(s) for s in (*_HUMAN_SUFFIXES, "TYPE", "M00S"))
+_PREFIX_RE = re.compile(r"^[A-Z0-9_-]+$")
+# The float cards round to >= 13 significant digits; the exact strings must agree.
+_CONSISTENCY_RTOL = 1e-12
+
+
+def _check_prefix(prefix):
+    if not isinstance(prefix, str):
+        raise TypeError(f"prefix must be a string; got {type(prefix).__name__}.")
+    upper = prefix.upper()
+    if not (1 <= len(upper) <= _MAX_PREFIX) or not _PREFIX_RE.match(upper):
+        raise ValueError(
+            f"prefix must be 1 to {_MAX_PREFIX} characters among A-Z, 0-9, '_' and '-' so "
+            f"that every keyword (e.g. {upper or 'AAT'}SCALE) fits the 8-character FITS "
+            f"limit; got {prefix!r}."
+        )
+    return upper
+
+
+def _keywords(prefix):
+    """All the keywords this module may write, for a given prefix."""
+    names = ["TYPE", *(f"M{ij}" for ij in _MATRIX_INDICES),
+             *(f"M{ij}S" for ij in _MATRIX_INDICES), *_HUMAN_SUFFIXES]
+    return [prefix + name for name in names]
+
+
+def _type_name(model):
+    for name, cls in TRANSFORM_TYPES.items():
+        if isinstance(model, cls):
+            return name
+    return "affine"
+
+
+def _model_matrix(model):
+    if not isinstance(model, Model):
+        raise TypeError(
+            "model must be an astropy model (an astroalign_nd transform or an affine "
+            f"2-D astropy model); got {type(model).__name__}. To store a matrix, build a "
+            "transform first with astroalign_nd.transforms.from_matrix."
+        )
+    if len(model) != 1:
+        raise ValueError(
+            f"model holds {len(model)} parameter sets; a FITS header stores a single "
+            "transform."
+        )
+    if isinstance(model, LinearTransform2D):
+        return model.matrix
+    try:
+        matrix = as_matrix(model)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"only linear 2-D transforms (2 inputs, 2 outputs, affine) can go into a FITS "
+            f"header; {type(model).__name__} is not one ({exc}). Save it to an ASDF file "
+            "instead: asdf.AsdfFile({'transform': model}).write_to('transform.asdf')."
+        ) from None
+    if not np.all(np.isfinite(matrix)):
+        raise ValueError("the transform's matrix contains NaN or infinite values.")
+    return matrix
+
+
+def _human_cards(type_name, model, matrix):
+    """The readable ``(suffix, value, comment)`` cards of the transform."""
+    if type_name == "affine":
+        affine = AffineTransform.from_matrix(matrix)
+        sx, sy = affine.scale
+        cards = [
+            ("SCALX", float(sx), "[tgt px / src px] scale along x"),
+            ("SCALY", float(sy), "[tgt px / src px] scale along y"),
+            ("ROT", float(np.degrees(affine.rotation)), "[deg] rotation of the x axis, CCW"),
+            ("SHEAR", float(np.degrees(affine.shear)), "[deg] shear angle"),
+        ]
+    else:
+        scale = model.scale.value if type_name == "similarity" else 1.0
+        rotation = model.rotation.value if type_name in ("euclidean", "similarity") else 0.0
+        cards = [
+            ("SCALE", float(scale), "[tgt px / src px] scale factor"),
+            ("ROT", float(np.degrees(rotation)), "[deg] rotation, counter-clockwise"),
+        ]
+    parity = -1 if np.linalg.det(matrix[:2, :2]) < 0 else 1
+    cards += [
+        ("TX", float(matrix[0, 2]), "[px] translation along x"),
+        ("TY", float(matrix[1, 2]), "[px] translation along y"),
+        ("PAR", parity, "parity: +1 proper, -1 mirrored"),
+    ]
+    return cards
+
+
+def transform_to_header(model, header=None, *, prefix="AAT"):
+    """
+    Store a linear 2-D transform in a FITS header.
+
+    Parameters
+    ----------
+    model : `~astroalign_nd.transforms.LinearTransform2D` or `~astropy.modeling.Model`
+        The transform.  An astroalign_nd transform keeps its class; any
+        other astropy model with 2 inputs and 2 outputs that is affine
+        (e.g. ``Shift(1) & Shift(2) | Rotation2D(30)`` or
+        `~astropy.modeling.projections.AffineTransformation2D`) is stored
+        as ``'affine'``.
+    header : `~astropy.io.fits.Header` or dict-like, optional
+        Header to start from.  It is copied, never modified; existing
+        ``<prefix>*`` transform keywords in it are replaced.
+    prefix : str, optional
+        Keyword prefix, 1 to 3 characters (default ``'AAT'``), so that the
+        keywords stay within the 8-character FITS limit.
+
+    Returns
+    -------
+    header : `~astropy.io.fits.Header`
+        A new header with the transform keywords added.
+
+    Raises
+    ------
+    ValueError
+        If the model is not a linear 2-D transform (use ASDF for those), or
+        the prefix is not valid.
+    TypeError
+        If ``model`` is not an astropy model.
+
+    Notes
+    -----
+    Only the forward transform is stored: a user-assigned ``inverse`` is
+    dropped with a warning (the analytic inverse is rebuilt on reading).
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms import SimilarityTransform
+    >>> from astroalign_nd.io import transform_to_header, transform_from_header
+    >>> t = SimilarityTransform(scale=1.5, rotation=0.1, translation_x=3.0,
+    ...                         translation_y=-2.0)
+    >>> hdr = transform_to_header(t)
+    >>> hdr["AATTYPE"]
+    'similarity'
+    >>> t2 = transform_from_header(hdr)
+    >>> type(t2).__name__
+    'SimilarityTransform'
+    """
+    prefix = _check_prefix(prefix)
+    matrix = _model_matrix(model)
+    if getattr(model, "has_user_inverse", False):
+        warnings.warn(
+            "the model has a user-assigned inverse, which a FITS header cannot hold; only "
+            "the forward transform is stored (save to ASDF to keep the inverse).",
+            AstropyUserWarning,
+        )
+    type_name = _type_name(model)
+
+    if header is None:
+        out = fits.Header()
+    elif isinstance(header, fits.Header):
+        out = header.copy()
+    else:
+        try:
+            out = fits.Header(header)
+        except Exception as exc:
+            raise TypeError(
+                "header must be an astropy.io.fits.Header, a dict-like of keywords or None; "
+                f"got {type(header).__name__} ({exc})."
+            ) from None
+    for key in _keywords(prefix):
+        out.remove(key, ignore_missing=True, remove_all=True)
+
+    out[prefix + "TYPE"] = (type_name, "astroalign_nd transform class")
+    for ij in _MATRIX_INDICES:
+        value = float(matrix[int(ij[0]), int(ij[1])])
+        out[f"{prefix}M{ij}"] = (value, f"transform matrix element ({ij[0]},{ij[1]})")
+    for ij in _MATRIX_INDICES:
+        value = float(matrix[int(ij[0]), int(ij[1])])
+        out[f"{prefix}M{ij}S"] = (repr(value), f"{prefix}M{ij}, all digits")
+    for suffix, value, comment in _human_cards(type_name, model, matrix):
+        out[prefix + suffix] = (value, comment)
+    return out
+
+
+def _read_matrix(header, prefix):
+    matrix = np.eye(3)
+    for ij in _MATRIX_INDICES:
+        key, skey = f"{prefix}M{ij}", f"{prefix}M{ij}S"
+        if key not in header and skey not in header:
+            raise ValueError(
+                f"header has {prefix}TYPE but no {key}: the transform matrix is incomplete."
+            )
+        exact = None
+        if skey in header:
+            try:
+                exact = float(header[skey])
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"header keyword {skey} must hold a number as a string; got "
+                    f"{header[skey]!r}."
+                ) from None
+        rounded = header.get(key)
+        if rounded is not None and (
+            isinstance(rounded, bool) or not isinstance(rounded, (int, float, np.number))
+        ):
+            raise ValueError(f"header keyword {key} must be a real number; got {rounded!r}.")
+        if exact is not None and rounded is not None:
+            if abs(float(rounded) - exact) > _CONSISTENCY_RTOL * max(abs(exact), 1e-300):
+                raise ValueError(
+                    f"header keywords {key} = {rounded!r} and {skey} = {header[skey]!r} "
+                    f"disagree; was one of them edited? Fix or remove {skey}."
+                )
+        matrix[int(ij[0]), int(ij[1])] = exact if exact is not None else float(rounded)
+    return matrix
+
+
+def transform_from_header(header, *, prefix="AAT"):
+    """
+    Rebuild a transform stored by `transform_to_header`.
+
+    Parameters
+    ----------
+    header : `~astropy.io.fits.Header` or dict-like
+        The header (e.g. ``hdu.header`` or ``ccddata.meta``).
+    prefix : str, optional
+        Keyword prefix used when writing (default ``'AAT'``).
+
+    Returns
+    -------
+    transform : `~astroalign_nd.transforms.LinearTransform2D`
+        An instance of the class named by ``<prefix>TYPE``, built from the
+        stored matrix.
+
+    Raises
+    ------
+    ValueError
+        If the header has no transform keywords, or they are incomplete or
+        inconsistent.
+    """
+    prefix = _check_prefix(prefix)
+    if not isinstance(header, fits.Header):
+        try:
+            header = fits.Header(header)
+        except Exception as exc:
+            raise TypeError(
+                "header must be an astropy.io.fits.Header or a dict-like of keywords; got "
+                f"{type(header).__name__} ({exc})."
+            ) from None
+    type_key = prefix + "TYPE"
+    if type_key not in header:
+        raise ValueError(
+            f"header has no astroalign_nd transform keywords ({type_key}, {prefix}M00 ... "
+            f"{prefix}M12); write them with transform_to_header, or pass the prefix used "
+            "when writing."
+        )
+    type_name = header[type_key]
+    if not isinstance(type_name, str) or type_name.strip().lower() not in TRANSFORM_TYPES:
+        raise ValueError(
+            f"header keyword {type_key} must be one of {sorted(TRANSFORM_TYPES)}; got "
+            f"{type_name!r}."
+        )
+    cls = transform_class(type_name.strip().lower())
+    matrix = _read_matrix(header, prefix)
+    try:
+        return cls.from_matrix(matrix)
+    except ValueError as exc:
+        raise ValueError(
+            f"the matrix in the header is not a valid {cls.__name__} ({exc})."
+        ) from None

@@ -1,0 +1,448 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Stage 3 of the method: match triangles, verify, refine.
+
+1. Triangles of the two images whose invariants lie within ``radius`` of
+   each other (a k-d tree query) become candidate matches, best first.
+2. Each match proposes a similarity transform from its 3 vertex pairs
+   (closed form, vectorised over all matches; the match's orientation
+   tells whether it is mirrored).
+3. Hypotheses are scored in batches by how many source stars land within
+   ``tolerance`` pixels of a target star.  This is RANSAC with early
+   acceptance, but deterministic: hypotheses come in order of invariant
+   distance instead of at random.
+4. A promising hypothesis is refined: cross-match every star under it,
+   least-squares fit of the requested model, tighten the matching radius
+   to the residual scatter, repeat.
+5. It is accepted only if the number of matched stars is very unlikely to
+   be chance (a binomial false-alarm probability, with a trials factor for
+   every hypothesis tried, in the spirit of astrometry.net's odds test).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.stats import binom
+
+from .asterisms import build_asterisms
+from .exceptions import TooFewSourcesError, TransformNotFoundError
+from .transforms import fit_transform, transform_class
+
+__all__ = ["MatchResult", "match_points", "match_triangles", "hypothesis_matrices"]
+
+
+@dataclass
+class MatchResult:
+    """
+    The outcome of matching two star lists.
+
+    Attributes
+    ----------
+    transform : `~astroalign_nd.transforms.LinearTransform2D`
+        The fitted source-to-target transform.
+    source_index, target_index : ndarray of int
+        Indices of the matched stars in the source and target point lists.
+    residuals : (K, 2) ndarray
+        ``transform(source) - target`` for the matched stars, in pixels.
+    rms : float
+        Root-mean-square residual distance in target pixels.
+    covariance : ndarray
+        Covariance of the transform's free parameters.
+    log10_false_alarm : float
+        log10 of the probability that this many stars match by chance
+        (including a trials factor for the hypotheses tried).
+    n_source, n_target : int
+        Number of points in each list.
+    n_triangle_matches : int
+        Candidate triangle matches found in invariant space.
+    n_hypotheses : int
+        Hypotheses scored before the answer was accepted.
+    """
+
+    transform: object
+    source_index: np.ndarray
+    target_index: np.ndarray
+    residuals: np.ndarray
+    rms: float
+    covariance: np.ndarray
+    log10_false_alarm: float
+    n_source: int
+    n_target: int
+    n_triangle_matches: int
+    n_hypotheses: int
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n_matches(self):
+        """Number of matched stars used in the final fit."""
+        return len(self.source_index)
+
+
+def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
+    """
+    Pairs of triangles whose invariants are within ``radius``, best first.
+
+    Returns
+    -------
+    pairs : (K, 2) int ndarray
+        Indices into ``src_ast.triangles`` and ``dst_ast.triangles``.
+    dist : (K,) ndarray
+        Distance in invariant space.
+    """
+    if len(src_ast) == 0 or len(dst_ast) == 0:
+        return np.empty((0, 2), int), np.empty(0)
+    sdm = src_ast.tree.sparse_distance_matrix(dst_ast.tree, radius, output_type="ndarray")
+    i, j, d = sdm["i"].astype(int), sdm["j"].astype(int), sdm["v"]
+    # lexsort keeps equal distances in a fixed order: bit-identical results.
+    order = np.lexsort((j, i, d))
+    if max_matches is not None:
+        order = order[:max_matches]
+    return np.column_stack([i[order], j[order]]), d[order]
+
+
+def hypothesis_matrices(src_ast, dst_ast, pairs):
+    """
+    Similarity matrices proposed by triangle matches (vectorised).
+
+    Returns
+    -------
+    matrices : (K, 3, 3) ndarray
+    rms : (K,) ndarray
+        RMS residual of each triangle's own three vertices.
+    parity : (K,) ndarray
+        -1 for mirrored hypotheses.
+    """
+    s = src_ast.points[src_ast.triangles[pairs[:, 0]]]  # (K, 3, 2)
+    d = dst_ast.points[dst_ast.triangles[pairs[:, 1]]]
+    parity = src_ast.orientation[pairs[:, 0]] * dst_ast.orientation[pairs[:, 1]]
+    sp = s.copy()
+    sp[..., 1] *= parity[:, None]
+    ms, md = sp.mean(axis=1), d.mean(axis=1)
+    sc, dc = sp - ms[:, None], d - md[:, None]
+    den = np.sum(sc**2, axis=(1, 2))
+    a = np.sum(sc[..., 0] * dc[..., 0] + sc[..., 1] * dc[..., 1], axis=1) / den
+    b = np.sum(sc[..., 0] * dc[..., 1] - sc[..., 1] * dc[..., 0], axis=1) / den
+    k = len(pairs)
+    m = np.zeros((k, 3, 3))
+    m[:, 0, 0], m[:, 0, 1] = a, -b * parity
+    m[:, 1, 0], m[:, 1, 1] = b, a * parity
+    m[:, :2, 2] = md - np.einsum("kij,kj->ki", m[:, :2, :2], s.mean(axis=1))
+    m[:, 2, 2] = 1.0
+    pred = np.einsum("kij,knj->kni", m[:, :2, :2], s) + m[:, None, :2, 2]
+    rms = np.sqrt(np.mean(np.sum((pred - d) ** 2, axis=2), axis=1))
+    return m, rms, parity
+
+
+def _apply(m, pts):
+    return pts @ m[:2, :2].T + m[:2, 2]
+
+
+def _count_inliers(mats, src_pts, dst_tree, tol):
+    pred = np.einsum("kij,nj->kni", mats[:, :2, :2], src_pts) + mats[:, None, :2, 2]
+    d, _ = dst_tree.query(pred.reshape(-1, 2), distance_upper_bound=tol)
+    return np.isfinite(d).reshape(len(mats), -1).sum(axis=1)
+
+
+def _mutual_matches(pred, dst_pts, dst_tree, tol):
+    """Source i <-> target j when each is the other's nearest within tol."""
+    d, j = dst_tree.query(pred, distance_upper_bound=tol)
+    ok = np.flatnonzero(np.isfinite(d))
+    if ok.size == 0:
+        return ok, ok
+    j = j[ok]
+    # Resolve several sources claiming one target: keep the closest.
+    order = np.lexsort((ok, d[ok]))
+    _, first = np.unique(j[order], return_index=True)
+    keep = np.sort(order[first])
+    return ok[keep], j[keep]
+
+
+def _frame_area_fraction(m, src_frame, dst_frame, n_grid=48):
+    """Overlap of the source frame mapped into the target frame (fraction, area)."""
+    (x0, x1, y0, y1) = dst_frame
+    gx = np.linspace(x0, x1, n_grid)
+    gy = np.linspace(y0, y1, n_grid)
+    xx, yy = np.meshgrid(gx, gy)
+    inv = np.linalg.inv(m)
+    q = _apply(inv, np.column_stack([xx.ravel(), yy.ravel()]))
+    sx0, sx1, sy0, sy1 = src_frame
+    inside = (q[:, 0] >= sx0) & (q[:, 0] <= sx1) & (q[:, 1] >= sy0) & (q[:, 1] <= sy1)
+    frac = inside.mean()
+    return frac, frac * (x1 - x0) * (y1 - y0)
+
+
+def _in_frame(pts, frame):
+    x0, x1, y0, y1 = frame
+    return (pts[:, 0] >= x0) & (pts[:, 0] <= x1) & (pts[:, 1] >= y0) & (pts[:, 1] <= y1)
+
+
+def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame,
+                       n_trials, tri_rms, tri_size, inv_radius):
+    """
+    log10 probability that ``n_matched`` stars agree by chance.
+
+    Under the null hypothesis (unrelated fields), each source star that
+    lands in the overlap falls within ``tol`` of one of the ``m_o`` target
+    stars there with probability ``p = m_o * pi * tol^2 / area``.  The 3
+    stars of the proposing triangle match by construction, so the binomial
+    tail is taken over the others, and the defining triangle contributes
+    the chance that random triangles agree as closely as it does.  The
+    trials factor counts every hypothesis examined.
+    """
+    frac, area = _frame_area_fraction(m, src_frame, dst_frame)
+    if area <= 0:
+        return 0.0
+    n_s = int(np.sum(_in_frame(_apply(m, src_pts), dst_frame)))
+    m_o = int(np.sum(_in_frame(_apply(np.linalg.inv(m), dst_pts), src_frame)))
+    p = min(1.0, max(m_o, 1) * np.pi * tol**2 / area)
+    k_extra = max(n_matched - 3, 0)
+    n_extra = max(n_s - 3, k_extra)
+    if k_extra > 0:
+        log_tail = binom.logsf(k_extra - 1, n_extra, p) / np.log(10)
+    else:
+        log_tail = 0.0
+    # Chance that a random triangle pair within the invariant radius fits
+    # its own three vertices as well as this one does (2 spare dof).
+    spread = max(inv_radius * tri_size, 1e-9)
+    log_tri = 2.0 * np.log10(min(1.0, max(tri_rms, 1e-3) / spread))
+    return float(np.log10(max(n_trials, 1)) + log_tail + log_tri)
+
+
+def _jitter(r2, var, dof):
+    """Extra variance ``j2`` so that ``sum(r2 / (var + j2)) = dof`` (0 if none needed)."""
+    if dof <= 0 or np.sum(r2 / var) <= dof:
+        return 0.0
+    lo, hi = 0.0, float(np.max(r2)) + 1e-12
+    for _ in range(60):  # bisection: chi2 decreases monotonically in j2
+        mid = 0.5 * (lo + hi)
+        if np.sum(r2 / (var + mid)) > dof:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol,
+            src_err=None, dst_err=None, n_iter=8):
+    """
+    Iterative cross-match and weighted least-squares fit from a matrix.
+
+    Each pair is weighted by the inverse of its expected position variance
+    in target pixels, ``s^2 e_src^2 + e_dst^2 + j^2`` (``s`` the scale,
+    ``e`` the detection's centroid errors), where the "jitter" ``j`` is
+    solved for so that the reduced chi-square is 1: it absorbs what the
+    centroid errors do not predict (undersampling, blends), so that bright
+    stars do not get weights they cannot live up to.  Pairs beyond 4 sigma
+    are rejected, and the matching radius shrinks to 5 sigma.
+    """
+    cls = transform_class(transform_type)
+    fit_parity = parity if transform_type in ("similarity", "euclidean") else None
+    m = m0
+    cur_tol = tol
+    result = None
+    jitter2 = 0.0
+    for _ in range(n_iter):
+        si, dj = _mutual_matches(_apply(m, src_pts), dst_pts, dst_tree, cur_tol)
+        if len(si) < max(cls.min_points, 3):
+            break
+        scale2 = abs(np.linalg.det(m[:2, :2]))
+        if src_err is not None and dst_err is not None:
+            var = scale2 * src_err[si] ** 2 + dst_err[dj] ** 2
+        else:
+            var = np.full(len(si), 0.01)
+        resid = _apply(m, src_pts[si]) - dst_pts[dj]
+        r2 = np.sum(resid**2, axis=1)
+        # Per-axis chi-square: 2 numbers per pair, n_dof parameters.
+        jitter2 = _jitter(r2 / 2.0, var, len(si) - cls.n_dof / 2.0)
+        total = var + jitter2
+        keep = r2 / total <= 2 * 4.0**2 if len(si) > cls.n_dof else np.ones(len(si), bool)
+        if keep.sum() >= max(cls.min_points, 3):
+            si, dj, total = si[keep], dj[keep], total[keep]
+        model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls, parity=fit_parity,
+                                          weights=1.0 / total)
+        result = (model, si, dj, resid, cov, cur_tol)
+        m_new = model.matrix
+        sigma = float(np.sqrt(np.median(total)))
+        new_tol = float(np.clip(5.0 * sigma, min_tol, tol))
+        if np.allclose(m_new, m, rtol=0, atol=1e-10) and new_tol == cur_tol:
+            break
+        m, cur_tol = m_new, new_tol
+    return result
+
+
+def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0,
+                 min_tolerance=0.5, invariant_radius=0.1, n_neighbors=4,
+                 allow_mirror=True, scale_range=None, max_false_alarm=1e-6,
+                 accept_matches=10, batch_size=512, max_hypotheses=50_000,
+                 source_frame=None, target_frame=None, source_errors=None,
+                 target_errors=None, n_control=None):
+    """
+    Find the transform that maps ``src_pts`` onto ``dst_pts``.
+
+    Parameters
+    ----------
+    src_pts, dst_pts : (N, 2) ndarray
+        Star positions, brightest first.
+    transform_type : str, optional
+        'translation', 'euclidean', 'similarity' or 'affine'.
+    tolerance : float, optional
+        Radius (target pixels) within which a transformed source star
+        counts as matching a target star while searching.
+    min_tolerance : float, optional
+        Smallest matching radius the refinement may shrink to.
+    invariant_radius : float, optional
+        Radius for triangle matches in (log) invariant space.
+    n_neighbors : int, optional
+        Neighbours per star when building triangles.
+    allow_mirror : bool, optional
+        Consider mirrored (reflected) solutions (default True).
+    scale_range : (float, float), optional
+        Allowed source-to-target scale.  Defaults to (0.9, 1.1) for
+        'translation' and 'euclidean', and to anything otherwise.
+    max_false_alarm : float, optional
+        Largest accepted probability that the match is chance.
+    accept_matches : int, optional
+        Early acceptance: stop searching once a hypothesis that passes the
+        false-alarm test has this many matched stars (or all the stars).
+    batch_size, max_hypotheses : int, optional
+        Hypotheses scored per batch, and at most in total.
+    source_frame, target_frame : (x0, x1, y0, y1), optional
+        Extent of each image; the points' bounding box by default.
+    source_errors, target_errors : (N,) ndarray, optional
+        Expected position error of each point (pixels); used to weight the
+        final fit.
+    n_control : int, optional
+        Only the first ``n_control`` points (the brightest) form triangles
+        and score hypotheses; all points are used to refine and verify.
+
+    Returns
+    -------
+    result : `MatchResult`
+
+    Raises
+    ------
+    TooFewSourcesError
+        If either list has fewer than 3 points.
+    TransformNotFoundError
+        If no hypothesis passes the false-alarm test.
+    """
+    src_pts = np.asarray(src_pts, float)
+    dst_pts = np.asarray(dst_pts, float)
+    transform_type = transform_class(transform_type).__name__.replace(
+        "Transform", "").lower()
+    for name, pts in (("source", src_pts), ("target", dst_pts)):
+        if len(pts) < 3:
+            raise TooFewSourcesError(
+                f"the {name} has {len(pts)} usable source(s); at least 3 are needed to find "
+                "a transform. Lower nsigma, give fwhm, or pass a catalog of positions."
+            )
+    src_frame = source_frame or _bbox(src_pts)
+    dst_frame = target_frame or _bbox(dst_pts)
+    if scale_range is None and transform_type in ("translation", "euclidean"):
+        scale_range = (0.9, 1.1)
+
+    nc = len(src_pts) if n_control is None else int(n_control)
+    src_ctl, dst_ctl = src_pts[:nc], dst_pts[:nc]
+    src_ast = build_asterisms(src_ctl, n_neighbors=n_neighbors)
+    dst_ast = build_asterisms(dst_ctl, n_neighbors=n_neighbors)
+    pairs, _ = match_triangles(src_ast, dst_ast, invariant_radius, max_matches=max_hypotheses)
+    n_tri = len(pairs)
+    stats = dict(n_source=len(src_pts), n_target=len(dst_pts), n_triangle_matches=n_tri)
+    if n_tri == 0:
+        raise TransformNotFoundError(
+            f"no transform found: the source gave {len(src_pts)} sources and the target "
+            f"{len(dst_pts)}, but no triangle matched between them (best inlier count 0). "
+            "The images may not overlap, or too few stars are in common; try more sources "
+            "(n_sources) or a larger invariant_radius."
+        )
+
+    mats, tri_rms, parity = hypothesis_matrices(src_ast, dst_ast, pairs)
+    ok = np.ones(len(mats), bool)
+    if not allow_mirror:
+        ok &= parity > 0
+    if scale_range is not None:
+        scale = np.sqrt(np.abs(np.linalg.det(mats[:, :2, :2])))
+        ok &= (scale >= scale_range[0]) & (scale <= scale_range[1])
+    if transform_type == "translation":
+        rot = np.arctan2(mats[:, 1, 0], mats[:, 0, 0])
+        ok &= (np.abs(rot) < 0.1) & (parity > 0)
+    sel = np.flatnonzero(ok)
+    mats, tri_rms, parity, pairs = mats[sel], tri_rms[sel], parity[sel], pairs[sel]
+    tri_size = dst_ast.size[pairs[:, 1]] if len(pairs) else np.empty(0)
+
+    dst_tree = cKDTree(dst_pts)
+    ctl_tree = cKDTree(dst_ctl)
+    n_possible = min(len(src_ctl), len(dst_ctl))
+    accept_at = min(accept_matches, n_possible)
+    counts = np.zeros(len(mats), int)
+    best = None
+    tried_refine = set()
+    n_scored = 0
+
+    def evaluate(h):
+        """Refine hypothesis h and compute its false-alarm probability."""
+        res = _refine(mats[h], parity[h], src_pts, dst_pts, dst_tree, transform_type,
+                      tolerance, min_tolerance, source_errors, target_errors)
+        if res is None:
+            return None
+        model, si, dj, resid, cov, tol = res
+        lfa = _log10_false_alarm(model.matrix, src_pts, dst_pts, len(si), tol, src_frame,
+                                 dst_frame, n_scored, tri_rms[h], tri_size[h],
+                                 invariant_radius)
+        return dict(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h)
+
+    for start in range(0, len(mats), batch_size):
+        stop = min(start + batch_size, len(mats))
+        counts[start:stop] = _count_inliers(mats[start:stop], src_ctl, ctl_tree, tolerance)
+        n_scored = stop
+        # Try the best few of this batch (ties broken by invariant distance).
+        order = start + np.argsort(-counts[start:stop], kind="stable")[:3]
+        for h in order:
+            if counts[h] < min(accept_at, 4) and n_possible > 3:
+                break
+            cand = evaluate(h)
+            tried_refine.add(int(h))
+            if cand is None:
+                continue
+            if best is None or cand["lfa"] < best["lfa"]:
+                best = cand
+            if cand["lfa"] <= np.log10(max_false_alarm) and counts[h] >= accept_at:
+                return _result(cand, stats, n_scored)
+    # No early acceptance: refine the overall best few hypotheses.
+    for h in np.argsort(-counts, kind="stable")[:10]:
+        if int(h) in tried_refine or counts[h] < 3:
+            continue
+        cand = evaluate(h)
+        if cand is not None and (best is None or cand["lfa"] < best["lfa"]):
+            best = cand
+    if best is not None and best["lfa"] <= np.log10(max_false_alarm):
+        return _result(best, stats, n_scored)
+    best_count = int(counts.max()) if len(counts) else 0
+    detail = ""
+    if best is not None:
+        detail = (f"; the best candidate matched {len(best['si'])} stars but its "
+                  f"false-alarm probability is 10^{best['lfa']:.1f} (limit {max_false_alarm:g})")
+    raise TransformNotFoundError(
+        f"no trustworthy transform found: the source gave {len(src_pts)} sources and the "
+        f"target {len(dst_pts)}; {n_tri} triangle matches gave {n_scored} hypotheses, the best "
+        f"with {best_count} inliers{detail}. The images may not overlap; otherwise try more "
+        "sources (n_sources), a larger tolerance, or catalogs of positions."
+    )
+
+
+def _bbox(pts):
+    x0, y0 = pts.min(axis=0)
+    x1, y1 = pts.max(axis=0)
+    pad = 0.5
+    return (x0 - pad, x1 + pad, y0 - pad, y1 + pad)
+
+
+def _result(c, stats, n_scored):
+    resid = c["resid"]
+    rms = float(np.sqrt(np.mean(np.sum(resid**2, axis=1)))) if len(resid) else float("nan")
+    return MatchResult(
+        transform=c["model"], source_index=c["si"], target_index=c["dj"], residuals=resid,
+        rms=rms, covariance=c["cov"], log10_false_alarm=c["lfa"], n_hypotheses=n_scored,
+        **stats,
+    )

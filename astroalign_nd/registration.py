@@ -1,0 +1,241 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+The high-level API, top to bottom as the method goes:
+
+``find_transform`` = parse inputs -> detect (`~astroalign_nd.detection`)
+-> triangles (`~astroalign_nd.asterisms`) -> match and verify
+(`~astroalign_nd.matching`) -> model (`~astroalign_nd.transforms`).
+
+``apply_transform`` = resample (`~astroalign_nd.resample`) -> CCDData
+(`~astroalign_nd.ccddata`).  ``register`` = find, then apply.
+"""
+
+import numpy as np
+
+from ._input import parse_input
+from .detection import find_sources
+from .exceptions import TransformNotFoundError
+from .matching import match_points
+from .transforms import transform_class
+
+__all__ = ["find_transform", "find_match", "register", "detect"]
+
+#: Keyword arguments of `find_transform` forwarded to `find_sources`.
+_DETECT_KEYS = ("fwhm", "nsigma", "sharpness_range", "roundness_range", "peak_max",
+                "bin_factor")
+#: Keyword arguments forwarded to `~astroalign_nd.matching.match_points`.
+_MATCH_KEYS = ("tolerance", "min_tolerance", "invariant_radius", "n_neighbors",
+               "allow_mirror", "scale_range", "max_false_alarm", "accept_matches",
+               "batch_size", "max_hypotheses")
+
+
+def detect(parsed, n_sources, **detect_options):
+    """
+    Stars of a parsed input: detected sources, or the catalog.
+
+    Returns
+    -------
+    points : (N, 2) ndarray
+        Brightest first.  For images, up to ``3 * n_sources`` stars: the
+        first ``n_sources`` are the control points, all refine the fit.
+    errors : (N,) ndarray or None
+        Expected position errors (pixels), None for catalogs.
+    frame : (x0, x1, y0, y1) or None
+        The image extent in pixels (None for catalogs).
+    """
+    if parsed.is_catalog:
+        return parsed.points, None, None
+    table = find_sources(parsed.detection_image, mask=parsed.mask, n_sources=3 * n_sources,
+                         **detect_options)
+    ny, nx = parsed.shape
+    pts = np.column_stack([np.asarray(table["x"], float), np.asarray(table["y"], float)])
+    return pts, np.asarray(table["position_error"], float), (-0.5, nx - 0.5, -0.5, ny - 0.5)
+
+
+def _split_options(options):
+    unknown = set(options) - set(_DETECT_KEYS) - set(_MATCH_KEYS)
+    if unknown:
+        raise TypeError(
+            f"unexpected keyword argument(s) {sorted(unknown)}; detection accepts "
+            f"{list(_DETECT_KEYS)} and matching accepts {list(_MATCH_KEYS)}."
+        )
+    det = {k: v for k, v in options.items() if k in _DETECT_KEYS}
+    mat = {k: v for k, v in options.items() if k in _MATCH_KEYS}
+    return det, mat
+
+
+def find_match(source, target, *, transform_type="similarity", n_sources=50,
+               max_sources=200, **options):
+    """
+    Find the transform from ``source`` to ``target`` with its quality.
+
+    Same arguments as `find_transform`; returns the full
+    `~astroalign_nd.matching.MatchResult`, whose ``source_points`` and
+    ``target_points`` (added to ``extra``) hold the matched positions.
+    """
+    transform_class(transform_type)  # validate early, with a clear message
+    n_sources = _positive_int(n_sources, "n_sources")
+    max_sources = max(_positive_int(max_sources, "max_sources"), n_sources)
+    det, mat = _split_options(options)
+    src = parse_input(source, "source")
+    dst = parse_input(target, "target")
+
+    n = n_sources
+    last_error = None
+    while True:
+        src_pts, src_err, src_frame = detect(src, n, **det)
+        dst_pts, dst_err, dst_frame = detect(dst, n, **det)
+        try:
+            result = match_points(src_pts, dst_pts, transform_type=transform_type,
+                                  source_frame=src_frame, target_frame=dst_frame,
+                                  source_errors=src_err, target_errors=dst_err,
+                                  n_control=n, **mat)
+            break
+        except TransformNotFoundError as exc:
+            last_error = exc
+        # Escalate: more control points help crowded fields, small overlaps
+        # and pairs whose brightest stars differ (different bands, depths).
+        more = (len(src_pts) > n or len(dst_pts) > n) and 2 * n <= max_sources
+        if not more:
+            raise last_error
+        n *= 2
+    result.extra.update(
+        source_points=src_pts[result.source_index],
+        target_points=dst_pts[result.target_index],
+        n_sources_used=n,
+    )
+    return result
+
+
+def find_transform(source, target, *, transform_type="similarity", n_sources=50,
+                   max_sources=200, **options):
+    """
+    Find the transform that maps ``source`` pixel coordinates onto ``target``.
+
+    Parameters
+    ----------
+    source, target : array-like, `~astropy.nddata.NDData`, path or catalog
+        2-D (or channels-last) arrays, numpy masked arrays, NDData/CCDData,
+        FITS HDUs or paths (JPEG/PNG/TIFF too), or catalogs: an
+        `~astropy.table.Table` with ``x``/``y`` columns or an (N, 2) array
+        of positions, brightest first.
+    transform_type : {'similarity', 'euclidean', 'translation', 'affine'}, optional
+        The model to fit (default 'similarity': scale, rotation, shift,
+        mirrored or not).
+    n_sources : int, optional
+        Brightest sources used as control points (default 50).
+    max_sources : int, optional
+        If no trustworthy match is found, the number of control points is
+        doubled up to this limit before giving up (default 200).
+    **options
+        Detection options (``fwhm``, ``nsigma``, ``sharpness_range``,
+        ``roundness_range``, ``peak_max``, ``bin_factor``; see
+        `~astroalign_nd.find_sources`) and matching options
+        (``tolerance``, ``min_tolerance``, ``invariant_radius``,
+        ``n_neighbors``, ``allow_mirror``, ``scale_range``,
+        ``max_false_alarm``, ``accept_matches``, ``batch_size``,
+        ``max_hypotheses``; see `~astroalign_nd.matching.match_points`).
+
+    Returns
+    -------
+    transform : `~astroalign_nd.transforms.LinearTransform2D`
+        The source-to-target model.  ``transform.meta['quality']`` holds the
+        number of matched stars, the RMS residual (pixels), the parameter
+        covariance and the log10 false-alarm probability.
+    (source_points, target_points) : tuple of (K, 2) ndarray
+        The matched control points.
+
+    Raises
+    ------
+    TooFewSourcesError
+        If an image gave fewer than 3 sources.
+    TransformNotFoundError
+        If no transform could be found or trusted.
+
+    Examples
+    --------
+    >>> from astroalign_nd import find_transform
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> t, (src, dst) = find_transform(pair.source, pair.target)
+    >>> bool(abs(t.rotation_deg - 30.0) < 0.05)
+    True
+    """
+    result = find_match(source, target, transform_type=transform_type, n_sources=n_sources,
+                        max_sources=max_sources, **options)
+    model = result.transform
+    model.meta["quality"] = quality_dict(result)
+    return model, (result.extra["source_points"], result.extra["target_points"])
+
+
+def quality_dict(result):
+    """The quality figures of a `~astroalign_nd.matching.MatchResult` as a dict."""
+    return dict(
+        n_matches=int(result.n_matches),
+        rms=float(result.rms),
+        covariance=np.array(result.covariance),
+        log10_false_alarm=float(result.log10_false_alarm),
+        n_source=int(result.n_source),
+        n_target=int(result.n_target),
+        n_triangle_matches=int(result.n_triangle_matches),
+        n_hypotheses=int(result.n_hypotheses),
+    )
+
+
+def _positive_int(value, name):
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be a positive integer; got {value!r}.")
+    if value < 3:
+        raise ValueError(f"{name} must be at least 3 (a triangle); got {value}.")
+    return int(value)
+
+
+
+def register(source, target, *, transform_type="similarity", n_sources=50, max_sources=200,
+             order="bicubic", conserve_flux=False, fill_value=np.nan, method="interpolate",
+             unit=None, parallel=True, **options):
+    """
+    Align ``source`` onto ``target``: `find_transform`, then `apply_transform`.
+
+    Parameters
+    ----------
+    source, target
+        As in `find_transform`, but both must be images: the source is
+        resampled onto the target's pixel grid.
+    transform_type, n_sources, max_sources, **options
+        As in `find_transform`.
+    order, conserve_flux, fill_value, method, unit, parallel
+        As in `~astroalign_nd.apply_transform`.
+
+    Returns
+    -------
+    registered : `~astropy.nddata.CCDData`
+        ``source`` on the target's pixel grid, with mask, propagated
+        uncertainty, unit, WCS and a header recording the transform and the
+        quality of the fit.  ``registered.meta`` rebuilds the transform with
+        `~astroalign_nd.transform_from_header`.
+
+    Examples
+    --------
+    >>> from astroalign_nd import register
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> ccd = register(pair.source, pair.target)
+    >>> ccd.shape, ccd.mask.dtype
+    ((256, 256), dtype('bool'))
+    """
+    from .ccddata import apply_transform
+
+    src = parse_input(source, "source")
+    dst = parse_input(target, "target")
+    for name, p in (("source", src), ("target", dst)):
+        if p.is_catalog:
+            raise TypeError(
+                f"register needs images; the {name} is a catalog. Use find_transform with "
+                "catalogs, then apply_transform on the source image."
+            )
+    result = find_match(src, dst, transform_type=transform_type, n_sources=n_sources,
+                        max_sources=max_sources, **options)
+    return apply_transform(result.transform, src, dst, order=order,
+                           conserve_flux=conserve_flux, fill_value=fill_value, method=method,
+                           unit=unit, parallel=parallel, quality=quality_dict(result))

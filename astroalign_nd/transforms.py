@@ -1,0 +1,698 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Geometric transforms between the pixel grids of two images.
+
+Every transform is an `astropy.modeling.Model` with two inputs and two
+outputs, ``(x, y) -> (x', y')``, mapping *source* pixel coordinates to
+*target* pixel coordinates (0-based, ``x`` along columns, as photutils and
+astropy use them).  They compose with any other astropy model
+(``Shift(1) & Shift(2) | SimilarityTransform(...)``), have an analytic
+``inverse``, and expose the attributes that scikit-image and astroalign
+users know: ``params`` / ``matrix`` (3x3 homogeneous matrix), ``scale``,
+``rotation`` (radians) and ``translation``.
+
+Mirrored (reflected) transforms are represented, not rejected: the
+rotation-like models carry a fixed ``parity`` parameter, +1 for a proper
+transform and -1 for one that includes a reflection of the y axis *before*
+the rotation.
+"""
+
+import numpy as np
+from astropy.modeling import Model, Parameter
+
+__all__ = [
+    "LinearTransform2D",
+    "TranslationTransform",
+    "EuclideanTransform",
+    "SimilarityTransform",
+    "AffineTransform",
+    "TRANSFORM_TYPES",
+    "transform_class",
+    "fit_transform",
+    "as_matrix",
+    "from_matrix",
+    "to_skimage",
+    "from_skimage",
+    "to_astropy_affine",
+    "from_astropy_affine",
+]
+
+
+def _as_points(points, name):
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(
+            f"{name} must be an (N, 2) array of (x, y) positions; got an array of shape "
+            f"{pts.shape}."
+        )
+    if not np.all(np.isfinite(pts)):
+        raise ValueError(f"{name} contains NaN or infinite positions; remove them first.")
+    return pts
+
+
+class LinearTransform2D(Model):
+    """
+    Base class of the package's 2-D linear (affine-family) transforms.
+
+    Subclasses define their parameters, ``evaluate`` and the two class
+    methods ``_from_matrix`` and ``_linear_fit``; everything else (``matrix``,
+    ``inverse``, ``from_points``, skimage-style attributes) is shared.
+    """
+
+    n_inputs = 2
+    n_outputs = 2
+    _separable = False
+    fittable = False
+    linear = False
+
+    #: Minimum number of point pairs that determine the transform.
+    min_points = 3
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.inputs = ("x", "y")
+        self.outputs = ("x", "y")
+    #: Degrees of freedom (number of free parameters).
+    n_dof = 6
+
+    # -- matrix representation -------------------------------------------------
+    @property
+    def matrix(self):
+        """The 3x3 homogeneous matrix ``[[a, b, tx], [c, d, ty], [0, 0, 1]]``."""
+        lin, shift = self._linear_part()
+        m = np.eye(3)
+        m[:2, :2] = lin
+        m[:2, 2] = shift
+        return m
+
+    @property
+    def params(self):
+        """Alias of `matrix`, the name scikit-image transforms use."""
+        return self.matrix
+
+    @property
+    def translation(self):
+        """The translation ``(tx, ty)`` in target pixels."""
+        return self.matrix[:2, 2].copy()
+
+    @property
+    def rotation_deg(self):
+        """The rotation in degrees (counter-clockwise)."""
+        return float(np.degrees(np.asarray(self.rotation, dtype=float)))
+
+    @property
+    def mirrored(self):
+        """True if the transform contains a reflection (negative determinant)."""
+        return bool(np.linalg.det(self.matrix[:2, :2]) < 0)
+
+    def _linear_part(self):
+        # Evaluate the model on the unit basis: works for every subclass.  The
+        # translation parameters are zeroed for that and used directly as the
+        # shift, so that the matrix is exact (differencing ``A e + t`` and ``t``
+        # loses the low bits of ``A`` when the shift is much larger).
+        values = {
+            name: float(np.asarray(getattr(self, name).value).ravel()[0])
+            for name in self.param_names
+        }
+        shift = None
+        if "translation_x" in values and "translation_y" in values:
+            shift = np.array([values["translation_x"], values["translation_y"]])
+            values["translation_x"] = values["translation_y"] = 0.0
+        x = np.array([0.0, 1.0, 0.0])
+        y = np.array([0.0, 0.0, 1.0])
+        xo, yo = self.evaluate(x, y, *[values[name] for name in self.param_names])
+        if shift is None:
+            shift = np.array([xo[0], yo[0]])
+        lin = np.array([[xo[1] - xo[0], xo[2] - xo[0]], [yo[1] - yo[0], yo[2] - yo[0]]])
+        return lin, shift
+
+    @property
+    def parameters_list(self):
+        return [getattr(self, name).value for name in self.param_names]
+
+    @property
+    def inverse(self):
+        return type(self).from_matrix(np.linalg.inv(self.matrix))
+
+    # -- construction ----------------------------------------------------------
+    @classmethod
+    def from_matrix(cls, matrix):
+        """
+        Build the transform from a 2x3 or 3x3 homogeneous matrix.
+
+        Raises
+        ------
+        ValueError
+            If the matrix cannot be represented by this class (for example a
+            sheared matrix given to `SimilarityTransform`).
+        """
+        m = np.asarray(matrix, dtype=float)
+        if m.shape == (2, 3):
+            m = np.vstack([m, [0.0, 0.0, 1.0]])
+        if m.shape != (3, 3):
+            raise ValueError(f"matrix must have shape (3, 3) or (2, 3); got {m.shape}.")
+        if not np.all(np.isfinite(m)):
+            raise ValueError("matrix contains NaN or infinite values.")
+        if not np.allclose(m[2], [0.0, 0.0, 1.0]):
+            raise ValueError(
+                "matrix is projective (last row is not [0, 0, 1]); only affine-family "
+                "transforms are supported."
+            )
+        return cls._from_matrix(m)
+
+    @classmethod
+    def from_points(cls, src, dst, *, weights=None, parity=None):
+        """
+        Least-squares transform that maps ``src`` onto ``dst``.
+
+        Parameters
+        ----------
+        src, dst : (N, 2) array-like
+            Corresponding (x, y) positions in the source and target frames.
+        weights : (N,) array-like, optional
+            Non-negative weights of the point pairs.
+        parity : {None, 1, -1}, optional
+            For rotation-like transforms: force a proper (+1) or mirrored
+            (-1) solution.  `None` (default) picks whichever fits better.
+
+        Returns
+        -------
+        transform : `LinearTransform2D`
+            An instance of the class it is called on.
+        """
+        model, _, _ = cls._fit(src, dst, weights=weights, parity=parity)
+        return model
+
+    @classmethod
+    def _fit(cls, src, dst, *, weights=None, parity=None):
+        """Fit and also return the linear parameter covariance and residuals."""
+        src = _as_points(src, "src")
+        dst = _as_points(dst, "dst")
+        if len(src) != len(dst):
+            raise ValueError(
+                f"src and dst must have the same length; got {len(src)} and {len(dst)}."
+            )
+        need = cls.min_points
+        if len(src) < need:
+            raise ValueError(
+                f"{cls.__name__} needs at least {need} point pairs; got {len(src)}."
+            )
+        w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=float)
+        if w.shape != (len(src),) or np.any(w < 0) or not np.all(np.isfinite(w)):
+            raise ValueError("weights must be a finite, non-negative (N,) array.")
+        parities = [parity] if parity is not None else cls._parities
+        best = None
+        for p in parities:
+            matrix, design, theta = cls._linear_fit(src, dst, w, p)
+            resid = _apply(matrix, src) - dst
+            sse = float(np.sum(w * np.sum(resid**2, axis=1)))
+            if best is None or sse < best[0] - 1e-12 * max(1.0, best[0]):
+                best = (sse, matrix, design, resid)
+        sse, matrix, design, resid = best
+        return cls._from_matrix(matrix), design, resid
+
+    _parities = (1,)
+
+
+def _apply(matrix, pts):
+    return pts @ matrix[:2, :2].T + matrix[:2, 2]
+
+
+def _weighted_lstsq(a, b, w):
+    sw = np.sqrt(np.repeat(w, a.shape[0] // len(w)))
+    theta, *_ = np.linalg.lstsq(a * sw[:, None], b * sw, rcond=None)
+    return theta
+
+
+class TranslationTransform(LinearTransform2D):
+    """
+    A pure shift: ``x' = x + tx``, ``y' = y + ty``.
+
+    Parameters
+    ----------
+    translation_x, translation_y : float
+        The shift in target pixels.
+    """
+
+    translation_x = Parameter(default=0.0, description="Shift along x (pixels)")
+    translation_y = Parameter(default=0.0, description="Shift along y (pixels)")
+    min_points = 1
+    n_dof = 2
+
+    @staticmethod
+    def evaluate(x, y, translation_x, translation_y):
+        return x + translation_x, y + translation_y
+
+    @property
+    def scale(self):
+        """Always 1."""
+        return 1.0
+
+    @property
+    def rotation(self):
+        """Always 0 (radians)."""
+        return 0.0
+
+    @classmethod
+    def _from_matrix(cls, m):
+        if not np.allclose(m[:2, :2], np.eye(2), rtol=0.0, atol=1e-9):
+            raise ValueError(
+                "matrix has a rotation, scale or shear part; use SimilarityTransform or "
+                "AffineTransform instead of TranslationTransform."
+            )
+        return cls(translation_x=m[0, 2], translation_y=m[1, 2])
+
+    @classmethod
+    def _linear_fit(cls, src, dst, w, parity):
+        shift = np.sum(w[:, None] * (dst - src), axis=0) / np.sum(w)
+        m = np.eye(3)
+        m[:2, 2] = shift
+        design = np.tile(np.eye(2), (len(src), 1))
+        return m, design, shift
+
+
+def _rotation_matrix(angle, parity):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s * parity], [s, c * parity]])
+
+
+def _check_parity(parity):
+    if parity not in (1, -1, 1.0, -1.0):
+        raise ValueError(f"parity must be +1 (proper) or -1 (mirrored); got {parity!r}.")
+
+
+class EuclideanTransform(LinearTransform2D):
+    """
+    Rotation plus shift (rigid motion), optionally mirrored.
+
+    ``(x', y') = R(rotation) @ diag(1, parity) @ (x, y) + (tx, ty)``
+
+    Parameters
+    ----------
+    rotation : float
+        Counter-clockwise rotation in radians (the scikit-image convention).
+    translation_x, translation_y : float
+        Shift in target pixels.
+    parity : {1, -1}
+        -1 for a mirrored transform (the y axis is flipped before rotating).
+        Fixed, never fitted as a continuous parameter.
+    """
+
+    rotation = Parameter(default=0.0, description="Rotation (radians, counter-clockwise)")
+    translation_x = Parameter(default=0.0, description="Shift along x (pixels)")
+    translation_y = Parameter(default=0.0, description="Shift along y (pixels)")
+    parity = Parameter(default=1.0, fixed=True, description="+1 proper, -1 mirrored")
+    min_points = 2
+    n_dof = 3
+    _parities = (1, -1)
+
+    @staticmethod
+    def evaluate(x, y, rotation, translation_x, translation_y, parity):
+        c, s = np.cos(rotation), np.sin(rotation)
+        yp = parity * y
+        return c * x - s * yp + translation_x, s * x + c * yp + translation_y
+
+    @property
+    def scale(self):
+        """Always 1."""
+        return 1.0
+
+    @classmethod
+    def _from_matrix(cls, m):
+        lin = m[:2, :2]
+        det = np.linalg.det(lin)
+        parity = 1.0 if det >= 0 else -1.0
+        r = lin @ np.diag([1.0, parity])
+        if not np.allclose(r.T @ r, np.eye(2), rtol=0.0, atol=1e-9):
+            raise ValueError(
+                "matrix has a scale or shear part; use SimilarityTransform or "
+                "AffineTransform instead of EuclideanTransform."
+            )
+        return cls(
+            rotation=np.arctan2(r[1, 0], r[0, 0]),
+            translation_x=m[0, 2],
+            translation_y=m[1, 2],
+            parity=parity,
+        )
+
+    @classmethod
+    def _linear_fit(cls, src, dst, w, parity):
+        # Weighted Procrustes (Kabsch) with the reflection fixed by ``parity``.
+        _check_parity(parity)
+        flip = np.diag([1.0, float(parity)])
+        s = src @ flip
+        ws = w / np.sum(w)
+        ms, md = ws @ s, ws @ dst
+        cov = ((dst - md) * ws[:, None]).T @ (s - ms)
+        angle = np.arctan2(cov[1, 0] - cov[0, 1], cov[0, 0] + cov[1, 1])
+        rot = _rotation_matrix(angle, 1.0)
+        m = np.eye(3)
+        m[:2, :2] = rot @ flip
+        m[:2, 2] = md - rot @ ms
+        # Linearised design for the covariance: d(angle), d(tx), d(ty).
+        n = len(src)
+        design = np.zeros((2 * n, 3))
+        design[0::2, 0] = -(s @ rot.T)[:, 1]
+        design[1::2, 0] = (s @ rot.T)[:, 0]
+        design[0::2, 1] = 1.0
+        design[1::2, 2] = 1.0
+        return m, design, np.array([angle, *m[:2, 2]])
+
+
+class SimilarityTransform(LinearTransform2D):
+    """
+    Uniform scale, rotation and shift, optionally mirrored.
+
+    ``(x', y') = scale * R(rotation) @ diag(1, parity) @ (x, y) + (tx, ty)``
+
+    This is the default model of `~astroalign_nd.find_transform`, and the
+    transform of the astroalign paper.
+
+    Parameters
+    ----------
+    scale : float
+        Magnification from source to target pixels.
+    rotation : float
+        Counter-clockwise rotation in radians (the scikit-image convention).
+    translation_x, translation_y : float
+        Shift in target pixels.
+    parity : {1, -1}
+        -1 for a mirrored transform (the y axis is flipped before rotating
+        and scaling).  Fixed, never fitted as a continuous parameter.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd import SimilarityTransform
+    >>> t = SimilarityTransform(scale=2.0, rotation=np.pi / 2,
+    ...                         translation_x=10.0, translation_y=0.0)
+    >>> t(1.0, 0.0)
+    (10.0, 2.0)
+    >>> np.allclose(t.inverse(*t(3.0, 4.0)), (3.0, 4.0))
+    True
+    """
+
+    scale = Parameter(default=1.0, description="Scale factor")
+    rotation = Parameter(default=0.0, description="Rotation (radians, counter-clockwise)")
+    translation_x = Parameter(default=0.0, description="Shift along x (pixels)")
+    translation_y = Parameter(default=0.0, description="Shift along y (pixels)")
+    parity = Parameter(default=1.0, fixed=True, description="+1 proper, -1 mirrored")
+    min_points = 2
+    n_dof = 4
+    _parities = (1, -1)
+
+    @staticmethod
+    def evaluate(x, y, scale, rotation, translation_x, translation_y, parity):
+        c, s = scale * np.cos(rotation), scale * np.sin(rotation)
+        yp = parity * y
+        return c * x - s * yp + translation_x, s * x + c * yp + translation_y
+
+    @classmethod
+    def _from_matrix(cls, m):
+        lin = m[:2, :2]
+        det = np.linalg.det(lin)
+        if det == 0:
+            raise ValueError("matrix is singular; it cannot be a similarity transform.")
+        parity = 1.0 if det > 0 else -1.0
+        r = lin @ np.diag([1.0, parity])
+        scale = np.sqrt(abs(det))
+        if not np.allclose(r.T @ r, scale**2 * np.eye(2), rtol=0.0, atol=1e-9 * scale**2):
+            raise ValueError(
+                "matrix has a shear or anisotropic scale; use AffineTransform instead of "
+                "SimilarityTransform."
+            )
+        return cls(
+            scale=scale,
+            rotation=np.arctan2(r[1, 0], r[0, 0]),
+            translation_x=m[0, 2],
+            translation_y=m[1, 2],
+            parity=parity,
+        )
+
+    @classmethod
+    def _linear_fit(cls, src, dst, w, parity):
+        # Linear in (a, b, tx, ty): x' = a x - b p y + tx ; y' = b x + a p y + ty.
+        _check_parity(parity)
+        x, y = src[:, 0], float(parity) * src[:, 1]
+        n = len(src)
+        design = np.zeros((2 * n, 4))
+        design[0::2] = np.column_stack([x, -y, np.ones(n), np.zeros(n)])
+        design[1::2] = np.column_stack([y, x, np.zeros(n), np.ones(n)])
+        a, b, tx, ty = _weighted_lstsq(design, dst.ravel(), w)
+        m = np.array([[a, -b * parity, tx], [b, a * parity, ty], [0.0, 0.0, 1.0]])
+        return m, design, np.array([a, b, tx, ty])
+
+
+class AffineTransform(LinearTransform2D):
+    """
+    General affine transform: ``(x', y') = A @ (x, y) + (tx, ty)``.
+
+    Parameters
+    ----------
+    a11, a12, a21, a22 : float
+        The elements of the 2x2 linear part ``A``.
+    translation_x, translation_y : float
+        Shift in target pixels.
+    """
+
+    a11 = Parameter(default=1.0)
+    a12 = Parameter(default=0.0)
+    a21 = Parameter(default=0.0)
+    a22 = Parameter(default=1.0)
+    translation_x = Parameter(default=0.0, description="Shift along x (pixels)")
+    translation_y = Parameter(default=0.0, description="Shift along y (pixels)")
+    min_points = 3
+    n_dof = 6
+
+    @staticmethod
+    def evaluate(x, y, a11, a12, a21, a22, translation_x, translation_y):
+        return a11 * x + a12 * y + translation_x, a21 * x + a22 * y + translation_y
+
+    @property
+    def scale(self):
+        """Scale along the two axes ``(sx, sy)``, as scikit-image defines it."""
+        lin = self.matrix[:2, :2]
+        # scikit-image: sy is the length of the second column times |cos(shear)|.
+        return np.array([
+            np.hypot(lin[0, 0], lin[1, 0]),
+            np.hypot(lin[0, 1], lin[1, 1]) * abs(np.cos(self.shear)),
+        ])
+
+    @property
+    def rotation(self):
+        """Rotation of the x axis, radians (scikit-image's definition)."""
+        lin = self.matrix[:2, :2]
+        return float(np.arctan2(lin[1, 0], lin[0, 0]))
+
+    @property
+    def shear(self):
+        """Shear angle in radians (scikit-image's definition)."""
+        lin = self.matrix[:2, :2]
+        return float(np.arctan2(-lin[0, 1], lin[1, 1]) - self.rotation)
+
+    @classmethod
+    def _from_matrix(cls, m):
+        return cls(
+            a11=m[0, 0], a12=m[0, 1], a21=m[1, 0], a22=m[1, 1],
+            translation_x=m[0, 2], translation_y=m[1, 2],
+        )
+
+    @classmethod
+    def _linear_fit(cls, src, dst, w, parity):
+        n = len(src)
+        design = np.zeros((2 * n, 6))
+        design[0::2, 0:2] = src
+        design[0::2, 4] = 1.0
+        design[1::2, 2:4] = src
+        design[1::2, 5] = 1.0
+        a11, a12, a21, a22, tx, ty = _weighted_lstsq(design, dst.ravel(), w)
+        m = np.array([[a11, a12, tx], [a21, a22, ty], [0.0, 0.0, 1.0]])
+        return m, design, np.array([a11, a12, a21, a22, tx, ty])
+
+
+#: The ``transform_type`` names accepted by `~astroalign_nd.find_transform`.
+TRANSFORM_TYPES = {
+    "translation": TranslationTransform,
+    "euclidean": EuclideanTransform,
+    "similarity": SimilarityTransform,
+    "affine": AffineTransform,
+}
+
+
+def transform_class(transform_type):
+    """
+    Return the model class for a ``transform_type`` name or class.
+
+    Parameters
+    ----------
+    transform_type : str or type
+        One of ``'translation'``, ``'euclidean'``, ``'similarity'``,
+        ``'affine'``, or one of the classes themselves.
+    """
+    if isinstance(transform_type, type) and issubclass(transform_type, LinearTransform2D):
+        return transform_type
+    if isinstance(transform_type, str) and transform_type.lower() in TRANSFORM_TYPES:
+        return TRANSFORM_TYPES[transform_type.lower()]
+    raise ValueError(
+        f"transform_type must be one of {sorted(TRANSFORM_TYPES)} (or one of their "
+        f"classes); got {transform_type!r}."
+    )
+
+
+def fit_transform(src, dst, transform_type="similarity", *, weights=None, parity=None):
+    """
+    Least-squares fit of a transform, with its parameter covariance.
+
+    Parameters
+    ----------
+    src, dst : (N, 2) array-like
+        Matched (x, y) positions in the source and target frames.
+    transform_type : str or type, optional
+        See `transform_class`.
+    weights : (N,) array-like, optional
+        Weights of the point pairs.
+    parity : {None, 1, -1}, optional
+        Force a proper or mirrored solution for rotation-like models.
+
+    Returns
+    -------
+    transform : `LinearTransform2D`
+    covariance : ndarray
+        Covariance matrix of the model's free parameters (in the order of
+        ``transform.param_names``, without the fixed ``parity``), scaled by
+        the residual variance.  NaN where there are no spare degrees of
+        freedom.
+    residuals : (N, 2) ndarray
+        ``transform(src) - dst`` in target pixels.
+    """
+    cls = transform_class(transform_type)
+    model, design, resid = cls._fit(src, dst, weights=weights, parity=parity)
+    return model, _covariance(model, design, resid, weights), resid
+
+
+def _free_params(model):
+    return [n for n in model.param_names if not model.fixed[n]]
+
+
+def _covariance(model, design, resid, weights):
+    """Parameter covariance via the linear design and a numerical Jacobian."""
+    n_obs, n_lin = design.shape
+    free = _free_params(model)
+    dof = n_obs - n_lin
+    if dof <= 0:
+        return np.full((len(free), len(free)), np.nan)
+    w = np.ones(len(resid)) if weights is None else np.asarray(weights, float)
+    sw = np.repeat(w, 2)
+    sigma2 = float(np.sum(sw * resid.ravel() ** 2) / dof)
+    xtx = design.T @ (design * sw[:, None])
+    try:
+        cov_lin = sigma2 * np.linalg.inv(xtx)
+    except np.linalg.LinAlgError:
+        return np.full((len(free), len(free)), np.nan)
+    # Map linear parameters to model parameters: they coincide for
+    # translation, euclidean and affine; similarity goes (a, b) -> (scale, rot).
+    if isinstance(model, SimilarityTransform):
+        m = model.matrix
+        a, b = m[0, 0], m[1, 0]
+        r2 = a * a + b * b
+        s = np.sqrt(r2)
+        jac = np.zeros((4, 4))
+        jac[0, :2] = [a / s, b / s]
+        jac[1, :2] = [-b / r2, a / r2]
+        jac[2, 2] = jac[3, 3] = 1.0
+        return jac @ cov_lin @ jac.T
+    return cov_lin
+
+
+# -- interoperability ----------------------------------------------------------
+
+def as_matrix(transform):
+    """
+    The 3x3 homogeneous matrix of any supported transform.
+
+    Accepts the package's models, a 3x3 or 2x3 array, a scikit-image
+    geometric transform (anything with a ``params`` matrix) or an astropy
+    `~astropy.modeling.projections.AffineTransformation2D`.
+    """
+    from astropy.modeling.projections import AffineTransformation2D
+
+    if isinstance(transform, LinearTransform2D):
+        return transform.matrix
+    if isinstance(transform, AffineTransformation2D):
+        m = np.eye(3)
+        m[:2, :2] = transform.matrix.value
+        m[:2, 2] = transform.translation.value
+        return m
+    if isinstance(transform, Model):
+        if transform.n_inputs == 2 and transform.n_outputs == 2:
+            # Any other linear 2-D model: probe it on three points and check linearity.
+            pts = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1000.0, 1000.0]])
+            xo, yo = transform(pts[:, 0], pts[:, 1])
+            xo, yo = np.asarray(xo, float), np.asarray(yo, float)
+            m = np.eye(3)
+            m[:2, 2] = [xo[0], yo[0]]
+            m[:2, :2] = [[xo[1] - xo[0], xo[2] - xo[0]], [yo[1] - yo[0], yo[2] - yo[0]]]
+            pred = _apply(m, pts[3:4])[0]
+            if np.allclose(pred, [xo[3], yo[3]], rtol=1e-9, atol=1e-6):
+                return m
+            raise ValueError(f"{type(transform).__name__} is not an affine transform.")
+        raise TypeError("an astropy model used as a transform must have 2 inputs and 2 outputs.")
+    params = getattr(transform, "params", transform)
+    m = np.asarray(params, dtype=float)
+    if m.shape == (2, 3):
+        m = np.vstack([m, [0.0, 0.0, 1.0]])
+    if m.shape != (3, 3):
+        raise TypeError(
+            "transform must be an astroalign_nd transform, an astropy model, a scikit-image "
+            f"geometric transform or a 3x3 matrix; got {type(transform).__name__}."
+        )
+    return m
+
+
+def from_matrix(matrix, transform_type=None):
+    """
+    Build a package transform from a 3x3 (or 2x3) matrix.
+
+    With ``transform_type=None`` the simplest class that represents the
+    matrix exactly is chosen (translation, then euclidean, similarity, affine).
+    """
+    m = as_matrix(matrix)
+    if transform_type is not None:
+        return transform_class(transform_type).from_matrix(m)
+    for cls in (TranslationTransform, EuclideanTransform, SimilarityTransform):
+        try:
+            return cls.from_matrix(m)
+        except ValueError:
+            continue
+    return AffineTransform.from_matrix(m)
+
+
+def to_skimage(transform):
+    """Convert to the matching `skimage.transform` geometric transform."""
+    from skimage import transform as sktf
+
+    m = as_matrix(transform)
+    if isinstance(transform, (TranslationTransform, EuclideanTransform)) and not transform.mirrored:
+        return sktf.EuclideanTransform(matrix=m)
+    if isinstance(transform, SimilarityTransform) and not transform.mirrored:
+        return sktf.SimilarityTransform(matrix=m)
+    # skimage's similarity/euclidean classes cannot hold a reflection.
+    return sktf.AffineTransform(matrix=m)
+
+
+def from_skimage(sk_transform, transform_type=None):
+    """Convert a scikit-image geometric transform (anything with ``params``)."""
+    return from_matrix(np.asarray(sk_transform.params, dtype=float), transform_type)
+
+
+def to_astropy_affine(transform):
+    """Convert to `astropy.modeling.projections.AffineTransformation2D`."""
+    from astropy.modeling.projections import AffineTransformation2D
+
+    m = as_matrix(transform)
+    return AffineTransformation2D(matrix=m[:2, :2], translation=m[:2, 2])
+
+
+def from_astropy_affine(model, transform_type=None):
+    """Convert an `~astropy.modeling.projections.AffineTransformation2D`."""
+    return from_matrix(as_matrix(model), transform_type)
