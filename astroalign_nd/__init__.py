@@ -20,15 +20,16 @@ from .exceptions import (AstroalignError, AstroalignWarning, PoorFitWarning,
 from .detection import find_sources
 from .transforms import (AffineTransform, EuclideanTransform, LinearTransform2D,
                          SimilarityTransform, TranslationTransform)
-from .registration import find_match, find_transform, register
+from .registration import Reference, find_match, find_transform, register
 from .ccddata import apply_transform
+from .batch import register_batch
 from .io import transform_from_header, transform_to_header
 
 __all__ = [
     "__version__",
     "AstroalignError", "AstroalignWarning", "PoorFitWarning", "TooFewSourcesError",
     "TransformNotFoundError",
-    "find_sources", "find_transform", "find_match", "register", "apply_transform",
+    "find_sources", "find_transform", "find_match", "register", "apply_transform", "Reference", "register_batch",
     "LinearTransform2D", "TranslationTransform", "EuclideanTransform", "SimilarityTransform",
     "AffineTransform",
     "transform_to_header", "transform_from_header",

@@ -211,6 +211,8 @@ def parse_input(obj, name="input"):
         raise TypeError(f"{name} is None; pass an image, NDData/CCDData, FITS path or catalog.")
     if isinstance(obj, ParsedInput):
         return obj
+    if isinstance(getattr(obj, "parsed", None), ParsedInput):  # a Reference
+        return obj.parsed
     if isinstance(obj, (str, os.PathLike)):
         return _read_path(obj, name)
     if isinstance(obj, fits.HDUList):

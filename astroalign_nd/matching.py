@@ -276,7 +276,8 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
                  allow_mirror=True, scale_range=None, max_false_alarm=1e-6,
                  accept_matches=10, batch_size=512, max_hypotheses=50_000,
                  source_frame=None, target_frame=None, source_errors=None,
-                 target_errors=None, n_control=None):
+                 target_errors=None, n_control=None, source_asterisms=None,
+                 target_asterisms=None):
     """
     Find the transform that maps ``src_pts`` onto ``dst_pts``.
 
@@ -315,6 +316,9 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     n_control : int, optional
         Only the first ``n_control`` points (the brightest) form triangles
         and score hypotheses; all points are used to refine and verify.
+    source_asterisms, target_asterisms : `~astroalign_nd.asterisms.Asterisms`, optional
+        Triangles of the first ``n_control`` points, when already built
+        (a reference frame used for many registrations builds them once).
 
     Returns
     -------
@@ -344,8 +348,8 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
 
     nc = len(src_pts) if n_control is None else int(n_control)
     src_ctl, dst_ctl = src_pts[:nc], dst_pts[:nc]
-    src_ast = build_asterisms(src_ctl, n_neighbors=n_neighbors)
-    dst_ast = build_asterisms(dst_ctl, n_neighbors=n_neighbors)
+    src_ast = source_asterisms or build_asterisms(src_ctl, n_neighbors=n_neighbors)
+    dst_ast = target_asterisms or build_asterisms(dst_ctl, n_neighbors=n_neighbors)
     pairs, _ = match_triangles(src_ast, dst_ast, invariant_radius, max_matches=max_hypotheses)
     n_tri = len(pairs)
     stats = dict(n_source=len(src_pts), n_target=len(dst_pts), n_triangle_matches=n_tri)

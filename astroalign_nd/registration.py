@@ -15,10 +15,11 @@ import numpy as np
 from ._input import parse_input
 from .detection import find_sources
 from .exceptions import TransformNotFoundError
+from .asterisms import build_asterisms
 from .matching import match_points
 from .transforms import transform_class
 
-__all__ = ["find_transform", "find_match", "register", "detect"]
+__all__ = ["find_transform", "find_match", "register", "Reference"]
 
 #: Keyword arguments of `find_transform` forwarded to `find_sources`.
 _DETECT_KEYS = ("fwhm", "nsigma", "sharpness_range", "roundness_range", "peak_max",
@@ -29,27 +30,92 @@ _MATCH_KEYS = ("tolerance", "min_tolerance", "invariant_radius", "n_neighbors",
                "batch_size", "max_hypotheses")
 
 
-def detect(parsed, n_sources, **detect_options):
+class Reference:
     """
-    Stars of a parsed input: detected sources, or the catalog.
+    A frame prepared once for many registrations.
 
-    Returns
-    -------
-    points : (N, 2) ndarray
-        Brightest first.  For images, up to ``3 * n_sources`` stars: the
-        first ``n_sources`` are the control points, all refine the fit.
-    errors : (N,) ndarray or None
-        Expected position errors (pixels), None for catalogs.
-    frame : (x0, x1, y0, y1) or None
-        The image extent in pixels (None for catalogs).
+    Detection, and the triangles of its control points, are computed on
+    first use and kept, so registering thousands of frames onto one
+    reference pays for the reference only once.  Pass it wherever a
+    ``target`` (or ``source``) is accepted.
+
+    Parameters
+    ----------
+    image : array-like, `~astropy.nddata.NDData`, HDU, path or catalog
+        Anything `find_transform` accepts.
+    **detect_options
+        Options of `~astroalign_nd.find_sources` (``fwhm``, ``nsigma``...).
+
+    Examples
+    --------
+    >>> from astroalign_nd import Reference, find_transform
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> ref = Reference(pair.target)
+    >>> t, _ = find_transform(pair.source, ref)
     """
-    if parsed.is_catalog:
-        return parsed.points, None, None
-    table = find_sources(parsed.detection_image, mask=parsed.mask, n_sources=3 * n_sources,
-                         **detect_options)
-    ny, nx = parsed.shape
-    pts = np.column_stack([np.asarray(table["x"], float), np.asarray(table["y"], float)])
-    return pts, np.asarray(table["position_error"], float), (-0.5, nx - 0.5, -0.5, ny - 0.5)
+
+    def __init__(self, image, **detect_options):
+        unknown = set(detect_options) - set(_DETECT_KEYS)
+        if unknown:
+            raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}; Reference "
+                            f"accepts the detection options {list(_DETECT_KEYS)}.")
+        self.parsed = parse_input(image, "reference")
+        self.detect_options = detect_options
+        self._stars = {}
+        self._asterisms = {}
+
+    @property
+    def shape(self):
+        """(ny, nx) of the image, None for a catalog."""
+        return self.parsed.shape
+
+    def stars(self, n_sources):
+        """
+        Stars for ``n_sources`` control points (cached).
+
+        Returns
+        -------
+        points : (N, 2) ndarray
+            Brightest first.  For images, up to ``3 * n_sources`` stars:
+            the first ``n_sources`` are the control points, all of them
+            refine the fit.
+        errors : (N,) ndarray or None
+            Expected position errors (pixels); None for catalogs.
+        frame : (x0, x1, y0, y1) or None
+            The image extent in pixels; None for catalogs.
+        """
+        if n_sources not in self._stars:
+            p = self.parsed
+            if p.is_catalog:
+                self._stars[n_sources] = (p.points, None, None)
+            else:
+                table = find_sources(p.detection_image, mask=p.mask,
+                                     n_sources=3 * n_sources, **self.detect_options)
+                ny, nx = p.shape
+                pts = np.column_stack([np.asarray(table["x"], float),
+                                       np.asarray(table["y"], float)])
+                self._stars[n_sources] = (pts, np.asarray(table["position_error"], float),
+                                          (-0.5, nx - 0.5, -0.5, ny - 0.5))
+        return self._stars[n_sources]
+
+    def asterisms(self, n_sources, n_neighbors=4):
+        """Triangles of the ``n_sources`` brightest stars (cached)."""
+        key = (n_sources, n_neighbors)
+        if key not in self._asterisms:
+            pts = self.stars(n_sources)[0][:n_sources]
+            self._asterisms[key] = build_asterisms(pts, n_neighbors=n_neighbors)
+        return self._asterisms[key]
+
+
+def _as_reference(obj, name, detect_options):
+    if isinstance(obj, Reference):
+        return obj
+    ref = Reference.__new__(Reference)
+    ref.parsed = parse_input(obj, name)
+    ref.detect_options = detect_options
+    ref._stars, ref._asterisms = {}, {}
+    return ref
 
 
 def _split_options(options):
@@ -77,27 +143,26 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
     n_sources = _positive_int(n_sources, "n_sources")
     max_sources = max(_positive_int(max_sources, "max_sources"), n_sources)
     det, mat = _split_options(options)
-    src = parse_input(source, "source")
-    dst = parse_input(target, "target")
+    src = _as_reference(source, "source", det)
+    dst = _as_reference(target, "target", det)
+    n_neighbors = mat.get("n_neighbors", 4)
 
     n = n_sources
-    last_error = None
     while True:
-        src_pts, src_err, src_frame = detect(src, n, **det)
-        dst_pts, dst_err, dst_frame = detect(dst, n, **det)
+        src_pts, src_err, src_frame = src.stars(n)
+        dst_pts, dst_err, dst_frame = dst.stars(n)
         try:
             result = match_points(src_pts, dst_pts, transform_type=transform_type,
                                   source_frame=src_frame, target_frame=dst_frame,
                                   source_errors=src_err, target_errors=dst_err,
-                                  n_control=n, **mat)
+                                  n_control=n, source_asterisms=src.asterisms(n, n_neighbors),
+                                  target_asterisms=dst.asterisms(n, n_neighbors), **mat)
             break
-        except TransformNotFoundError as exc:
-            last_error = exc
-        # Escalate: more control points help crowded fields, small overlaps
-        # and pairs whose brightest stars differ (different bands, depths).
-        more = (len(src_pts) > n or len(dst_pts) > n) and 2 * n <= max_sources
-        if not more:
-            raise last_error
+        except TransformNotFoundError:
+            # Escalate: more control points help crowded fields, small
+            # overlaps and pairs whose brightest stars differ.
+            if not ((len(src_pts) > n or len(dst_pts) > n) and 2 * n <= max_sources):
+                raise
         n *= 2
     result.extra.update(
         source_points=src_pts[result.source_index],
@@ -226,9 +291,10 @@ def register(source, target, *, transform_type="similarity", n_sources=50, max_s
     """
     from .ccddata import apply_transform
 
-    src = parse_input(source, "source")
-    dst = parse_input(target, "target")
-    for name, p in (("source", src), ("target", dst)):
+    det, _ = _split_options(options)
+    src = _as_reference(source, "source", det)
+    dst = _as_reference(target, "target", det)
+    for name, p in (("source", src.parsed), ("target", dst.parsed)):
         if p.is_catalog:
             raise TypeError(
                 f"register needs images; the {name} is a catalog. Use find_transform with "
@@ -236,6 +302,6 @@ def register(source, target, *, transform_type="similarity", n_sources=50, max_s
             )
     result = find_match(src, dst, transform_type=transform_type, n_sources=n_sources,
                         max_sources=max_sources, **options)
-    return apply_transform(result.transform, src, dst, order=order,
+    return apply_transform(result.transform, src.parsed, dst.parsed, order=order,
                            conserve_flux=conserve_flux, fill_value=fill_value, method=method,
                            unit=unit, parallel=parallel, quality=quality_dict(result))

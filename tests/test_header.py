@@ -144,6 +144,21 @@ def test_human_readable_keywords():
     assert translation["AATPAR"] == 1
 
 
+def test_rotation_keyword_is_wrapped():
+    model = EuclideanTransform(rotation=np.radians(30.0) + 4 * np.pi, translation_x=0.0,
+                               translation_y=0.0)
+    header = transform_to_header(model)
+    assert header["AATROT"] == pytest.approx(30.0)
+    _assert_same_evaluation(model, transform_from_header(header))
+
+
+def test_non_finite_transform_rejected():
+    model = SimilarityTransform(scale=np.nan, rotation=0.0, translation_x=0.0,
+                                translation_y=0.0)
+    with pytest.raises(ValueError, match="NaN"):
+        transform_to_header(model)
+
+
 def test_all_keywords_fit_in_eight_characters():
     header = transform_to_header(TRANSFORMS["affine"])
     header.update(transform_to_header(TRANSFORMS["similarity"]))

@@ -5,7 +5,7 @@ Storing transforms in files.
 * FITS headers: `transform_to_header` / `transform_from_header` write and
   read a linear 2-D transform as ``AAT*`` keywords.
 * ASDF: any transform, alone or inside an astropy compound model, through
-  the extension in `astroalign_nd.io.asdf` (registered with asdf by entry
+  the extension in ``astroalign_nd.io.asdf`` (registered with asdf by entry
   points when the package is installed).
 """
 

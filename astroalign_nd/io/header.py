@@ -97,18 +97,26 @@ def _model_matrix(model):
             "transform."
         )
     if isinstance(model, LinearTransform2D):
-        return model.matrix
-    try:
-        matrix = as_matrix(model)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(
-            f"only linear 2-D transforms (2 inputs, 2 outputs, affine) can go into a FITS "
-            f"header; {type(model).__name__} is not one ({exc}). Save it to an ASDF file "
-            "instead: asdf.AsdfFile({'transform': model}).write_to('transform.asdf')."
-        ) from None
+        matrix = model.matrix
+    else:
+        try:
+            matrix = as_matrix(model)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(
+                f"only linear 2-D transforms (2 inputs, 2 outputs, affine) can go into a "
+                f"FITS header; {type(model).__name__} is not one ({exc}). Save it to an "
+                "ASDF file instead: asdf.AsdfFile({'transform': model})"
+                ".write_to('transform.asdf')."
+            ) from None
     if not np.all(np.isfinite(matrix)):
         raise ValueError("the transform's matrix contains NaN or infinite values.")
     return matrix
+
+
+def _degrees(angle):
+    """Angle in radians to degrees in (-180, 180]."""
+    degrees = float(np.degrees(np.arctan2(np.sin(angle), np.cos(angle))))
+    return 180.0 if degrees == -180.0 else degrees
 
 
 def _human_cards(type_name, model, matrix):
@@ -119,15 +127,15 @@ def _human_cards(type_name, model, matrix):
         cards = [
             ("SCALX", float(sx), "[tgt px / src px] scale along x"),
             ("SCALY", float(sy), "[tgt px / src px] scale along y"),
-            ("ROT", float(np.degrees(affine.rotation)), "[deg] rotation of the x axis, CCW"),
-            ("SHEAR", float(np.degrees(affine.shear)), "[deg] shear angle"),
+            ("ROT", _degrees(affine.rotation), "[deg] rotation of the x axis, CCW"),
+            ("SHEAR", _degrees(affine.shear), "[deg] shear angle"),
         ]
     else:
         scale = model.scale.value if type_name == "similarity" else 1.0
         rotation = model.rotation.value if type_name in ("euclidean", "similarity") else 0.0
         cards = [
             ("SCALE", float(scale), "[tgt px / src px] scale factor"),
-            ("ROT", float(np.degrees(rotation)), "[deg] rotation, counter-clockwise"),
+            ("ROT", _degrees(rotation), "[deg] rotation, counter-clockwise"),
         ]
     parity = -1 if np.linalg.det(matrix[:2, :2]) < 0 else 1
     cards += [

@@ -3,7 +3,7 @@
 ASDF converters of the `astroalign_nd.transforms` models.
 
 Each converter subclasses asdf-astropy's
-`~asdf_astropy.converters.transform.core.TransformConverterBase`, which
+``asdf_astropy.converters.transform.core.TransformConverterBase``, which
 handles the properties common to every astropy model (``name``,
 ``inputs``/``outputs``, a user-assigned ``inverse``, ``bounding_box``,
 ``fixed`` and ``bounds``); the converters here only write and read the
@@ -69,7 +69,7 @@ class LinearTransformConverterBase(TransformConverterBase):
             The transform to write.
         tag : str
             The tag being written.
-        ctx : `asdf.extension.SerializationContext`
+        ctx : ``asdf.extension.SerializationContext``
             The serialization context.
 
         Returns
@@ -89,7 +89,7 @@ class LinearTransformConverterBase(TransformConverterBase):
             The tagged node read from the file.
         tag : str
             The tag being read.
-        ctx : `asdf.extension.SerializationContext`
+        ctx : ``asdf.extension.SerializationContext``
             The serialization context.
 
         Returns

@@ -40,7 +40,7 @@ def get_converters():
 
     Returns
     -------
-    converters : list of `asdf.extension.Converter`
+    converters : list of ``asdf.extension.Converter``
         One converter per transform class.
     """
     from .converters import (
@@ -68,7 +68,7 @@ def get_extensions():
 
     Returns
     -------
-    extensions : list of `asdf.extension.ManifestExtension`
+    extensions : list of ``asdf.extension.ManifestExtension``
         One extension per manifest in `ASTROALIGN_ND_MANIFEST_URIS`.
     """
     from asdf.extension import ManifestExtension
@@ -89,7 +89,7 @@ def get_resource_mappings():
 
     Returns
     -------
-    mappings : list of `asdf.resource.DirectoryResourceMapping`
+    mappings : list of ``asdf.resource.DirectoryResourceMapping``
         The mappings of the ``schemas`` and ``manifests`` directories.
     """
     from asdf.resource import DirectoryResourceMapping
