@@ -154,3 +154,103 @@ def peak_candidates(img, threshold, n_max, border=0):
         s = uniform_filter(img.astype(np.float64), 3, mode="constant")[y, x] * 9
     order = np.lexsort((x, y, -s))[:n_max]
     return y[order], x[order], s[order]
+
+
+class PointGrid:
+    """
+    Target points bucketed in square cells, for exact radius look-ups.
+
+    A cell is at least ``radius`` wide, so the neighbours of a position
+    within ``radius`` are all in its 3x3 block of cells.  Used to count the
+    inliers of thousands of hypotheses at once (`count_inliers`), which a
+    k-d tree does one query at a time.
+    """
+
+    def __init__(self, points, radius, max_cells=4_000_000):
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        lo = pts.min(axis=0) - radius
+        hi = pts.max(axis=0) + radius
+        cell = float(radius)
+        span = hi - lo
+        while (span[0] / cell + 1) * (span[1] / cell + 1) > max_cells:
+            cell *= 2.0
+        self.radius = float(radius)
+        self.cell = cell
+        self.origin = lo
+        self.nx = int(span[0] // cell) + 1
+        self.ny = int(span[1] // cell) + 1
+        cx = ((pts[:, 0] - lo[0]) // cell).astype(np.int64)
+        cy = ((pts[:, 1] - lo[1]) // cell).astype(np.int64)
+        cid = cy * self.nx + cx
+        order = np.argsort(cid, kind="stable")
+        self.points = pts[order]
+        self.start = np.searchsorted(cid[order], np.arange(self.nx * self.ny + 1)).astype(
+            np.int64)
+
+
+if HAVE_NUMBA:
+
+    @njit(cache=True, parallel=True, nogil=True)
+    def _count_nb(mats, src, pts, start, ox, oy, cell, nx, ny, r2, out):
+        for h in prange(mats.shape[0]):
+            a, b, c = mats[h, 0, 0], mats[h, 0, 1], mats[h, 0, 2]
+            d, e, f = mats[h, 1, 0], mats[h, 1, 1], mats[h, 1, 2]
+            n = 0
+            for k in range(src.shape[0]):
+                x = a * src[k, 0] + b * src[k, 1] + c
+                y = d * src[k, 0] + e * src[k, 1] + f
+                if not (x == x and y == y):
+                    continue
+                fx = (x - ox) / cell
+                fy = (y - oy) / cell
+                if fx < -1.0 or fy < -1.0 or fx > nx or fy > ny:
+                    continue
+                cx = int(np.floor(fx))
+                cy = int(np.floor(fy))
+                found = False
+                for j in range(max(cy - 1, 0), min(cy + 2, ny)):
+                    if found:
+                        break
+                    for i in range(max(cx - 1, 0), min(cx + 2, nx)):
+                        cid = j * nx + i
+                        for q in range(start[cid], start[cid + 1]):
+                            dx = pts[q, 0] - x
+                            dy = pts[q, 1] - y
+                            if dx * dx + dy * dy < r2:
+                                found = True
+                                break
+                        if found:
+                            break
+                if found:
+                    n += 1
+            out[h] = n
+
+
+def count_inliers(mats, src, grid):
+    """
+    For each 3x3 matrix, how many ``src`` points land within the grid's
+    radius of one of its points.
+
+    Parameters
+    ----------
+    mats : (K, 3, 3) ndarray
+    src : (N, 2) ndarray
+    grid : `PointGrid`
+
+    Returns
+    -------
+    counts : (K,) int ndarray
+    """
+    mats = np.ascontiguousarray(mats, dtype=np.float64)
+    src = np.ascontiguousarray(src, dtype=np.float64)
+    if HAVE_NUMBA:
+        out = np.zeros(len(mats), dtype=np.int64)
+        _count_nb(mats, src, grid.points, grid.start, float(grid.origin[0]),
+                  float(grid.origin[1]), grid.cell, grid.nx, grid.ny, grid.radius**2, out)
+        return out
+    from scipy.spatial import cKDTree  # pragma: no cover
+
+    tree = cKDTree(grid.points)
+    pred = np.einsum("kij,nj->kni", mats[:, :2, :2], src) + mats[:, None, :2, 2]
+    d, _ = tree.query(pred.reshape(-1, 2), distance_upper_bound=grid.radius)
+    return np.isfinite(d).reshape(len(mats), -1).sum(axis=1)

@@ -39,19 +39,14 @@ __all__ = ["apply_transform"]
 _UNCERTAINTY_CLASSES = (StdDevUncertainty, VarianceUncertainty, InverseVariance)
 
 
-def _variance_of(uncertainty, shape):
-    """Variance array of an uncertainty (None if there is none)."""
-    if uncertainty is None:
-        return None
+def _variance_of(uncertainty):
+    """Variance array of an uncertainty."""
     if not isinstance(uncertainty, _UNCERTAINTY_CLASSES):
         raise TypeError(
             f"uncertainty of type {type(uncertainty).__name__} cannot be propagated; use "
             "StdDevUncertainty, VarianceUncertainty or InverseVariance."
         )
-    var = np.asarray(uncertainty.represent_as(VarianceUncertainty).array, dtype=float)
-    if var.shape != shape:
-        var = np.broadcast_to(var, shape)
-    return var
+    return np.asarray(uncertainty.represent_as(VarianceUncertainty).array)
 
 
 def _uncertainty_like(template, variance, unit):
@@ -64,7 +59,7 @@ def _uncertainty_like(template, variance, unit):
         return var.represent_as(cls)
 
 
-def _carry_wcs(wcs, matrix):
+def _carry_wcs(wcs, matrix, shape_out):
     """The source's WCS expressed on the target's pixel grid."""
     w = wcs.deepcopy()
     lin = matrix[:2, :2]
@@ -76,7 +71,10 @@ def _carry_wcs(wcs, matrix):
     else:
         w.wcs.pc = np.asarray(w.wcs.get_pc()) @ inv
     # SIP distortion belongs to the source's pixel grid: it cannot follow.
-    w.sip = None
+    if w.sip is not None:
+        w.sip = None
+        w.wcs.ctype = [c.replace("-SIP", "") for c in w.wcs.ctype]
+    w.pixel_shape = (shape_out[1], shape_out[0])
     return w
 
 
@@ -198,11 +196,12 @@ def apply_transform(transform, source, target, *, order="bicubic", conserve_flux
         shape_out = dst.shape
 
     data = src.data
-    variance = _variance_of(src.uncertainty, data.shape[:2]) if src.uncertainty is not None \
-        else None
-    if variance is not None and data.ndim == 3:
-        variance = np.broadcast_to(variance[..., None] if variance.ndim == 2 else variance,
-                                   data.shape)
+    variance = None
+    if src.uncertainty is not None:
+        variance = _variance_of(src.uncertainty)
+        if data.ndim == 3 and variance.ndim == 2:  # one plane for every channel
+            variance = variance[..., None]
+        variance = np.broadcast_to(variance, data.shape)
     if method == "exact":
         out, var_out, mask_out = resample_exact(data, m, shape_out, variance=variance,
                                                 mask=src.mask, fill_value=fill_value,
@@ -232,7 +231,7 @@ def apply_transform(transform, source, target, *, order="bicubic", conserve_flux
     if dst is not None and dst.wcs is not None:
         wcs = dst.wcs.deepcopy()
     elif src.wcs is not None:
-        wcs = _carry_wcs(src.wcs, m)
+        wcs = _carry_wcs(src.wcs, m, shape_out)
     full_mask = mask_out if out.ndim == 2 else np.broadcast_to(
         mask_out[..., None], out.shape).copy()
     return CCDData(out, unit=out_unit, mask=full_mask, uncertainty=uncertainty, meta=header,

@@ -56,7 +56,8 @@ def estimate_noise(data, mask=None, *, max_samples=50_000):
     ny, nx = data.shape
     step = max(1, (ny * nx) // max_samples)
     rows = data[::step]
-    diff = (rows[:, 1:] - rows[:, :-1]).ravel()
+    with np.errstate(invalid="ignore"):  # inf - inf: filtered just below
+        diff = (rows[:, 1:] - rows[:, :-1]).ravel()
     good = np.isfinite(diff)
     if mask is not None:
         mrows = mask[::step]
@@ -131,6 +132,18 @@ def _extract_cutouts(data, mask, xc, yc, half, fill):
     return cut, bad
 
 
+def _local_background(cut, bad, r_in):
+    """Median of each cutout's pixels at least ``r_in`` from its centre."""
+    n, size, _ = cut.shape
+    g = np.arange(size) - size // 2
+    outer = (g[:, None] ** 2 + g[None, :] ** 2) >= r_in**2
+    vals = np.where(outer[None] & ~bad, cut, np.nan).reshape(n, -1)[:, outer.ravel()]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        bkg = np.nanmedian(vals, axis=1)
+    return np.where(np.isfinite(bkg), bkg, 0.0)
+
+
 def _adaptive_fwhm(cut, bad, dx, dy, sigma0=1.5, n_iter=8):
     """
     FWHM per cutout from Gaussian-weighted ("adaptive") second moments.
@@ -194,23 +207,30 @@ def _fwhm_from_candidates(data, mask, cand, n_stars):
     # The brightest candidates are enough (and keep this cheap).
     top = slice(0, 2 * n_stars)
     x, y, bkg = cand["x"][top], cand["y"][top], cand["bkg"][top]
-    half = 16
     xc = np.round(x).astype(int)
     yc = np.round(y).astype(int)
-    cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
-    cut = cut - bkg[:, None, None]
-    cut[bad] = 0.0
-    fwhm = _adaptive_fwhm(cut, bad, x - xc, y - yc)
-    peak = cut.reshape(len(x), -1).max(axis=1)
-    # Hot pixels and cosmic rays give a tiny FWHM; saturated (flat-topped)
-    # stars a biased one.
-    ok = np.isfinite(fwhm) & (fwhm > 1.0) & (fwhm < half / 1.5)
-    if ok.sum() >= 3:
-        top_peak = np.max(peak[ok])
-        sat = peak >= 0.98 * top_peak
-        if (sat & ok).sum() >= 2:  # several equal peaks: a saturation plateau
-            ok &= ~sat
-    vals = fwhm[ok][:n_stars]
+    # Start with 33x33 cutouts; widen them if the stars are wider (digitised
+    # photographic plates have FWHMs of tens of pixels).
+    for half in (16, 48, 96):
+        cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
+        # A local sky: any pedestal left would inflate the moments.
+        cut = cut - _local_background(cut - bkg[:, None, None], bad, 0.75 * half)[
+            :, None, None] - bkg[:, None, None]
+        cut[bad] = 0.0
+        fwhm = _adaptive_fwhm(cut, bad, x - xc, y - yc, sigma0=max(1.5, half / 10.0))
+        peak = cut.reshape(len(x), -1).max(axis=1)
+        # Hot pixels and cosmic rays give a tiny FWHM; saturated
+        # (flat-topped) stars a biased one.
+        ok = np.isfinite(fwhm) & (fwhm > 1.0) & (fwhm < half / 1.5)
+        if ok.sum() >= 3:
+            top_peak = np.max(peak[ok])
+            sat = peak >= 0.98 * top_peak
+            if (sat & ok).sum() >= 2:  # several equal peaks: a saturation plateau
+                ok &= ~sat
+        vals = fwhm[ok][:n_stars]
+        wide = np.isfinite(fwhm) & (fwhm >= half / 1.5 - 0.5)
+        if vals.size >= 3 and np.median(vals) < half / 3.0 or wide.sum() < len(x) / 3:
+            break
     if vals.size == 0:
         return 3.0, fwhm
     return float(np.clip(np.median(vals), 1.0, half / 1.5)), fwhm
@@ -304,7 +324,7 @@ def _windowed_centroid(cut, bad, x0, y0, sigma, n_iter=8):
 
 
 def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
-                 sharpness_range=(0.2, 1.0), roundness_range=(-1.0, 1.0),
+                 sharpness_range=(-np.inf, 1.0), roundness_range=(-1.0, 1.0),
                  peak_max=None, bin_factor=None, refine_centroids=True):
     """
     Find the brightest point sources of an image with DAOStarFinder.
@@ -323,7 +343,10 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
         Detection threshold in units of the per-pixel noise.
     sharpness_range, roundness_range : tuple of 2 floats or None, optional
         DAOStarFinder's limits, applied at full resolution.  The default
-        sharpness range rejects hot pixels and cosmic rays.
+        sharpness range has no lower limit, so that saturated (flat-topped)
+        stars are kept; its upper limit, binning that drops each block's
+        brightest pixel, and a check of each source's own FWHM reject hot
+        pixels and cosmic rays.
     peak_max : float, optional
         Sources with a peak above this (e.g. saturated) are dropped.  By
         default saturated stars are kept: their centroids are still good.
@@ -382,7 +405,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
         fwhm, _ = _fwhm_from_candidates(data, mask, cand, 30)
 
     # Stage 2: DAOStarFinder at full resolution on a mosaic of cutouts.
-    half = int(np.ceil(max(2.5 * fwhm, 5)))
+    half = int(np.ceil(max(3.0 * fwhm, 6)))
     tile = 2 * half + 1
     n = len(cand["x"])
     ncol = int(np.ceil(np.sqrt(n)))
@@ -390,7 +413,10 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     xc = np.clip(np.round(cand["x"]).astype(int), 0, data.shape[1] - 1)
     yc = np.clip(np.round(cand["y"]).astype(int), 0, data.shape[0] - 1)
     cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
-    cut = cut - cand["bkg"][:, None, None]
+    # Local sky from the tile's outskirts (beyond 2 FWHM): the coarse map
+    # of stage 1 is only good to a fraction of the noise, and any pedestal
+    # biases fluxes and pulls centroids towards the tile centre.
+    cut = cut - _local_background(cut, bad, min(2.0 * fwhm, half - 1.0))[:, None, None]
     cut[bad] = 0.0
     # (n, tile, tile) -> (nrow*tile, ncol*tile) without a Python loop.
     pad = np.zeros((nrow * ncol, tile, tile))
@@ -452,8 +478,23 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     gy = yc[kk] - half + ys
     aflux, perr = _aperture_flux_and_error(cut[kk], bad[kk], xs, ys, fwhm, noise)
 
+    # Hot pixels and cosmic rays that got this far (a bright hit can pass
+    # DAOFIND's sharpness limit) are much narrower than the stars.
+    own_fwhm = _adaptive_fwhm(cut[kk], bad[kk], xs - half, ys - half,
+                              sigma0=fwhm / _GAUSS_SIGMA_TO_FWHM, n_iter=4)
+    real = ~(own_fwhm < 0.6 * fwhm) if fwhm >= 1.5 else np.ones(len(kk), bool)
+    sharp = np.asarray(tab["sharpness"], float)[sel]
+    round1 = np.asarray(tab["roundness1"], float)[sel]
+    round2 = np.asarray(tab["roundness2"], float)[sel]
+    # Given positions, DAOStarFinder does not apply its threshold: apply
+    # it as a matched-filter signal-to-noise, flux / (noise sqrt(4 pi) sigma).
+    snr = aflux / (noise * np.sqrt(4 * np.pi) * fwhm / _GAUSS_SIGMA_TO_FWHM)
+    real &= snr >= nsigma
+    real &= _population_inliers(sharp, round1, round2, real)
+
     # The same star can sit in two overlapping candidate tiles.
-    keep = _dedupe(gx, gy, aflux, max(1.0, 0.5 * fwhm))
+    keep = _dedupe(gx, gy, np.where(real, aflux, -np.inf), max(1.0, 0.5 * fwhm))
+    keep = keep[real[keep]]
     out = Table()
     out["x"] = gx[keep]
     out["y"] = gy[keep]
@@ -488,6 +529,26 @@ def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
         err = np.sqrt(8 * np.pi) * sig_psf**2 * noise / np.where(flux > 0, flux, np.nan)
     err = np.where(np.isfinite(err), err, 10.0 * fwhm)
     return flux, np.hypot(err, 0.005)
+
+
+def _population_inliers(sharp, round1, round2, ok):
+    """
+    Reject sources whose shape is unlike the rest of the population.
+
+    Stars of one image share their sharpness and roundness; hot pixels are
+    sharper, cosmic-ray tracks rounder (more elongated).  Limits relative
+    to the median adapt to the image, where fixed ones cannot.
+    """
+    keep = np.ones(len(sharp), bool)
+    if ok.sum() < 5:
+        return keep
+    s = sharp[ok]
+    med = np.median(s)
+    mad = 1.4826 * np.median(np.abs(s - med))
+    keep &= sharp <= med + max(0.15, 5.0 * mad)
+    r = np.maximum(np.abs(round1), np.abs(round2))
+    keep &= r <= max(0.35, 4.0 * np.median(r[ok]))
+    return keep
 
 
 def _dedupe(x, y, flux, radius):

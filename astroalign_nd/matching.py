@@ -19,15 +19,17 @@ Stage 3 of the method: match triangles, verify, refine.
    every hypothesis tried, in the spirit of astrometry.net's odds test).
 """
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import binom
 
+from ._kernels import PointGrid, count_inliers
 from .asterisms import build_asterisms
-from .exceptions import TooFewSourcesError, TransformNotFoundError
-from .transforms import fit_transform, transform_class
+from .exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError
+from .transforms import AffineTransform, fit_transform, transform_class
 
 __all__ = ["MatchResult", "match_points", "match_triangles", "hypothesis_matrices"]
 
@@ -138,12 +140,6 @@ def _apply(m, pts):
     return pts @ m[:2, :2].T + m[:2, 2]
 
 
-def _count_inliers(mats, src_pts, dst_tree, tol):
-    pred = np.einsum("kij,nj->kni", mats[:, :2, :2], src_pts) + mats[:, None, :2, 2]
-    d, _ = dst_tree.query(pred.reshape(-1, 2), distance_upper_bound=tol)
-    return np.isfinite(d).reshape(len(mats), -1).sum(axis=1)
-
-
 def _mutual_matches(pred, dst_pts, dst_tree, tol):
     """Source i <-> target j when each is the other's nearest within tol."""
     d, j = dst_tree.query(pred, distance_upper_bound=tol)
@@ -214,9 +210,30 @@ def _jitter(r2, var, dof):
     if dof <= 0 or np.sum(r2 / var) <= dof:
         return 0.0
     lo, hi = 0.0, float(np.max(r2)) + 1e-12
-    for _ in range(60):  # bisection: chi2 decreases monotonically in j2
+    for _ in range(40):  # bisection: chi2 decreases monotonically in j2
         mid = 0.5 * (lo + hi)
         if np.sum(r2 / (var + mid)) > dof:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def _robust_jitter(r2, var):
+    """
+    Extra variance ``j2`` so that the median of ``r2 / (var + j2)`` is that
+    of a chi-square with 2 degrees of freedom (2 ln 2).
+
+    A median, unlike the chi-square sum, is not inflated by the few wrong
+    pairs that the cut after it must remove.
+    """
+    target = 2.0 * np.log(2.0)
+    if np.median(r2 / var) <= target:
+        return 0.0
+    lo, hi = 0.0, float(np.max(r2))
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if np.median(r2 / (var + mid)) > target:
             lo = mid
         else:
             hi = mid
@@ -231,44 +248,49 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
     Each pair is weighted by the inverse of its expected position variance
     in target pixels, ``s^2 e_src^2 + e_dst^2 + j^2`` (``s`` the scale,
     ``e`` the detection's centroid errors), where the "jitter" ``j`` is
-    solved for so that the reduced chi-square is 1: it absorbs what the
-    centroid errors do not predict (undersampling, blends), so that bright
-    stars do not get weights they cannot live up to.  Pairs beyond 4 sigma
-    are rejected, and the matching radius shrinks to 5 sigma.
+    solved for so that the median normalised residual is that of a
+    Gaussian: it absorbs what the centroid errors do not predict
+    (undersampling, blends), so that bright stars do not get weights they
+    cannot live up to, while outliers cannot inflate it.  Pairs with a
+    chi-square above 16 are rejected, and the matching radius shrinks to 5
+    sigma.
     """
     cls = transform_class(transform_type)
-    fit_parity = parity if transform_type in ("similarity", "euclidean") else None
+    fit_parity = parity if transform_type in ("similarity", "euclidean") else 1
     m = m0
     cur_tol = tol
-    result = None
-    jitter2 = 0.0
+    last = None
     for _ in range(n_iter):
         si, dj = _mutual_matches(_apply(m, src_pts), dst_pts, dst_tree, cur_tol)
         if len(si) < max(cls.min_points, 3):
             break
-        scale2 = abs(np.linalg.det(m[:2, :2]))
+        scale2 = abs(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0])
         if src_err is not None and dst_err is not None:
             var = scale2 * src_err[si] ** 2 + dst_err[dj] ** 2
         else:
             var = np.full(len(si), 0.01)
         resid = _apply(m, src_pts[si]) - dst_pts[dj]
-        r2 = np.sum(resid**2, axis=1)
-        # Per-axis chi-square: 2 numbers per pair, n_dof parameters.
-        jitter2 = _jitter(r2 / 2.0, var, len(si) - cls.n_dof / 2.0)
-        total = var + jitter2
-        keep = r2 / total <= 2 * 4.0**2 if len(si) > cls.n_dof else np.ones(len(si), bool)
+        r2 = np.einsum("ij,ij->i", resid, resid)
+        total = var + _robust_jitter(r2, var)
+        # chi2 with 2 dof above 16 happens with probability 3e-4.
+        keep = r2 / total <= 16.0 if len(si) > cls.n_dof else np.ones(len(si), bool)
         if keep.sum() >= max(cls.min_points, 3):
             si, dj, total = si[keep], dj[keep], total[keep]
-        model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls, parity=fit_parity,
-                                          weights=1.0 / total)
-        result = (model, si, dj, resid, cov, cur_tol)
-        m_new = model.matrix
-        sigma = float(np.sqrt(np.median(total)))
-        new_tol = float(np.clip(5.0 * sigma, min_tol, tol))
-        if np.allclose(m_new, m, rtol=0, atol=1e-10) and new_tol == cur_tol:
-            break
+        # Matrix-level fit: building astropy models here would dominate.
+        m_new, _, _ = cls._linear_fit(src_pts[si], dst_pts[dj], 1.0 / total, fit_parity)
+        last = (si, dj, total, cur_tol)
+        new_tol = float(np.clip(5.0 * np.sqrt(np.median(total)), min_tol, tol))
+        converged = np.max(np.abs(m_new - m)) < 1e-10 and new_tol == cur_tol
         m, cur_tol = m_new, new_tol
-    return result
+        if converged:
+            break
+    if last is None:
+        return None
+    si, dj, total, used_tol = last
+    model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls,
+                                      parity=fit_parity if cls.n_dof in (3, 4) else None,
+                                      weights=1.0 / total)
+    return model, si, dj, resid, cov, used_tol
 
 
 def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0,
@@ -277,7 +299,7 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
                  accept_matches=10, batch_size=512, max_hypotheses=50_000,
                  source_frame=None, target_frame=None, source_errors=None,
                  target_errors=None, n_control=None, source_asterisms=None,
-                 target_asterisms=None):
+                 target_asterisms=None, prior_trials=0):
     """
     Find the transform that maps ``src_pts`` onto ``dst_pts``.
 
@@ -319,6 +341,9 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     source_asterisms, target_asterisms : `~astroalign_nd.asterisms.Asterisms`, optional
         Triangles of the first ``n_control`` points, when already built
         (a reference frame used for many registrations builds them once).
+    prior_trials : int, optional
+        Hypotheses already tried on this pair by earlier attempts; they
+        count in the trials factor of the false-alarm probability.
 
     Returns
     -------
@@ -354,7 +379,7 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     n_tri = len(pairs)
     stats = dict(n_source=len(src_pts), n_target=len(dst_pts), n_triangle_matches=n_tri)
     if n_tri == 0:
-        raise TransformNotFoundError(
+        raise _not_found(0,
             f"no transform found: the source gave {len(src_pts)} sources and the target "
             f"{len(dst_pts)}, but no triangle matched between them (best inlier count 0). "
             "The images may not overlap, or too few stars are in common; try more sources "
@@ -376,7 +401,7 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     tri_size = dst_ast.size[pairs[:, 1]] if len(pairs) else np.empty(0)
 
     dst_tree = cKDTree(dst_pts)
-    ctl_tree = cKDTree(dst_ctl)
+    grid = PointGrid(dst_pts, tolerance)
     n_possible = min(len(src_ctl), len(dst_ctl))
     accept_at = min(accept_matches, n_possible)
     counts = np.zeros(len(mats), int)
@@ -384,21 +409,41 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     tried_refine = set()
     n_scored = 0
 
+    log_limit = np.log10(max_false_alarm)
+
+    def promising(h):
+        """
+        Could hypothesis h pass the false-alarm test, even optimistically?
+
+        Its matches at the search radius, counted over all stars, are
+        judged at the smallest radius the refinement may reach.  Chance
+        hypotheses fail this cheaply and are not refined.
+        """
+        k_all = int(count_inliers(mats[h:h + 1], src_pts, grid)[0])
+        lfa = _log10_false_alarm(mats[h], src_pts, dst_pts, k_all, min_tolerance, src_frame,
+                                 dst_frame, n_scored + prior_trials, tri_rms[h], tri_size[h],
+                                 invariant_radius)
+        return lfa <= log_limit
+
     def evaluate(h):
         """Refine hypothesis h and compute its false-alarm probability."""
+        if not promising(h):
+            return None
         res = _refine(mats[h], parity[h], src_pts, dst_pts, dst_tree, transform_type,
                       tolerance, min_tolerance, source_errors, target_errors)
         if res is None:
             return None
         model, si, dj, resid, cov, tol = res
         lfa = _log10_false_alarm(model.matrix, src_pts, dst_pts, len(si), tol, src_frame,
-                                 dst_frame, n_scored, tri_rms[h], tri_size[h],
+                                 dst_frame, n_scored + prior_trials, tri_rms[h], tri_size[h],
                                  invariant_radius)
         return dict(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h)
 
     for start in range(0, len(mats), batch_size):
         stop = min(start + batch_size, len(mats))
-        counts[start:stop] = _count_inliers(mats[start:stop], src_ctl, ctl_tree, tolerance)
+        # Control points of the source against every target star: a true
+        # match also counts stars that are not among the target's brightest.
+        counts[start:stop] = count_inliers(mats[start:stop], src_ctl, grid)
         n_scored = stop
         # Try the best few of this batch (ties broken by invariant distance).
         order = start + np.argsort(-counts[start:stop], kind="stable")[:3]
@@ -411,8 +456,9 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
                 continue
             if best is None or cand["lfa"] < best["lfa"]:
                 best = cand
-            if cand["lfa"] <= np.log10(max_false_alarm) and counts[h] >= accept_at:
-                return _result(cand, stats, n_scored)
+            if cand["lfa"] <= log_limit and counts[h] >= accept_at:
+                return _result(cand, stats, n_scored, src_pts, dst_pts, source_errors,
+                               target_errors, dst_frame)
     # No early acceptance: refine the overall best few hypotheses.
     for h in np.argsort(-counts, kind="stable")[:10]:
         if int(h) in tried_refine or counts[h] < 3:
@@ -421,18 +467,25 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
         if cand is not None and (best is None or cand["lfa"] < best["lfa"]):
             best = cand
     if best is not None and best["lfa"] <= np.log10(max_false_alarm):
-        return _result(best, stats, n_scored)
+        return _result(best, stats, n_scored, src_pts, dst_pts, source_errors,
+                       target_errors, dst_frame)
     best_count = int(counts.max()) if len(counts) else 0
     detail = ""
     if best is not None:
         detail = (f"; the best candidate matched {len(best['si'])} stars but its "
                   f"false-alarm probability is 10^{best['lfa']:.1f} (limit {max_false_alarm:g})")
-    raise TransformNotFoundError(
+    raise _not_found(n_scored,
         f"no trustworthy transform found: the source gave {len(src_pts)} sources and the "
         f"target {len(dst_pts)}; {n_tri} triangle matches gave {n_scored} hypotheses, the best "
         f"with {best_count} inliers{detail}. The images may not overlap; otherwise try more "
         "sources (n_sources), a larger tolerance, or catalogs of positions."
     )
+
+
+def _not_found(n_hypotheses, message):
+    exc = TransformNotFoundError(message)
+    exc.n_hypotheses = n_hypotheses
+    return exc
 
 
 def _bbox(pts):
@@ -442,11 +495,62 @@ def _bbox(pts):
     return (x0 - pad, x1 + pad, y0 - pad, y1 + pad)
 
 
-def _result(c, stats, n_scored):
+def _model_misfit(model, src, dst, src_err, dst_err, frame):
+    """
+    How far the fitted model is from an affine fit of the same stars.
+
+    Returns the largest difference (target pixels) between the two models
+    over the target frame, if the affine fit is significantly better
+    (F-test, p < 1e-6), else 0.  A rotation-like model that leaves
+    systematic residuals (shear, anisotropic scale, field distortion) shows
+    up here instead of being returned silently.
+    """
+    from scipy.stats import f as f_dist
+
+    n = len(src)
+    k_model, k_aff = type(model).n_dof, 6
+    if k_model >= k_aff or 2 * n <= k_aff + 2:
+        return 0.0
+    if src_err is not None and dst_err is not None:
+        s2 = abs(np.linalg.det(model.matrix[:2, :2]))
+        var = s2 * src_err**2 + dst_err**2
+    else:
+        var = np.full(n, 0.01)
+    aff, _, _ = AffineTransform._linear_fit(src, dst, 1.0 / var, 1)
+    r_aff = _apply(aff, src) - dst
+    r2_aff = np.einsum("ij,ij->i", r_aff, r_aff)
+    # Weights from the better (affine) model, with its own jitter.
+    var = var + _jitter(r2_aff / 2.0, var, n - k_aff / 2.0)
+    r_mod = _apply(model.matrix, src) - dst
+    chi_mod = np.sum(np.einsum("ij,ij->i", r_mod, r_mod) / var)
+    chi_aff = np.sum(r2_aff / var)
+    dof_aff = 2 * n - k_aff
+    f_stat = ((chi_mod - chi_aff) / (k_aff - k_model)) / max(chi_aff / dof_aff, 1e-300)
+    if f_dist.sf(f_stat, k_aff - k_model, dof_aff) >= 1e-6:
+        return 0.0
+    x0, x1, y0, y1 = frame if frame is not None else _bbox(dst)
+    corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
+    inv_aff = np.linalg.inv(aff)
+    pre = _apply(inv_aff, corners)
+    return float(np.max(np.hypot(*(_apply(model.matrix, pre) - corners).T)))
+
+
+def _result(c, stats, n_scored, src_pts, dst_pts, src_err, dst_err, dst_frame):
     resid = c["resid"]
     rms = float(np.sqrt(np.mean(np.sum(resid**2, axis=1)))) if len(resid) else float("nan")
+    si, dj = c["si"], c["dj"]
+    misfit = _model_misfit(c["model"], src_pts[si], dst_pts[dj],
+                           None if src_err is None else src_err[si],
+                           None if dst_err is None else dst_err[dj], dst_frame)
+    if misfit > 0.5:
+        name = type(c["model"]).__name__
+        warnings.warn(
+            f"the {name} leaves systematic residuals: an affine fit of the same "
+            f"{len(si)} stars differs from it by up to {misfit:.2f} px over the frame. The "
+            "images have shear, anisotropic scale or distortion; use transform_type='affine'.",
+            PoorFitWarning, stacklevel=4)
     return MatchResult(
-        transform=c["model"], source_index=c["si"], target_index=c["dj"], residuals=resid,
+        transform=c["model"], source_index=si, target_index=dj, residuals=resid,
         rms=rms, covariance=c["cov"], log10_false_alarm=c["lfa"], n_hypotheses=n_scored,
-        **stats,
+        extra={"model_misfit": misfit}, **stats,
     )

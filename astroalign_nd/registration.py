@@ -92,6 +92,14 @@ class Reference:
             else:
                 table = find_sources(p.detection_image, mask=p.mask,
                                      n_sources=3 * n_sources, **self.detect_options)
+                if len(table) < n_sources and "nsigma" not in self.detect_options:
+                    # A faint field: go deeper rather than give up.  The
+                    # false-alarm test guards against what noise adds.
+                    deeper = find_sources(p.detection_image, mask=p.mask,
+                                          n_sources=3 * n_sources, nsigma=3.0,
+                                          **self.detect_options)
+                    if len(deeper) > len(table):
+                        table = deeper
                 ny, nx = p.shape
                 pts = np.column_stack([np.asarray(table["x"], float),
                                        np.asarray(table["y"], float)])
@@ -145,25 +153,41 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
     det, mat = _split_options(options)
     src = _as_reference(source, "source", det)
     dst = _as_reference(target, "target", det)
-    n_neighbors = mat.get("n_neighbors", 4)
 
-    n = n_sources
+    # Escalation: more control points help crowded fields, small overlaps
+    # and pairs whose brightest stars differ; more neighbours per star help
+    # sparse, noisy lists where many stars are missing from one image.
+    user_nn = "n_neighbors" in mat
+    nn = mat.pop("n_neighbors", 4)
+    plan, n = [], n_sources
+    while n <= max_sources:
+        plan.append((n, nn))
+        n *= 2
+    k, trials = 0, 0
     while True:
+        n, nn = plan[k]
         src_pts, src_err, src_frame = src.stars(n)
         dst_pts, dst_err, dst_frame = dst.stars(n)
         try:
             result = match_points(src_pts, dst_pts, transform_type=transform_type,
                                   source_frame=src_frame, target_frame=dst_frame,
                                   source_errors=src_err, target_errors=dst_err,
-                                  n_control=n, source_asterisms=src.asterisms(n, n_neighbors),
-                                  target_asterisms=dst.asterisms(n, n_neighbors), **mat)
+                                  n_control=n, n_neighbors=nn,
+                                  source_asterisms=src.asterisms(n, nn),
+                                  target_asterisms=dst.asterisms(n, nn),
+                                  prior_trials=trials, **mat)
             break
-        except TransformNotFoundError:
-            # Escalate: more control points help crowded fields, small
-            # overlaps and pairs whose brightest stars differ.
-            if not ((len(src_pts) > n or len(dst_pts) > n) and 2 * n <= max_sources):
-                raise
-        n *= 2
+        except TransformNotFoundError as exc:
+            # Earlier attempts count in the trials factor of later ones.
+            trials += getattr(exc, "n_hypotheses", 0)
+            if (len(src_pts) > n or len(dst_pts) > n) and k + 1 < len(plan):
+                k += 1
+                continue
+            if not user_nn and nn < 8 and max(len(src_pts), len(dst_pts)) <= 60:
+                plan = plan[: k + 1] + [(n, nn + 2)]
+                k += 1
+                continue
+            raise
     result.extra.update(
         source_points=src_pts[result.source_index],
         target_points=dst_pts[result.target_index],

@@ -265,7 +265,7 @@ def test_transform_class_lookup():
         transform_class(3)
 
 
-# -- fit_transform covariance ----------------------------------------------------------------
+# -- fit_transform covariance --------------------------------------------------------------
 
 @pytest.mark.parametrize("name", ["translation", "euclidean", "similarity", "affine",
                                   "similarity-mirrored"])
@@ -281,7 +281,7 @@ def test_fit_transform_covariance_shape(name):
     assert len(free) == n_free
     assert cov.shape == (n_free, n_free)
     assert np.all(np.isfinite(cov))
-    np.testing.assert_allclose(cov, cov.T, rtol=1e-10, atol=1e-30)
+    np.testing.assert_allclose(cov, cov.T, rtol=0, atol=1e-12 * np.max(np.abs(cov)))
     assert np.all(np.linalg.eigvalsh(0.5 * (cov + cov.T)) > 0)
     assert resid.shape == (30, 2)
     np.testing.assert_allclose(resid, _apply(model, src) - dst, atol=1e-9)
@@ -314,7 +314,7 @@ def test_fit_transform_covariance_is_calibrated():
     src = rng.uniform(0, 500, size=(30, 2))
     clean = _apply(truth, src)
     params, sig = [], []
-    for _ in range(300):
+    for _ in range(150):
         dst = clean + rng.normal(0, 0.2, size=src.shape)
         model, cov, _ = fit_transform(src, dst, "similarity")
         params.append([float(model.scale.value), float(model.rotation.value),
@@ -343,7 +343,7 @@ def test_fit_transform_parity_argument():
     assert not model.mirrored and np.max(np.abs(resid)) > 1.0
 
 
-# -- attributes -----------------------------------------------------------------------------
+# -- attributes ----------------------------------------------------------------------------
 
 def test_similarity_attributes():
     t = SimilarityTransform(scale=2.0, rotation=np.pi / 6, translation_x=10.0,
@@ -412,7 +412,7 @@ def test_similarity_attributes_match_skimage():
     np.testing.assert_allclose(t.translation, ref.translation)
 
 
-# -- bad input ------------------------------------------------------------------------------
+# -- bad input -----------------------------------------------------------------------------
 
 @pytest.mark.parametrize("cls", [TranslationTransform, EuclideanTransform, SimilarityTransform,
                                  AffineTransform])
