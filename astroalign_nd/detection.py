@@ -209,9 +209,7 @@ def _fwhm_from_candidates(data, mask, cand, n_stars):
     x, y, bkg = cand["x"][top], cand["y"][top], cand["bkg"][top]
     xc = np.round(x).astype(int)
     yc = np.round(y).astype(int)
-    # Start with 33x33 cutouts; widen them if the stars are wider (digitised
-    # photographic plates have FWHMs of tens of pixels).
-    for half in (16, 48, 96):
+    for half in (16,):
         cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
         # A local sky: any pedestal left would inflate the moments.
         cut = cut - _local_background(cut - bkg[:, None, None], bad, 0.75 * half)[
@@ -228,9 +226,11 @@ def _fwhm_from_candidates(data, mask, cand, n_stars):
             if (sat & ok).sum() >= 2:  # several equal peaks: a saturation plateau
                 ok &= ~sat
         vals = fwhm[ok][:n_stars]
-        wide = np.isfinite(fwhm) & (fwhm >= half / 1.5 - 0.5)
-        if vals.size >= 3 and np.median(vals) < half / 3.0 or wide.sum() < len(x) / 3:
-            break
+    # Stars wider than the cutouts can measure (digitised photographic
+    # plates: tens of pixels): the caller works on a binned copy instead.
+    wide = np.isfinite(fwhm) & (fwhm >= half / 1.5 - 0.5)
+    if wide.sum() >= max(3, len(x) / 3) or (vals.size >= 3 and np.median(vals) > half / 2.0):
+        return None, fwhm
     if vals.size == 0:
         return 3.0, fwhm
     return float(np.clip(np.median(vals), 1.0, half / 1.5)), fwhm
@@ -403,6 +403,13 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
 
     if fwhm is None:
         fwhm, _ = _fwhm_from_candidates(data, mask, cand, 30)
+        if fwhm is None:
+            return _find_on_binned(data, mask, 4, None, locals_for_binned(locals()))
+    if fwhm > _MAX_FULL_RES_FWHM:
+        # Wide stars are measured as well on a binned copy, at a fraction
+        # of the cost (the mosaic of cutouts grows with the FWHM squared).
+        k = int(fwhm // (_MAX_FULL_RES_FWHM / 2))
+        return _find_on_binned(data, mask, k, fwhm / k, locals_for_binned(locals()))
 
     # Stage 2: DAOStarFinder at full resolution on a mosaic of cutouts.
     half = int(np.ceil(max(3.0 * fwhm, 6)))
@@ -531,12 +538,42 @@ def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
     return flux, np.hypot(err, 0.005)
 
 
+_MAX_FULL_RES_FWHM = 10.0
+
+
+def locals_for_binned(env):
+    """The find_sources options to pass on to the binned search."""
+    keys = ("n_sources", "nsigma", "sharpness_range", "roundness_range", "peak_max",
+            "refine_centroids")
+    return {k: env[k] for k in keys}
+
+
+def _find_on_binned(data, mask, k, fwhm, options):
+    """find_sources on a k x k mean-binned copy, in full-resolution pixels."""
+    ny, nx = (data.shape[0] // k) * k, (data.shape[1] // k) * k
+    work = data[:ny, :nx]
+    if mask is not None:
+        work = np.where(mask[:ny, :nx], np.nan, work)
+    # A masked or NaN pixel makes its whole block NaN (masked): conservative.
+    binned = work.reshape(ny // k, k, nx // k, k).mean(axis=(1, 3), dtype=np.float64)
+    peak_max = options.pop("peak_max")
+    tab = find_sources(binned, fwhm=fwhm, peak_max=peak_max, **options)
+    tab["x"] = tab["x"] * k + (k - 1) / 2.0
+    tab["y"] = tab["y"] * k + (k - 1) / 2.0
+    tab["position_error"] = tab["position_error"] * k
+    tab.meta["fwhm"] = tab.meta["fwhm"] * k
+    tab.meta["noise"] = estimate_noise(data, mask)
+    tab.meta["bin_factor"] = tab.meta["bin_factor"] * k
+    tab.meta["measured_on_binned"] = k
+    return tab
+
+
 def _population_inliers(sharp, round1, round2, ok):
     """
     Reject sources whose shape is unlike the rest of the population.
 
     Stars of one image share their sharpness and roundness; hot pixels are
-    sharper, cosmic-ray tracks rounder (more elongated).  Limits relative
+    sharper, cosmic-ray tracks less round (more elongated).  Limits relative
     to the median adapt to the image, where fixed ones cannot.
     """
     keep = np.ones(len(sharp), bool)
@@ -546,6 +583,9 @@ def _population_inliers(sharp, round1, round2, ok):
     med = np.median(s)
     mad = 1.4826 * np.median(np.abs(s - med))
     keep &= sharp <= med + max(0.15, 5.0 * mad)
+    # A star's centre is brighter than its surroundings (sharpness > 0, also
+    # for a saturated plateau); cosmic-ray tracks off the tile centre are not.
+    keep &= sharp >= min(0.0, med - 0.3)
     r = np.maximum(np.abs(round1), np.abs(round2))
     keep &= r <= max(0.35, 4.0 * np.median(r[ok]))
     return keep

@@ -240,8 +240,32 @@ def _robust_jitter(r2, var):
     return hi
 
 
+def _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol):
+    """
+    Extend a local solution outwards from its seed triangle.
+
+    A similarity proposed by one triangle is right near that triangle and
+    increasingly wrong away from it when the true transform has shear or
+    anisotropic scale.  Fitting the model to the stars within a radius of
+    the triangle, then doubling the radius, lets the solution follow the
+    field instead of locking onto wrong pairs far away.
+    """
+    center, radius = seed
+    dist = np.hypot(*(src_pts - center).T)
+    r_max = dist.max()
+    radius = max(radius, 1.0)
+    while True:
+        inside = np.flatnonzero(dist <= radius)
+        si, dj = _mutual_matches(_apply(m, src_pts[inside]), dst_pts, dst_tree, tol)
+        if len(si) >= max(cls.min_points, 4):
+            m, _, _ = cls._linear_fit(src_pts[inside[si]], dst_pts[dj], np.ones(len(si)), 1)
+        if radius >= r_max:
+            return m
+        radius *= 2.0
+
+
 def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol,
-            src_err=None, dst_err=None, n_iter=8):
+            src_err=None, dst_err=None, n_iter=8, seed=None):
     """
     Iterative cross-match and weighted least-squares fit from a matrix.
 
@@ -258,6 +282,8 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
     cls = transform_class(transform_type)
     fit_parity = parity if transform_type in ("similarity", "euclidean") else 1
     m = m0
+    if seed is not None and cls.n_dof > 4:
+        m = _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol)
     cur_tol = tol
     last = None
     for _ in range(n_iter):
@@ -287,6 +313,16 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
     if last is None:
         return None
     si, dj, total, used_tol = last
+    # Pairs whose scatter fills the capture radius even under the most
+    # flexible model are a random set, however many (a wrong local
+    # optimum): do not return them.  If only the requested model leaves a
+    # large scatter, the pairs are real and the model inadequate, which
+    # the caller reports (PoorFitWarning).
+    if 4.0 * np.sqrt(np.median(total)) > tol and len(si) >= 4:
+        aff, _, _ = AffineTransform._linear_fit(src_pts[si], dst_pts[dj], 1.0 / total, 1)
+        r = _apply(aff, src_pts[si]) - dst_pts[dj]
+        if 4.0 * np.sqrt(np.median(np.einsum("ij,ij->i", r, r)) / 1.386) > tol:
+            return None
     model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls,
                                       parity=fit_parity if cls.n_dof in (3, 4) else None,
                                       weights=1.0 / total)
@@ -429,8 +465,10 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
         """Refine hypothesis h and compute its false-alarm probability."""
         if not promising(h):
             return None
+        tri = src_ast.points[src_ast.triangles[pairs[h, 0]]]
+        seed = (tri.mean(axis=0), 2.0 * src_ast.size[pairs[h, 0]])
         res = _refine(mats[h], parity[h], src_pts, dst_pts, dst_tree, transform_type,
-                      tolerance, min_tolerance, source_errors, target_errors)
+                      tolerance, min_tolerance, source_errors, target_errors, seed=seed)
         if res is None:
             return None
         model, si, dj, resid, cov, tol = res

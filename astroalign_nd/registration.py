@@ -64,6 +64,7 @@ class Reference:
         self.detect_options = detect_options
         self._stars = {}
         self._asterisms = {}
+        self.fwhm = None
 
     @property
     def shape(self):
@@ -105,6 +106,7 @@ class Reference:
                                        np.asarray(table["y"], float)])
                 self._stars[n_sources] = (pts, np.asarray(table["position_error"], float),
                                           (-0.5, nx - 0.5, -0.5, ny - 0.5))
+                self.fwhm = table.meta.get("fwhm")
         return self._stars[n_sources]
 
     def asterisms(self, n_sources, n_neighbors=4):
@@ -123,6 +125,7 @@ def _as_reference(obj, name, detect_options):
     ref.parsed = parse_input(obj, name)
     ref.detect_options = detect_options
     ref._stars, ref._asterisms = {}, {}
+    ref.fwhm = None
     return ref
 
 
@@ -168,6 +171,9 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
         n, nn = plan[k]
         src_pts, src_err, src_frame = src.stars(n)
         dst_pts, dst_err, dst_frame = dst.stars(n)
+        if "tolerance" not in options:
+            # Wide stars (defocus, digitised plates) have wide position errors.
+            mat["tolerance"] = max(3.0, 0.5 * (dst.fwhm or 0.0))
         try:
             result = match_points(src_pts, dst_pts, transform_type=transform_type,
                                   source_frame=src_frame, target_frame=dst_frame,

@@ -509,10 +509,6 @@ def test_affine_type():
     assert frame_error(s, pair.truth_matrix, pair.target.shape) > 1.0
 
 
-@pytest.mark.xfail(reason="package bug: with transform_type='affine' and a 5-8 % shear / "
-                          "anisotropy, a wrong affine (29 px off at the frame corners, "
-                          "rms 1.4 px, false alarm 1e-14) is accepted; also on exact "
-                          "catalogs (see report)", strict=False)
 @pytest.mark.parametrize("inputs, seed", [("images", 44), ("catalogs", 45)])
 def test_affine_type_strong_shear(inputs, seed):
     truth = AffineTransform(a11=1.05, a12=0.08, a21=-0.03, a22=0.97,
