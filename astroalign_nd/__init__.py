@@ -8,7 +8,13 @@ The pipeline, one module per stage: `~astroalign_nd.detection` (sources)
 -> `~astroalign_nd.asterisms` (triangles) -> `~astroalign_nd.matching`
 (match, verify, refine) -> `~astroalign_nd.transforms` (models) ->
 `~astroalign_nd.resample` (pixels) -> `~astroalign_nd.ccddata` (CCDData).
+`~astroalign_nd.registration` strings them together.
+
+Public names are imported on first use, so that ``import astroalign_nd``
+(and the command line's ``--help``) stays fast.
 """
+
+import importlib
 
 try:
     from ._version import version as __version__
@@ -17,20 +23,40 @@ except ImportError:  # running from a source tree that was never built
 
 from .exceptions import (AstroalignError, AstroalignWarning, PoorFitWarning,
                          TooFewSourcesError, TransformNotFoundError)
-from .detection import find_sources
-from .transforms import (AffineTransform, EuclideanTransform, LinearTransform2D,
-                         SimilarityTransform, TranslationTransform)
-from .registration import Reference, find_match, find_transform, register
-from .ccddata import apply_transform
-from .batch import register_batch
-from .io import transform_from_header, transform_to_header
+
+# name -> submodule that defines it
+_LAZY = {
+    "find_sources": "detection",
+    "find_transform": "registration",
+    "find_match": "registration",
+    "register": "registration",
+    "Reference": "registration",
+    "apply_transform": "ccddata",
+    "register_batch": "batch",
+    "LinearTransform2D": "transforms",
+    "TranslationTransform": "transforms",
+    "EuclideanTransform": "transforms",
+    "SimilarityTransform": "transforms",
+    "AffineTransform": "transforms",
+    "transform_to_header": "io",
+    "transform_from_header": "io",
+}
 
 __all__ = [
     "__version__",
     "AstroalignError", "AstroalignWarning", "PoorFitWarning", "TooFewSourcesError",
     "TransformNotFoundError",
-    "find_sources", "find_transform", "find_match", "register", "apply_transform", "Reference", "register_batch",
-    "LinearTransform2D", "TranslationTransform", "EuclideanTransform", "SimilarityTransform",
-    "AffineTransform",
-    "transform_to_header", "transform_from_header",
+    *_LAZY,
 ]
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value  # later look-ups skip this function
+        return value
+    raise AttributeError(f"module 'astroalign_nd' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

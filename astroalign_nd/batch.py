@@ -90,20 +90,31 @@ def _frame_name(src, i):
 
 
 def _output_path(output_dir, name, suffix):
-    stem = name
+    stem, _, dup = name.partition("#")
+    dup = f"_{dup}" if dup else ""
     for ext in (".fits.gz", ".fits", ".fit", ".fts", ".FITS", ".FIT", ".jpg", ".jpeg", ".png",
                 ".tif", ".tiff"):
         if stem.endswith(ext):
             stem = stem[: -len(ext)]
             break
-    return os.path.join(output_dir, f"{stem}{suffix}.fits")
+    return os.path.join(output_dir, f"{stem}{dup}{suffix}.fits")
 
 
-def _register_one(src, i, reference, output_dir, overwrite, suffix, options, apply_options):
+def _unique_names(names):
+    """Make repeated names unique (``a.fits``, ``a.fits#1``...) so outputs never collide."""
+    seen, out = {}, []
+    for n in names:
+        k = seen.get(n, 0)
+        seen[n] = k + 1
+        out.append(n if k == 0 else f"{n}#{k}")
+    return out
+
+
+def _register_one(src, name, reference, output_dir, overwrite, suffix, options,
+                  apply_options):
     """Register one frame; never raises (a batch must go on)."""
     from .ccddata import apply_transform
 
-    name = _frame_name(src, i)
     t0 = time.perf_counter()
     out_path = None
     try:
@@ -128,7 +139,7 @@ def _register_one(src, i, reference, output_dir, overwrite, suffix, options, app
 
 def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix="_aligned",
                    client=None, progress=False, order="bicubic", conserve_flux=False,
-                   fill_value=np.nan, method="interpolate", **options):
+                   fill_value=np.nan, method="interpolate", unit=None, **options):
     """
     Register every frame of ``sources`` onto ``target``.
 
@@ -153,7 +164,7 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix=
         the other in this process.
     progress : bool, optional
         Show a tqdm progress bar.
-    order, conserve_flux, fill_value, method
+    order, conserve_flux, fill_value, method, unit
         As in `~astroalign_nd.apply_transform`.
     **options
         As in `~astroalign_nd.find_transform` (``transform_type``,
@@ -177,7 +188,8 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix=
     ref.stars(n)
     ref.asterisms(n, options.get("n_neighbors", 4))
     apply_options = dict(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
-                         method=method)
+                         method=method, unit=unit)
+    names = _unique_names([_frame_name(src, i) for i, src in enumerate(sources)])
     args = (output_dir, overwrite, suffix, options, apply_options)
 
     bar = None
@@ -188,14 +200,14 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix=
     results = [None] * len(sources)
     if client is None:
         for i, src in enumerate(sources):
-            results[i] = _register_one(src, i, ref, *args)
+            results[i] = _register_one(src, names[i], ref, *args)
             if bar is not None:
                 bar.update(1)
     else:
         from dask.distributed import as_completed
 
         ref_future = client.scatter(ref, broadcast=True)
-        futures = [client.submit(_register_one, src, i, ref_future, *args, pure=False)
+        futures = [client.submit(_register_one, src, names[i], ref_future, *args, pure=False)
                    for i, src in enumerate(sources)]
         index = {f.key: i for i, f in enumerate(futures)}
         for fut in as_completed(futures):
@@ -203,7 +215,7 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix=
             try:
                 results[i] = fut.result()
             except Exception as exc:  # a worker died: report, go on
-                results[i] = FrameResult(name=_frame_name(sources[i], i), ok=False,
+                results[i] = FrameResult(name=names[i], ok=False,
                                          error=f"{type(exc).__name__}: {exc}")
             if bar is not None:
                 bar.update(1)

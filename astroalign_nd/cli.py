@@ -101,8 +101,9 @@ def _build_parser():
         description="Register the SOURCE image onto the pixel grid of the TARGET image and "
         "write the aligned image to OUT.",
     )
-    p.add_argument("source", metavar="SOURCE", help="FITS image to be transformed")
-    p.add_argument("target", metavar="TARGET", help="FITS image that defines the output grid")
+    p.add_argument("source", metavar="SOURCE",
+                   help="image to be transformed (FITS, or JPEG/PNG/TIFF)")
+    p.add_argument("target", metavar="TARGET", help="image that defines the output grid")
     p.add_argument("-o", "--output", required=True, metavar="OUT.fits",
                    help="FITS file to write the aligned image to")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
@@ -116,11 +117,19 @@ def _build_parser():
         "DIR/<name>_aligned.fits for each. A frame that fails is reported and skipped; "
         "the exit code is 1 if any frame failed.",
     )
-    p.add_argument("target", metavar="TARGET", help="FITS image that defines the output grid")
-    p.add_argument("sources", metavar="SOURCES", nargs="+", help="FITS images to be transformed")
+    p.add_argument("target", metavar="TARGET", help="image that defines the output grid")
+    p.add_argument("sources", metavar="SOURCES", nargs="+",
+                   help="images to be transformed (FITS, or JPEG/PNG/TIFF)")
     p.add_argument("--output-dir", required=True, metavar="DIR",
                    help="folder for the aligned images (created if needed)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                   help="run the frames on this dask.distributed scheduler "
+                   "(e.g. tcp://host:8786)")
+    p.add_argument("--workers", type=int, default=0, metavar="N",
+                   help="start a local dask.distributed cluster of N worker processes "
+                   "(default: run in this process)")
+    p.add_argument("--progress", action="store_true", help="show a progress bar")
     p.set_defaults(func=_cmd_batch)
 
     p = sub.add_parser(
@@ -159,24 +168,10 @@ def _check_writable(path, overwrite):
         raise CLIError(f"output file {path!r} already exists; pass --overwrite to replace it.")
 
 
-def _read_image(path, unit=None):
-    """
-    Read a FITS image as `~astropy.nddata.CCDData`.
-
-    The unit is the file's BUNIT; for a file without one (most raw frames)
-    it is ``unit``, or ``adu`` if ``unit`` is None.
-    """
-    from astropy.nddata import CCDData
-
+def _check_input(path):
     if not os.path.isfile(path):
         raise CLIError(f"input file {path!r} does not exist or is not a file.")
-    try:
-        return CCDData.read(path, format="fits")
-    except ValueError as exc:
-        # CCDData refuses a file without BUNIT; anything else is a real error.
-        if "unit" not in str(exc).lower():
-            raise
-        return CCDData.read(path, unit=unit or "adu", format="fits")
+    return path
 
 
 def _describe(transform):
@@ -222,57 +217,52 @@ def _cmd_register(args):
     import astroalign_nd
 
     _check_writable(args.output, args.overwrite)
-    source = _read_image(args.source, args.unit)
-    target = _read_image(args.target, args.unit)
-    aligned = astroalign_nd.register(source, target, **_registration_kwargs(args))
+    aligned = astroalign_nd.register(_check_input(args.source), _check_input(args.target),
+                                     unit=args.unit, **_registration_kwargs(args))
     aligned.write(args.output, overwrite=args.overwrite)
+    q = aligned.meta
+    print(f"{_describe(astroalign_nd.transform_from_header(q))}; {q['AATNMAT']} matched "
+          f"stars, RMS {q['AATRMS']:.3f} px")
     print(f"wrote {args.output}")
     return 0
-
-
-def _batch_output_names(sources, output_dir):
-    """``DIR/<stem>_aligned.fits`` for each source, made unique if two stems collide."""
-    names, seen = [], {}
-    for path in sources:
-        stem = os.path.basename(path)
-        for ext in (".gz", ".fz", ".fits", ".fit", ".fts"):
-            if stem.lower().endswith(ext):
-                stem = stem[: -len(ext)]
-        count = seen.get(stem, 0)
-        seen[stem] = count + 1
-        suffix = f"_{count}" if count else ""
-        names.append(os.path.join(output_dir, f"{stem}{suffix}_aligned.fits"))
-    return names
 
 
 def _cmd_batch(args):
     import astroalign_nd
 
-    errors = (astroalign_nd.AstroalignError, CLIError) + _USER_ERRORS
-    target = _read_image(args.target, args.unit)
-    os.makedirs(args.output_dir, exist_ok=True)
-    outputs = _batch_output_names(args.sources, args.output_dir)
-    kwargs = _registration_kwargs(args)
-
-    failed = []
-    for i, (path, out) in enumerate(zip(args.sources, outputs), start=1):
-        prefix = f"[{i}/{len(args.sources)}] {path}"
+    _check_input(args.target)
+    client = cluster = None
+    if args.scheduler or args.workers:
         try:
-            _check_writable(out, args.overwrite)
-            source = _read_image(path, args.unit)
-            aligned = astroalign_nd.register(source, target, **kwargs)
-            aligned.write(out, overwrite=args.overwrite)
-        except errors as exc:
-            failed.append(path)
-            print(f"{prefix}: FAILED ({type(exc).__name__}: {exc})", flush=True)
+            from dask.distributed import Client, LocalCluster
+        except ImportError:
+            raise CLIError("--scheduler/--workers need dask.distributed: "
+                           "pip install 'astroalign_nd[dask]'") from None
+        if args.scheduler:
+            client = Client(args.scheduler)
         else:
-            print(f"{prefix}: ok -> {out}", flush=True)
-
-    n_ok = len(args.sources) - len(failed)
-    print(f"{n_ok} of {len(args.sources)} frames registered, {len(failed)} failed.")
-    for path in failed:
-        print(f"  failed: {path}")
-    return 1 if failed else 0
+            cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1,
+                                   dashboard_address=None)
+            client = Client(cluster)
+    try:
+        kwargs = _registration_kwargs(args)
+        result = astroalign_nd.register_batch(
+            args.sources, args.target, output_dir=args.output_dir, overwrite=args.overwrite,
+            client=client, progress=args.progress, unit=args.unit, **kwargs)
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+    for i, f in enumerate(result.frames, start=1):
+        prefix = f"[{i}/{len(result.frames)}] {args.sources[i - 1]}"
+        if f.ok:
+            print(f"{prefix}: ok -> {f.output} ({f.quality['n_matches']} stars, "
+                  f"RMS {f.quality['rms']:.3f} px)")
+        else:
+            print(f"{prefix}: FAILED ({f.error})")
+    print(result.summary())
+    return 1 if result.failed else 0
 
 
 def _cmd_demo(args):
@@ -305,11 +295,8 @@ def _cmd_demo(args):
     aligned = astroalign_nd.register(source, target)
     aligned.write(paths["aligned"], overwrite=args.overwrite)
 
-    # register() returns the image only; find the transform again to compare it with the truth.
-    found = astroalign_nd.find_transform(source, target)
-    recovered = getattr(found, "transform", None)
-    if recovered is None:
-        recovered = found[0] if isinstance(found, tuple) else found
+    # The registered frame records how it was made: rebuild the transform.
+    recovered = astroalign_nd.transform_from_header(aligned.meta)
     error = _max_corner_error(recovered, pair.transform, source.shape)
 
     print(f"true transform:      {_describe(pair.transform)}")
