@@ -37,7 +37,8 @@ class ParsedInput:
     data : ndarray or None
         Image data, 2-D or (ny, nx, nchan); None for catalogs.
     mask : bool ndarray or None
-        True for bad pixels (given mask OR not finite), shape (ny, nx).
+        The caller's mask (True for bad pixels), shape (ny, nx).  Non-finite
+        pixels are not included: every stage treats them as masked itself.
     uncertainty : `~astropy.nddata.NDUncertainty` or None
     unit : `~astropy.units.Unit` or None
     wcs : `~astropy.wcs.WCS` or None
@@ -99,20 +100,24 @@ def _check_image_array(arr, name):
     return arr
 
 
-def _finite_mask(data, mask):
-    bad = ~np.isfinite(data) if data.dtype.kind == "f" else np.zeros(data.shape, bool)
-    if bad.ndim == 3:
-        bad = bad.any(axis=2)
-    if mask is not None:
-        m = np.asarray(mask, dtype=bool)
-        if m.ndim == 3:
-            m = m.any(axis=2)
-        if m.shape != bad.shape:
-            raise ValueError(
-                f"mask shape {np.shape(mask)} does not match the image shape {data.shape}."
-            )
-        bad = bad | m
-    return bad if bad.any() else None
+def _user_mask(data, mask):
+    """
+    The caller's mask as a 2-D bool array (None if there is none).
+
+    Non-finite pixels are not added here: detection and resampling find
+    them in the same pass that reads the data, which saves a full-frame
+    pass over large images.
+    """
+    if mask is None or np.ndim(mask) == 0:
+        return None if mask is None or not bool(mask) else np.ones(data.shape[:2], bool)
+    m = np.asarray(mask, dtype=bool)
+    if m.ndim == 3:
+        m = m.any(axis=2)
+    if m.shape != data.shape[:2]:
+        raise ValueError(
+            f"mask shape {np.shape(mask)} does not match the image shape {data.shape}."
+        )
+    return m if m.any() else None
 
 
 def _catalog_points(obj, name):
@@ -157,7 +162,7 @@ def _from_hdu(hdu, name):
         wcs = None
     # The HDU's data array belongs to the caller: work on a copy.
     arr = np.array(data)
-    return ParsedInput(data=_check_image_array(arr, name), mask=_finite_mask(arr, None),
+    return ParsedInput(data=_check_image_array(arr, name), mask=None,
                        unit=unit, wcs=wcs, meta=header, kind="fits", name=name)
 
 
@@ -172,7 +177,7 @@ def _read_path(path, name):
         arr = np.asarray(imread(path))
         if arr.ndim == 3 and arr.shape[2] == 4:
             arr = arr[..., :3]  # drop alpha
-        p = ParsedInput(data=_check_image_array(arr, name), mask=_finite_mask(arr, None),
+        p = ParsedInput(data=_check_image_array(arr, name), mask=None,
                         kind="image-file", name=os.path.basename(path))
         return p
     try:
@@ -233,14 +238,14 @@ def parse_input(obj, name="input"):
         if unc is not None:
             unc = unc.__class__(np.array(unc.array), unit=unc.unit)
         return ParsedInput(
-            data=arr, mask=_finite_mask(arr, obj.mask), uncertainty=unc, unit=obj.unit,
+            data=arr, mask=_user_mask(arr, obj.mask), uncertainty=unc, unit=obj.unit,
             wcs=obj.wcs if getattr(obj.wcs, "has_celestial", False) else None,
             meta=meta, kind="nddata", name=type(obj).__name__)
     if isinstance(obj, np.ma.MaskedArray):
         arr = np.asarray(obj.data)
         _check_image_array(arr, name)
         m = np.ma.getmaskarray(obj)
-        return ParsedInput(data=arr, mask=_finite_mask(arr, m), kind="masked",
+        return ParsedInput(data=arr, mask=_user_mask(arr, m), kind="masked",
                            name="masked array")
     if isinstance(obj, (list, tuple)) or hasattr(obj, "__array__"):
         arr = np.asarray(obj)
@@ -248,7 +253,7 @@ def parse_input(obj, name="input"):
             return ParsedInput(points=_catalog_points(arr, name), kind="catalog",
                                name="catalog")
         _check_image_array(arr, name)
-        return ParsedInput(data=arr, mask=_finite_mask(arr, None), kind="array", name="array")
+        return ParsedInput(data=arr, mask=None, kind="array", name="array")
     raise TypeError(
         f"{name} of type {type(obj).__name__} is not supported. Pass a 2-D array, a masked "
         "array, an NDData/CCDData, a FITS HDU or path, or a catalog (Table with x/y columns "

@@ -19,46 +19,35 @@ try:  # numba is a hard dependency, but keep the package importable without it
 except ImportError:  # pragma: no cover
     HAVE_NUMBA = False
 
-__all__ = ["bin_despike", "peak_candidates"]
+__all__ = ["bin_despike", "peak_candidates", "has_nonfinite", "PointGrid", "count_inliers"]
 
 
 if HAVE_NUMBA:
 
     @njit(cache=True, parallel=True, nogil=True)
-    def _bin_despike_nb(data, mask, b, fill, out):
+    def _bin_despike_nb(data, mask, use_mask, b, fill, out):
         ny, nx = out.shape
         inv = 1.0 / (b * b - 1)
         for i in prange(ny):
-            for j in range(nx):
-                total = 0.0
-                peak = -np.inf
-                for di in range(b):
+            # Walk the b source rows of this output row in memory order.
+            total = np.zeros(nx)
+            peak = np.full(nx, -np.inf)
+            for di in range(b):
+                row = data[i * b + di]
+                for j in range(nx):
+                    t = 0.0
+                    p = peak[j]
                     for dj in range(b):
-                        v = data[i * b + di, j * b + dj]
-                        if mask[i * b + di, j * b + dj] or not np.isfinite(v):
+                        v = row[j * b + dj]
+                        if not np.isfinite(v) or (use_mask and mask[i * b + di, j * b + dj]):
                             v = fill
-                        total += v
-                        if v > peak:
-                            peak = v
-                out[i, j] = (total - peak) * inv
-
-    @njit(cache=True, parallel=True, nogil=True)
-    def _bin_despike_nomask_nb(data, b, fill, out):
-        ny, nx = out.shape
-        inv = 1.0 / (b * b - 1)
-        for i in prange(ny):
+                        t += v
+                        if v > p:
+                            p = v
+                    total[j] += t
+                    peak[j] = p
             for j in range(nx):
-                total = 0.0
-                peak = -np.inf
-                for di in range(b):
-                    for dj in range(b):
-                        v = data[i * b + di, j * b + dj]
-                        if not np.isfinite(v):
-                            v = fill
-                        total += v
-                        if v > peak:
-                            peak = v
-                out[i, j] = (total - peak) * inv
+                out[i, j] = (total[j] - peak[j]) * inv
 
     @njit(cache=True, nogil=True)
     def _peaks_nb(img, threshold, border):
@@ -110,10 +99,8 @@ def bin_despike(data, b, mask=None, fill=0.0):
     out = np.empty((ny, nx), dtype=np.float32)
     if HAVE_NUMBA and data.dtype in (np.float32, np.float64):
         arr = np.ascontiguousarray(data)
-        if mask is None:
-            _bin_despike_nomask_nb(arr, b, float(fill), out)
-        else:
-            _bin_despike_nb(arr, np.ascontiguousarray(mask), b, float(fill), out)
+        m = np.zeros((1, 1), bool) if mask is None else np.ascontiguousarray(mask)
+        _bin_despike_nb(arr, m, mask is not None, b, float(fill), out)
         return out
     blocks = np.asarray(data[: ny * b, : nx * b], dtype=np.float32)
     bad = ~np.isfinite(blocks)
@@ -254,3 +241,23 @@ def count_inliers(mats, src, grid):
     pred = np.einsum("kij,nj->kni", mats[:, :2, :2], src) + mats[:, None, :2, 2]
     d, _ = tree.query(pred.reshape(-1, 2), distance_upper_bound=grid.radius)
     return np.isfinite(d).reshape(len(mats), -1).sum(axis=1)
+
+
+if HAVE_NUMBA:
+
+    @njit(cache=True, parallel=True, nogil=True)
+    def _count_nonfinite_nb(flat):
+        n = 0
+        for i in prange(flat.size):
+            if not np.isfinite(flat[i]):
+                n += 1
+        return n
+
+
+def has_nonfinite(arr):
+    """True if a float array has a NaN or infinite value (one parallel pass)."""
+    if arr.dtype.kind != "f":
+        return False
+    if HAVE_NUMBA and arr.flags.c_contiguous:
+        return _count_nonfinite_nb(arr.reshape(-1)) > 0
+    return not np.isfinite(arr).all()

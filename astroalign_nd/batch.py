@@ -138,7 +138,7 @@ def _register_one(src, name, reference, output_dir, overwrite, suffix, options,
 
 
 def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix="_aligned",
-                   client=None, progress=False, order="bicubic", conserve_flux=False,
+                   client=None, progress=False, order="bilinear", conserve_flux=False,
                    fill_value=np.nan, method="interpolate", unit=None, **options):
     """
     Register every frame of ``sources`` onto ``target``.

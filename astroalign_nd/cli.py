@@ -59,7 +59,7 @@ def _registration_options():
     )
     group.add_argument(
         "--order",
-        default="bicubic",
+        default="bilinear",
         help="interpolation used to resample the source: nearest-neighbor, bilinear, "
         "biquadratic or bicubic (default: %(default)s)",
     )

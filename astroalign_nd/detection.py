@@ -103,10 +103,7 @@ def _background_map(binned, box):
     bkg = np.median(blocks, axis=2)
     wy = _interp_matrix(ny, by, cy)
     wx = _interp_matrix(nx, bx, cx)
-    # einsum, not BLAS: these products are tiny, and a threaded BLAS only
-    # adds start-up and contention cost.
-    tmp = np.einsum("ik,jk->ij", bkg, wx)
-    return np.einsum("ik,kj->ij", wy, tmp).astype(np.float32), bkg
+    return ((wy @ bkg) @ wx.T).astype(np.float32), bkg
 
 
 def _extract_cutouts(data, mask, xc, yc, half, fill):
@@ -137,11 +134,14 @@ def _local_background(cut, bad, r_in):
     n, size, _ = cut.shape
     g = np.arange(size) - size // 2
     outer = (g[:, None] ** 2 + g[None, :] ** 2) >= r_in**2
-    vals = np.where(outer[None] & ~bad, cut, np.nan).reshape(n, -1)[:, outer.ravel()]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        bkg = np.nanmedian(vals, axis=1)
-    return np.where(np.isfinite(bkg), bkg, 0.0)
+    sel = outer.ravel()
+    vals = cut.reshape(n, -1)[:, sel]
+    badv = bad.reshape(n, -1)[:, sel]
+    bkg = np.median(vals, axis=1)  # right for every cutout without bad pixels
+    for i in np.flatnonzero(badv.any(axis=1)):  # the few at edges or masks
+        good = vals[i][~badv[i]]
+        bkg[i] = np.median(good) if good.size else 0.0
+    return bkg
 
 
 def _adaptive_fwhm(cut, bad, dx, dy, sigma0=1.5, n_iter=8):
@@ -164,10 +164,11 @@ def _adaptive_fwhm(cut, bad, dx, dy, sigma0=1.5, n_iter=8):
     for _ in range(n_iter):
         wx = np.exp(-0.5 * (ex / sig_w[:, None]) ** 2)
         wy = np.exp(-0.5 * (ey / sig_w[:, None]) ** 2)
-        w = img * wy[:, :, None] * wx[:, None, :]
-        tot = w.sum(axis=(1, 2))
-        mxx = (w.sum(axis=1) * ex**2).sum(axis=1)
-        myy = (w.sum(axis=2) * ey**2).sum(axis=1)
+        col = np.matmul(wy[:, None, :], img)[:, 0, :]  # separable window, as above
+        row = np.matmul(img, wx[:, :, None])[:, :, 0]
+        tot = np.einsum("nj,nj->n", col, wx)
+        mxx = np.einsum("nj,nj->n", col, wx * ex**2)
+        myy = np.einsum("ni,ni->n", row, wy * ey**2)
         with np.errstate(invalid="ignore", divide="ignore"):
             s2 = 0.5 * (mxx + myy) / tot
             inv = 1.0 / s2 - 1.0 / sig_w**2
@@ -205,17 +206,18 @@ def estimate_fwhm(data, *, mask=None, n_stars=30):
 
 def _fwhm_from_candidates(data, mask, cand, n_stars):
     # The brightest candidates are enough (and keep this cheap).
-    top = slice(0, 2 * n_stars)
+    top = slice(0, int(1.5 * n_stars))
     x, y, bkg = cand["x"][top], cand["y"][top], cand["bkg"][top]
     xc = np.round(x).astype(int)
     yc = np.round(y).astype(int)
-    for half in (16,):
+    for half in (14,):
         cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
         # A local sky: any pedestal left would inflate the moments.
         cut = cut - _local_background(cut - bkg[:, None, None], bad, 0.75 * half)[
             :, None, None] - bkg[:, None, None]
         cut[bad] = 0.0
-        fwhm = _adaptive_fwhm(cut, bad, x - xc, y - yc, sigma0=max(1.5, half / 10.0))
+        fwhm = _adaptive_fwhm(cut, bad, x - xc, y - yc, sigma0=max(1.5, half / 10.0),
+                              n_iter=6)
         peak = cut.reshape(len(x), -1).max(axis=1)
         # Hot pixels and cosmic rays give a tiny FWHM; saturated
         # (flat-topped) stars a biased one.
@@ -256,15 +258,17 @@ def _as_image(data, mask):
         raise ValueError(f"image is too small to detect stars in: shape {arr.shape}.")
     if arr.dtype != np.float32 and arr.dtype != np.float64:
         arr = arr.astype(np.float32)
-    m = ~np.isfinite(arr)
+    # Non-finite pixels are not collected here (a full-frame pass): every
+    # step that reads pixels (noise samples, binning, cutouts) skips them.
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != arr.shape:
             raise ValueError(
                 f"mask shape {mask.shape} does not match the image shape {arr.shape}."
             )
-        m |= mask
-    return arr, (m if m.any() else None)
+        if not mask.any():
+            mask = None
+    return arr, mask
 
 
 def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
@@ -282,7 +286,9 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
             np.isfinite(good) & ~mask[::4, ::4]]
         fill = float(np.median(good)) if good.size else 0.0
     binned = bin_despike(data, b, mask, fill)
-    box = max(4, int(round(64 / b)))
+    # Sky boxes of ~128 full-resolution pixels follow gradients, and stay
+    # few enough for the expansion to be cheap.
+    box = max(4, int(round(128 / b)))
     bkg_map, _ = _background_map(binned, box)
     resid = binned - bkg_map
     # Mean of b*b - 1 pixels: the noise drops by about that square root.
@@ -306,11 +312,14 @@ def _windowed_centroid(cut, bad, x0, y0, sigma, n_iter=8):
         dy = g[None, :] - y[:, None]
         wx = np.exp(-0.5 * (dx / sigma[:, None]) ** 2)
         wy = np.exp(-0.5 * (dy / sigma[:, None]) ** 2)
-        w = w_img * wy[:, :, None] * wx[:, None, :]
-        tot = w.sum(axis=(1, 2))
+        # The window is separable: collapse one axis at a time instead of
+        # forming the (n, size, size) weighted stack.
+        col = np.matmul(wy[:, None, :], w_img)[:, 0, :]  # sum over rows
+        row = np.matmul(w_img, wx[:, :, None])[:, :, 0]  # sum over columns
+        tot = np.einsum("nj,nj->n", col, wx)
         ok = tot > 0
-        sx = (w.sum(axis=1) * dx).sum(axis=1)
-        sy = (w.sum(axis=2) * dy).sum(axis=1)
+        sx = np.einsum("nj,nj->n", col, wx * dx)
+        sy = np.einsum("ni,ni->n", row, wy * dy)
         # The factor 2 is the XWIN update for a Gaussian window.
         step_x = np.where(ok, 2.0 * sx / np.where(ok, tot, 1.0), 0.0)
         step_y = np.where(ok, 2.0 * sy / np.where(ok, tot, 1.0), 0.0)
@@ -388,7 +397,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
 
     # Recentre the coarse candidates at full resolution (a broad window
     # centroid), so that cutouts and moments are centred on the stars.
-    rc = int(np.ceil(1.5 * b + 4))
+    rc = int(np.ceil(b + 3))
     xc = np.round(cand["x"]).astype(int)
     yc = np.round(cand["y"]).astype(int)
     cut, bad = _extract_cutouts(data, mask, xc, yc, rc, 0.0)
@@ -396,7 +405,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     cut[bad] = 0.0
     sig0 = np.full(len(xc), max(1.0, 0.5 * b, (fwhm or 3.0) / _GAUSS_SIGMA_TO_FWHM))
     lx, ly = _windowed_centroid(np.clip(cut, 0, None), bad, np.full(len(xc), float(rc)),
-                                np.full(len(xc), float(rc)), sig0, n_iter=6)
+                                np.full(len(xc), float(rc)), sig0, n_iter=4)
     cand = dict(cand)
     cand["x"] = xc - rc + lx
     cand["y"] = yc - rc + ly
@@ -502,17 +511,13 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     # The same star can sit in two overlapping candidate tiles.
     keep = _dedupe(gx, gy, np.where(real, aflux, -np.inf), max(1.0, 0.5 * fwhm))
     keep = keep[real[keep]]
-    out = Table()
-    out["x"] = gx[keep]
-    out["y"] = gy[keep]
-    out["flux"] = aflux[keep]
-    out["position_error"] = perr[keep]
-    out["peak"] = np.asarray(tab["peak"], float)[sel][keep]
-    out["sharpness"] = np.asarray(tab["sharpness"], float)[sel][keep]
-    out["roundness1"] = np.asarray(tab["roundness1"], float)[sel][keep]
-    out["roundness2"] = np.asarray(tab["roundness2"], float)[sel][keep]
-    order = np.argsort(-np.asarray(out["flux"]), kind="stable")
-    out = out[order][:n_sources]
+    cols = {
+        "x": gx[keep], "y": gy[keep], "flux": aflux[keep], "position_error": perr[keep],
+        "peak": np.asarray(tab["peak"], float)[sel][keep], "sharpness": sharp[keep],
+        "roundness1": round1[keep], "roundness2": round2[keep],
+    }
+    order = np.argsort(-cols["flux"], kind="stable")[:n_sources]
+    out = Table({k: v[order] for k, v in cols.items()}, copy=False)
     out.meta.update(fwhm=float(fwhm), noise=float(noise), bin_factor=int(b))
     return out
 
@@ -592,18 +597,19 @@ def _population_inliers(sharp, round1, round2, ok):
 
 
 def _dedupe(x, y, flux, radius):
+    """Indices of the sources to keep: the brighter of any two closer than radius."""
     from scipy.spatial import cKDTree
 
-    order = np.argsort(-flux, kind="stable")
-    tree = cKDTree(np.column_stack([x, y]))
-    taken = np.zeros(len(x), bool)
-    keep = []
-    for i in order:
-        if taken[i]:
-            continue
-        keep.append(i)
-        taken[tree.query_ball_point([x[i], y[i]], radius)] = True
-    return np.array(sorted(keep), dtype=int)
+    pairs = cKDTree(np.column_stack([x, y])).query_pairs(radius, output_type="ndarray")
+    drop = np.zeros(len(x), bool)
+    if len(pairs):
+        # Visit pairs brightest-first so that a dropped source cannot drop another.
+        first = np.maximum(flux[pairs[:, 0]], flux[pairs[:, 1]])
+        for i, j in pairs[np.argsort(-first, kind="stable")]:
+            if drop[i] or drop[j]:
+                continue
+            drop[j if flux[i] >= flux[j] else i] = True
+    return np.flatnonzero(~drop)
 
 
 def _empty_table(fwhm, noise, b):

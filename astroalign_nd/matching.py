@@ -202,7 +202,9 @@ def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame
     # its own three vertices as well as this one does (2 spare dof).
     spread = max(inv_radius * tri_size, 1e-9)
     log_tri = 2.0 * np.log10(min(1.0, max(tri_rms, 1e-3) / spread))
-    return float(np.log10(max(n_trials, 1)) + log_tail + log_tri)
+    # Below 1e-300 the number means "certain"; keep it finite (FITS headers
+    # cannot hold -inf).
+    return float(max(np.log10(max(n_trials, 1)) + log_tail + log_tri, -300.0))
 
 
 def _jitter(r2, var, dof):
@@ -225,19 +227,12 @@ def _robust_jitter(r2, var):
     of a chi-square with 2 degrees of freedom (2 ln 2).
 
     A median, unlike the chi-square sum, is not inflated by the few wrong
-    pairs that the cut after it must remove.
+    pairs that the cut after it must remove.  Pair ``i`` has
+    ``r2_i / (var_i + j2) <= t`` exactly when ``j2 >= r2_i / t - var_i``, so
+    the solution is the median of those thresholds (no iteration).
     """
     target = 2.0 * np.log(2.0)
-    if np.median(r2 / var) <= target:
-        return 0.0
-    lo, hi = 0.0, float(np.max(r2))
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        if np.median(r2 / (var + mid)) > target:
-            lo = mid
-        else:
-            hi = mid
-    return hi
+    return max(float(np.median(r2 / target - var)), 0.0)
 
 
 def _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol):

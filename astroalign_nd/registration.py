@@ -78,7 +78,7 @@ class Reference:
         Returns
         -------
         points : (N, 2) ndarray
-            Brightest first.  For images, up to ``3 * n_sources`` stars:
+            Brightest first.  For images, up to ``2 * n_sources`` stars:
             the first ``n_sources`` are the control points, all of them
             refine the fit.
         errors : (N,) ndarray or None
@@ -92,12 +92,12 @@ class Reference:
                 self._stars[n_sources] = (p.points, None, None)
             else:
                 table = find_sources(p.detection_image, mask=p.mask,
-                                     n_sources=3 * n_sources, **self.detect_options)
+                                     n_sources=2 * n_sources, **self.detect_options)
                 if len(table) < n_sources and "nsigma" not in self.detect_options:
                     # A faint field: go deeper rather than give up.  The
                     # false-alarm test guards against what noise adds.
                     deeper = find_sources(p.detection_image, mask=p.mask,
-                                          n_sources=3 * n_sources, nsigma=3.0,
+                                          n_sources=2 * n_sources, nsigma=3.0,
                                           **self.detect_options)
                     if len(deeper) > len(table):
                         table = deeper
@@ -287,7 +287,7 @@ def _positive_int(value, name):
 
 
 def register(source, target, *, transform_type="similarity", n_sources=50, max_sources=200,
-             order="bicubic", conserve_flux=False, fill_value=np.nan, method="interpolate",
+             order="bilinear", conserve_flux=False, fill_value=np.nan, method="interpolate",
              unit=None, parallel=True, **options):
     """
     Align ``source`` onto ``target``: `find_transform`, then `apply_transform`.

@@ -5,9 +5,16 @@
 #
 #     sphinx-build -W -b html docs docs/_build/html
 #
-# Offline, add ``-D disable_intersphinx=1`` (sphinx_astropy.ext.intersphinx_toggle).
+# Links to other projects' documentation (intersphinx) need their inventories, downloaded
+# at build time. They are fetched only when ASTROALIGN_ND_INTERSPHINX=1 is set (or on Read
+# the Docs), so that an offline build is quiet:
+#
+#     ASTROALIGN_ND_INTERSPHINX=1 sphinx-build -W -b html docs docs/_build/html
+#
+# ``-D disable_intersphinx=1`` (sphinx_astropy.ext.intersphinx_toggle) turns them off again.
 
 import datetime
+import os
 import sys
 import tomllib
 from importlib.metadata import PackageNotFoundError
@@ -44,6 +51,12 @@ version = ".".join(release.split(".")[:2])
 exclude_patterns.append("_templates")  # noqa: F405
 exclude_patterns.append("**.ipynb_checkpoints")  # noqa: F405
 
+# The notebook tutorials are stored with their outputs (see tutorials/make_*.py, which
+# builds and executes them); the documentation build only renders them.
+extensions.append("nbsphinx")  # noqa: F405
+nbsphinx_execute = "never"
+nbsphinx_allow_errors = False
+
 # Every cross-reference must resolve (build with -W).
 nitpicky = True
 nitpick_ignore = [
@@ -63,8 +76,41 @@ intersphinx_mapping.update(  # noqa: F405
         "reproject": ("https://reproject.readthedocs.io/en/stable/", None),
         "skimage": ("https://scikit-image.org/docs/stable/", None),
         "asdf": ("https://asdf.readthedocs.io/en/stable/", None),
+        "dask": ("https://docs.dask.org/en/stable/", None),
+        "distributed": ("https://distributed.dask.org/en/stable/", None),
     }
 )
+
+_INTERSPHINX = os.environ.get(
+    "ASTROALIGN_ND_INTERSPHINX", "1" if os.environ.get("READTHEDOCS") else "0"
+).strip().lower() not in ("", "0", "false", "no")
+if not _INTERSPHINX:
+    intersphinx_mapping.clear()  # noqa: F405
+
+# Without the inventories, references to other projects cannot resolve: keep nitpicky
+# for this package's own references only.
+_EXTERNAL_PACKAGES = ("python", "numpy", "scipy", "matplotlib", "astropy", "photutils",
+                      "ccdproc", "reproject", "skimage", "asdf", "asdf_astropy", "dask",
+                      "distributed", "tqdm", "numba")
+_EXTERNAL_REGEX = r"(%s)(\..*)?" % "|".join(_EXTERNAL_PACKAGES)
+_EXTERNAL_IGNORE = [
+    (r"py:.*", _EXTERNAL_REGEX),
+    # Python builtins and numpydoc type words
+    (r"py:.*", r"(int|float|str|bool|dict|list|tuple|type|object|bytes|complex|slice"
+               r"|None|True|False|Exception|ValueError|TypeError|UserWarning"
+               r"|ndarray|iterable|sequence|function|class)"),
+]
+
+
+def _offline_nitpick(app, config):
+    """Ignore references to other projects when intersphinx is off (offline builds)."""
+    if not config.intersphinx_mapping:
+        config.nitpick_ignore_regex = list(config.nitpick_ignore_regex) + _EXTERNAL_IGNORE
+
+
+def setup(app):
+    # After sphinx_astropy.ext.intersphinx_toggle (priority 500), which may clear the mapping.
+    app.connect("config-inited", _offline_nitpick, priority=900)
 
 # -- Options for HTML output -----------------------------------------------------------------
 
