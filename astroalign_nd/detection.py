@@ -76,7 +76,9 @@ def estimate_noise(data, mask=None, *, max_samples=50_000):
 def _interp_matrix(n_out, n_blocks, block):
     """(n_out, n_blocks) bilinear weights from block centres to pixels."""
     centres = (np.arange(n_blocks) + 0.5) * block - 0.5
-    pos = np.clip(np.arange(n_out, dtype=float), centres[0], centres[-1])
+    # Beyond the outer block centres the sky is extrapolated linearly, so
+    # that a steep gradient leaves no ramp along the frame's edges.
+    pos = np.arange(n_out, dtype=float)
     w = np.zeros((n_out, n_blocks))
     if n_blocks == 1:
         w[:, 0] = 1.0

@@ -568,10 +568,42 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame):
     return float(np.max(np.hypot(*(_apply(model.matrix, pre) - corners).T)))
 
 
+def _predicted_error(model, cov, frame):
+    """
+    Largest 1-sigma position error (target px) over the frame's corners,
+    propagated from the parameter covariance.
+    """
+    cov = np.asarray(cov, float)
+    free = [n for n in model.param_names if not model.fixed[n]]
+    if cov.shape != (len(free), len(free)) or not np.all(np.isfinite(cov)):
+        return 0.0
+    x0, x1, y0, y1 = frame
+    # Errors are largest at the frame's corners, in target pixels; map them
+    # back to source pixels, where the model's parameters act.
+    inv = np.linalg.inv(model.matrix)
+    corners = _apply(inv, np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]]))
+    base = np.array(model(corners[:, 0], corners[:, 1]))
+    jac = np.zeros((2 * len(corners), len(free)))
+    for k, name in enumerate(free):
+        m2 = model.copy()
+        step = 1e-6 * max(1.0, abs(float(getattr(model, name).value)))
+        setattr(m2, name, float(getattr(model, name).value) + step)
+        jac[:, k] = ((np.array(m2(corners[:, 0], corners[:, 1])) - base) / step).T.ravel()
+    var = np.einsum("ik,kl,il->i", jac, cov, jac).reshape(len(corners), 2)
+    return float(np.sqrt(np.max(var.sum(axis=1))))
+
+
 def _result(c, stats, n_scored, src_pts, dst_pts, src_err, dst_err, dst_frame):
     resid = c["resid"]
     rms = float(np.sqrt(np.mean(np.sum(resid**2, axis=1)))) if len(resid) else float("nan")
     si, dj = c["si"], c["dj"]
+    predicted = _predicted_error(c["model"], c["cov"], dst_frame or _bbox(dst_pts[dj]))
+    if predicted > 0.3:  # 3 sigma above 1 px somewhere in the frame
+        warnings.warn(
+            f"the transform is uncertain: its parameter covariance gives a 1-sigma position "
+            f"error of up to {predicted:.2f} px over the frame ({len(si)} matched stars, RMS "
+            f"{rms:.2f} px). Check it, or give more or brighter stars (n_sources, nsigma).",
+            PoorFitWarning, stacklevel=4)
     misfit = _model_misfit(c["model"], src_pts[si], dst_pts[dj],
                            None if src_err is None else src_err[si],
                            None if dst_err is None else dst_err[dj], dst_frame)
@@ -585,5 +617,5 @@ def _result(c, stats, n_scored, src_pts, dst_pts, src_err, dst_err, dst_frame):
     return MatchResult(
         transform=c["model"], source_index=si, target_index=dj, residuals=resid,
         rms=rms, covariance=c["cov"], log10_false_alarm=c["lfa"], n_hypotheses=n_scored,
-        extra={"model_misfit": misfit}, **stats,
+        extra={"model_misfit": misfit, "predicted_error": predicted}, **stats,
     )

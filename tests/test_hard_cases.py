@@ -50,11 +50,12 @@ def _describe(t):
             f"log10 FA={q.get('log10_false_alarm', float('nan')):.1f}")
 
 
-def check_pair(pair, tol, **options):
+def check_pair(pair, tol, uncertain_ok=False, **options):
     """find_transform on the pair's images; assert the frame error is below tol (px)."""
     with warnings.catch_warnings():
-        # A PoorFitWarning here would mean a doubtful answer: fail loudly.
-        warnings.simplefilter("error", PoorFitWarning)
+        # A PoorFitWarning here would mean a doubtful answer: fail loudly,
+        # unless the case is known to sit at the limit of what the data allow.
+        warnings.simplefilter("ignore" if uncertain_ok else "error", PoorFitWarning)
         t, (src, dst) = find_transform(pair.source, pair.target, **options)
     err = frame_error(t, pair.truth_matrix, pair.target.shape)
     assert err < tol, f"{err:.3f} px off over the target frame (limit {tol}); {_describe(t)}"
@@ -238,7 +239,8 @@ def test_low_signal_to_noise():
     # matched, so 0.6 px over the frame.
     pair = simulate_pair((512, 512), n_stars=300, rotation=30.0, flux_range=(100, 3000),
                          background=1000.0, seed=7)
-    t, _ = check_pair(pair, 0.6)
+    # ~0.3 px predicted 1-sigma error: the package may rightly warn here.
+    t, _ = check_pair(pair, 0.6, uncertain_ok=True)
     assert t.meta["quality"]["n_matches"] >= 5
 
 
