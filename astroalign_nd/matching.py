@@ -366,9 +366,10 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     source_errors, target_errors : (N,) ndarray, optional
         Expected position error of each point (pixels); used to weight the
         final fit.
-    n_control : int, optional
+    n_control : int or (int, int), optional
         Only the first ``n_control`` points (the brightest) form triangles
-        and score hypotheses; all points are used to refine and verify.
+        and score hypotheses; all points are used to refine and verify.  A
+        pair gives different numbers for the source and the target.
     source_asterisms, target_asterisms : `~astroalign_nd.asterisms.Asterisms`, optional
         Triangles of the first ``n_control`` points, when already built
         (a reference frame used for many registrations builds them once).
@@ -402,8 +403,11 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     if scale_range is None and transform_type in ("translation", "euclidean"):
         scale_range = (0.9, 1.1)
 
-    nc = len(src_pts) if n_control is None else int(n_control)
-    src_ctl, dst_ctl = src_pts[:nc], dst_pts[:nc]
+    if n_control is None:
+        ns, nd = len(src_pts), len(dst_pts)
+    else:
+        ns, nd = (n_control, n_control) if np.isscalar(n_control) else n_control
+    src_ctl, dst_ctl = src_pts[:int(ns)], dst_pts[:int(nd)]
     src_ast = source_asterisms or build_asterisms(src_ctl, n_neighbors=n_neighbors)
     dst_ast = target_asterisms or build_asterisms(dst_ctl, n_neighbors=n_neighbors)
     pairs, _ = match_triangles(src_ast, dst_ast, invariant_radius, max_matches=max_hypotheses)

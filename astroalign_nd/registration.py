@@ -164,13 +164,25 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
     nn = mat.pop("n_neighbors", 4)
     plan, n = [], n_sources
     while n <= max_sources:
-        plan.append((n, nn))
+        plan.append((n, n, nn))
         n *= 2
-    k, trials = 0, 0
-    while True:
-        n, nn = plan[k]
-        src_pts, src_err, src_frame = src.stars(n)
-        dst_pts, dst_err, dst_frame = dst.stars(n)
+    n_top = plan[-1][0]
+    if n_top > n_sources:
+        # Depth-matched attempts, right after the first: when the pixel
+        # scales differ a lot, the brightest stars of the narrow field are
+        # found among many more of the wide field's.
+        plan[1:1] = [(n_sources, n_top, nn), (n_top, n_sources, nn)]
+    trials, tried, k, last_exc, result = 0, set(), 0, None, None
+    while k < len(plan):
+        ns, nd, nn = plan[k]
+        k += 1
+        src_pts, src_err, src_frame = src.stars(ns)
+        dst_pts, dst_err, dst_frame = dst.stars(nd)
+        # An image with fewer stars than asked for makes steps repeat.
+        key = (min(ns, len(src_pts)), min(nd, len(dst_pts)), len(src_pts), len(dst_pts), nn)
+        if key in tried:
+            continue
+        tried.add(key)
         if "tolerance" not in options:
             # Wide stars (defocus, digitised plates) have wide position errors.
             mat["tolerance"] = max(3.0, 0.5 * (dst.fwhm or 0.0))
@@ -178,22 +190,21 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
             result = match_points(src_pts, dst_pts, transform_type=transform_type,
                                   source_frame=src_frame, target_frame=dst_frame,
                                   source_errors=src_err, target_errors=dst_err,
-                                  n_control=n, n_neighbors=nn,
-                                  source_asterisms=src.asterisms(n, nn),
-                                  target_asterisms=dst.asterisms(n, nn),
+                                  n_control=(ns, nd), n_neighbors=nn,
+                                  source_asterisms=src.asterisms(ns, nn),
+                                  target_asterisms=dst.asterisms(nd, nn),
                                   prior_trials=trials, **mat)
             break
         except TransformNotFoundError as exc:
             # Earlier attempts count in the trials factor of later ones.
             trials += getattr(exc, "n_hypotheses", 0)
-            if (len(src_pts) > n or len(dst_pts) > n) and k + 1 < len(plan):
-                k += 1
-                continue
-            if not user_nn and nn < 8 and max(len(src_pts), len(dst_pts)) <= 60:
-                plan = plan[: k + 1] + [(n, nn + 2)]
-                k += 1
-                continue
-            raise
+            last_exc = exc
+            if k == len(plan) and not user_nn and nn < 8 and max(
+                    len(src_pts), len(dst_pts)) <= 60:
+                plan.append((ns, nd, nn + 2))
+    if result is None:
+        raise last_exc
+    n = max(ns, nd)
     result.extra.update(
         source_points=src_pts[result.source_index],
         target_points=dst_pts[result.target_index],

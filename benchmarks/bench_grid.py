@@ -58,6 +58,22 @@ FLUX_INDEX = _SIG["flux_index"].default
 READ_NOISE = _SIG["read_noise"].default
 
 
+def code_version():
+    """git HEAD of the package's checkout (read-only queries), '+dirty' if modified."""
+    import subprocess
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(aand.__file__)))
+    try:
+        head = subprocess.run(["git", "-C", root, "rev-parse", "--short", "HEAD"],
+                              capture_output=True, text=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "-C", root, "status", "--porcelain", "--",
+                                "astroalign_nd"], capture_output=True, text=True,
+                               timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return aand.__version__
+    return (head + ("+dirty" if dirty else "")) if head else aand.__version__
+
+
 def transform_error(m_est, m_true, shape):
     """max over a grid of target pixels p of |T_est(T_true^-1(p)) - p| (pixels)."""
     ny, nx = shape
@@ -138,7 +154,9 @@ def main(argv=None):
 
     import astroalign as aa
 
-    print(f"astroalign_nd {aand.__version__} vs astroalign {aa.__version__}")
+    version = code_version()
+    print(f"astroalign_nd {aand.__version__} (checkout {version}) vs astroalign "
+          f"{aa.__version__}")
     try:
         import numba
 
@@ -167,7 +185,8 @@ def main(argv=None):
               "fwhm", "sim_seed", "t_sim", "n_src_true", "n_tgt_true",
               "ours_status", "ours_error", "ours_time", "ours_n_matches", "ours_rms",
               "ours_message",
-              "aa_status", "aa_error", "aa_time", "aa_n_matches", "aa_message"]
+              "aa_status", "aa_error", "aa_time", "aa_n_matches", "aa_message",
+              "code_version"]
     rows = []
     cells = [(s, n, b) for s in args.sizes for n in args.stars for b in args.backgrounds]
     t_start = time.perf_counter()
@@ -175,6 +194,7 @@ def main(argv=None):
         for k in range(args.pairs):
             pair, prm = draw_pair(size, n_stars, bg, k, args.seed, args.fwhm_range)
             row = dict(size=size, n_stars=n_stars, background=bg, pair=k, **prm,
+                       code_version=version,
                        n_src_true=len(pair.source_stars), n_tgt_true=len(pair.target_stars))
             shape = pair.target.shape
             for name, runner in (("ours", run_ours), ("aa", lambda p: run_astroalign(aa, p))):
@@ -217,13 +237,14 @@ def main(argv=None):
 def report(rows, cells, npairs):
     print("\nPer cell (n = pairs; succ = success rate; wrong = returned but > 1 px off; "
           "err = median error of successes [px]; t = median find_transform time [s]; "
-          "ratio = t_ours / t_aa)")
+          "t-ratio = t_ours / t_aa; paired = median of err_ours / err_aa over the pairs "
+          "both solved, with their count)")
     hdr = (f"{'size':>5} {'stars':>6} {'bkg':>5} {'n':>2} | {'succ':>5} {'wrong':>5} "
            f"{'err':>6} {'t':>6} | {'aa succ':>7} {'wrong':>5} {'err':>6} {'t':>6} | "
-           f"{'ratio':>5}  flags")
+           f"{'t-ratio':>7} {'paired':>9}  flags")
     print(hdr)
     print("-" * len(hdr))
-    worse_success, worse_error, crash_cells = [], [], []
+    worse_success, worse_error, crash_cells, worse_paired = [], [], [], []
     ratios = []
     for (size, n_stars, bg) in cells:
         rr = [r for r in rows if (r["size"], r["n_stars"], r["background"]) == (size, n_stars, bg)]
@@ -240,6 +261,10 @@ def report(rows, cells, npairs):
         ratio = to / ta if to and ta else None
         if ratio:
             ratios.append(ratio)
+        both = [r for r in rr if r["ours_status"] == "ok" and r["aa_status"] == "ok"]
+        paired = _median([r["ours_error"] / r["aa_error"] for r in both if r["aa_error"] > 0])
+        if paired is not None and paired > 0.5:
+            worse_paired.append((size, n_stars, bg, paired, len(both)))
         flags = []
         if so < sa:
             flags.append("SUCC<AA")
@@ -254,8 +279,8 @@ def report(rows, cells, npairs):
             crash_cells.append((size, n_stars, bg))
         print(f"{size:5d} {n_stars:6d} {bg:5g} {n:2d} | {so / n:5.0%} {wo:5d} "
               f"{_fmt(eo, '.3f'):>6} {_fmt(to, '.2f'):>6} | {sa / n:7.0%} {wa:5d} "
-              f"{_fmt(ea, '.3f'):>6} {_fmt(ta, '.2f'):>6} | {_fmt(ratio, '.2f'):>5}  "
-              f"{' '.join(flags)}")
+              f"{_fmt(ea, '.3f'):>6} {_fmt(ta, '.2f'):>6} | {_fmt(ratio, '.2f'):>7} "
+              f"{_fmt(paired, '.2f'):>5} ({len(both)})  {' '.join(flags)}")
 
     n = len(rows)
     print("\nSummary")
@@ -289,6 +314,11 @@ def report(rows, cells, npairs):
           f"{len(worse_error)}")
     for s, k, b, eo, ea in worse_error:
         print(f"    size {s} stars {k} bkg {b:g}: ours {eo:.3f} px vs astroalign {ea:.3f} px")
+    print("  (the unpaired medians above compare different pairs where astroalign solves "
+          "only the easier ones;\n   paired view) cells where the median of err_ours/err_aa "
+          f"over pairs both solved > 0.5: {len(worse_paired)}")
+    for s, k, b, pr, nb in worse_paired:
+        print(f"    size {s} stars {k} bkg {b:g}: median ratio {pr:.2f} over {nb} pair(s)")
     if crash_cells:
         print(f"  cells where astroalign_nd crashed (non-AstroalignError): {crash_cells}")
 
