@@ -58,10 +58,12 @@ class BatchResult:
 
     @property
     def succeeded(self):
+        """The frames that were registered."""
         return [f for f in self.frames if f.ok]
 
     @property
     def failed(self):
+        """The frames that could not be registered (see their ``error``)."""
         return [f for f in self.frames if not f.ok]
 
     def to_table(self):
@@ -158,7 +160,7 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix=
         and the others go on).
     suffix : str, optional
         Added to output file names (default ``'_aligned'``).
-    client : `dask.distributed.Client`, optional
+    client : ``dask.distributed.Client``, optional
         Run the frames as dask.distributed tasks (the reference is
         broadcast to the workers once).  Without it, frames run one after
         the other in this process.
@@ -172,7 +174,7 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix=
 
     Returns
     -------
-    result : `BatchResult`
+    result : `~astroalign_nd.batch.BatchResult`
         Per-frame results in input order; ``result.failed`` lists the
         frames that could not be registered and why.
     """

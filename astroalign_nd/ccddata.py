@@ -105,12 +105,20 @@ def _as_header(meta):
     return h
 
 
+def _add_history(header, text):
+    """HISTORY cards wrapped at word boundaries (FITS cuts long ones mid-word)."""
+    import textwrap
+
+    for line in textwrap.wrap(text, 70, subsequent_indent="  "):
+        header.add_history(line)
+
+
 def _history(header, model, quality, src_name, dst_name, order, conserve_flux):
     from . import __version__
 
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
     m = as_matrix(model)
-    header.add_history(f"astroalign_nd {__version__} {now} UTC: registered {src_name} "
+    _add_history(header, f"astroalign_nd {__version__} {now} UTC: registered {src_name} "
                        f"onto the pixel grid of {dst_name}")
     desc = f"{type(model).__name__}"
     if isinstance(model, LinearTransform2D):
@@ -118,10 +126,10 @@ def _history(header, model, quality, src_name, dst_name, order, conserve_flux):
                  f" rot={np.degrees(np.arctan2(m[1, 0], m[0, 0])):.5f}deg"
                  f" shift=({m[0, 2]:.3f},{m[1, 2]:.3f})px"
                  f"{' mirrored' if np.linalg.det(m[:2, :2]) < 0 else ''}")
-    header.add_history(f"astroalign_nd transform: {desc}")
-    header.add_history(f"astroalign_nd resampling: {order}, conserve_flux={conserve_flux}")
+    _add_history(header, f"astroalign_nd transform: {desc}")
+    _add_history(header, f"astroalign_nd resampling: {order}, conserve_flux={conserve_flux}")
     if quality:
-        header.add_history(
+        _add_history(header, 
             f"astroalign_nd fit: {quality['n_matches']} matched stars, RMS "
             f"{quality['rms']:.4f} px, log10 false-alarm {quality['log10_false_alarm']:.1f}")
         header["AATNMAT"] = (quality["n_matches"], "astroalign_nd: matched stars")

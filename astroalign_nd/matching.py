@@ -327,7 +327,7 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
 def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0,
                  min_tolerance=0.5, invariant_radius=0.1, n_neighbors=4,
                  allow_mirror=True, scale_range=None, max_false_alarm=1e-6,
-                 accept_matches=10, batch_size=512, max_hypotheses=50_000,
+                 accept_matches=10, batch_size=512, max_hypotheses=20_000,
                  source_frame=None, target_frame=None, source_errors=None,
                  target_errors=None, n_control=None, source_asterisms=None,
                  target_asterisms=None, prior_trials=0):
@@ -442,6 +442,7 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     counts = np.zeros(len(mats), int)
     best = None
     tried_refine = set()
+    refined_max = 0
     n_scored = 0
 
     log_limit = np.log10(max_false_alarm)
@@ -487,8 +488,13 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
         for h in order:
             if counts[h] < min(accept_at, 4) and n_possible > 3:
                 break
+            # Refinement budget: after 10 refinements, only a hypothesis
+            # that beats every one refined so far is worth another.
+            if len(tried_refine) >= 10 and counts[h] <= refined_max:
+                break
             cand = evaluate(h)
             tried_refine.add(int(h))
+            refined_max = max(refined_max, int(counts[h]))
             if cand is None:
                 continue
             if best is None or cand["lfa"] < best["lfa"]:

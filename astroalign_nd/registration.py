@@ -162,16 +162,15 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
     # sparse, noisy lists where many stars are missing from one image.
     user_nn = "n_neighbors" in mat
     nn = mat.pop("n_neighbors", 4)
-    plan, n = [], n_sources
-    while n <= max_sources:
-        plan.append((n, n, nn))
-        n *= 2
-    n_top = plan[-1][0]
+    n_top = n_sources
+    while 2 * n_top <= max_sources:
+        n_top *= 2
+    plan = [(n_sources, n_sources, nn)]
     if n_top > n_sources:
-        # Depth-matched attempts, right after the first: when the pixel
-        # scales differ a lot, the brightest stars of the narrow field are
-        # found among many more of the wide field's.
-        plan[1:1] = [(n_sources, n_top, nn), (n_top, n_sources, nn)]
+        # Depth-matched attempts: when the pixel scales differ a lot, the
+        # brightest stars of the narrow field are found among many more of
+        # the wide field's; then many stars on both sides.
+        plan += [(n_sources, n_top, nn), (n_top, n_sources, nn), (n_top, n_top, nn)]
     trials, tried, k, last_exc, result = 0, set(), 0, None, None
     while k < len(plan):
         ns, nd, nn = plan[k]
@@ -301,7 +300,8 @@ def register(source, target, *, transform_type="similarity", n_sources=50, max_s
              order="bilinear", conserve_flux=False, fill_value=np.nan, method="interpolate",
              unit=None, parallel=True, **options):
     """
-    Align ``source`` onto ``target``: `find_transform`, then `apply_transform`.
+    Align ``source`` onto ``target``: `find_transform`, then
+    `~astroalign_nd.apply_transform`.
 
     Parameters
     ----------

@@ -128,10 +128,12 @@ class LinearTransform2D(Model):
 
     @property
     def parameters_list(self):
+        """Parameter values in ``param_names`` order."""
         return [getattr(self, name).value for name in self.param_names]
 
     @property
     def inverse(self):
+        """The analytic inverse, a model of the same class (target -> source)."""
         return type(self).from_matrix(np.linalg.inv(self.matrix))
 
     # -- construction ----------------------------------------------------------

@@ -17,8 +17,12 @@ known source -> target transform), and each method registers it:
 * spalipy: ``Spalipy(source, template_data=target, min_n_match=10)``
   (its own sep detection; ``min_n_match`` lowered from its default 100,
   which would reject every field with fewer than 100 detections), quads,
-  affine fit and spline correction; the resampling step is skipped.  For
-  catalogs it gets detection tables.
+  affine fit and its default cubic-spline correction; the resampling step
+  is skipped and the mapping it would resample with (affine + spline) is
+  evaluated.  For catalogs it gets detection tables.
+* spalipy-affine: the same with ``spline_order=0`` (its affine fit only:
+  on these undistorted pairs the spline fitted to a few tens of matches
+  often adds more error than it removes).
 
 Accuracy of a returned transform: the largest distance, in target pixels,
 between the true and the estimated position over a grid of target pixels
@@ -27,7 +31,9 @@ p|`` for ``p`` in the overlap.  A run *succeeds* if this is below 1 px; a
 transform returned but more than 1 px off is a *wrong answer* (the worst
 outcome, counted separately); an exception or time-out is a *failure*.
 For the unrelated-fields category the right answer is a refusal: any
-returned transform is wrong.
+returned transform is wrong.  A wrong answer that came with an
+astroalign_nd warning (PoorFitWarning) is counted as wrong, and also
+reported as "warned" (it was not silent).
 
 Each method runs in its own worker process (started once, warmed up
 outside the timing) with a time limit per call (``--timeout``); a worker
@@ -51,7 +57,7 @@ import numpy as np
 
 TITLE = ("Hard registration cases (issue 5): astroalign_nd against astroalign, aafitrans and "
          "spalipy on the same simulated inputs")
-METHODS = ("astroalign_nd", "astroalign", "aafitrans", "spalipy")
+METHODS = ("astroalign_nd", "astroalign", "aafitrans", "spalipy", "spalipy-affine")
 BRIGHT = dict(flux_range=(1e3, 3e5))
 #: Target pixels on this step are checked (in the overlap).
 GRID_STEP = 8
@@ -234,7 +240,7 @@ def run_aafitrans(case):
     return matrix_inverse_map(t.params), f"n={len(s)}"
 
 
-def run_spalipy(case):
+def run_spalipy(case, spline_order=3):
     import logging
 
     from astropy.table import Table
@@ -247,9 +253,11 @@ def run_spalipy(case):
             return Table({"x": xy[:, 0], "y": xy[:, 1], "flux": np.arange(n, 0, -1.0),
                           "fwhm": np.full(n, 3.0), "flag": np.zeros(n, int)})
         sp = spalipy.Spalipy(np.zeros(case.source_shape), source_det=det(case.source),
-                             template_det=det(case.target), min_n_match=10)
+                             template_det=det(case.target), min_n_match=10,
+                             spline_order=spline_order)
     else:
-        sp = spalipy.Spalipy(case.source, template_data=case.target, min_n_match=10)
+        sp = spalipy.Spalipy(case.source, template_data=case.target, min_n_match=10,
+                             spline_order=spline_order)
     sp.make_source_quadlist()
     sp.make_template_quadlist()
     sp.fit_affine_transform()
@@ -263,8 +271,13 @@ def run_spalipy(case):
     return inverse_map, f"n={len(sp.source_det_matched)}"
 
 
+def run_spalipy_affine(case):
+    return run_spalipy(case, spline_order=0)
+
+
 RUNNERS = {"astroalign_nd": run_astroalign_nd, "astroalign": run_astroalign,
-           "aafitrans": run_aafitrans, "spalipy": run_spalipy}
+           "aafitrans": run_aafitrans, "spalipy": run_spalipy,
+           "spalipy-affine": run_spalipy_affine}
 
 
 def _worker(method, inq, outq):
@@ -385,40 +398,41 @@ def main(argv=None):
 def _stats(runs):
     ok = sum(v == "ok" for v, *_ in runs)
     wrong = sum(v == "wrong" for v, *_ in runs)
+    warned = sum(v == "wrong" and "warned" in note for v, _, _, note in runs)
     fail = sum(v == "fail" for v, *_ in runs)
     errs = [e for _, e, _, _ in runs if np.isfinite(e)]
     med_err = float(np.median(errs)) if errs else np.nan
     med_t = float(np.median([t for _, _, t, _ in runs]))
-    return ok, wrong, fail, med_err, med_t
+    return ok, wrong, warned, fail, med_err, med_t
 
 
 def print_category(name, rows, n):
     print(f"== {name} ({n} seeds) ==")
-    print(f"  {'method':14s} {'success':>8s} {'wrong':>6s} {'failed':>7s} {'median err':>11s} "
-          f"{'median time':>12s}  last message")
+    print(f"  {'method':14s} {'success':>8s} {'wrong':>6s} {'warned':>7s} {'failed':>7s} "
+          f"{'median err':>11s} {'median time':>12s}  last message")
     for m, runs in rows.items():
-        ok, wrong, fail, med_err, med_t = _stats(runs)
+        ok, wrong, warned, fail, med_err, med_t = _stats(runs)
         last = next((note for v, _, _, note in reversed(runs) if v != "ok"), "")
         err_s = "-" if not np.isfinite(med_err) else f"{med_err:.3f} px"
-        print(f"  {m:14s} {ok:>4d}/{n:<3d} {wrong:>6d} {fail:>7d} {err_s:>11s} {med_t:>10.2f} s"
-              f"  {last[:60]}")
+        print(f"  {m:14s} {ok:>4d}/{n:<3d} {wrong:>6d} {warned:>7d} {fail:>7d} {err_s:>11s} "
+              f"{med_t:>10.2f} s  {last[:60]}")
     print(flush=True)
 
 
 def print_summary(summary, methods, n):
-    print("== summary: successes/runs (wrong answers in brackets), median error px ==")
-    width = 22
+    print("== summary: successes/runs [wrong answers, w = of which warned], median error px ==")
+    width = 19
     print(f"{'category':42s}" + "".join(f"{m:>{width}s}" for m in methods))
     tot = {m: [0, 0, 0] for m in methods}
     for name, rows in summary.items():
         cells = []
         for m in methods:
-            ok, wrong, fail, med_err, _ = _stats(rows[m])
+            ok, wrong, warned, fail, med_err, _ = _stats(rows[m])
             tot[m][0] += ok
             tot[m][1] += wrong
             tot[m][2] += len(rows[m])
             e = "" if not np.isfinite(med_err) else f" {med_err:.2f}"
-            w = f" [{wrong}]" if wrong else ""
+            w = f" [{wrong}{f' {warned}w' if warned else ''}]" if wrong else ""
             cells.append(f"{ok}/{n}{w}{e}")
         print(f"{name:42s}" + "".join(f"{c:>{width}s}" for c in cells))
     print(f"{'TOTAL successes / wrong answers':42s}"

@@ -102,16 +102,6 @@ _EXTERNAL_IGNORE = [
 ]
 
 
-def _offline_nitpick(app, config):
-    """Ignore references to other projects when intersphinx is off (offline builds)."""
-    if not config.intersphinx_mapping:
-        config.nitpick_ignore_regex = list(config.nitpick_ignore_regex) + _EXTERNAL_IGNORE
-
-
-def setup(app):
-    # After sphinx_astropy.ext.intersphinx_toggle (priority 500), which may clear the mapping.
-    app.connect("config-inited", _offline_nitpick, priority=900)
-
 # -- Options for HTML output -----------------------------------------------------------------
 
 html_title = f"{project} v{release}"
@@ -122,3 +112,16 @@ html_static_path = []
 
 latex_documents = [("index", project + ".tex", project + " Documentation", author, "manual")]
 man_pages = [("index", project.lower(), project + " Documentation", [author], 1)]
+
+# -- Extension hooks -------------------------------------------------------------------------
+
+
+def _offline_nitpick(app, config):
+    """Ignore references to other projects when intersphinx is off (offline builds)."""
+    if not config.intersphinx_mapping:
+        config.nitpick_ignore_regex = list(config.nitpick_ignore_regex) + _EXTERNAL_IGNORE
+
+
+def setup(app):
+    # After sphinx_astropy.ext.intersphinx_toggle (priority 500), which may clear the mapping.
+    app.connect("config-inited", _offline_nitpick, priority=900)
