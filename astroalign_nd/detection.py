@@ -379,7 +379,8 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     sources : `~astropy.table.Table`
         Columns ``x``, ``y`` (0-based pixels), ``flux`` (background
         subtracted, in an aperture of radius 1.5 FWHM), ``position_error``
-        (expected centroid error per axis, pixels), ``peak``,
+        (expected centroid error per axis, pixels), ``snr`` (matched-filter
+        signal-to-noise), ``peak``,
         ``sharpness``, ``roundness1``, ``roundness2``; sorted by decreasing
         flux.  The table's ``meta`` holds ``fwhm``, ``noise`` and
         ``bin_factor``.  It may have fewer rows than ``n_sources`` (or none).
@@ -500,7 +501,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
         ys = np.where(moved, ly[sel], ys)
     gx = xc[kk] - half + xs
     gy = yc[kk] - half + ys
-    aflux, perr = _aperture_flux_and_error(cut[kk], bad[kk], xs, ys, fwhm, noise)
+    aflux, perr, snr = _aperture_flux_and_error(cut[kk], bad[kk], xs, ys, fwhm, noise)
 
     # Hot pixels and cosmic rays that got this far (a bright hit can pass
     # DAOFIND's sharpness limit) are much narrower than the stars.
@@ -511,8 +512,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     round1 = np.asarray(tab["roundness1"], float)[sel]
     round2 = np.asarray(tab["roundness2"], float)[sel]
     # Given positions, DAOStarFinder does not apply its threshold: apply
-    # it as a matched-filter signal-to-noise, flux / (noise sqrt(4 pi) sigma).
-    snr = aflux / (noise * np.sqrt(4 * np.pi) * fwhm / _GAUSS_SIGMA_TO_FWHM)
+    # it as a matched-filter signal-to-noise.
     real &= snr >= nsigma
     real &= _population_inliers(sharp, round1, round2, real)
 
@@ -521,6 +521,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     keep = keep[real[keep]]
     cols = {
         "x": gx[keep], "y": gy[keep], "flux": aflux[keep], "position_error": perr[keep],
+        "snr": snr[keep],
         "peak": np.asarray(tab["peak"], float)[sel][keep], "sharpness": sharp[keep],
         "roundness1": round1[keep], "roundness2": round2[keep],
     }
@@ -532,7 +533,8 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
 
 def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
     """
-    Aperture flux (radius 1.5 FWHM) and the expected centroid error.
+    Aperture flux (radius 1.5 FWHM), expected centroid error and
+    matched-filter signal-to-noise.
 
     The error is the background-limited centroid precision of a Gaussian
     star, ``sqrt(8 pi) sigma_psf^2 sigma_noise / flux`` per axis, with a
@@ -545,10 +547,15 @@ def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
     ap = (d2 <= r * r) & ~bad
     flux = np.where(ap, cut, 0.0).sum(axis=(1, 2))
     sig_psf = fwhm / _GAUSS_SIGMA_TO_FWHM
+    # Matched-filter signal-to-noise: the PSF-weighted sum over its noise.
+    w = np.where(bad, 0.0, np.exp(-0.5 * d2 / sig_psf**2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        snr = (w * cut).sum(axis=(1, 2)) / (noise * np.sqrt((w * w).sum(axis=(1, 2))))
+    snr = np.where(np.isfinite(snr), snr, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         err = np.sqrt(8 * np.pi) * sig_psf**2 * noise / np.where(flux > 0, flux, np.nan)
     err = np.where(np.isfinite(err), err, 10.0 * fwhm)
-    return flux, np.hypot(err, 0.005)
+    return flux, np.hypot(err, 0.005), snr
 
 
 _MAX_FULL_RES_FWHM = 10.0
@@ -621,8 +628,8 @@ def _dedupe(x, y, flux, radius):
 
 
 def _empty_table(fwhm, noise, b):
-    t = Table(names=["x", "y", "flux", "position_error", "peak", "sharpness", "roundness1",
-                     "roundness2"], dtype=[float] * 8)
+    t = Table(names=["x", "y", "flux", "position_error", "snr", "peak", "sharpness",
+                     "roundness1", "roundness2"], dtype=[float] * 9)
     t.meta.update(fwhm=float(fwhm), noise=float(noise), bin_factor=int(b))
     return t
 

@@ -221,18 +221,25 @@ def _jitter(r2, var, dof):
     return hi
 
 
-def _robust_jitter(r2, var):
+def _inflation(r2, var):
     """
-    Extra variance ``j2`` so that the median of ``r2 / (var + j2)`` is that
-    of a chi-square with 2 degrees of freedom (2 ln 2).
+    Factor by which the predicted variances must grow so that the median
+    of ``r2 / (f var)`` is that of a chi-square with 2 degrees of freedom.
 
-    A median, unlike the chi-square sum, is not inflated by the few wrong
-    pairs that the cut after it must remove.  Pair ``i`` has
-    ``r2_i / (var_i + j2) <= t`` exactly when ``j2 >= r2_i / t - var_i``, so
-    the solution is the median of those thresholds (no iteration).
+    A median is not inflated by the few wrong pairs the cut after it must
+    remove, and a factor (unlike an added "jitter") keeps the bright,
+    well-measured stars' weight above the faint ones'.
     """
-    target = 2.0 * np.log(2.0)
-    return max(float(np.median(r2 / target - var)), 0.0)
+    return max(1.0, float(np.median(r2 / var)) / (2.0 * np.log(2.0)))
+
+
+def _prediction_variance(cls, fit_src, fit_w, parity, pts):
+    """Per-axis variance of the fitted model's prediction at ``pts``."""
+    _, d_fit, _ = cls._linear_fit(fit_src, fit_src, fit_w, parity)
+    _, d_all, _ = cls._linear_fit(pts, pts, np.ones(len(pts)), parity)
+    cov = np.linalg.pinv(d_fit.T @ (d_fit * np.repeat(fit_w, 2)[:, None]))
+    rows = d_all.reshape(len(pts), 2, -1)
+    return np.einsum("nij,jk,nik->n", rows, cov, rows) / 2.0
 
 
 def _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol):
@@ -265,14 +272,13 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
     Iterative cross-match and weighted least-squares fit from a matrix.
 
     Each pair is weighted by the inverse of its expected position variance
-    in target pixels, ``s^2 e_src^2 + e_dst^2 + j^2`` (``s`` the scale,
-    ``e`` the detection's centroid errors), where the "jitter" ``j`` is
-    solved for so that the median normalised residual is that of a
-    Gaussian: it absorbs what the centroid errors do not predict
-    (undersampling, blends), so that bright stars do not get weights they
-    cannot live up to, while outliers cannot inflate it.  Pairs with a
-    chi-square above 16 are rejected, and the matching radius shrinks to 5
-    sigma.
+    in target pixels, ``f (s^2 e_src^2 + e_dst^2)`` (``s`` the scale, ``e``
+    the detection's centroid errors), where the factor ``f >= 1`` makes the
+    median normalised residual that of a Gaussian: it absorbs what the
+    centroid errors do not predict (undersampling, blends) while outliers
+    cannot inflate it.  Pairs whose chi-square, counting the current
+    model's own prediction variance, is above 16 are rejected, and the
+    matching radius shrinks to 5 sigma.
     """
     cls = transform_class(transform_type)
     fit_parity = parity if transform_type in ("similarity", "euclidean") else 1
@@ -280,7 +286,7 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
     if seed is not None and cls.n_dof > 4:
         m = _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol)
     cur_tol = tol
-    last = None
+    last = prev = None
     for _ in range(n_iter):
         si, dj = _mutual_matches(_apply(m, src_pts), dst_pts, dst_tree, cur_tol)
         if len(si) < max(cls.min_points, 3):
@@ -292,13 +298,18 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
             var = np.full(len(si), 0.01)
         resid = _apply(m, src_pts[si]) - dst_pts[dj]
         r2 = np.einsum("ij,ij->i", resid, resid)
-        total = var + _robust_jitter(r2, var)
+        total = var * _inflation(r2, var)
+        # The current model is itself uncertain (early on it rests on the
+        # faint majority): its prediction variance enters the cut, so that
+        # the brightest stars are not rejected for the model's error.
+        pv = _prediction_variance(cls, *prev, fit_parity, src_pts[si]) if prev else 0.0
         # chi2 with 2 dof above 16 happens with probability 3e-4.
-        keep = r2 / total <= 16.0 if len(si) > cls.n_dof else np.ones(len(si), bool)
+        keep = r2 / (total + pv) <= 16.0 if len(si) > cls.n_dof else np.ones(len(si), bool)
         if keep.sum() >= max(cls.min_points, 3):
             si, dj, total = si[keep], dj[keep], total[keep]
         # Matrix-level fit: building astropy models here would dominate.
         m_new, _, _ = cls._linear_fit(src_pts[si], dst_pts[dj], 1.0 / total, fit_parity)
+        prev = (src_pts[si], 1.0 / total)
         last = (si, dj, total, cur_tol)
         new_tol = float(np.clip(5.0 * np.sqrt(np.median(total)), min_tol, tol))
         converged = np.max(np.abs(m_new - m)) < 1e-10 and new_tol == cur_tol

@@ -91,16 +91,16 @@ class Reference:
             if p.is_catalog:
                 self._stars[n_sources] = (p.points, None, None)
             else:
-                table = find_sources(p.detection_image, mask=p.mask,
-                                     n_sources=2 * n_sources, **self.detect_options)
-                if len(table) < n_sources and "nsigma" not in self.detect_options:
-                    # A faint field: go deeper rather than give up.  The
-                    # false-alarm test guards against what noise adds.
-                    deeper = find_sources(p.detection_image, mask=p.mask,
-                                          n_sources=2 * n_sources, nsigma=3.0,
-                                          **self.detect_options)
-                    if len(deeper) > len(table):
-                        table = deeper
+                opts = dict(self.detect_options)
+                user_nsigma = opts.pop("nsigma", None)
+                # One detection pass, deep enough for faint fields; the 5-sigma
+                # sources are kept when there are enough of them.
+                table = find_sources(p.detection_image, mask=p.mask, n_sources=2 * n_sources,
+                                     nsigma=user_nsigma or 3.0, **opts)
+                if user_nsigma is None:
+                    strong = table[table["snr"] >= 5.0]
+                    if len(strong) >= n_sources:
+                        table = strong
                 ny, nx = p.shape
                 pts = np.column_stack([np.asarray(table["x"], float),
                                        np.asarray(table["y"], float)])

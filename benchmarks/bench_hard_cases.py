@@ -159,7 +159,7 @@ CASES = {
     "saturated (5000 counts)": lambda s: _pair_case(
         "saturated", s, n_stars=300, rotation=30.0, saturation=5000.0, **BRIGHT),
     "low snr": lambda s: _pair_case(
-        "low snr", s, n_stars=300, rotation=30.0, flux_range=(100, 3000), background=1000.0),
+        "low snr", s, n_stars=300, rotation=30.0, flux_range=(150, 5000), background=1000.0),
     "rectangular 300x900": lambda s: _pair_case(
         "rectangular", s, shape=(300, 900), n_stars=300, rotation=8.0, **BRIGHT),
     "rectangular onto portrait (90 deg)": lambda s: _pair_case(
