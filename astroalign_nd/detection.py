@@ -404,17 +404,25 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     if len(cand["x"]) == 0:
         return _empty_table(fwhm or 0.0, noise, b)
 
-    # Recentre the coarse candidates at full resolution (a broad window
-    # centroid), so that cutouts and moments are centred on the stars.
+    # Recentre the coarse candidates at full resolution: the brightest 3x3
+    # sum in the block around each binned peak (a sum, so that a lone hot
+    # pixel does not win), then a few windowed-centroid steps.
     rc = int(np.ceil(b + 3))
     xc = np.round(cand["x"]).astype(int)
     yc = np.round(cand["y"]).astype(int)
     cut, bad = _extract_cutouts(data, mask, xc, yc, rc, 0.0)
     cut -= cand["bkg"][:, None, None]
     cut[bad] = 0.0
-    sig0 = np.full(len(xc), max(1.0, 0.5 * b, (fwhm or 3.0) / _GAUSS_SIGMA_TO_FWHM))
-    lx, ly = _windowed_centroid(np.clip(cut, 0, None), bad, np.full(len(xc), float(rc)),
-                                np.full(len(xc), float(rc)), sig0, n_iter=4)
+    box = np.zeros_like(cut)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            box[:, 1:-1, 1:-1] += cut[:, 1 + dy:cut.shape[1] - 1 + dy,
+                                      1 + dx:cut.shape[2] - 1 + dx]
+    peak = box.reshape(len(xc), -1).argmax(axis=1)
+    py, px = np.divmod(peak, cut.shape[2])
+    sig0 = np.full(len(xc), max(1.0, (fwhm or 3.0) / _GAUSS_SIGMA_TO_FWHM))
+    lx, ly = _windowed_centroid(np.clip(cut, 0, None), bad, px.astype(float),
+                                py.astype(float), sig0, n_iter=4)
     cand = dict(cand)
     cand["x"] = xc - rc + lx
     cand["y"] = yc - rc + ly

@@ -172,7 +172,7 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
         # the wide field's; then many stars on both sides.
         plan += [(n_sources, n_top, nn), (n_top, n_sources, nn), (n_top, n_top, nn)]
     trials, tried, k, last_exc, result = 0, set(), 0, None, None
-    while k < len(plan):
+    while k < len(plan) or (result is None and _widen(plan, src_pts, dst_pts, user_nn)):
         ns, nd, nn = plan[k]
         k += 1
         src_pts, src_err, src_frame = src.stars(ns)
@@ -198,9 +198,6 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
             # Earlier attempts count in the trials factor of later ones.
             trials += getattr(exc, "n_hypotheses", 0)
             last_exc = exc
-            if k == len(plan) and not user_nn and nn < 8 and max(
-                    len(src_pts), len(dst_pts)) <= 60:
-                plan.append((ns, nd, nn + 2))
     if result is None:
         raise last_exc
     n = max(ns, nd)
@@ -210,6 +207,21 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
         n_sources_used=n,
     )
     return result
+
+
+def _widen(plan, src_pts, dst_pts, user_nn):
+    """
+    Append an attempt with more neighbours per star, for small star lists.
+
+    Sparse, noisy lists miss many stars of the other image, so few of the
+    4-nearest-neighbour triangles are common; 6 or 8 neighbours give more.
+    Returns False when there is nothing left to try.
+    """
+    ns, nd, nn = plan[-1]
+    if user_nn or nn >= 8 or max(len(src_pts), len(dst_pts)) > 60:
+        return False
+    plan.append((ns, nd, nn + 2))
+    return True
 
 
 def find_transform(source, target, *, transform_type="similarity", n_sources=50,

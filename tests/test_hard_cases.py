@@ -113,12 +113,6 @@ def test_four_common_stars_catalogs_with_noise():
     assert err < 0.1, f"{err:.3f} px; {_describe(t)}"
 
 
-@pytest.mark.xfail(strict=False, raises=TransformNotFoundError, reason=(
-    "package bug (registration.find_match attempt plan): the n_neighbors escalation for "
-    "sparse lists is only appended when the *last* planned attempt raises; with fewer stars "
-    "than max_sources the depth-matched attempts are all skipped as duplicates, so it is never "
-    "tried. max_sources=50 or n_neighbors=6 solve this pair; so does the low-SNR image pair "
-    "(flux 100-3000, seed 7) whose 22/24 detections hold 7 true pairs."))
 def test_sparse_catalogs_neighbour_escalation():
     # 8 common stars (0.3 px noise) among 22 and 24: solvable with more
     # neighbours per star, which the escalation is meant to try.
