@@ -428,7 +428,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     cand["y"] = yc - rc + ly
 
     if fwhm is None:
-        fwhm, _ = _fwhm_from_candidates(data, mask, cand, 20)
+        fwhm, _ = _fwhm_from_candidates(data, mask, cand, 30)
         if fwhm is None:
             return _find_on_binned(data, mask, 4, None, locals_for_binned(locals()))
     if fwhm > _MAX_FULL_RES_FWHM:
