@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import binom
+from scipy.special import betainc
 
 from ._kernels import PointGrid, count_inliers
 from .asterisms import build_asterisms
@@ -195,7 +195,10 @@ def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame
     k_extra = max(n_matched - 3, 0)
     n_extra = max(n_s - 3, k_extra)
     if k_extra > 0:
-        log_tail = binom.logsf(k_extra - 1, n_extra, p) / np.log(10)
+        # P(X >= k) for X ~ Binomial(n, p) is the regularised incomplete beta
+        # function I_p(k, n - k + 1) (scipy.special: no scipy.stats import).
+        tail = betainc(k_extra, n_extra - k_extra + 1, p) if p < 1 else 1.0
+        log_tail = np.log10(tail) if tail > 0 else -300.0
     else:
         log_tail = 0.0
     # Chance that a random triangle pair within the invariant radius fits
@@ -559,8 +562,6 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame):
     systematic residuals (shear, anisotropic scale, field distortion) shows
     up here instead of being returned silently.
     """
-    from scipy.stats import f as f_dist
-
     n = len(src)
     k_model, k_aff = type(model).n_dof, 6
     if k_model >= k_aff or 2 * n <= k_aff + 2:
@@ -580,7 +581,9 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame):
     chi_aff = np.sum(r2_aff / var)
     dof_aff = 2 * n - k_aff
     f_stat = ((chi_mod - chi_aff) / (k_aff - k_model)) / max(chi_aff / dof_aff, 1e-300)
-    if f_dist.sf(f_stat, k_aff - k_model, dof_aff) >= 1e-6:
+    # Survival function of F(d1, d2): I_x(d2/2, d1/2) with x = d2 / (d2 + d1 F).
+    d1, d2 = k_aff - k_model, dof_aff
+    if f_stat <= 0 or betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f_stat)) >= 1e-6:
         return 0.0
     x0, x1, y0, y1 = frame if frame is not None else _bbox(dst)
     corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
