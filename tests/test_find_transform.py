@@ -18,22 +18,9 @@ from astroalign_nd import (AffineTransform, AstroalignError, EuclideanTransform,
 from astroalign_nd.matching import MatchResult
 from astroalign_nd.simulate import simulate_field, simulate_pair
 
+from _helpers import frame_error
+
 BRIGHT = (2e3, 5e5)
-
-
-def frame_error(estimate, truth, target_shape, n=17):
-    """Largest error (target pixels) of ``estimate`` over the whole target frame.
-
-    For a grid of target pixels ``p``: ``max |T_est(T_true^-1(p)) - p|``.
-    """
-    m_est = estimate.matrix if hasattr(estimate, "matrix") else np.asarray(estimate)
-    m_true = truth.matrix if hasattr(truth, "matrix") else np.asarray(truth)
-    ny, nx = target_shape
-    gx, gy = np.meshgrid(np.linspace(-0.5, nx - 0.5, n), np.linspace(-0.5, ny - 0.5, n))
-    p = np.column_stack([gx.ravel(), gy.ravel(), np.ones(gx.size)])
-    q = p @ np.linalg.inv(m_true).T
-    r = q @ m_est.T
-    return float(np.max(np.hypot(r[:, 0] - p[:, 0], r[:, 1] - p[:, 1])))
 
 
 @pytest.fixture(scope="module")
