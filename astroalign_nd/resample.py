@@ -181,6 +181,19 @@ def _axis_taps(u, n, order):
     return i0, ok, w
 
 
+def _store(iy, ix, good, acc, accv, has_var, fill, sd, sv, out, out_var, out_mask):
+    """Write one output pixel: the value and variance, or fill/inf and the mask."""
+    out_mask[iy, ix] = not good
+    if good:
+        out[iy, ix] = acc * sd
+        if has_var:
+            out_var[iy, ix] = accv * sv
+    else:
+        out[iy, ix] = fill
+        if has_var:
+            out_var[iy, ix] = np.inf
+
+
 def _resample_row(iy, data, var, has_var, m, order, fill, sd, sv,
                   out, out_var, out_mask):
     """Resample output row ``iy`` of one channel: data, variance and mask together."""
@@ -216,15 +229,7 @@ def _resample_row(iy, data, var, has_var, m, order, fill, sd, sv,
             # weight makes the sum non-finite: this one test does the whole mask
             # propagation.
             good = np.isfinite(acc) and np.isfinite(accv)
-        out_mask[iy, ix] = not good
-        if good:
-            out[iy, ix] = acc * sd
-            if has_var:
-                out_var[iy, ix] = accv * sv
-        else:
-            out[iy, ix] = fill
-            if has_var:
-                out_var[iy, ix] = np.inf
+        _store(iy, ix, good, acc, accv, has_var, fill, sd, sv, out, out_var, out_mask)
 
 
 def _bilinear_row(iy, data, var, has_var, m, fill, sd, sv, out, out_var, out_mask):
@@ -274,15 +279,7 @@ def _bilinear_row(iy, data, var, has_var, m, fill, sd, sv, out, out_var, out_mas
                         if has_var:
                             accv += w * w * var[jy + 1, jx + 1]
                 good = np.isfinite(acc) and np.isfinite(accv)
-        out_mask[iy, ix] = not good
-        if good:
-            out[iy, ix] = acc * sd
-            if has_var:
-                out_var[iy, ix] = accv * sv
-        else:
-            out[iy, ix] = fill
-            if has_var:
-                out_var[iy, ix] = np.inf
+        _store(iy, ix, good, acc, accv, has_var, fill, sd, sv, out, out_var, out_mask)
 
 
 def _make_bilinear_drivers():
@@ -343,7 +340,7 @@ def _numba_kernels():
             # Callees must be dispatchers before their callers are compiled.
             prange, literally = numba.prange, numba.literally
             for name in ("_linear_weights", "_quadratic_weights", "_keys_weights",
-                         "_axis_taps", "_resample_row"):
+                         "_axis_taps", "_store", "_resample_row"):
                 g[name] = numba.njit(**opts)(g[name])
             # Distinct functions for serial and parallel (not one jitted twice):
             # numba's on-disk cache is keyed by function, not by ``parallel``.
