@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from astropy.table import Table
 
-from .registration import Reference, _split_options, find_match, quality_dict
+from .registration import _as_reference, _split_options, find_match, quality_dict
 
 __all__ = ["FrameResult", "BatchResult", "register_batch"]
 
@@ -184,7 +184,7 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix=
     if output_dir is not None:
         output_dir = os.fspath(output_dir)
         os.makedirs(output_dir, exist_ok=True)
-    ref = target if isinstance(target, Reference) else Reference(target, **det)
+    ref = _as_reference(target, "target", det)
     # Compute the reference's stars and triangles once, before shipping it.
     n = options.get("n_sources", 50)
     ref.stars(n)
@@ -224,4 +224,3 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix=
     if bar is not None:
         bar.close()
     return BatchResult(results)
-

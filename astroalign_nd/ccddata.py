@@ -119,7 +119,7 @@ def _history(header, model, quality, src_name, dst_name, order, conserve_flux):
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
     m = as_matrix(model)
     _add_history(header, f"astroalign_nd {__version__} {now} UTC: registered {src_name} "
-                       f"onto the pixel grid of {dst_name}")
+                         f"onto the pixel grid of {dst_name}")
     desc = f"{type(model).__name__}"
     if isinstance(model, LinearTransform2D):
         desc += (f" scale={np.sqrt(abs(np.linalg.det(m[:2, :2]))):.6f}"
@@ -129,9 +129,9 @@ def _history(header, model, quality, src_name, dst_name, order, conserve_flux):
     _add_history(header, f"astroalign_nd transform: {desc}")
     _add_history(header, f"astroalign_nd resampling: {order}, conserve_flux={conserve_flux}")
     if quality:
-        _add_history(header, 
-            f"astroalign_nd fit: {quality['n_matches']} matched stars, RMS "
-            f"{quality['rms']:.4f} px, log10 false-alarm {quality['log10_false_alarm']:.1f}")
+        _add_history(header, f"astroalign_nd fit: {quality['n_matches']} matched stars, "
+                             f"RMS {quality['rms']:.4f} px, log10 false-alarm "
+                             f"{quality['log10_false_alarm']:.1f}")
         header["AATNMAT"] = (quality["n_matches"], "astroalign_nd: matched stars")
         header["AATRMS"] = (round(quality["rms"], 6), "astroalign_nd: fit RMS [px]")
         header["AATLFA"] = (round(quality["log10_false_alarm"], 3),

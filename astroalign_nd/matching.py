@@ -428,12 +428,11 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     n_tri = len(pairs)
     stats = dict(n_source=len(src_pts), n_target=len(dst_pts), n_triangle_matches=n_tri)
     if n_tri == 0:
-        raise _not_found(0,
+        raise _not_found(0, (
             f"no transform found: the source gave {len(src_pts)} sources and the target "
             f"{len(dst_pts)}, but no triangle matched between them (best inlier count 0). "
             "The images may not overlap, or too few stars are in common; try more sources "
-            "(n_sources) or a larger invariant_radius."
-        )
+            "(n_sources) or a larger invariant_radius."))
 
     mats, tri_rms, parity = hypothesis_matrices(src_ast, dst_ast, pairs)
     ok = np.ones(len(mats), bool)
@@ -531,12 +530,11 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     if best is not None:
         detail = (f"; the best candidate matched {len(best['si'])} stars but its "
                   f"false-alarm probability is 10^{best['lfa']:.1f} (limit {max_false_alarm:g})")
-    raise _not_found(n_scored,
+    raise _not_found(n_scored, (
         f"no trustworthy transform found: the source gave {len(src_pts)} sources and the "
         f"target {len(dst_pts)}; {n_tri} triangle matches gave {n_scored} hypotheses, the best "
         f"with {best_count} inliers{detail}. The images may not overlap; otherwise try more "
-        "sources (n_sources), a larger tolerance, or catalogs of positions."
-    )
+        "sources (n_sources), a larger tolerance, or catalogs of positions."))
 
 
 def _not_found(n_hypotheses, message):

@@ -172,32 +172,33 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
         # the wide field's; then many stars on both sides.
         plan += [(n_sources, n_top, nn), (n_top, n_sources, nn), (n_top, n_top, nn)]
     trials, tried, k, last_exc, result = 0, set(), 0, None, None
-    while k < len(plan) or (result is None and _widen(plan, src_pts, dst_pts, user_nn)):
+    while k < len(plan):
         ns, nd, nn = plan[k]
         k += 1
         src_pts, src_err, src_frame = src.stars(ns)
         dst_pts, dst_err, dst_frame = dst.stars(nd)
         # An image with fewer stars than asked for makes steps repeat.
         key = (min(ns, len(src_pts)), min(nd, len(dst_pts)), len(src_pts), len(dst_pts), nn)
-        if key in tried:
-            continue
-        tried.add(key)
-        if "tolerance" not in options:
-            # Wide stars (defocus, digitised plates) have wide position errors.
-            mat["tolerance"] = max(3.0, 0.5 * (dst.fwhm or 0.0))
-        try:
-            result = match_points(src_pts, dst_pts, transform_type=transform_type,
-                                  source_frame=src_frame, target_frame=dst_frame,
-                                  source_errors=src_err, target_errors=dst_err,
-                                  n_control=(ns, nd), n_neighbors=nn,
-                                  source_asterisms=src.asterisms(ns, nn),
-                                  target_asterisms=dst.asterisms(nd, nn),
-                                  prior_trials=trials, **mat)
-            break
-        except TransformNotFoundError as exc:
-            # Earlier attempts count in the trials factor of later ones.
-            trials += getattr(exc, "n_hypotheses", 0)
-            last_exc = exc
+        if key not in tried:
+            tried.add(key)
+            if "tolerance" not in options:
+                # Wide stars (defocus, digitised plates) have wide position errors.
+                mat["tolerance"] = max(3.0, 0.5 * (dst.fwhm or 0.0))
+            try:
+                result = match_points(src_pts, dst_pts, transform_type=transform_type,
+                                      source_frame=src_frame, target_frame=dst_frame,
+                                      source_errors=src_err, target_errors=dst_err,
+                                      n_control=(ns, nd), n_neighbors=nn,
+                                      source_asterisms=src.asterisms(ns, nn),
+                                      target_asterisms=dst.asterisms(nd, nn),
+                                      prior_trials=trials, **mat)
+                break
+            except TransformNotFoundError as exc:
+                # Earlier attempts count in the trials factor of later ones.
+                trials += getattr(exc, "n_hypotheses", 0)
+                last_exc = exc
+        if k == len(plan):
+            _widen(plan, src_pts, dst_pts, user_nn)
     if result is None:
         raise last_exc
     n = max(ns, nd)
@@ -305,7 +306,6 @@ def _positive_int(value, name):
     if value < 3:
         raise ValueError(f"{name} must be at least 3 (a triangle); got {value}.")
     return int(value)
-
 
 
 def register(source, target, *, transform_type="similarity", n_sources=50, max_sources=200,
