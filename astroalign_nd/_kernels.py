@@ -1,86 +1,92 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """
-Small compiled kernels for the full-frame passes of detection.
+Full-frame and all-hypotheses passes of detection and matching.
 
-Only two passes touch every pixel of a frame during detection: binning
-and the candidate peak search.  They are single loops, compiled with numba
-(``cache=True`` keeps the compiled code on disk, so only the very first
-call in an environment pays for compilation).  NumPy versions of the same
-operations are used when numba is not available; both give the same
-result.
+Only a few passes touch every pixel of a frame (binning, the candidate peak
+search, the finiteness check) or every (hypothesis, star) pair (inlier
+counting).  They are single loops compiled with Cython
+(`astroalign_nd._ckernels`); this module wraps them, splits large jobs over
+threads (`num_threads`), and holds NumPy versions of the same operations,
+which the tests use as references and which run if the compiled module is
+missing from a source checkout that was never built.
 """
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-try:  # numba is a hard dependency, but keep the package importable without it
-    from numba import njit, prange
+try:
+    from . import _ckernels
 
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover
-    HAVE_NUMBA = False
+    HAVE_COMPILED = True
+except ImportError:  # pragma: no cover - an unbuilt source tree
+    _ckernels = None
+    HAVE_COMPILED = False
 
-__all__ = ["bin_despike", "peak_candidates", "has_nonfinite", "PointGrid", "count_inliers"]
+__all__ = ["bin_despike", "peak_candidates", "has_nonfinite", "PointGrid", "count_inliers",
+           "num_threads", "run_split"]
+
+# -- threads -----------------------------------------------------------------------
+
+_POOL = None
+_POOL_KEY = None
+_POOL_LOCK = threading.Lock()
 
 
-if HAVE_NUMBA:
+def num_threads():
+    """
+    Threads used by the compiled loops.
 
-    @njit(cache=True, parallel=True, nogil=True)
-    def _bin_despike_nb(data, mask, use_mask, b, fill, out):
-        ny, nx = out.shape
-        inv = 1.0 / (b * b - 1)
-        for i in prange(ny):
-            # Walk the b source rows of this output row in memory order.
-            total = np.zeros(nx)
-            peak = np.full(nx, -np.inf)
-            for di in range(b):
-                row = data[i * b + di]
-                for j in range(nx):
-                    t = 0.0
-                    p = peak[j]
-                    for dj in range(b):
-                        v = row[j * b + dj]
-                        if not np.isfinite(v) or (use_mask and mask[i * b + di, j * b + dj]):
-                            v = fill
-                        t += v
-                        if v > p:
-                            p = v
-                    total[j] += t
-                    peak[j] = p
-            for j in range(nx):
-                out[i, j] = (total[j] - peak[j]) * inv
+    ``ASTROALIGN_ND_NUM_THREADS`` in the environment if set (e.g. 1 when
+    several worker processes share a machine), otherwise the number of CPUs
+    this process may run on.
+    """
+    env = os.environ.get("ASTROALIGN_ND_NUM_THREADS", "").strip()
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise ValueError(
+                f"ASTROALIGN_ND_NUM_THREADS must be a positive integer; got {env!r}."
+            ) from None
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
 
-    @njit(cache=True, nogil=True)
-    def _peaks_nb(img, threshold, border):
-        ny, nx = img.shape
-        ys = []
-        xs = []
-        scores = []
-        for i in range(border, ny - border):
-            for j in range(border, nx - border):
-                v = img[i, j]
-                if v <= threshold:
-                    continue
-                is_max = True
-                s = 0.0
-                for di in range(-1, 2):
-                    for dj in range(-1, 2):
-                        ii = i + di
-                        jj = j + dj
-                        if ii < 0 or ii >= ny or jj < 0 or jj >= nx:
-                            continue
-                        w = img[ii, jj]
-                        s += w
-                        if di == 0 and dj == 0:
-                            continue
-                        # Ties go to the first pixel in raster order.
-                        if w > v or (w == v and (di < 0 or (di == 0 and dj < 0))):
-                            is_max = False
-                if is_max:
-                    ys.append(i)
-                    xs.append(j)
-                    scores.append(s)
-        return np.array(ys), np.array(xs), np.array(scores)
 
+def _pool(n):
+    global _POOL, _POOL_KEY
+    key = (os.getpid(), n)  # a forked child must not reuse its parent's (dead) threads
+    with _POOL_LOCK:
+        if _POOL_KEY != key:
+            _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="astroalign_nd")
+            _POOL_KEY = key
+        return _POOL
+
+
+def run_split(fn, n, args, min_per_thread=1, parallel=True):
+    """
+    Call ``fn(*args, start, stop)`` over ``range(n)`` split into contiguous
+    chunks, one per thread; return the list of results in chunk order.
+
+    The compiled functions release the GIL, so the chunks run at the same
+    time.  Each chunk writes its own rows, so the result does not depend on
+    the number of threads.
+    """
+    nt = num_threads() if parallel else 1
+    nt = max(1, min(nt, n // max(1, min_per_thread)))
+    if nt == 1:
+        return [fn(*args, 0, n)]
+    bounds = np.linspace(0, n, nt + 1).astype(np.intp)
+    pool = _pool(nt)
+    futures = [pool.submit(fn, *args, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    return [f.result() for f in futures]
+
+
+# -- detection ---------------------------------------------------------------------
 
 def bin_despike(data, b, mask=None, fill=0.0):
     """
@@ -97,10 +103,12 @@ def bin_despike(data, b, mask=None, fill=0.0):
     """
     ny, nx = data.shape[0] // b, data.shape[1] // b
     out = np.empty((ny, nx), dtype=np.float32)
-    if HAVE_NUMBA and data.dtype in (np.float32, np.float64):
+    if HAVE_COMPILED and data.dtype in (np.float32, np.float64) and ny > 0 and nx > 0:
         arr = np.ascontiguousarray(data)
-        m = np.zeros((1, 1), bool) if mask is None else np.ascontiguousarray(mask)
-        _bin_despike_nb(arr, m, mask is not None, b, float(fill), out)
+        m = np.zeros((1, 1), np.uint8) if mask is None else np.ascontiguousarray(
+            mask, dtype=bool).view(np.uint8)
+        args = (arr, m, mask is not None, int(b), float(fill), out)
+        run_split(_ckernels.bin_despike_rows, ny, args, min_per_thread=64)
         return out
     blocks = np.asarray(data[: ny * b, : nx * b], dtype=np.float32)
     bad = ~np.isfinite(blocks)
@@ -126,19 +134,28 @@ def peak_candidates(img, threshold, n_max, border=0):
     score : ndarray
         Sum of the 3x3 neighbourhood (a flux proxy used for ranking).
     """
-    if HAVE_NUMBA:
-        y, x, s = _peaks_nb(np.ascontiguousarray(img, dtype=np.float32), float(threshold),
-                            int(border))
-    else:  # pragma: no cover - same result without numba
-        from scipy.ndimage import maximum_filter, uniform_filter
-
-        mx = maximum_filter(img, size=3, mode="constant", cval=-np.inf)
-        cand = (img >= mx) & (img > threshold)
+    if HAVE_COMPILED:
+        y, x, s = _ckernels.peaks(np.ascontiguousarray(img, dtype=np.float32),
+                                  float(threshold), int(border))
+    else:  # pragma: no cover - same result without the compiled module
+        img = np.asarray(img, dtype=np.float32)
+        ny, nx = img.shape
+        pad = np.pad(img.astype(np.float64), 1, constant_values=-np.inf)
+        cand = img > threshold
+        total = np.zeros(img.shape)
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                w = pad[1 + di:1 + di + ny, 1 + dj:1 + dj + nx]
+                total += np.where(np.isfinite(w), w, 0.0)
+                if di == 0 and dj == 0:
+                    continue
+                # Ties go to the first pixel in raster order.
+                cand &= (img > w) if (di < 0 or (di == 0 and dj < 0)) else (img >= w)
         if border:
-            cand[:border] = cand[-border:] = False
-            cand[:, :border] = cand[:, -border:] = False
+            cand[:border] = cand[ny - border:] = False
+            cand[:, :border] = cand[:, nx - border:] = False
         y, x = np.nonzero(cand)
-        s = uniform_filter(img.astype(np.float64), 3, mode="constant")[y, x] * 9
+        s = total[y, x]
     order = np.lexsort((x, y, -s))[:n_max]
     return y[order], x[order], s[order]
 
@@ -172,46 +189,10 @@ class PointGrid:
         order = np.argsort(cid, kind="stable")
         self.points = pts[order]
         self.start = np.searchsorted(cid[order], np.arange(self.nx * self.ny + 1)).astype(
-            np.int64)
+            np.intp)
 
 
-if HAVE_NUMBA:
-
-    @njit(cache=True, parallel=True, nogil=True)
-    def _count_nb(mats, src, pts, start, ox, oy, cell, nx, ny, r2, out):
-        for h in prange(mats.shape[0]):
-            a, b, c = mats[h, 0, 0], mats[h, 0, 1], mats[h, 0, 2]
-            d, e, f = mats[h, 1, 0], mats[h, 1, 1], mats[h, 1, 2]
-            n = 0
-            for k in range(src.shape[0]):
-                x = a * src[k, 0] + b * src[k, 1] + c
-                y = d * src[k, 0] + e * src[k, 1] + f
-                if not (x == x and y == y):
-                    continue
-                fx = (x - ox) / cell
-                fy = (y - oy) / cell
-                if fx < -1.0 or fy < -1.0 or fx > nx or fy > ny:
-                    continue
-                cx = int(np.floor(fx))
-                cy = int(np.floor(fy))
-                found = False
-                for j in range(max(cy - 1, 0), min(cy + 2, ny)):
-                    if found:
-                        break
-                    for i in range(max(cx - 1, 0), min(cx + 2, nx)):
-                        cid = j * nx + i
-                        for q in range(start[cid], start[cid + 1]):
-                            dx = pts[q, 0] - x
-                            dy = pts[q, 1] - y
-                            if dx * dx + dy * dy < r2:
-                                found = True
-                                break
-                        if found:
-                            break
-                if found:
-                    n += 1
-            out[h] = n
-
+# -- matching ----------------------------------------------------------------------
 
 def count_inliers(mats, src, grid):
     """
@@ -230,10 +211,13 @@ def count_inliers(mats, src, grid):
     """
     mats = np.ascontiguousarray(mats, dtype=np.float64)
     src = np.ascontiguousarray(src, dtype=np.float64)
-    if HAVE_NUMBA:
-        out = np.zeros(len(mats), dtype=np.int64)
-        _count_nb(mats, src, grid.points, grid.start, float(grid.origin[0]),
-                  float(grid.origin[1]), grid.cell, grid.nx, grid.ny, grid.radius**2, out)
+    if HAVE_COMPILED:
+        out = np.zeros(len(mats), dtype=np.intp)
+        # ~2000 star lookups per hypothesis chunk before a thread is worth waking.
+        run_split(_ckernels.count_inliers_range, len(mats),
+                  (mats, src, grid.points, grid.start, float(grid.origin[0]),
+                   float(grid.origin[1]), grid.cell, grid.nx, grid.ny, grid.radius**2, out),
+                  min_per_thread=max(1, 2000 // max(1, len(src))))
         return out
     from scipy.spatial import cKDTree  # pragma: no cover
 
@@ -243,21 +227,12 @@ def count_inliers(mats, src, grid):
     return np.isfinite(d).reshape(len(mats), -1).sum(axis=1)
 
 
-if HAVE_NUMBA:
-
-    @njit(cache=True, parallel=True, nogil=True)
-    def _count_nonfinite_nb(flat):
-        n = 0
-        for i in prange(flat.size):
-            if not np.isfinite(flat[i]):
-                n += 1
-        return n
-
-
 def has_nonfinite(arr):
-    """True if a float array has a NaN or infinite value (one parallel pass)."""
+    """True if a float array has a NaN or infinite value (one pass, no temporaries)."""
     if arr.dtype.kind != "f":
         return False
-    if HAVE_NUMBA and arr.flags.c_contiguous:
-        return _count_nonfinite_nb(arr.reshape(-1)) > 0
+    if HAVE_COMPILED and arr.flags.c_contiguous and arr.dtype in (np.float32, np.float64):
+        flat = arr.reshape(-1)
+        return sum(run_split(_ckernels.count_nonfinite, flat.size, (flat,),
+                             min_per_thread=1 << 20)) > 0
     return not np.isfinite(arr).all()

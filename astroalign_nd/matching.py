@@ -604,13 +604,19 @@ def _predicted_error(model, cov, frame):
     # back to source pixels, where the model's parameters act.
     inv = np.linalg.inv(model.matrix)
     corners = _apply(inv, np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]]))
-    base = np.array(model(corners[:, 0], corners[:, 1]))
+    # Finite differences through the model's static ``evaluate`` with perturbed
+    # parameter values (copying an astropy model costs ~2 ms each).
+    values = {n: float(getattr(model, n).value) for n in model.param_names}
+
+    def at(vals):
+        return np.array(model.evaluate(corners[:, 0], corners[:, 1],
+                                       *[vals[n] for n in model.param_names]), dtype=float)
+
+    base = at(values)
     jac = np.zeros((2 * len(corners), len(free)))
     for k, name in enumerate(free):
-        m2 = model.copy()
-        step = 1e-6 * max(1.0, abs(float(getattr(model, name).value)))
-        setattr(m2, name, float(getattr(model, name).value) + step)
-        jac[:, k] = ((np.array(m2(corners[:, 0], corners[:, 1])) - base) / step).T.ravel()
+        step = 1e-6 * max(1.0, abs(values[name]))
+        jac[:, k] = ((at({**values, name: values[name] + step}) - base) / step).T.ravel()
     var = np.einsum("ik,kl,il->i", jac, cov, jac).reshape(len(corners), 2)
     return float(np.sqrt(np.max(var.sum(axis=1))))
 

@@ -83,12 +83,11 @@ spreads each star over ``s**2`` more pixels, each holding ``1 / s**2`` of
 the counts.  The variance is multiplied by ``1 / det(A)**2``.
 """
 
-import functools
-import math
 import numbers
-import threading
 
 import numpy as np
+
+from ._kernels import HAVE_COMPILED, _ckernels, run_split
 
 __all__ = ["ORDERS", "resample", "resample_exact"]
 
@@ -96,23 +95,17 @@ __all__ = ["ORDERS", "resample", "resample_exact"]
 ORDERS = {"nearest-neighbor": 0, "bilinear": 1, "biquadratic": 2, "bicubic": 3}
 
 # Set to False (e.g. by a test's monkeypatch) to force the pure-NumPy path.
-_USE_NUMBA = True
-# Lazily built numba dispatchers {order: (serial, parallel)}; False if numba is missing.
-_KERNELS = None
-_BUILD_LOCK = threading.Lock()
+_USE_COMPILED = True
 
-# Below this many output pixels the serial kernel is used even with parallel=True:
-# waking the worker threads costs more than the work (measured 0.2 ms serial vs
-# several ms parallel for tiny images on a busy 2-core machine).
-_PARALLEL_MIN_PIXELS = 1 << 16
+# Output rows per thread, at least: below ~256x256 output pixels one thread does
+# it all (waking a second one costs more than the work).
+_MIN_PIXELS_PER_THREAD = 1 << 15
 
 # Output pixels per block of the NumPy path: keeps its temporaries to tens of MB.
 _NUMPY_BLOCK_PIXELS = 1 << 18
 
 
-# -- kernel weights ----------------------------------------------------------------
-# These functions are written so that they work on scalars (numba kernel) and
-# on arrays (NumPy fallback): one definition of each kernel for both paths.
+# -- kernel weights (NumPy path; the compiled kernels in _ckernels.pyx are the same) --
 
 def _linear_weights(f):
     return 1.0 - f, f, 0.0 * f, 0.0 * f
@@ -133,228 +126,7 @@ def _keys_weights(f):
     )
 
 
-# Plain-Python originals for the NumPy path (the names above are rebound to
-# numba dispatchers when the numba kernel is built).
 _WEIGHT_FUNCS = (None, _linear_weights, _quadratic_weights, _keys_weights)
-
-
-# -- numba kernel (compiled lazily) -----------------------------------------------
-# The functions below are plain Python until `_numba_kernels` compiles them;
-# ``prange`` and ``literally`` are rebound to numba's at that point.
-prange = range
-
-
-def literally(value):
-    return value
-
-
-def _axis_taps(u, n, order):
-    """First tap index, validity (all nonzero-weight taps inside), weights."""
-    if order == 0:
-        if not (u >= -0.5 and u <= n - 0.5):  # written so that NaN is rejected too
-            return 0, False, (1.0, 0.0, 0.0, 0.0)
-        i = math.floor(u + 0.5)
-        if i > n - 1:  # u == n - 0.5 exactly
-            i = n - 1
-        return i, True, (1.0, 0.0, 0.0, 0.0)
-    # Guard before converting to int: far-away positions would overflow.
-    if not (u > -3.0 and u < n + 2.0):
-        return 0, False, (1.0, 0.0, 0.0, 0.0)
-    if order == 1:
-        i0 = math.floor(u)
-        w = _linear_weights(u - i0)
-    elif order == 2:
-        c = math.floor(u + 0.5)
-        w = _quadratic_weights(u - c)
-        i0 = c - 1
-    else:
-        fl = math.floor(u)
-        w = _keys_weights(u - fl)
-        i0 = fl - 1
-    ok = i0 >= 0 and i0 + order <= n - 1
-    if not ok:
-        # Near an edge only the taps with nonzero weight have to be inside.
-        ok = True
-        for k in range(order + 1):
-            if w[k] != 0.0 and (i0 + k < 0 or i0 + k > n - 1):
-                ok = False
-    return i0, ok, w
-
-
-def _store(iy, ix, good, acc, accv, has_var, fill, sd, sv, out, out_var, out_mask):
-    """Write one output pixel: the value and variance, or fill/inf and the mask."""
-    out_mask[iy, ix] = not good
-    if good:
-        out[iy, ix] = acc * sd
-        if has_var:
-            out_var[iy, ix] = accv * sv
-    else:
-        out[iy, ix] = fill
-        if has_var:
-            out_var[iy, ix] = np.inf
-
-
-def _resample_row(iy, data, var, has_var, m, order, fill, sd, sv,
-                  out, out_var, out_mask):
-    """Resample output row ``iy`` of one channel: data, variance and mask together."""
-    # One compiled kernel per order: constant tap counts let LLVM unroll the
-    # tap loops and drop the other orders' code (2-3x faster than a runtime
-    # count).  ``has_var`` stays a runtime flag: specialising on it gained < 5%.
-    literally(order)
-    nt = order + 1
-    ny, nx = data.shape
-    # Same operation order as the NumPy path, so both give identical positions.
-    ux = m[1] * iy + m[2]
-    vy = m[4] * iy + m[5]
-    for ix in range(out.shape[1]):
-        u = m[0] * ix + ux
-        v = m[3] * ix + vy
-        jx, okx, wx = _axis_taps(u, nx, order)
-        jy, oky, wy = _axis_taps(v, ny, order)
-        good = okx and oky
-        acc = 0.0
-        accv = 0.0
-        if good:
-            for ky in range(nt):
-                wyk = wy[ky]
-                if wyk != 0.0:  # zero-weight taps are not used (may be outside)
-                    for kx in range(nt):
-                        wxk = wx[kx]
-                        if wxk != 0.0:
-                            w = wyk * wxk
-                            acc += w * data[jy + ky, jx + kx]
-                            if has_var:
-                                accv += w * w * var[jy + ky, jx + kx]
-            # Masked input pixels arrive as NaN, and a NaN/inf pixel with nonzero
-            # weight makes the sum non-finite: this one test does the whole mask
-            # propagation.
-            good = np.isfinite(acc) and np.isfinite(accv)
-        _store(iy, ix, good, acc, accv, has_var, fill, sd, sv, out, out_var, out_mask)
-
-
-def _bilinear_row(iy, data, var, has_var, m, fill, sd, sv, out, out_var, out_mask):
-    """
-    `_resample_row` for order 1, written out: the same positions, weights,
-    tap order and mask rule (so the same bits), without the generic tap
-    machinery, which costs several times more per pixel.
-    """
-    ny, nx = data.shape
-    ux = m[1] * iy + m[2]
-    vy = m[4] * iy + m[5]
-    for ix in range(out.shape[1]):
-        u = m[0] * ix + ux
-        v = m[3] * ix + vy
-        good = u > -3.0 and u < nx + 2.0 and v > -3.0 and v < ny + 2.0
-        acc = 0.0
-        accv = 0.0
-        if good:
-            jx = math.floor(u)
-            jy = math.floor(v)
-            fx = u - jx
-            fy = v - jy
-            # Only taps with nonzero weight must lie inside the image.
-            okx = (jx >= 0 and jx <= nx - 2) or (fx == 0.0 and jx >= 0 and jx <= nx - 1)
-            oky = (jy >= 0 and jy <= ny - 2) or (fy == 0.0 and jy >= 0 and jy <= ny - 1)
-            good = okx and oky
-            if good:
-                wx0, wx1 = 1.0 - fx, fx
-                wy0, wy1 = 1.0 - fy, fy
-                w = wy0 * wx0
-                acc += w * data[jy, jx]
-                if has_var:
-                    accv += w * w * var[jy, jx]
-                if wx1 != 0.0:
-                    w = wy0 * wx1
-                    acc += w * data[jy, jx + 1]
-                    if has_var:
-                        accv += w * w * var[jy, jx + 1]
-                if wy1 != 0.0:
-                    w = wy1 * wx0
-                    acc += w * data[jy + 1, jx]
-                    if has_var:
-                        accv += w * w * var[jy + 1, jx]
-                    if wx1 != 0.0:
-                        w = wy1 * wx1
-                        acc += w * data[jy + 1, jx + 1]
-                        if has_var:
-                            accv += w * w * var[jy + 1, jx + 1]
-                good = np.isfinite(acc) and np.isfinite(accv)
-        _store(iy, ix, good, acc, accv, has_var, fill, sd, sv, out, out_var, out_mask)
-
-
-def _make_bilinear_drivers():
-    def rows_serial(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask):
-        for iy in range(out.shape[0]):
-            _bilinear_row(iy, data, var, has_var, m, fill, sd, sv, out, out_var, out_mask)
-
-    def rows_parallel(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask):
-        for iy in prange(out.shape[0]):
-            _bilinear_row(iy, data, var, has_var, m, fill, sd, sv, out, out_var, out_mask)
-
-    return rows_serial, rows_parallel
-
-
-def _make_drivers(order):
-    """
-    Serial and parallel row loops for one interpolation order.
-
-    ``order`` is a closure constant, which numba types as a literal: each
-    order gets its own compiled (and cached) kernel without the Python-side
-    cost of ``numba.literally`` dispatch (~15 ms per call).
-    """
-    def rows_serial(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask):
-        for iy in range(out.shape[0]):
-            _resample_row(iy, data, var, has_var, m, order, fill, sd, sv,
-                          out, out_var, out_mask)
-
-    def rows_parallel(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask):
-        # One output row per iteration, no cross-thread reduction: deterministic.
-        for iy in prange(out.shape[0]):
-            _resample_row(iy, data, var, has_var, m, order, fill, sd, sv,
-                          out, out_var, out_mask)
-
-    return rows_serial, rows_parallel
-
-
-def _numba_kernels():
-    """
-    Wrap the kernels with numba on first use (each is compiled, or loaded from
-    numba's on-disk cache, at its first call).
-
-    numba is imported here rather than at module import because importing it
-    costs ~0.5-1 s.  Returns ``{order: (serial, parallel)}``, or None when
-    numba is unavailable or disabled through ``_USE_NUMBA``.
-    """
-    global _KERNELS, prange, literally
-    if not _USE_NUMBA:
-        return None
-    with _BUILD_LOCK:  # two threads must not wrap the functions twice
-        if _KERNELS is None:
-            try:
-                import numba
-            except ImportError:
-                _KERNELS = False
-                return None
-            g = globals()
-            opts = dict(cache=True, fastmath=False, nogil=True)
-            # Callees must be dispatchers before their callers are compiled.
-            prange, literally = numba.prange, numba.literally
-            for name in ("_linear_weights", "_quadratic_weights", "_keys_weights",
-                         "_axis_taps", "_store", "_resample_row"):
-                g[name] = numba.njit(**opts)(g[name])
-            # Distinct functions for serial and parallel (not one jitted twice):
-            # numba's on-disk cache is keyed by function, not by ``parallel``.
-            _KERNELS = {}
-            for order in ORDERS.values():
-                serial, parallel = _make_drivers(order)
-                _KERNELS[order] = (numba.njit(**opts)(serial),
-                                   numba.njit(parallel=True, **opts)(parallel))
-            # Bilinear, the default, has a hand-specialised row kernel.
-            g["_bilinear_row"] = numba.njit(**opts)(g["_bilinear_row"])
-            serial, parallel = _make_bilinear_drivers()
-            _KERNELS[1] = (numba.njit(**opts)(serial),
-                           numba.njit(parallel=True, **opts)(parallel))
-    return _KERNELS or None
 
 
 # -- NumPy fallback ------------------------------------------------------------------
@@ -384,7 +156,7 @@ def _axis_taps_numpy(u, n, order):
 
 
 def _resample_numpy(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask, *, order):
-    """Same result as the numba kernel, with NumPy gathers over blocks of rows."""
+    """Same result as the compiled kernel, with NumPy gathers over blocks of rows."""
     ny, nx = data.shape
     ny_out, nx_out = out.shape
     block = max(1, _NUMPY_BLOCK_PIXELS // max(nx_out, 1))
@@ -402,7 +174,7 @@ def _resample_numpy(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask,
             rows = np.clip(jy + ky, 0, ny - 1)
             for kx in range(order + 1):
                 cols = np.clip(jx + kx, 0, nx - 1)
-                # Taps with zero weight along an axis are not used (the numba
+                # Taps with zero weight along an axis are not used (the compiled
                 # kernel skips them), so their NaNs must not leak in.
                 use = inside & (wy[ky] != 0.0) & (wx[kx] != 0.0)
                 w = wy[ky] * wx[kx]
@@ -604,9 +376,9 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
         of ``matrix``) so that total counts, not surface brightness, are
         preserved; variance is scaled by ``1 / det(A)**2``.  Default False.
     parallel : bool, optional
-        Use numba's threads over output rows (default True; ignored for
-        outputs smaller than 256x256 pixels, where starting the threads
-        costs more than it saves).  The result does not depend on it.
+        Split the output rows over threads (default True; see
+        `~astroalign_nd._kernels.num_threads` for how many; small outputs use
+        one).  The result does not depend on it.
 
     Returns
     -------
@@ -635,14 +407,12 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     pixels and that covariance is not returned (summing ``variance_out``
     over an aperture underestimates the variance of the sum).
 
-    The computation runs in a numba kernel (compiled on first use for each
-    order and dtype, a few seconds, then cached on disk) that produces data,
-    variance and mask in one pass; if numba cannot be imported a NumPy
-    implementation of the same kernels gives the same results, more slowly.
-    Threads never share an output pixel, so the result is deterministic.
-    When calling `resample` from several Python threads at once, use
-    ``parallel=False`` unless numba's threading layer is ``omp`` or ``tbb``
-    (its fallback ``workqueue`` layer is not thread-safe).
+    The computation runs in a compiled (Cython) kernel that produces data,
+    variance and mask in one pass over the output; a NumPy implementation
+    of the same kernels gives the same results, more slowly, if the
+    compiled module is missing.  Threads never share an output pixel, so
+    the result is deterministic and the same for any number of threads.
+    `resample` may be called from several threads at once.
 
     Examples
     --------
@@ -674,21 +444,27 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     has_var = var_cf is not None
     out = np.empty((nc,) + shape, dtype=dtype)
     masks = np.empty((nc,) + shape, dtype=bool)
-    # numba needs typed arrays even for absent inputs/outputs: tiny dummies.
+    # The compiled kernel needs typed arrays even for absent inputs/outputs: tiny dummies.
     dummy = np.empty((1, 1), dtype)
     out_var = np.empty((nc,) + shape, dtype=dtype) if has_var else None
 
-    kernels = _numba_kernels()
-    if kernels is None:
-        kernel = functools.partial(_resample_numpy, order=order)
-    else:
-        threads = parallel and shape[0] * shape[1] >= _PARALLEL_MIN_PIXELS
-        kernel = kernels[order][1 if threads else 0]
-    # Channels one at a time, so that the compiled kernel is 2-D only (fewer,
-    # faster specialisations); the positions are recomputed per channel.
+    # Channels one at a time, so that the compiled kernel is 2-D only; the
+    # positions are recomputed per channel.
+    compiled = _USE_COMPILED and HAVE_COMPILED
+    rows_per_thread = max(1, _MIN_PIXELS_PER_THREAD // shape[1])
     for c in range(nc):
-        kernel(data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs, fill,
-               sd, sv, out[c], out_var[c] if has_var else dummy, masks[c])
+        args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
+        outs = (out[c], out_var[c] if has_var else dummy)
+        if not compiled:
+            _resample_numpy(*args, fill, sd, sv, *outs, masks[c], order=order)
+        elif order == 1:  # the default has a hand-specialised kernel
+            run_split(_ckernels.bilinear_rows, shape[0],
+                      args + (fill, sd, sv) + outs + (masks[c].view(np.uint8),),
+                      min_per_thread=rows_per_thread, parallel=parallel)
+        else:
+            run_split(_ckernels.resample_rows, shape[0],
+                      args + (order, fill, sd, sv) + outs + (masks[c].view(np.uint8),),
+                      min_per_thread=rows_per_thread, parallel=parallel)
 
     mask_out = masks[0]
     if nc > 1:

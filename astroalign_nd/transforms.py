@@ -639,11 +639,20 @@ def as_matrix(transform):
                 return m
             raise ValueError(f"{type(transform).__name__} is not an affine transform.")
         raise TypeError("an astropy model used as a transform must have 2 inputs and 2 outputs.")
+    if (isinstance(transform, tuple) and len(transform) == 2
+            and isinstance(transform[0], (Model, np.ndarray))):
+        raise TypeError(
+            "got a (transform, (source_points, target_points)) tuple, as find_transform "
+            "returns; pass its first element: transform, _ = find_transform(...)."
+        )
     params = getattr(transform, "params", transform)
-    m = np.asarray(params, dtype=float)
-    if m.shape == (2, 3):
+    try:
+        m = np.asarray(params, dtype=float)
+    except (TypeError, ValueError):
+        m = None
+    if m is not None and m.shape == (2, 3):
         m = np.vstack([m, [0.0, 0.0, 1.0]])
-    if m.shape != (3, 3):
+    if m is None or m.shape != (3, 3):
         raise TypeError(
             "transform must be an astroalign_nd transform, an astropy model, a scikit-image "
             f"geometric transform or a 3x3 matrix; got {type(transform).__name__}."

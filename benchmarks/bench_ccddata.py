@@ -17,8 +17,8 @@ times, on the same simulated source and the true transform:
 
 All astroalign_nd calls use bilinear interpolation (the default) and the
 parallel kernel.  Each case gets one warm-up call, reported separately as
-"first call" (the very first call of the process also loads/compiles the
-numba kernel), then the median of ``--repeat`` timed calls.
+"first call" (the very first call of the process also pays for lazy
+imports), then the median of ``--repeat`` timed calls.
 
 Run::
 
@@ -97,10 +97,10 @@ def main(argv=None):
 
     import os
 
-    import numba
+    from astroalign_nd._kernels import num_threads
 
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    print(f"numba {numba.__version__}, threads {numba.get_num_threads()}, "
+    print(f"astroalign_nd threads {num_threads()}, "
           f"cpus {os.cpu_count()}, load average {load:.2f}; median (and min) of "
           f"{args.repeat} round-robin calls after one warm-up call\n")
     for n in args.sizes:

@@ -50,7 +50,7 @@ GRID = 17  # error grid: GRID x GRID target points, corners included
 
 # The simulator's default luminosity function (read from its signature so
 # that the printed value is the one actually used).
-import inspect as _inspect
+import inspect as _inspect  # noqa: E402
 
 _SIG = _inspect.signature(simulate_pair).parameters
 FLUX_RANGE = tuple(_SIG["flux_range"].default)
@@ -157,13 +157,9 @@ def main(argv=None):
     version = code_version()
     print(f"astroalign_nd {aand.__version__} (checkout {version}) vs astroalign "
           f"{aa.__version__}")
-    try:
-        import numba
+    from astroalign_nd._kernels import num_threads
 
-        threads = numba.config.NUMBA_NUM_THREADS
-    except ImportError:
-        threads = None
-    print(f"CPUs: {os.cpu_count()}, numba threads: {threads}")
+    print(f"CPUs: {os.cpu_count()}, astroalign_nd threads: {num_threads()}")
     print(f"pairs per cell: {args.pairs}; sizes {args.sizes}; stars {args.stars}; "
           f"backgrounds {[int(b) if b == int(b) else b for b in args.backgrounds]}; "
           f"seed {args.seed}")
@@ -176,7 +172,7 @@ def main(argv=None):
     print(f"success: returned and max error <= {TOL} px over a {GRID}x{GRID} grid of "
           f"target pixels; 'wrong' = returned but > {TOL} px off")
 
-    # Warm-up (numba JIT compilation, imports) outside the timings.
+    # Warm-up (lazy imports) outside the timings.
     warm, _ = draw_pair(256, 300, 100.0, 0, args.seed + 12345, args.fwhm_range)
     run_ours(warm)
     run_astroalign(aa, warm)

@@ -310,7 +310,7 @@ class Worker:
         self.proc = self.ctx.Process(target=_worker, args=(self.method, self.inq, self.outq),
                                      daemon=True)
         self.proc.start()
-        # Warm-up (imports, numba's cached kernels), outside the timing.
+        # Warm-up (imports), outside the timing.
         self.call(_pair_case("warm-up", 0, shape=(256, 256), n_stars=80, rotation=10.0,
                              **BRIGHT), timeout=max(self.timeout, 300))
 

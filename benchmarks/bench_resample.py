@@ -15,10 +15,9 @@ it reports
   its B-spline prefilter) and ``skimage.transform.warp`` order 3 (what
   astroalign's ``apply_transform`` uses);
 * the first-call latency in a fresh Python process: the import of the
-  library and the first call, separately.  For our kernel this is measured
-  twice with a private ``NUMBA_CACHE_DIR``: with an empty cache (numba
-  compiles the kernel) and again with the cache it left (numba only loads
-  it).  The first-call subprocesses use a 1024x1024 image.
+  library and the first call, separately (our kernel is compiled when the
+  package is built, so there is nothing to compile or load at run time).
+  The first-call subprocesses use a 1024x1024 image.
 """
 
 import argparse
@@ -27,7 +26,6 @@ import os
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 
 import numpy as np
@@ -152,18 +150,7 @@ def first_call(kind, order, with_var, n, env=None):
 
 
 def time_first_calls(n):
-    rows = {}
-    for name, spec in CONTENDERS.items():
-        if spec[0] != "ours":
-            rows[name] = first_call(*spec, n)
-            continue
-        # A new, empty cache directory for each of our contenders, so that
-        # every "empty" row includes the full compilation.
-        with tempfile.TemporaryDirectory() as cache:
-            env = dict(os.environ, NUMBA_CACHE_DIR=cache)
-            rows[name + " (empty numba cache)"] = first_call(*spec, n, env)
-            rows[name + " (cache loaded)"] = first_call(*spec, n, env)
-    return rows
+    return {name: first_call(*spec, n) for name, spec in CONTENDERS.items()}
 
 
 def main(argv=None):
@@ -174,10 +161,10 @@ def main(argv=None):
                         help="skip the fresh-process first-call measurements")
     args = parser.parse_args(argv)
 
-    import numba
+    from astroalign_nd._kernels import num_threads
 
-    print(f"python {sys.version.split()[0]}, numpy {np.__version__}, numba {numba.__version__}, "
-          f"{os.cpu_count()} CPUs, numba threads {numba.config.NUMBA_NUM_THREADS}, "
+    print(f"python {sys.version.split()[0]}, numpy {np.__version__}, "
+          f"{os.cpu_count()} CPUs, astroalign_nd threads {num_threads()}, "
           f"load average {os.getloadavg()[0]:.1f}")
     print(f"transform: rotation {np.rad2deg(ANGLE):.0f} deg, scale {SCALE}, shift {SHIFT}; "
           "float32 images\n")

@@ -91,7 +91,7 @@ if not _INTERSPHINX:
 # for this package's own references only.
 _EXTERNAL_PACKAGES = ("python", "numpy", "scipy", "matplotlib", "astropy", "photutils",
                       "ccdproc", "reproject", "skimage", "asdf", "asdf_astropy", "dask",
-                      "distributed", "tqdm", "numba")
+                      "distributed", "tqdm")
 _EXTERNAL_REGEX = r"(%s)(\..*)?" % "|".join(_EXTERNAL_PACKAGES)
 _EXTERNAL_IGNORE = [
     (r"py:.*", _EXTERNAL_REGEX),

@@ -30,7 +30,6 @@ def pytest_configure(config):
             "ccdproc": "ccdproc",
             "reproject": "reproject",
             "scikit-image": "skimage",
-            "numba": "numba",
             "asdf": "asdf",
         }
     )

@@ -733,6 +733,11 @@ def test_bad_inputs(pair):
         apply_transform(np.zeros((3, 3)), pair.source, pair.target)
     with pytest.raises(ValueError, match="method"):
         apply_transform(t, pair.source, pair.target, method="drizzle")
+    # find_transform's (transform, point lists) tuple, passed whole by mistake
+    with pytest.raises(TypeError, match="first element"):
+        apply_transform((t, (np.zeros((3, 2)), np.zeros((3, 2)))), pair.source, pair.target)
+    with pytest.raises(TypeError, match="3x3 matrix"):
+        apply_transform([[1.0, 2.0], [3.0]], pair.source, pair.target)
 
 
 # -- command line ----------------------------------------------------------------------------

@@ -44,6 +44,7 @@ M44 = PAIRS / "m44_plates"
 M44_1910 = M44 / "m44-1910-04-01.jpg"
 M44_1975 = M44 / "m44-1975-01-18.jpg"
 
+
 def test_m44_fwhm_estimate():
     """The plates' stars are >= 10 px wide at half maximum (even unsaturated ones)."""
     from skimage.io import imread

@@ -14,8 +14,7 @@ ALL_ORDERS = [0, 1, 2, 3]
 
 
 def run(*args, **kwargs):
-    # Most tests use the serial kernel: it compiles faster than the prange one on
-    # a cold numba cache; test_parallel_matches_serial covers the parallel one.
+    # Most tests run on one thread; test_threads_match_serial covers the split.
     kwargs.setdefault("parallel", False)
     return resample(*args, **kwargs)
 
@@ -116,8 +115,6 @@ def test_linear_ramp_reproduced(order):
 
 # -- exact cases -----------------------------------------------------------------
 
-# float32 for one order only: every (order, dtype) pair is a separate numba
-# compilation, and the cold-cache run time of this file matters.
 @pytest.mark.parametrize("order, dtype", [(k, np.float64) for k in ALL_ORDERS]
                          + [(1, np.float32)])
 def test_identity_is_exact(noise_image, order, dtype):
@@ -240,16 +237,26 @@ def test_dtypes(noise_image):
     assert_array_equal(big_endian, out)
 
 
-def test_parallel_matches_serial(monkeypatch, noise_image):
-    monkeypatch.setattr(rs, "_PARALLEL_MIN_PIXELS", 0)  # small images normally run serially
+@pytest.mark.parametrize("order", ALL_ORDERS)
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_threads_match_serial(monkeypatch, noise_image, order, dtype):
+    monkeypatch.setattr(rs, "_MIN_PIXELS_PER_THREAD", 1)  # small images normally use one
+    monkeypatch.setenv("ASTROALIGN_ND_NUM_THREADS", "3")  # uneven chunks of 61 rows
+    img = noise_image.astype(dtype)
     m = similarity(1.01, 0.2, 3.3, -1.7)
-    var = noise_image**2
-    a = resample(noise_image, m, (60, 60), order=3, variance=var, parallel=True)
-    b = resample(noise_image, m, (60, 60), order=3, variance=var, parallel=True)
-    c = resample(noise_image, m, (60, 60), order=3, variance=var, parallel=False)
+    var = img**2
+    a = resample(img, m, (61, 60), order=order, variance=var, parallel=True)
+    b = resample(img, m, (61, 60), order=order, variance=var, parallel=True)
+    c = resample(img, m, (61, 60), order=order, variance=var, parallel=False)
     for x, y, z in zip(a, b, c):
         assert_array_equal(x, y)  # deterministic: no cross-thread reductions
         assert_array_equal(x, z)
+
+
+def test_bad_thread_count_is_explained(monkeypatch, noise_image):
+    monkeypatch.setenv("ASTROALIGN_ND_NUM_THREADS", "two")
+    with pytest.raises(ValueError, match="ASTROALIGN_ND_NUM_THREADS"):
+        resample(noise_image, np.eye(3), (300, 300), parallel=True)
 
 
 def test_multichannel(noise_image):
@@ -297,7 +304,7 @@ def test_conserve_flux(order):
 # -- fallback --------------------------------------------------------------------
 
 @pytest.mark.parametrize("order", ALL_ORDERS)
-def test_numpy_fallback_matches_numba(monkeypatch, noise_image, order):
+def test_numpy_fallback_matches_compiled(monkeypatch, noise_image, order):
     img = noise_image.copy()
     img[10, 12] = np.nan
     mask = np.zeros(img.shape, bool)
@@ -305,7 +312,7 @@ def test_numpy_fallback_matches_numba(monkeypatch, noise_image, order):
     var = np.abs(img)
     m = similarity(1.03, 0.25, 2.0, 1.0)
     fast = run(img, m, (50, 50), order=order, variance=var, mask=mask, fill_value=-5)
-    monkeypatch.setattr(rs, "_USE_NUMBA", False)
+    monkeypatch.setattr(rs, "_USE_COMPILED", False)
     slow = run(img, m, (50, 50), order=order, variance=var, mask=mask, fill_value=-5)
     assert_array_equal(fast[2], slow[2])
     assert_allclose(fast[0], slow[0], rtol=0, atol=1e-5)
@@ -316,7 +323,7 @@ def test_numpy_fallback_multichannel(monkeypatch, noise_image):
     rgb = np.stack([noise_image, -noise_image], axis=-1).astype(np.float32)
     m = similarity(0.8, -0.3, 12.0, 0.0)
     fast = run(rgb, m, (40, 40), order=1, variance=np.abs(rgb))
-    monkeypatch.setattr(rs, "_USE_NUMBA", False)
+    monkeypatch.setattr(rs, "_USE_COMPILED", False)
     slow = run(rgb, m, (40, 40), order=1, variance=np.abs(rgb))
     assert slow[0].dtype == np.float32
     assert_array_equal(fast[2], slow[2])

@@ -1,0 +1,377 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+# cython: initializedcheck=False, nonecheck=False, embedsignature=True
+"""
+Compiled loops for the passes that touch every pixel or every hypothesis.
+
+Each function works on a range of output rows (or hypotheses) and releases
+the GIL, so the Python wrappers in `astroalign_nd._kernels` and
+`astroalign_nd.resample` split the work over a few threads.  Threads never
+write the same output element, so results do not depend on the number of
+threads.  Every function here has a NumPy twin in those wrappers that gives
+the same result; the tests compare the two.
+
+This is plain C once compiled: there is no JIT, nothing to cache, and
+nothing heavy to import.
+"""
+
+from libc.math cimport isfinite, INFINITY
+
+import numpy as np
+
+ctypedef fused real:
+    float
+    double
+
+
+cdef inline double _floor(double u) noexcept nogil:
+    """floor(u) for |u| < 2**62, inline (libm's floor is a function call without SSE4.1)."""
+    cdef double t = <double>(<long long>u)  # truncates toward zero
+    return t - 1.0 if u < t else t
+
+
+# -- detection -------------------------------------------------------------------
+
+def bin_despike_rows(const real[:, ::1] data, const unsigned char[:, ::1] mask,
+                     bint use_mask, Py_ssize_t b, double fill, float[:, ::1] out,
+                     Py_ssize_t row0, Py_ssize_t row1):
+    """Rows ``row0:row1`` of `astroalign_nd._kernels.bin_despike`."""
+    cdef Py_ssize_t nx = out.shape[1]
+    cdef Py_ssize_t i, j, di, dj, y, x
+    cdef double inv = 1.0 / (b * b - 1)
+    cdef double total, t, p, v
+    with nogil:
+        for i in range(row0, row1):
+            for j in range(nx):
+                total = 0.0
+                p = -INFINITY
+                for di in range(b):
+                    y = i * b + di
+                    t = 0.0
+                    for dj in range(b):
+                        x = j * b + dj
+                        v = data[y, x]
+                        if not isfinite(v) or (use_mask and mask[y, x]):
+                            v = fill
+                        t += v
+                        if v > p:
+                            p = v
+                    total += t
+                out[i, j] = <float>((total - p) * inv)
+
+
+def peaks(const float[:, ::1] img, double threshold, Py_ssize_t border):
+    """
+    Strict 3x3 local maxima above ``threshold`` in raster order, and the sum
+    of each one's 3x3 neighbourhood (see `astroalign_nd._kernels.peak_candidates`).
+    """
+    cdef Py_ssize_t ny = img.shape[0], nx = img.shape[1]
+    # Strict maxima cannot touch each other: at most one per 2x2 block.
+    cdef Py_ssize_t cap = ((ny + 1) // 2) * ((nx + 1) // 2) + 1
+    ys_arr = np.empty(cap, dtype=np.intp)
+    xs_arr = np.empty(cap, dtype=np.intp)
+    sc_arr = np.empty(cap, dtype=np.float64)
+    cdef Py_ssize_t[::1] ys = ys_arr
+    cdef Py_ssize_t[::1] xs = xs_arr
+    cdef double[::1] sc = sc_arr
+    cdef Py_ssize_t i, j, ii, jj, n = 0
+    cdef int di, dj
+    cdef double v, w, s
+    cdef bint is_max
+    with nogil:
+        for i in range(border, ny - border):
+            for j in range(border, nx - border):
+                v = img[i, j]
+                if v <= threshold:
+                    continue
+                is_max = True
+                s = 0.0
+                for di in range(-1, 2):
+                    for dj in range(-1, 2):
+                        ii = i + di
+                        jj = j + dj
+                        if ii < 0 or ii >= ny or jj < 0 or jj >= nx:
+                            continue
+                        w = img[ii, jj]
+                        s += w
+                        if di == 0 and dj == 0:
+                            continue
+                        # Ties go to the first pixel in raster order.
+                        if w > v or (w == v and (di < 0 or (di == 0 and dj < 0))):
+                            is_max = False
+                if is_max and n < cap:
+                    ys[n] = i
+                    xs[n] = j
+                    sc[n] = s
+                    n += 1
+    return ys_arr[:n].copy(), xs_arr[:n].copy(), sc_arr[:n].copy()
+
+
+def count_nonfinite(const real[::1] flat, Py_ssize_t start, Py_ssize_t stop):
+    """Number of NaN or infinite values in ``flat[start:stop]``."""
+    cdef Py_ssize_t i, n = 0
+    with nogil:
+        for i in range(start, stop):
+            if not isfinite(flat[i]):
+                n += 1
+    return n
+
+
+# -- matching --------------------------------------------------------------------
+
+def count_inliers_range(const double[:, :, ::1] mats, const double[:, ::1] src,
+                        const double[:, ::1] pts, const Py_ssize_t[::1] start,
+                        double ox, double oy, double cell, Py_ssize_t nx, Py_ssize_t ny,
+                        double r2, Py_ssize_t[::1] out, Py_ssize_t h0, Py_ssize_t h1):
+    """Hypotheses ``h0:h1`` of `astroalign_nd._kernels.count_inliers`."""
+    cdef Py_ssize_t h, k, i, j, q, cx, cy, cid, n
+    cdef double a, b, c, d, e, f, x, y, fx, fy, dx, dy
+    cdef bint found
+    with nogil:
+        for h in range(h0, h1):
+            a = mats[h, 0, 0]
+            b = mats[h, 0, 1]
+            c = mats[h, 0, 2]
+            d = mats[h, 1, 0]
+            e = mats[h, 1, 1]
+            f = mats[h, 1, 2]
+            n = 0
+            for k in range(src.shape[0]):
+                x = a * src[k, 0] + b * src[k, 1] + c
+                y = d * src[k, 0] + e * src[k, 1] + f
+                if not (x == x and y == y):
+                    continue
+                fx = (x - ox) / cell
+                fy = (y - oy) / cell
+                if fx < -1.0 or fy < -1.0 or fx > nx or fy > ny:
+                    continue
+                cx = <Py_ssize_t>_floor(fx)
+                cy = <Py_ssize_t>_floor(fy)
+                found = False
+                for j in range(max(cy - 1, 0), min(cy + 2, ny)):
+                    for i in range(max(cx - 1, 0), min(cx + 2, nx)):
+                        cid = j * nx + i
+                        for q in range(start[cid], start[cid + 1]):
+                            dx = pts[q, 0] - x
+                            dy = pts[q, 1] - y
+                            if dx * dx + dy * dy < r2:
+                                found = True
+                                break
+                        if found:
+                            break
+                    if found:
+                        break
+                if found:
+                    n += 1
+            out[h] = n
+
+
+# -- resampling ------------------------------------------------------------------
+# The kernels, footprint and mask rules are documented in astroalign_nd.resample;
+# `_resample_numpy` there is the same computation in NumPy, tap for tap.
+
+cdef inline void _linear_weights(double f, double* w) noexcept nogil:
+    w[0] = 1.0 - f
+    w[1] = f
+    w[2] = 0.0
+    w[3] = 0.0
+
+
+cdef inline void _quadratic_weights(double t, double* w) noexcept nogil:
+    # Dodgson's interpolating quadratic, taps c-1, c, c+1 with t = x - c in [-0.5, 0.5).
+    w[0] = t * (t - 0.5)
+    w[1] = 1.0 - 2.0 * t * t
+    w[2] = t * (t + 0.5)
+    w[3] = 0.0
+
+
+cdef inline void _keys_weights(double f, double* w) noexcept nogil:
+    # Keys cubic convolution, a = -0.5, taps floor(x)-1 .. floor(x)+2.
+    w[0] = ((-0.5 * f + 1.0) * f - 0.5) * f
+    w[1] = (1.5 * f - 2.5) * f * f + 1.0
+    w[2] = ((-1.5 * f + 2.0) * f + 0.5) * f
+    w[3] = (0.5 * f - 0.5) * f * f
+
+
+cdef inline bint _axis_taps(double u, Py_ssize_t n, int order, Py_ssize_t* i0,
+                            double* w) noexcept nogil:
+    """First tap index and weights along one axis; False if a used tap is outside."""
+    cdef double fl
+    cdef Py_ssize_t k
+    cdef bint ok
+    if order == 0:
+        w[0] = 1.0
+        w[1] = 0.0
+        w[2] = 0.0
+        w[3] = 0.0
+        if not (u >= -0.5 and u <= n - 0.5):  # written so that NaN is rejected too
+            i0[0] = 0
+            return False
+        i0[0] = <Py_ssize_t>_floor(u + 0.5)
+        if i0[0] > n - 1:  # u == n - 0.5 exactly
+            i0[0] = n - 1
+        return True
+    # Guard before converting to an integer: far-away positions would overflow.
+    if not (u > -3.0 and u < n + 2.0):
+        i0[0] = 0
+        return False
+    if order == 1:
+        fl = _floor(u)
+        _linear_weights(u - fl, w)
+        i0[0] = <Py_ssize_t>fl
+    elif order == 2:
+        fl = _floor(u + 0.5)
+        _quadratic_weights(u - fl, w)
+        i0[0] = <Py_ssize_t>fl - 1
+    else:
+        fl = _floor(u)
+        _keys_weights(u - fl, w)
+        i0[0] = <Py_ssize_t>fl - 1
+    ok = i0[0] >= 0 and i0[0] + order <= n - 1
+    if not ok:
+        # Near an edge only the taps with nonzero weight have to be inside.
+        ok = True
+        for k in range(order + 1):
+            if w[k] != 0.0 and (i0[0] + k < 0 or i0[0] + k > n - 1):
+                ok = False
+    return ok
+
+
+cdef inline void _store(Py_ssize_t k, bint good, double acc, double accv, bint has_var,
+                        double fill, double sd, double sv, real* o, real* ov,
+                        unsigned char* om) noexcept nogil:
+    """Write output pixel ``k``: the value and variance, or fill/inf and the mask."""
+    om[k] = not good
+    if good:
+        o[k] = <real>(acc * sd)
+        if has_var:
+            ov[k] = <real>(accv * sv)
+    else:
+        o[k] = <real>fill
+        if has_var:
+            ov[k] = <real>INFINITY
+
+
+def resample_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
+                  const double[::1] m, int order, double fill, double sd, double sv,
+                  real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
+                  Py_ssize_t row0, Py_ssize_t row1):
+    """
+    Output rows ``row0:row1`` of `astroalign_nd.resample.resample` for one
+    channel: data, variance and mask in one pass.
+
+    ``m`` holds the target -> source coefficients ``(a, b, c, d, e, f)``:
+    the source position of output pixel ``(ix, iy)`` is
+    ``(a ix + b iy + c, d ix + e iy + f)``.
+    """
+    cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
+    cdef Py_ssize_t iy, ix, jx, jy, kx, ky, row
+    cdef int nt = order + 1
+    cdef double ux, vy, u, v, acc, accv, w, wyk, wxk
+    cdef double wx[4]
+    cdef double wy[4]
+    cdef bint good
+    # Raw pointers: C-contiguous arrays, and no per-pixel memoryview overhead.
+    cdef const real* d = &data[0, 0]
+    cdef const real* dv = &var[0, 0]
+    cdef real* o = &out[0, 0]
+    cdef real* ov = &out_var[0, 0]
+    cdef unsigned char* om = &out_mask[0, 0]
+    with nogil:
+        for iy in range(row0, row1):
+            # Same operation order as the NumPy path, so both give identical positions.
+            ux = m[1] * iy + m[2]
+            vy = m[4] * iy + m[5]
+            for ix in range(nx_out):
+                u = m[0] * ix + ux
+                v = m[3] * ix + vy
+                good = _axis_taps(u, nx, order, &jx, wx)
+                good = _axis_taps(v, ny, order, &jy, wy) and good
+                acc = 0.0
+                accv = 0.0
+                if good:
+                    for ky in range(nt):
+                        wyk = wy[ky]
+                        if wyk != 0.0:  # zero-weight taps are not used (may be outside)
+                            row = (jy + ky) * nx + jx
+                            for kx in range(nt):
+                                wxk = wx[kx]
+                                if wxk != 0.0:
+                                    w = wyk * wxk
+                                    acc += w * d[row + kx]
+                                    if has_var:
+                                        accv += w * w * dv[row + kx]
+                    # Masked input pixels arrive as NaN, and a NaN/inf pixel with
+                    # nonzero weight makes the sum non-finite: this one test does
+                    # the whole mask propagation.
+                    good = isfinite(acc) and isfinite(accv)
+                _store(iy * nx_out + ix, good, acc, accv, has_var, fill, sd, sv, o, ov, om)
+
+
+def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
+                  const double[::1] m, double fill, double sd, double sv,
+                  real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
+                  Py_ssize_t row0, Py_ssize_t row1):
+    """
+    `resample_rows` for order 1, written out: the same positions, weights,
+    tap order and mask rule (so the same bits), without the generic tap
+    machinery, which costs several times more per pixel.
+    """
+    cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
+    cdef Py_ssize_t iy, ix, jx, jy, k
+    cdef double ux, vy, u, v, acc, accv, w, fx, fy, flx, fly, wx0, wx1, wy0, wy1
+    cdef bint good, okx, oky
+    cdef const real* d = &data[0, 0]
+    cdef const real* dv = &var[0, 0]
+    cdef real* o = &out[0, 0]
+    cdef real* ov = &out_var[0, 0]
+    cdef unsigned char* om = &out_mask[0, 0]
+    cdef double a0 = m[0], a3 = m[3]
+    with nogil:
+        for iy in range(row0, row1):
+            ux = m[1] * iy + m[2]
+            vy = m[4] * iy + m[5]
+            for ix in range(nx_out):
+                u = a0 * ix + ux
+                v = a3 * ix + vy
+                good = u > -3.0 and u < nx + 2.0 and v > -3.0 and v < ny + 2.0
+                acc = 0.0
+                accv = 0.0
+                if good:
+                    flx = _floor(u)
+                    fly = _floor(v)
+                    jx = <Py_ssize_t>flx
+                    jy = <Py_ssize_t>fly
+                    fx = u - flx
+                    fy = v - fly
+                    # Only taps with nonzero weight must lie inside the image.
+                    okx = (jx >= 0 and jx <= nx - 2) or (fx == 0.0 and jx >= 0 and jx <= nx - 1)
+                    oky = (jy >= 0 and jy <= ny - 2) or (fy == 0.0 and jy >= 0 and jy <= ny - 1)
+                    good = okx and oky
+                    if good:
+                        k = jy * nx + jx
+                        wx0 = 1.0 - fx
+                        wx1 = fx
+                        wy0 = 1.0 - fy
+                        wy1 = fy
+                        w = wy0 * wx0
+                        acc += w * d[k]
+                        if has_var:
+                            accv += w * w * dv[k]
+                        if wx1 != 0.0:
+                            w = wy0 * wx1
+                            acc += w * d[k + 1]
+                            if has_var:
+                                accv += w * w * dv[k + 1]
+                        if wy1 != 0.0:
+                            w = wy1 * wx0
+                            acc += w * d[k + nx]
+                            if has_var:
+                                accv += w * w * dv[k + nx]
+                            if wx1 != 0.0:
+                                w = wy1 * wx1
+                                acc += w * d[k + nx + 1]
+                                if has_var:
+                                    accv += w * w * dv[k + nx + 1]
+                        good = isfinite(acc) and isfinite(accv)
+                _store(iy * nx_out + ix, good, acc, accv, has_var, fill, sd, sv, o, ov, om)

@@ -1,0 +1,118 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""The compiled detection and matching loops against their NumPy twins."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from astroalign_nd import _kernels as k
+
+
+@pytest.fixture
+def numpy_only(monkeypatch):
+    """Run the body with the NumPy versions of the kernels."""
+    def use_numpy():
+        monkeypatch.setattr(k, "HAVE_COMPILED", False)
+    return use_numpy
+
+
+@pytest.fixture(params=[1, 3])
+def threads(request, monkeypatch):
+    monkeypatch.setenv("ASTROALIGN_ND_NUM_THREADS", str(request.param))
+    return request.param
+
+
+def test_compiled_module_is_built():
+    # CI installs the package, so the compiled module must be there: without it
+    # everything silently runs on the slower NumPy path.
+    assert k.HAVE_COMPILED
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("b", [2, 3, 4])
+def test_bin_despike_matches_numpy(numpy_only, threads, dtype, b):
+    rng = np.random.default_rng(1)
+    img = rng.normal(100, 10, (203, 157)).astype(dtype)
+    img[5, 7] = np.nan
+    img[50, 60] = np.inf
+    img[100, 100] = 1e6  # a hot pixel: dropped as its block's maximum
+    mask = np.zeros(img.shape, bool)
+    mask[20:23, 30:33] = True
+    before = img.copy()
+    fast = k.bin_despike(img, b, mask=mask, fill=3.0)
+    fast_nomask = k.bin_despike(img, b)
+    numpy_only()
+    slow = k.bin_despike(img, b, mask=mask, fill=3.0)
+    slow_nomask = k.bin_despike(img, b)
+    assert fast.shape == (203 // b, 157 // b) and fast.dtype == np.float32
+    assert_allclose(fast, slow, rtol=1e-6)
+    assert_allclose(fast_nomask, slow_nomask, rtol=1e-6)
+    assert fast[100 // b, 100 // b] < 200  # the hot pixel is gone
+    assert_array_equal(img, before)  # the input is not touched
+
+
+def test_bin_despike_read_only_and_strided_input():
+    img = np.arange(64 * 64, dtype=np.float64).reshape(64, 64)
+    view = img[::2, ::2]  # not contiguous
+    view.flags.writeable = False
+    out = k.bin_despike(view, 2)
+    # Each 2x2 block of the view holds v, v+2, v+128, v+130: the mean of the
+    # three smallest is v + 130/3.
+    v = view[::2, ::2][:16, :16]
+    assert_allclose(out, v + 130.0 / 3.0, rtol=1e-6)
+
+
+def test_peak_candidates_match_numpy(numpy_only):
+    rng = np.random.default_rng(2)
+    img = rng.normal(0, 1, (120, 90)).astype(np.float32)
+    img[40, 40] = img[40, 41] = 50.0  # a tie: the first in raster order wins
+    fast = k.peak_candidates(img, 2.0, 10_000, border=2)
+    numpy_only()
+    slow = k.peak_candidates(img, 2.0, 10_000, border=2)
+    assert len(fast[0]) > 10
+    assert_array_equal(fast[0], slow[0])
+    assert_array_equal(fast[1], slow[1])
+    assert_allclose(fast[2], slow[2], rtol=1e-6)
+    # Brightest first; the tie keeps only (40, 40).
+    assert (fast[0][0], fast[1][0]) == (40, 40)
+    assert not np.any((fast[0] == 40) & (fast[1] == 41))
+    assert np.all(fast[0] >= 2) and np.all(fast[0] < 118)
+
+
+def test_has_nonfinite(threads):
+    a = np.zeros((300, 4000), np.float32)
+    assert not k.has_nonfinite(a)
+    a[299, 3999] = np.nan
+    assert k.has_nonfinite(a)
+    b = np.zeros(5_000_000)
+    b[0] = -np.inf
+    assert k.has_nonfinite(b)
+    assert not k.has_nonfinite(np.arange(10))  # integers are always finite
+    assert k.has_nonfinite(np.asfortranarray(np.full((3, 3), np.nan)))
+
+
+def test_count_inliers_matches_kdtree(numpy_only, threads):
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(0, 1000, (400, 2))
+    src = rng.uniform(0, 1000, (300, 2))
+    # Hypotheses: random similarity transforms, plus the truth for half of src.
+    mats = np.tile(np.eye(3), (500, 1, 1))
+    ang = rng.uniform(0, 2 * np.pi, 500)
+    mats[:, 0, 0] = mats[:, 1, 1] = np.cos(ang)
+    mats[:, 0, 1] = -np.sin(ang)
+    mats[:, 1, 0] = np.sin(ang)
+    mats[:, :2, 2] = rng.uniform(-50, 50, (500, 2))
+    src[:150] = pts[:150] + rng.normal(0, 0.5, (150, 2))
+    mats[0] = np.eye(3)
+    grid = k.PointGrid(pts, 3.0)
+    fast = k.count_inliers(mats, src, grid)
+    numpy_only()
+    slow = k.count_inliers(mats, src, grid)
+    assert_array_equal(fast, slow)
+    assert fast[0] >= 150  # the identity finds the 150 planted matches
+
+
+def test_count_inliers_ignores_nan_and_far_points():
+    grid = k.PointGrid(np.array([[0.0, 0.0], [10.0, 10.0]]), 1.0)
+    src = np.array([[0.2, 0.1], [np.nan, 0.0], [1e12, -1e12], [10.5, 9.5]])
+    assert_array_equal(k.count_inliers(np.eye(3)[None], src, grid), [2])
