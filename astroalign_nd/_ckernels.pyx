@@ -327,6 +327,7 @@ def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
     cdef real* ov = &out_var[0, 0]
     cdef unsigned char* om = &out_mask[0, 0]
     cdef double a0 = m[0], a3 = m[3]
+    cdef double xmax = nx - 1, ymax = ny - 1
     with nogil:
         for iy in range(row0, row1):
             ux = m[1] * iy + m[2]
@@ -334,44 +335,55 @@ def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
             for ix in range(nx_out):
                 u = a0 * ix + ux
                 v = a3 * ix + vy
-                good = u > -3.0 and u < nx + 2.0 and v > -3.0 and v < ny + 2.0
                 acc = 0.0
                 accv = 0.0
-                if good:
-                    flx = _floor(u)
-                    fly = _floor(v)
-                    jx = <Py_ssize_t>flx
-                    jy = <Py_ssize_t>fly
-                    fx = u - flx
-                    fy = v - fly
-                    # Only taps with nonzero weight must lie inside the image.
-                    okx = (jx >= 0 and jx <= nx - 2) or (fx == 0.0 and jx >= 0 and jx <= nx - 1)
-                    oky = (jy >= 0 and jy <= ny - 2) or (fy == 0.0 and jy >= 0 and jy <= ny - 1)
-                    good = okx and oky
+                if u >= 0.0 and u < xmax and v >= 0.0 and v < ymax:
+                    # Interior (almost every pixel): all four taps are inside,
+                    # and truncation is floor for u, v >= 0.
+                    jx = <Py_ssize_t>u
+                    jy = <Py_ssize_t>v
+                    fx = u - <double>jx
+                    fy = v - <double>jy
+                    good = True
+                else:
+                    good = u > -3.0 and u < nx + 2.0 and v > -3.0 and v < ny + 2.0
                     if good:
-                        k = jy * nx + jx
-                        wx0 = 1.0 - fx
-                        wx1 = fx
-                        wy0 = 1.0 - fy
-                        wy1 = fy
-                        w = wy0 * wx0
-                        acc += w * d[k]
+                        flx = _floor(u)
+                        fly = _floor(v)
+                        jx = <Py_ssize_t>flx
+                        jy = <Py_ssize_t>fly
+                        fx = u - flx
+                        fy = v - fly
+                        # Only taps with nonzero weight must lie inside the image.
+                        okx = (jx >= 0 and jx <= nx - 2) or (fx == 0.0 and jx >= 0
+                                                             and jx <= nx - 1)
+                        oky = (jy >= 0 and jy <= ny - 2) or (fy == 0.0 and jy >= 0
+                                                             and jy <= ny - 1)
+                        good = okx and oky
+                if good:
+                    k = jy * nx + jx
+                    wx0 = 1.0 - fx
+                    wx1 = fx
+                    wy0 = 1.0 - fy
+                    wy1 = fy
+                    w = wy0 * wx0
+                    acc += w * d[k]
+                    if has_var:
+                        accv += w * w * dv[k]
+                    if wx1 != 0.0:
+                        w = wy0 * wx1
+                        acc += w * d[k + 1]
                         if has_var:
-                            accv += w * w * dv[k]
+                            accv += w * w * dv[k + 1]
+                    if wy1 != 0.0:
+                        w = wy1 * wx0
+                        acc += w * d[k + nx]
+                        if has_var:
+                            accv += w * w * dv[k + nx]
                         if wx1 != 0.0:
-                            w = wy0 * wx1
-                            acc += w * d[k + 1]
+                            w = wy1 * wx1
+                            acc += w * d[k + nx + 1]
                             if has_var:
-                                accv += w * w * dv[k + 1]
-                        if wy1 != 0.0:
-                            w = wy1 * wx0
-                            acc += w * d[k + nx]
-                            if has_var:
-                                accv += w * w * dv[k + nx]
-                            if wx1 != 0.0:
-                                w = wy1 * wx1
-                                acc += w * d[k + nx + 1]
-                                if has_var:
-                                    accv += w * w * dv[k + nx + 1]
-                        good = isfinite(acc) and isfinite(accv)
+                                accv += w * w * dv[k + nx + 1]
+                    good = isfinite(acc) and isfinite(accv)
                 _store(iy * nx_out + ix, good, acc, accv, has_var, fill, sd, sv, o, ov, om)

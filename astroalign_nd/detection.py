@@ -40,6 +40,28 @@ __all__ = ["find_sources", "estimate_noise", "estimate_fwhm"]
 _GAUSS_SIGMA_TO_FWHM = 2.0 * np.sqrt(2.0 * np.log(2.0))
 
 
+def _median(a, axis=None):
+    """
+    `numpy.median` of finite data, bit for bit, several times faster.
+
+    numpy's median partitions around two elements for even lengths, which
+    is slow along an axis (~8 ms for 1500 cutouts of 300 pixels); one
+    partition plus the maximum of the lower half gives the same values.
+    NaNs are not propagated: callers pass finite values only.
+    """
+    a = np.asarray(a)
+    if axis is None:
+        a, axis = a.ravel(), 0
+    n = a.shape[axis]
+    k = n // 2
+    part = np.partition(a, k, axis=axis)
+    hi = part.take(k, axis=axis)
+    if n % 2:
+        return hi
+    lo = np.max(part.take(np.arange(k), axis=axis), axis=axis)
+    return np.mean(np.stack([lo, hi]), axis=0)
+
+
 def estimate_noise(data, mask=None, *, max_samples=50_000):
     """
     Robust per-pixel noise of an image from neighbouring-pixel differences.
@@ -71,8 +93,8 @@ def estimate_noise(data, mask=None, *, max_samples=50_000):
     diff = diff[good]
     if diff.size < 10:
         return float("nan")
-    med = np.median(diff)
-    sigma = 1.4826 * np.median(np.abs(diff - med)) / np.sqrt(2.0)
+    med = _median(diff)
+    sigma = 1.4826 * _median(np.abs(diff - med)) / np.sqrt(2.0)
     if sigma <= 0:
         # Quantised or noiseless images: fall back to the standard deviation.
         sigma = np.std(diff) / np.sqrt(2.0)
@@ -108,7 +130,7 @@ def _background_map(binned, box):
     cy, cx = ny // by, nx // bx
     blocks = binned[: by * cy, : bx * cx].reshape(by, cy, bx, cx)
     blocks = np.moveaxis(blocks, 2, 1).reshape(by, bx, cy * cx)
-    bkg = np.median(blocks, axis=2)
+    bkg = _median(blocks, axis=2)
     wy = _interp_matrix(ny, by, cy)
     wx = _interp_matrix(nx, bx, cx)
     return ((wy @ bkg) @ wx.T).astype(np.float32), bkg
@@ -145,7 +167,7 @@ def _local_background(cut, bad, r_in):
     sel = outer.ravel()
     vals = cut.reshape(n, -1)[:, sel]
     badv = bad.reshape(n, -1)[:, sel]
-    bkg = np.median(vals, axis=1)  # right for every cutout without bad pixels
+    bkg = _median(vals, axis=1)  # right for every cutout without bad pixels
     for i in np.flatnonzero(badv.any(axis=1)):  # the few at edges or masks
         good = vals[i][~badv[i]]
         bkg[i] = np.median(good) if good.size else 0.0
