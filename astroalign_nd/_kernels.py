@@ -57,11 +57,24 @@ def num_threads():
         return max(1, os.cpu_count() or 1)
 
 
+def _after_fork_in_child():
+    # The parent's worker threads do not exist in the child, and a lock held by
+    # one of its other threads at fork time would never be released.
+    global _POOL, _POOL_KEY, _POOL_LOCK
+    _POOL, _POOL_KEY, _POOL_LOCK = None, None, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
 def _pool(n):
     global _POOL, _POOL_KEY
     key = (os.getpid(), n)  # a forked child must not reuse its parent's (dead) threads
     with _POOL_LOCK:
         if _POOL_KEY != key:
+            # A replaced pool's idle threads exit once it is garbage collected; it
+            # is not shut down, as another thread may still be submitting to it.
             _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="astroalign_nd")
             _POOL_KEY = key
         return _POOL

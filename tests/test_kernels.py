@@ -116,3 +116,25 @@ def test_count_inliers_ignores_nan_and_far_points():
     grid = k.PointGrid(np.array([[0.0, 0.0], [10.0, 10.0]]), 1.0)
     src = np.array([[0.2, 0.1], [np.nan, 0.0], [1e12, -1e12], [10.5, 9.5]])
     assert_array_equal(k.count_inliers(np.eye(3)[None], src, grid), [2])
+
+
+def test_threads_work_after_fork():
+    # A forked worker (multiprocessing, dask's nanny) must not wait on its
+    # parent's thread pool, which does not exist in the child.
+    import multiprocessing as mp
+
+    from astroalign_nd.resample import resample
+
+    img = np.random.default_rng(4).normal(size=(400, 400))
+    resample(img, np.eye(3), img.shape)  # the parent's pool now exists
+    ctx = mp.get_context("fork")
+    with ctx.Pool(1) as pool:
+        res = pool.apply_async(_resample_in_child, (img,))
+        out = res.get(timeout=60)
+    assert_array_equal(out, resample(img, np.eye(3), img.shape)[0])
+
+
+def _resample_in_child(img):
+    from astroalign_nd.resample import resample
+
+    return resample(img, np.eye(3), img.shape)[0]
