@@ -252,6 +252,49 @@ cdef inline void _store(Py_ssize_t k, bint good, double acc, double accv, bint h
             ov[k] = <real>INFINITY
 
 
+cdef inline void _resample_block(const real* d, const real* dv, bint has_var,
+                                 Py_ssize_t ny, Py_ssize_t nx, const double* m,
+                                 const int order, double fill, double sd, double sv,
+                                 real* o, real* ov, unsigned char* om, Py_ssize_t nx_out,
+                                 Py_ssize_t row0, Py_ssize_t row1) noexcept nogil:
+    # Called with a literal ``order``: the C compiler specialises the loop for
+    # each order (fixed tap counts, unrolled), ~2x faster than a runtime count.
+    cdef Py_ssize_t iy, ix, jx, jy, kx, ky, row
+    cdef int nt = order + 1
+    cdef double ux, vy, u, v, acc, accv, w, wyk, wxk
+    cdef double wx[4]
+    cdef double wy[4]
+    cdef bint good
+    for iy in range(row0, row1):
+        # Same operation order as the NumPy path, so both give identical positions.
+        ux = m[1] * iy + m[2]
+        vy = m[4] * iy + m[5]
+        for ix in range(nx_out):
+            u = m[0] * ix + ux
+            v = m[3] * ix + vy
+            good = _axis_taps(u, nx, order, &jx, wx)
+            good = _axis_taps(v, ny, order, &jy, wy) and good
+            acc = 0.0
+            accv = 0.0
+            if good:
+                for ky in range(nt):
+                    wyk = wy[ky]
+                    if wyk != 0.0:  # zero-weight taps are not used (may be outside)
+                        row = (jy + ky) * nx + jx
+                        for kx in range(nt):
+                            wxk = wx[kx]
+                            if wxk != 0.0:
+                                w = wyk * wxk
+                                acc += w * d[row + kx]
+                                if has_var:
+                                    accv += w * w * dv[row + kx]
+                # Masked input pixels arrive as NaN, and a NaN/inf pixel with
+                # nonzero weight makes the sum non-finite: this one test does
+                # the whole mask propagation.
+                good = isfinite(acc) and isfinite(accv)
+            _store(iy * nx_out + ix, good, acc, accv, has_var, fill, sd, sv, o, ov, om)
+
+
 def resample_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
                   const double[::1] m, int order, double fill, double sd, double sv,
                   real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
@@ -265,47 +308,28 @@ def resample_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
     ``(a ix + b iy + c, d ix + e iy + f)``.
     """
     cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
-    cdef Py_ssize_t iy, ix, jx, jy, kx, ky, row
-    cdef int nt = order + 1
-    cdef double ux, vy, u, v, acc, accv, w, wyk, wxk
-    cdef double wx[4]
-    cdef double wy[4]
-    cdef bint good
     # Raw pointers: C-contiguous arrays, and no per-pixel memoryview overhead.
     cdef const real* d = &data[0, 0]
     cdef const real* dv = &var[0, 0]
     cdef real* o = &out[0, 0]
     cdef real* ov = &out_var[0, 0]
     cdef unsigned char* om = &out_mask[0, 0]
+    cdef const double* mp = &m[0]
+    if order not in (0, 1, 2, 3):
+        raise ValueError(f"order must be 0-3; got {order}.")
     with nogil:
-        for iy in range(row0, row1):
-            # Same operation order as the NumPy path, so both give identical positions.
-            ux = m[1] * iy + m[2]
-            vy = m[4] * iy + m[5]
-            for ix in range(nx_out):
-                u = m[0] * ix + ux
-                v = m[3] * ix + vy
-                good = _axis_taps(u, nx, order, &jx, wx)
-                good = _axis_taps(v, ny, order, &jy, wy) and good
-                acc = 0.0
-                accv = 0.0
-                if good:
-                    for ky in range(nt):
-                        wyk = wy[ky]
-                        if wyk != 0.0:  # zero-weight taps are not used (may be outside)
-                            row = (jy + ky) * nx + jx
-                            for kx in range(nt):
-                                wxk = wx[kx]
-                                if wxk != 0.0:
-                                    w = wyk * wxk
-                                    acc += w * d[row + kx]
-                                    if has_var:
-                                        accv += w * w * dv[row + kx]
-                    # Masked input pixels arrive as NaN, and a NaN/inf pixel with
-                    # nonzero weight makes the sum non-finite: this one test does
-                    # the whole mask propagation.
-                    good = isfinite(acc) and isfinite(accv)
-                _store(iy * nx_out + ix, good, acc, accv, has_var, fill, sd, sv, o, ov, om)
+        if order == 0:
+            _resample_block(d, dv, has_var, ny, nx, mp, 0, fill, sd, sv, o, ov, om, nx_out,
+                            row0, row1)
+        elif order == 1:
+            _resample_block(d, dv, has_var, ny, nx, mp, 1, fill, sd, sv, o, ov, om, nx_out,
+                            row0, row1)
+        elif order == 2:
+            _resample_block(d, dv, has_var, ny, nx, mp, 2, fill, sd, sv, o, ov, om, nx_out,
+                            row0, row1)
+        else:
+            _resample_block(d, dv, has_var, ny, nx, mp, 3, fill, sd, sv, o, ov, om, nx_out,
+                            row0, row1)
 
 
 def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
