@@ -376,9 +376,10 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
         of ``matrix``) so that total counts, not surface brightness, are
         preserved; variance is scaled by ``1 / det(A)**2``.  Default False.
     parallel : bool, optional
-        Split the output rows over threads (default True; see
-        `~astroalign_nd._kernels.num_threads` for how many; small outputs use
-        one).  The result does not depend on it.
+        Split the output rows over threads (default True): as many as the
+        CPUs this process may use, or ``ASTROALIGN_ND_NUM_THREADS`` if set in
+        the environment; small outputs use one.  The result does not depend
+        on it.
 
     Returns
     -------
