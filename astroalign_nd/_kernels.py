@@ -89,14 +89,20 @@ def run_split(fn, n, args, min_per_thread=1, parallel=True):
     time.  Each chunk writes its own rows, so the result does not depend on
     the number of threads.
     """
-    nt = num_threads() if parallel else 1
-    nt = max(1, min(nt, n // max(1, min_per_thread)))
+    most = num_threads() if parallel else 1
+    nt = max(1, min(most, n // max(1, min_per_thread)))
     if nt == 1:
         return [fn(*args, 0, n)]
-    bounds = np.linspace(0, n, nt + 1).astype(np.intp)
-    pool = _pool(nt)
-    futures = [pool.submit(fn, *args, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
-    return [f.result() for f in futures]
+    bounds = [int(k) for k in np.linspace(0, n, nt + 1)]
+    # The calling thread runs the first chunk itself; the pool (one size per
+    # thread setting, whatever this call's chunk count) runs the others.
+    pool = _pool(most - 1)
+    futures = [pool.submit(fn, *args, a, b) for a, b in zip(bounds[1:-1], bounds[2:])]
+    try:
+        first = fn(*args, bounds[0], bounds[1])
+    finally:
+        rest = [f.result() for f in futures]  # never leave a chunk running
+    return [first] + rest
 
 
 # -- detection ---------------------------------------------------------------------
