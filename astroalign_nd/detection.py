@@ -58,7 +58,8 @@ def _median(a, axis=None):
     hi = part.take(k, axis=axis)
     if n % 2:
         return hi
-    lo = np.max(part.take(np.arange(k), axis=axis), axis=axis)
+    lower = (slice(None),) * axis + (slice(0, k),)  # a view, not a copy
+    lo = np.max(part[lower], axis=axis)
     return np.mean(np.stack([lo, hi]), axis=0)
 
 

@@ -138,3 +138,19 @@ def _resample_in_child(img):
     from astroalign_nd.resample import resample
 
     return resample(img, np.eye(3), img.shape)[0]
+
+
+@pytest.mark.parametrize("shape, axis", [((49, 1849), 1), ((150, 300), 1), ((300, 150), 0),
+                                         ((5000,), 0), ((5001,), None), ((7, 7, 48), 2)])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_fast_median_is_numpy_median(shape, axis, dtype):
+    from astroalign_nd.detection import _median
+
+    x = np.random.default_rng(7).normal(size=shape).astype(dtype)
+    x.flat[::17] = 3.0  # ties
+    before = x.copy()
+    expected = np.median(x, axis=axis)
+    got = _median(x, axis=axis)
+    assert np.asarray(got).dtype == np.asarray(expected).dtype
+    assert_array_equal(got, expected)
+    assert_array_equal(x, before)
