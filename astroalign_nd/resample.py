@@ -294,6 +294,9 @@ def _prepare(data, variance, mask, shape_out):
             "data must be a 2-D image (ny, nx) or a channels-last 3-D array "
             f"(ny, nx, nchan); got an array of shape {arr.shape}."
         )
+    if arr.size == 0:
+        # (The compiled kernels index the first pixel: there must be one.)
+        raise ValueError(f"data is empty (shape {arr.shape}); pass an image with pixels.")
     # float32 (either byte order) in -> float32 out; anything else runs in float64.
     dtype = np.float32 if arr.dtype.kind == "f" and arr.dtype.itemsize == 4 else np.float64
     multichannel = arr.ndim == 3

@@ -343,6 +343,8 @@ def test_numpy_fallback_multichannel(monkeypatch, noise_image):
     (dict(data=np.ones(10)), ValueError, "2-D"),
     (dict(data=np.ones((2, 3, 4, 5))), ValueError, "2-D"),
     (dict(data=np.ones((5, 5), complex)), TypeError, "real"),
+    (dict(data=np.ones((3, 0))), ValueError, "empty"),
+    (dict(data=np.ones((0, 4, 3))), ValueError, "empty"),
     (dict(order="cubic"), ValueError, "bicubic"),
     (dict(order=4), ValueError, "0-3"),
     (dict(order=True), ValueError, "order"),
