@@ -30,7 +30,7 @@ import warnings
 
 import numpy as np
 from astropy.table import Table
-from astropy.utils.exceptions import AstropyUserWarning
+from astropy.utils.exceptions import AstropyWarning
 from photutils.detection import DAOStarFinder
 
 from ._kernels import bin_despike, peak_candidates
@@ -85,12 +85,23 @@ def estimate_noise(data, mask=None, *, max_samples=50_000):
     ny, nx = data.shape
     step = max(1, (ny * nx) // max_samples)
     rows = data[::step]
+    sigma = _diff_sigma(rows, None if mask is None else mask[::step], 1)
+    if np.isfinite(sigma) and nx > 8:
+        # Resampled, drizzled, JPEG-compressed or interpolated frames have
+        # correlated noise: neighbouring pixels differ less than the pixels
+        # scatter, and the lag-1 figure is too low (too many detections).
+        # Differences 3 pixels apart see the full scatter.
+        sigma = max(sigma, _diff_sigma(rows, None if mask is None else mask[::step], 3))
+    return float(sigma)
+
+
+def _diff_sigma(rows, mrows, lag):
+    """Robust sigma of one pixel from differences ``lag`` pixels apart."""
     with np.errstate(invalid="ignore"):  # inf - inf: filtered just below
-        diff = (rows[:, 1:] - rows[:, :-1]).ravel()
+        diff = (rows[:, lag:] - rows[:, :-lag]).ravel()
     good = np.isfinite(diff)
-    if mask is not None:
-        mrows = mask[::step]
-        good &= ~(mrows[:, 1:] | mrows[:, :-1]).ravel()
+    if mrows is not None:
+        good &= ~(mrows[:, lag:] | mrows[:, :-lag]).ravel()
     diff = diff[good]
     if diff.size < 10:
         return float("nan")
@@ -214,15 +225,16 @@ def estimate_fwhm(data, *, mask=None, n_stars=30):
     """
     Estimate the stellar FWHM (pixels) of an image.
 
-    Uses the second moments of the brightest unsaturated candidates found
-    by `find_sources`'s first (binned) detection stage.
+    The mode of the second-moment FWHMs of the brightest compact
+    candidates found by `find_sources`'s first (binned) detection stage,
+    so that nebulosity, galaxies, blends and saturated stars do not move it.
 
     Parameters
     ----------
     data : 2-D array-like
     mask : 2-D bool array, optional
     n_stars : int, optional
-        Number of bright candidates whose median FWHM is returned.
+        About a third of the number of bright candidates measured.
 
     Returns
     -------
@@ -232,41 +244,10 @@ def estimate_fwhm(data, *, mask=None, n_stars=30):
     noise = estimate_noise(data, mask)
     b = _auto_bin(data.shape)
     cand = _binned_candidates(data, mask, b, noise, 5.0, 4 * n_stars)
-    return _fwhm_from_candidates(data, mask, cand, n_stars)[0]
-
-
-def _fwhm_from_candidates(data, mask, cand, n_stars):
-    # The brightest candidates are enough (and keep this cheap).
-    top = slice(0, int(1.5 * n_stars))
-    x, y, bkg = cand["x"][top], cand["y"][top], cand["bkg"][top]
-    xc = np.round(x).astype(int)
-    yc = np.round(y).astype(int)
-    for half in (14,):
-        cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
-        # A local sky: any pedestal left would inflate the moments.
-        cut = cut - _local_background(cut - bkg[:, None, None], bad, 0.75 * half)[
-            :, None, None] - bkg[:, None, None]
-        cut[bad] = 0.0
-        fwhm = _adaptive_fwhm(cut, bad, x - xc, y - yc, sigma0=max(1.5, half / 10.0),
-                              n_iter=6)
-        peak = cut.reshape(len(x), -1).max(axis=1)
-        # Hot pixels and cosmic rays give a tiny FWHM; saturated
-        # (flat-topped) stars a biased one.
-        ok = np.isfinite(fwhm) & (fwhm > 1.0) & (fwhm < half / 1.5)
-        if ok.sum() >= 3:
-            top_peak = np.max(peak[ok])
-            sat = peak >= 0.98 * top_peak
-            if (sat & ok).sum() >= 2:  # several equal peaks: a saturation plateau
-                ok &= ~sat
-        vals = fwhm[ok][:n_stars]
-    # Stars wider than the cutouts can measure (digitised photographic
-    # plates: tens of pixels): the caller works on a binned copy instead.
-    wide = np.isfinite(fwhm) & (fwhm >= half / 1.5 - 0.5)
-    if wide.sum() >= max(3, len(x) / 3) or (vals.size >= 3 and np.median(vals) > half / 2.0):
-        return None, fwhm
-    if vals.size == 0:
-        return 3.0, fwhm
-    return float(np.clip(np.median(vals), 1.0, half / 1.5)), fwhm
+    if len(cand["x"]) == 0:
+        return float("nan")
+    cand = _recenter(data, mask, cand, b, None)
+    return _estimate_fwhm(data, mask, cand, n_max=max(3 * n_stars, 30)).fwhm
 
 
 def _auto_bin(shape):
@@ -316,20 +297,28 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
         good = good[np.isfinite(good)] if mask is None else good[
             np.isfinite(good) & ~mask[::4, ::4]]
         fill = float(np.median(good)) if good.size else 0.0
-    binned = bin_despike(data, b, mask, fill)
+    if b > 1:
+        binned = bin_despike(data, b, mask, fill)
+        # Mean of b*b - 1 pixels: the noise drops by about that square root.
+        noise_b = noise / np.sqrt(b * b - 1)
+    else:  # no binning (tiny images, or an already binned copy)
+        bad = ~np.isfinite(data) if mask is None else (~np.isfinite(data) | mask)
+        binned = np.where(bad, fill, data).astype(np.float32)
+        noise_b = noise
     # Sky boxes of ~128 full-resolution pixels follow gradients, and stay
     # few enough for the expansion to be cheap.
     box = max(4, int(round(128 / b)))
     bkg_map, _ = _background_map(binned, box)
     resid = binned - bkg_map
-    # Mean of b*b - 1 pixels: the noise drops by about that square root.
-    noise_b = noise / np.sqrt(b * b - 1)
     y, x, score = peak_candidates(resid, nsigma * noise_b, n_candidates)
     if len(x) == 0:
-        return {"x": np.empty(0), "y": np.empty(0), "bkg": np.empty(0), "flux": np.empty(0)}
-    # Binned pixel i covers full-res pixels [i*b, i*b + b - 1].
+        return {"x": np.empty(0), "y": np.empty(0), "bkg": np.empty(0), "flux": np.empty(0),
+                "snr": np.empty(0)}
+    # Binned pixel i covers full-res pixels [i*b, i*b + b - 1].  The score
+    # is a 3x3 sum, whose noise is 3 binned-pixel sigmas.
     return {"x": x * b + (b - 1) / 2.0, "y": y * b + (b - 1) / 2.0,
-            "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b)}
+            "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b),
+            "snr": score / (3.0 * noise_b)}
 
 
 def _windowed_centroid(cut, bad, x0, y0, sigma, n_iter=8):
@@ -369,6 +358,13 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     """
     Find the brightest point sources of an image with DAOStarFinder.
 
+    The work goes in named stages (see the module docstring): noise and
+    binned candidates (`_binned_candidates`), full-resolution recentring
+    (`_recenter`), the FWHM estimate from the population of compact
+    candidates (`_estimate_fwhm`), measurement with DAOStarFinder
+    (`_measure`), and, when the estimate is doubtful or keeps too few
+    sources, a search over other scales (`_best_scale`).
+
     Parameters
     ----------
     image : 2-D array-like
@@ -405,8 +401,10 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
         (expected centroid error per axis, pixels), ``snr`` (matched-filter
         signal-to-noise), ``peak``,
         ``sharpness``, ``roundness1``, ``roundness2``; sorted by decreasing
-        flux.  The table's ``meta`` holds ``fwhm``, ``noise`` and
-        ``bin_factor``.  It may have fewer rows than ``n_sources`` (or none).
+        flux.  The table's ``meta`` holds ``fwhm``, ``noise``,
+        ``bin_factor`` and ``fwhm_source`` (``'user'``, ``'estimate'`` or
+        ``'scale search'``).  It may have fewer rows than ``n_sources``
+        (or none).
     """
     n_sources = _check_positive_int(n_sources, "n_sources")
     if fwhm is not None and not (np.isfinite(fwhm) and fwhm > 0):
@@ -414,22 +412,53 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     data, mask = _as_image(image, mask)
     if mask is not None and mask.all():
         raise ValueError("every pixel of the image is masked or not finite.")
+    opts = dict(n_sources=n_sources, nsigma=nsigma, sharpness_range=sharpness_range,
+                roundness_range=roundness_range, peak_max=peak_max,
+                refine_centroids=refine_centroids)
 
+    # Stage 1: noise, then candidate peaks on a binned copy.
     noise = estimate_noise(data, mask)
     if not np.isfinite(noise) or noise <= 0:
         return _empty_table(fwhm or 0.0, noise, 1)
     b = _auto_bin(data.shape) if bin_factor is None else _check_positive_int(
         bin_factor, "bin_factor")
+    b = min(b, max(1, min(data.shape) // 8))  # a few binned pixels across at least
     # Spare candidates for what stage 2 rejects (binning already removed
     # most hot pixels and cosmic rays).
     n_cand = n_sources + n_sources // 2 + 30
     cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand)
     if len(cand["x"]) == 0:
         return _empty_table(fwhm or 0.0, noise, b)
+    cand = _recenter(data, mask, cand, b, fwhm)
 
-    # Recentre the coarse candidates at full resolution: the brightest 3x3
-    # sum in the block around each binned peak (a sum, so that a lone hot
-    # pixel does not win), then a few windowed-centroid steps.
+    if fwhm is not None:
+        tab = _measure(data, mask, cand, fwhm, noise, b, opts)
+        tab.meta["fwhm_source"] = "user"
+        return tab
+
+    # Stage 2: the FWHM of the population of compact sources.
+    est = _estimate_fwhm(data, mask, cand)
+    tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
+    tab.meta["fwhm_source"] = "estimate"
+    if est.doubtful or _too_few(tab, cand, n_sources):
+        tab = _best_scale(data, mask, cand, noise, b, opts, tab)
+    return tab
+
+
+class _FwhmEstimate:
+    """An FWHM estimate and whether it deserves a second opinion."""
+
+    def __init__(self, fwhm, doubtful):
+        self.fwhm, self.doubtful = float(fwhm), bool(doubtful)
+
+
+def _recenter(data, mask, cand, b, fwhm):
+    """
+    Recentre the coarse candidates at full resolution.
+
+    The brightest 3x3 sum in the block around each binned peak (a sum, so
+    that a lone hot pixel does not win), then a few windowed-centroid steps.
+    """
     rc = int(np.ceil(b + 3))
     xc = np.round(cand["x"]).astype(int)
     yc = np.round(cand["y"]).astype(int)
@@ -446,21 +475,175 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     sig0 = np.full(len(xc), max(1.0, (fwhm or 3.0) / _GAUSS_SIGMA_TO_FWHM))
     lx, ly = _windowed_centroid(np.clip(cut, 0, None), bad, px.astype(float),
                                 py.astype(float), sig0, n_iter=4)
-    cand = dict(cand)
-    cand["x"] = xc - rc + lx
-    cand["y"] = yc - rc + ly
+    out = dict(cand)
+    out["x"] = xc - rc + lx
+    out["y"] = yc - rc + ly
+    return out
 
-    if fwhm is None:
-        fwhm, _ = _fwhm_from_candidates(data, mask, cand, 30)
-        if fwhm is None:
-            return _find_on_binned(data, mask, 4, None, locals_for_binned(locals()))
+
+def _log_mode(values, width=0.1):
+    """
+    The densest value of a positive sample, in log space.
+
+    Each value counts its neighbours within ``width`` dex; the value with
+    the most (the smaller on ties: stars are more compact than knots of
+    nebulosity) is refined to the median of the values within 1.5 widths.
+    Returns (mode, fraction of the sample near it).
+    """
+    lv = np.log10(values)
+    near = np.abs(lv[:, None] - lv[None, :]) <= width
+    count = near.sum(axis=1)
+    best = np.flatnonzero(count == count.max())
+    centre = lv[best[np.argmin(lv[best])]]
+    close = np.abs(lv - centre) <= 1.5 * width
+    return float(10 ** np.median(lv[close])), float(close.mean())
+
+
+def _estimate_fwhm(data, mask, cand, n_max=100, half=14):
+    """
+    Stage 2: FWHM from the population of compact candidates.
+
+    The second moments of up to ``n_max`` of the brightest candidates are
+    measured; candidates whose cutout leaves the frame or touches masked
+    pixels (edges, overscan strips, chip gaps) and saturation plateaus are
+    left out, and the *mode* of the rest is taken, so that knots of
+    nebulosity, galaxies, blends and bloated bright stars (all wider) and
+    hot pixels (narrower) do not move it.  Stars wider than the cutouts
+    can measure are measured on a binned copy.
+    """
+    fw, ok = _candidate_fwhms(data, mask, cand, n_max, half)
+    vals = fw[ok]
+    wide = np.isfinite(fw) & (fw >= half / 1.5 - 0.5)
+    if wide.sum() >= max(3, 0.5 * max(1, ok.sum() + wide.sum())):
+        # Digitised plates and defocused frames: measure on a binned copy.
+        for k in (4, 16):
+            if min(data.shape) // k < 16:
+                break
+            binned, bmask = _bin_mean(data, mask, k)
+            bnoise = estimate_noise(binned, bmask)
+            if not (np.isfinite(bnoise) and bnoise > 0):
+                break
+            bc = _binned_candidates(binned, bmask, 1, bnoise, 5.0, 150)
+            if len(bc["x"]) < 3:
+                break
+            bc = _recenter(binned, bmask, bc, 1, None)
+            bfw, bok = _candidate_fwhms(binned, bmask, bc, n_max, half)
+            bwide = np.isfinite(bfw) & (bfw >= half / 1.5 - 0.5)
+            if bok.sum() >= 3 and bwide.sum() < 0.5 * (bok.sum() + bwide.sum()):
+                mode, frac = _log_mode(bfw[bok])
+                return _FwhmEstimate(max(mode * k, _MAX_FULL_RES_FWHM), frac < 0.3)
+        return _FwhmEstimate(half / 1.5, True)
+    if vals.size < 3:
+        return _FwhmEstimate(3.0 if vals.size == 0 else np.median(vals), True)
+    mode, frac = _log_mode(vals)
+    # Too few candidates share one width: the list is dominated by
+    # something other than stars; let the scale search decide.
+    return _FwhmEstimate(np.clip(mode, 1.0, half / 1.5), frac < 0.3 or vals.size < 8)
+
+
+def _candidate_fwhms(data, mask, cand, n_max, half):
+    """FWHM of each of the first ``n_max`` candidates, and which are usable."""
+    # Bright candidates only: faint ones are mostly noise peaks, whose
+    # width is the noise's correlation length, not the stars'.
+    top = np.flatnonzero(cand["snr"] >= 10.0)[:n_max]
+    if top.size < 5:
+        top = np.arange(min(n_max, len(cand["x"])))
+    x, y, bkg = cand["x"][top], cand["y"][top], cand["bkg"][top]
+    xc = np.round(x).astype(int)
+    yc = np.round(y).astype(int)
+    cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
+    # A local sky: any pedestal left would inflate the moments.
+    cut = cut - _local_background(cut - bkg[:, None, None], bad, 0.75 * half)[
+        :, None, None] - bkg[:, None, None]
+    cut[bad] = 0.0
+    fwhm = _adaptive_fwhm(cut, bad, x - xc, y - yc, sigma0=max(1.5, half / 10.0), n_iter=6)
+    peak = cut.reshape(len(x), -1).max(axis=1)
+    # Hot pixels and cosmic rays give a tiny FWHM; saturated (flat-topped)
+    # stars a biased one; cutouts that leave the frame or touch a mask a
+    # wrong one (overscan strips, frame edges).
+    inner = ~bad[:, half - 3:half + 4, half - 3:half + 4].any(axis=(1, 2))
+    ok = np.isfinite(fwhm) & (fwhm > 1.0) & (fwhm < half / 1.5) & inner
+    ok &= bad.mean(axis=(1, 2)) < 0.25
+    if ok.sum() >= 3:
+        sat = peak >= 0.98 * np.max(peak[ok])
+        if (sat & ok).sum() >= 2:  # several equal peaks: a saturation plateau
+            ok &= ~sat
+    return fwhm, ok
+
+
+def _bin_mean(data, mask, k):
+    """k x k mean-binned copy; a block with a masked or NaN pixel is masked."""
+    ny, nx = (data.shape[0] // k) * k, (data.shape[1] // k) * k
+    work = data[:ny, :nx]
+    if mask is not None:
+        work = np.where(mask[:ny, :nx], np.nan, work)
+    binned = work.reshape(ny // k, k, nx // k, k).mean(axis=(1, 3), dtype=np.float64)
+    bmask = ~np.isfinite(binned)
+    return binned, (bmask if bmask.any() else None)
+
+
+def _too_few(tab, cand, n_sources):
+    """Did the measurement keep too few of the candidates to be trusted?"""
+    wanted = min(n_sources, len(cand["x"]))
+    return len(tab) < max(3, min(12, wanted // 2)) or len(tab) < 0.2 * wanted
+
+
+#: FWHMs (pixels) tried when the estimate is doubtful.
+_SCALE_LADDER = (1.6, 2.5, 4.0, 6.5, 10.0)
+
+
+def _best_scale(data, mask, cand, noise, b, opts, first):
+    """
+    Stage 2b: when the FWHM estimate is doubtful, try a ladder of scales.
+
+    Each trial FWHM gives a list of sources; a list is *consistent* when
+    the median FWHM its sources measure on their own agrees with the trial
+    value.  The consistent list with the most sources at the detection
+    threshold wins; the first attempt is kept on ties.
+    """
+    best, best_score = first, _scale_score(first)
+    tried = [first.meta["fwhm"]]
+    for f in _SCALE_LADDER:
+        if any(abs(np.log(f / t)) < 0.15 for t in tried):
+            continue
+        tried.append(f)
+        tab = _measure(data, mask, cand, f, noise, b, opts)
+        score = _scale_score(tab)
+        if score > best_score:
+            best, best_score = tab, score
+    best.meta["fwhm_source"] = "scale search" if best is not first else "estimate"
+    return best
+
+
+def _scale_score(tab):
+    """
+    Strong sources (S/N >= 10) of a list, halved when their own FWHMs
+    disagree with the one used (by more than 40%).
+
+    Only strong sources count: at a wrong (small) scale, noise peaks of a
+    resampled or compressed frame pass a low threshold in numbers.
+    """
+    n = int(np.sum(np.asarray(tab["snr"]) >= 10.0)) if len(tab) else 0
+    if n == 0:
+        return 0.0
+    own = tab.meta.get("own_fwhm_median", np.nan)
+    f = tab.meta["fwhm"]
+    if not np.isfinite(own) or abs(np.log(own / f)) > np.log(1.4):
+        return 0.5 * n if n >= 3 else 0.0
+    return float(n)
+
+
+def _measure(data, mask, cand, fwhm, noise, b, opts):
+    """
+    Stage 3: measure the candidates with DAOStarFinder at a given FWHM.
+
+    Wide stars are measured on a binned copy (as well, at a fraction of the
+    cost: the mosaic of cutouts grows with the FWHM squared).
+    """
     if fwhm > _MAX_FULL_RES_FWHM:
-        # Wide stars are measured as well on a binned copy, at a fraction
-        # of the cost (the mosaic of cutouts grows with the FWHM squared).
         k = int(fwhm // (_MAX_FULL_RES_FWHM / 2))
-        return _find_on_binned(data, mask, k, fwhm / k, locals_for_binned(locals()))
-
-    # Stage 2: DAOStarFinder at full resolution on a mosaic of cutouts.
+        return _find_on_binned(data, mask, k, fwhm / k, opts)
+    nsigma = opts["nsigma"]
     half = int(np.ceil(max(3.0 * fwhm, 6)))
     tile = 2 * half + 1
     n = len(cand["x"])
@@ -490,14 +673,14 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     finder = DAOStarFinder(
         threshold=nsigma * noise,
         fwhm=fwhm,
-        sharpness_range=sharpness_range,
-        roundness_range=roundness_range,
-        peak_max=peak_max,
+        sharpness_range=opts["sharpness_range"],
+        roundness_range=opts["roundness_range"],
+        peak_max=opts["peak_max"],
         exclude_border=False,
         xycoords=np.round(centers),
     )
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", AstropyUserWarning)
+        warnings.simplefilter("ignore", AstropyWarning)
         tab = finder(mosaic, mask=mmask if mmask.any() else None)
     if tab is None or len(tab) == 0:
         return _empty_table(fwhm, noise, b)
@@ -523,7 +706,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     kk = k[sel]
     xs = lx[sel]
     ys = ly[sel]
-    if refine_centroids:
+    if opts["refine_centroids"]:
         sigma = np.full(len(sel), fwhm / _GAUSS_SIGMA_TO_FWHM)
         xs, ys = _windowed_centroid(cut[kk], bad[kk], xs, ys, sigma)
         # A refinement that wandered away means a blend: keep DAOFIND's.
@@ -556,9 +739,12 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
         "peak": np.asarray(tab["peak"], float)[sel][keep], "sharpness": sharp[keep],
         "roundness1": round1[keep], "roundness2": round2[keep],
     }
-    order = np.argsort(-cols["flux"], kind="stable")[:n_sources]
+    order = np.argsort(-cols["flux"], kind="stable")[:opts["n_sources"]]
     out = Table({k: v[order] for k, v in cols.items()}, copy=False)
-    out.meta.update(fwhm=float(fwhm), noise=float(noise), bin_factor=int(b))
+    own = own_fwhm[keep][order]
+    own = own[np.isfinite(own)]
+    out.meta.update(fwhm=float(fwhm), noise=float(noise), bin_factor=int(b),
+                    own_fwhm_median=float(np.median(own)) if own.size else float("nan"))
     return out
 
 
@@ -592,27 +778,15 @@ def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
 _MAX_FULL_RES_FWHM = 10.0
 
 
-def locals_for_binned(env):
-    """The find_sources options to pass on to the binned search."""
-    keys = ("n_sources", "nsigma", "sharpness_range", "roundness_range", "peak_max",
-            "refine_centroids")
-    return {k: env[k] for k in keys}
-
-
-def _find_on_binned(data, mask, k, fwhm, options):
+def _find_on_binned(data, mask, k, fwhm, opts):
     """find_sources on a k x k mean-binned copy, in full-resolution pixels."""
-    ny, nx = (data.shape[0] // k) * k, (data.shape[1] // k) * k
-    work = data[:ny, :nx]
-    if mask is not None:
-        work = np.where(mask[:ny, :nx], np.nan, work)
-    # A masked or NaN pixel makes its whole block NaN (masked): conservative.
-    binned = work.reshape(ny // k, k, nx // k, k).mean(axis=(1, 3), dtype=np.float64)
-    peak_max = options.pop("peak_max")
-    tab = find_sources(binned, fwhm=fwhm, peak_max=peak_max, **options)
+    binned, bmask = _bin_mean(data, mask, k)
+    tab = find_sources(binned, mask=bmask, fwhm=fwhm, **opts)
     tab["x"] = tab["x"] * k + (k - 1) / 2.0
     tab["y"] = tab["y"] * k + (k - 1) / 2.0
     tab["position_error"] = tab["position_error"] * k
     tab.meta["fwhm"] = tab.meta["fwhm"] * k
+    tab.meta["own_fwhm_median"] = tab.meta.get("own_fwhm_median", np.nan) * k
     tab.meta["noise"] = estimate_noise(data, mask)
     tab.meta["bin_factor"] = tab.meta["bin_factor"] * k
     tab.meta["measured_on_binned"] = k

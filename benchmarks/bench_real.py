@@ -107,12 +107,20 @@ def warp(img, dtype, m, seed):
     # ndimage works in (row, col): swap axes of the inverse map.
     mat = inv[:2, :2][::-1, ::-1]
     off = inv[:2, 2][::-1]
-    out = ndimage.affine_transform(img.astype(np.float64), mat, offset=off, order=3,
-                                   mode="constant", cval=np.nan, prefilter=True)
+    bad = ~np.isfinite(img)
+    good = img[~bad]
+    med = float(np.median(good))
+    # NaN would spread through the spline prefilter: warp the blank
+    # pixels (mosaic edges) separately and blank them again afterwards.
+    out = ndimage.affine_transform(np.where(bad, med, img).astype(np.float64), mat,
+                                   offset=off, order=3, mode="constant", cval=np.nan,
+                                   prefilter=True)
+    if bad.any():
+        wbad = ndimage.affine_transform(bad.astype(np.float32), mat, offset=off, order=0,
+                                        mode="constant", cval=0.0) > 0.5
+        out[wbad] = np.nan
     hole = ~np.isfinite(out)
     if hole.any():
-        good = img[np.isfinite(img)]
-        med = float(np.median(good))
         d = np.diff(img[::4].astype(np.float64), axis=1).ravel()
         d = d[np.isfinite(d)]
         sig = 1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2)
