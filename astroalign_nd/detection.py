@@ -514,6 +514,12 @@ def _estimate_fwhm(data, mask, cand, n_max=100, half=14):
     fw, ok = _candidate_fwhms(data, mask, cand, n_max, half)
     vals = fw[ok]
     wide = np.isfinite(fw) & (fw >= half / 1.5 - 0.5)
+    if vals.size >= 10:
+        mode, frac = _log_mode(vals)
+        if frac >= 0.3 and mode < half / 2.0:
+            # Enough compact sources share one width: those are the stars,
+            # however many wide knots or galaxies are brighter.
+            return _FwhmEstimate(np.clip(mode, 1.0, half / 1.5), False)
     if wide.sum() >= max(3, 0.5 * max(1, ok.sum() + wide.sum())):
         # Digitised plates and defocused frames: measure on a binned copy.
         for k in (4, 16):
@@ -601,36 +607,31 @@ def _best_scale(data, mask, cand, noise, b, opts, first):
     value.  The consistent list with the most sources at the detection
     threshold wins; the first attempt is kept on ties.
     """
-    best, best_score = first, _scale_score(first)
-    tried = [first.meta["fwhm"]]
+    trials = [first]
     for f in _SCALE_LADDER:
-        if any(abs(np.log(f / t)) < 0.15 for t in tried):
+        if any(abs(np.log(f / t.meta["fwhm"])) < 0.15 for t in trials):
             continue
-        tried.append(f)
-        tab = _measure(data, mask, cand, f, noise, b, opts)
-        score = _scale_score(tab)
-        if score > best_score:
-            best, best_score = tab, score
+        trials.append(_measure(data, mask, cand, f, noise, b, opts))
+    # Only strong sources count: at a wrong (small) scale, noise peaks of a
+    # resampled or compressed frame pass a low threshold in numbers.
+    strong = [int(np.sum(np.asarray(t["snr"]) >= 10.0)) if len(t) else 0 for t in trials]
+    top = max(strong)
+    if top == 0:
+        return first
+    # Among the lists with nearly the most strong sources, the one whose
+    # sources' own FWHMs agree best with the FWHM used.
+    near = [i for i, n in enumerate(strong) if n >= 0.8 * top]
+    best = trials[min(near, key=lambda i: (_inconsistency(trials[i]), i))]
     best.meta["fwhm_source"] = "scale search" if best is not first else "estimate"
     return best
 
 
-def _scale_score(tab):
-    """
-    Strong sources (S/N >= 10) of a list, halved when their own FWHMs
-    disagree with the one used (by more than 40%).
-
-    Only strong sources count: at a wrong (small) scale, noise peaks of a
-    resampled or compressed frame pass a low threshold in numbers.
-    """
-    n = int(np.sum(np.asarray(tab["snr"]) >= 10.0)) if len(tab) else 0
-    if n == 0:
-        return 0.0
+def _inconsistency(tab):
+    """|log(own FWHM / FWHM used)| of a list (infinite when unknown)."""
     own = tab.meta.get("own_fwhm_median", np.nan)
-    f = tab.meta["fwhm"]
-    if not np.isfinite(own) or abs(np.log(own / f)) > np.log(1.4):
-        return 0.5 * n if n >= 3 else 0.0
-    return float(n)
+    if not np.isfinite(own) or own <= 0:
+        return np.inf
+    return abs(np.log(own / tab.meta["fwhm"]))
 
 
 def _measure(data, mask, cand, fwhm, noise, b, opts):

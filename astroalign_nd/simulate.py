@@ -13,7 +13,11 @@ tests, documentation and benchmarks:
 * `simulate_field` draws a random star field and renders it;
 * `simulate_pair` draws a star field, maps it through a (random or given)
   source -> target transform and renders both frames, returning the images,
-  the true transform and the per-frame star catalogs in a `SimulatedPair`.
+  the true transform and the per-frame star catalogs in a `SimulatedPair`;
+* `add_nebulosity`, `add_overscan`, `to_8bit` and `bayer_bin` add what real
+  frames do to the stars: extended emission and knots, overscan strips,
+  8-bit stretches with bloated saturated stars and JPEG compression, and
+  undersampled colour sensors.
 
 Conventions are those of the rest of the package: positions are 0-based
 ``(x, y)`` with ``x`` the column index, pixel ``(i, j)`` (row ``i``, column
@@ -46,6 +50,10 @@ __all__ = [
     "simulate_field",
     "simulate_pair",
     "draw_fluxes",
+    "add_nebulosity",
+    "add_overscan",
+    "to_8bit",
+    "bayer_bin",
 ]
 
 # Number of stamp elements processed at once by `render_stars` (bounds memory:
@@ -1094,3 +1102,192 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
         transients=_star_table(tr_x, tr_y, tr_flux, tr_ids),
         meta=meta,
     )
+
+
+# -- what real frames do to the stars -------------------------------------------
+#
+# Our own simulator is not the judge: real frames carry nebulosity, overscan
+# strips, 8-bit stretches with bloated stars, and undersampled colour sensors.
+# These functions put that into simulated frames, so that the tests catch it.
+
+def add_nebulosity(image, *, amplitude, scale=40.0, n_knots=25, knot_fwhm=(6.0, 25.0),
+                   seed=None):
+    """
+    Add extended emission: smooth filaments plus compact knots.
+
+    Parameters
+    ----------
+    image : 2-D ndarray
+        Not modified; a new float array is returned.
+    amplitude : float
+        Peak level of the emission, in counts (compare with the stars'
+        peaks: a few times brighter makes the knots outshine most stars).
+    scale : float, optional
+        Correlation length of the filaments, pixels.
+    n_knots : int, optional
+        Number of Gaussian knots (HII regions, galaxies, reflection blobs)
+        whose width is drawn from ``knot_fwhm``: wider than stars, bright
+        enough to be among the brightest "sources".
+    knot_fwhm : (float, float), optional
+        Range of the knots' FWHM, pixels.
+    seed : int or `numpy.random.Generator`, optional
+
+    Returns
+    -------
+    image : 2-D ndarray
+    """
+    from scipy.ndimage import gaussian_filter
+
+    img = np.array(image, dtype=np.float64)
+    amplitude = _check_real(amplitude, "amplitude", minimum=0.0)
+    rng = np.random.default_rng(seed)
+    ny, nx = img.shape
+    field_ = gaussian_filter(rng.standard_normal((ny, nx)), scale, mode="wrap")
+    field_ = np.exp(2.5 * field_ / max(field_.std(), 1e-12))  # filaments and voids
+    img += amplitude * field_ / field_.max()
+    if n_knots:
+        x = rng.uniform(0, nx, n_knots)
+        y = rng.uniform(0, ny, n_knots)
+        fw = rng.uniform(knot_fwhm[0], knot_fwhm[1], n_knots)
+        peak = amplitude * rng.uniform(0.5, 2.0, n_knots)
+        flux = peak * 2 * np.pi * (fw * _FWHM_TO_SIGMA) ** 2
+        knots = np.zeros((ny, nx), np.float64)
+        render_stars((ny, nx), x, y, flux, fwhm=fw, out=knots)
+        img += knots
+    return img.astype(np.asarray(image).dtype if np.asarray(image).dtype.kind == "f"
+                      else np.float32)
+
+
+def add_overscan(image, *, width=16, level=0.0, read_noise=5.0, edges=("left", "right", "top"),
+                 seed=None):
+    """
+    Replace strips along the edges by overscan: bias level and read noise only.
+
+    A raw CCD frame carries such strips; their edge against the sky is a
+    step that a careless detector takes for sources or for a wide star.
+
+    Parameters
+    ----------
+    image : 2-D ndarray
+        Not modified.
+    width : int, optional
+        Strip width, pixels.
+    level : float, optional
+        Bias level of the strips (counts), usually well below the sky.
+    read_noise : float, optional
+    edges : sequence of {'left', 'right', 'top', 'bottom'}, optional
+    seed : int or `numpy.random.Generator`, optional
+
+    Returns
+    -------
+    image : 2-D ndarray
+    """
+    img = np.array(image, dtype=np.float32 if np.asarray(image).dtype.kind != "f"
+                   else np.asarray(image).dtype)
+    rng = np.random.default_rng(seed)
+    w = int(width)
+    sl = {"left": np.s_[:, :w], "right": np.s_[:, -w:], "top": np.s_[-w:, :],
+          "bottom": np.s_[:w, :]}
+    for e in edges:
+        if e not in sl:
+            raise ValueError(f"edges must name 'left', 'right', 'top' or 'bottom'; got {e!r}.")
+        region = img[sl[e]]
+        region[...] = level + read_noise * rng.standard_normal(region.shape)
+    return img
+
+
+def to_8bit(image, *, gamma=0.45, black=None, white=None, bloat=2.0, jpeg_quality=None):
+    """
+    Render a frame as an 8-bit astrophoto: stretched, saturated, compressed.
+
+    Bright stars are bloated (a wide halo, as in a stretched image with
+    scattered light), the image is gamma-stretched between ``black`` and
+    ``white`` and clipped to 0..255, so that bright stars become wide flat
+    plateaus, and optionally JPEG-compressed.
+
+    Parameters
+    ----------
+    image : 2-D ndarray
+        Not modified.
+    gamma : float, optional
+        Display stretch exponent (< 1 lifts the faint end).
+    black, white : float, optional
+        Levels mapped to 0 and 255; by default the 10th and 99.7th
+        percentiles, which saturates the brightest stars.
+    bloat : float, optional
+        Halo added around every pixel brighter than ``white``: a Gaussian of
+        this many times the core's width (0 for none).
+    jpeg_quality : int, optional
+        If given, JPEG-compress at this quality (1-95) with Pillow.
+
+    Returns
+    -------
+    image : 2-D uint8 ndarray
+    """
+    from scipy.ndimage import gaussian_filter
+
+    img = np.asarray(image, dtype=np.float64)
+    lo = np.percentile(img, 10) if black is None else float(black)
+    hi = np.percentile(img, 99.7) if white is None else float(white)
+    if bloat:
+        excess = np.clip(img - hi, 0, None)
+        img = img + gaussian_filter(excess, 2.0 * bloat) * 0.5
+    v = np.clip((img - lo) / max(hi - lo, 1e-12), 0.0, 1.0) ** gamma
+    out = np.round(255.0 * v).astype(np.uint8)
+    if jpeg_quality is not None:
+        import io
+
+        from PIL import Image
+
+        buf = io.BytesIO()
+        Image.fromarray(out).save(buf, format="JPEG", quality=int(jpeg_quality))
+        buf.seek(0)
+        out = np.asarray(Image.open(buf).convert("L"))
+    return out
+
+
+def bayer_bin(pair, *, gains=(0.55, 1.0, 1.0, 0.75)):
+    """
+    A colour sensor's frames, each 2x2 Bayer cell averaged into one pixel.
+
+    Smart telescopes and DSLRs have a colour filter mosaic; averaging each
+    2x2 cell gives a grey frame of half the size whose stars are
+    undersampled when the optics were matched to the full sensor.
+
+    Parameters
+    ----------
+    pair : `SimulatedPair`
+        Simulated at twice the wanted size and FWHM (e.g. 2.6 px for 1.3 px
+        binned stars).
+    gains : 4 floats, optional
+        Relative response of the R, G, G, B pixels of each cell.
+
+    Returns
+    -------
+    pair : `SimulatedPair`
+        Binned images, star tables and truth in binned pixel coordinates.
+    """
+    g = np.asarray(gains, float).reshape(2, 2)
+
+    def binned(img):
+        a = np.asarray(img, np.float64)
+        ny, nx = (a.shape[0] // 2) * 2, (a.shape[1] // 2) * 2
+        a = a[:ny, :nx] * np.tile(g, (ny // 2, nx // 2))
+        return a.reshape(ny // 2, 2, nx // 2, 2).mean(axis=(1, 3)).astype(np.float32)
+
+    # Full-resolution x maps to binned (x - 0.5) / 2.
+    c = np.array([[0.5, 0.0, -0.25], [0.0, 0.5, -0.25], [0.0, 0.0, 1.0]])
+    truth = c @ np.asarray(pair.truth_matrix) @ np.linalg.inv(c)
+
+    def stars(tab):
+        t = tab.copy()
+        t["x"] = (t["x"] - 0.5) / 2.0
+        t["y"] = (t["y"] - 0.5) / 2.0
+        return t
+
+    meta = dict(pair.meta, bayer_binned=True)
+    return SimulatedPair(source=binned(pair.source), target=binned(pair.target),
+                         transform=from_matrix(truth), truth_matrix=truth,
+                         source_stars=stars(pair.source_stars),
+                         target_stars=stars(pair.target_stars),
+                         transients=stars(pair.transients), meta=meta)
