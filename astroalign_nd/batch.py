@@ -30,6 +30,8 @@ STATUSES = ("registered", "skipped", "failed")
 
 #: Header keywords recording where a "union" canvas lies in reference pixels.
 _CANVAS_KEYS = ("AACNVX0", "AACNVY0")
+#: Header keywords recording the source frame's shape (a resumed union needs it).
+_SOURCE_SHAPE_KEYS = ("AASRCNX", "AASRCNY")
 
 #: Refuse canvases larger than this many pixels (about 1 GB per float32 frame).
 _MAX_CANVAS_PIXELS = 2**28
@@ -78,7 +80,7 @@ class FrameResult:
     ccd: object = field(default=None, repr=False)
     source: str = None
     shape: tuple = field(default=None, repr=False)  # the source frame's (ny, nx)
-    offset: tuple = field(default=None, repr=False)  # canvas origin read from an output
+    grid: tuple = field(default=None, repr=False)  # (shape, offset) of a kept output
 
     @property
     def ok(self):
@@ -283,7 +285,10 @@ def _read_done(path):
             quality[name] = header[key]
     offset = tuple(int(header[k]) for k in _CANVAS_KEYS) if all(
         k in header for k in _CANVAS_KEYS) else (0, 0)
-    return dict(transform=transform, quality=quality, shape=tuple(shape), offset=offset), None
+    source_shape = (int(header[_SOURCE_SHAPE_KEYS[1]]), int(header[_SOURCE_SHAPE_KEYS[0]])) \
+        if all(k in header for k in _SOURCE_SHAPE_KEYS) else None
+    return dict(transform=transform, quality=quality, shape=tuple(shape), offset=offset,
+                source_shape=source_shape), None
 
 
 # -- the work on one frame (runs on workers) -------------------------------------------------
@@ -311,6 +316,7 @@ class _Job:
     transform: object = None
     quality: dict = None
     canvas: tuple = None  # (shape, (x0, y0), wcs) for the 'apply' stage
+    source_shape: tuple = None
 
 
 def _failed(job, exc, t0, src_path=None):
@@ -354,14 +360,20 @@ def _run(job, cfg):
                                       "'union' canvas); pass overwrite=True (or --overwrite) "
                                       "to redo it.")
             done = None
+        if done is not None and cfg.union and done["source_shape"] is None:
+            if not cfg.overwrite:
+                raise FileExistsError(f"{job.output} does not record its source's shape, "
+                                      "needed for a 'union' canvas; pass overwrite=True (or "
+                                      "--overwrite) to redo it.")
+            done = None
         if done is not None:
             transform = done["transform"]
             if cfg.union:  # back to reference pixels, for the canvas computation
                 transform = _shifted(transform, done["offset"], sign=+1)
             return FrameResult(name=job.name, status="skipped", transform=transform,
                                quality=done["quality"], output=job.output, source=src_path,
-                               seconds=time.perf_counter() - t0, offset=done["offset"],
-                               shape=done["shape"])
+                               seconds=time.perf_counter() - t0, shape=done["source_shape"],
+                               grid=(done["shape"], done["offset"]))
         det, _ = _split_options({k: v for k, v in cfg.options.items()
                                  if k not in ("transform_type", "n_sources", "max_sources")})
         src = _as_reference(job.source, "source", det)  # read once, for both stages
@@ -373,7 +385,7 @@ def _run(job, cfg):
                                shape=src.shape, seconds=time.perf_counter() - t0)
         # A copy: the caller's job list must not keep the frame's pixels alive.
         job = replace(job, source=src, transform=result.transform, quality=quality,
-                      canvas=None)
+                      canvas=None, source_shape=src.shape)
         return _apply(job, cfg, t0, src_path)
     except Exception as exc:  # noqa: BLE001 - report every failure, keep going
         return _failed(job, exc, t0, src_path)
@@ -391,16 +403,23 @@ def _apply(job, cfg, t0, src_path=None):
                               **cfg.apply_options)
         if wcs is not None:
             ccd.wcs = wcs
-        ccd.meta[_CANVAS_KEYS[0]] = (int(offset[0]),
-                                     "astroalign_nd: canvas pixel 0 at this reference x")
-        ccd.meta[_CANVAS_KEYS[1]] = (int(offset[1]),
-                                     "astroalign_nd: canvas pixel 0 at this reference y")
+        ccd.meta[_CANVAS_KEYS[0]] = (int(offset[0]), "canvas x0 [reference px]")
+        ccd.meta[_CANVAS_KEYS[1]] = (int(offset[1]), "canvas y0 [reference px]")
+    src_shape = job.source_shape or _shape_of(job.source)
+    ccd.meta[_SOURCE_SHAPE_KEYS[0]] = (int(src_shape[1]), "source frame width [px]")
+    ccd.meta[_SOURCE_SHAPE_KEYS[1]] = (int(src_shape[0]), "source frame height [px]")
     if job.output is not None:
         write_ccddata(ccd, job.output, overwrite=cfg.overwrite)
         ccd = None  # memory stays flat: nothing of the frame is kept
     return FrameResult(name=job.name, status="registered", transform=job.transform,
                        quality=job.quality, output=job.output, ccd=ccd, source=src_path,
                        seconds=time.perf_counter() - t0)
+
+
+def _shape_of(source):
+    from ._input import parse_input
+
+    return parse_input(source, "source").shape
 
 
 # -- the union canvas ------------------------------------------------------------------------
@@ -427,10 +446,21 @@ def _type_of(transform):
     return None
 
 
-def union_canvas(transforms, shapes, reference_shape):
+#: How far inside the frame's edge pixel centres the resampling is valid, per
+#: interpolation (see `~astroalign_nd.resample.resample`): a frame's pixels
+#: count from ``margin`` to ``n - 1 - margin``.
+_VALID_MARGIN = {"nearest-neighbor": -0.5, 0: -0.5, "bilinear": 0.0, 1: 0.0,
+                 "biquadratic": 0.5, 2: 0.5, "bicubic": 1.0, 3: 1.0}
+
+
+def union_canvas(transforms, shapes, reference_shape, margin=0.0):
     """
     The smallest grid, aligned with the reference's pixels, that holds the
     reference and every frame mapped into it.
+
+    Like reproject's ``find_optimal_celestial_wcs``, but from the fitted
+    transforms and without resampling the reference: the canvas is the
+    reference's grid shifted by whole pixels and enlarged.
 
     Parameters
     ----------
@@ -439,6 +469,10 @@ def union_canvas(transforms, shapes, reference_shape):
     shapes : list of (ny, nx)
         The source frames' shapes.
     reference_shape : (ny, nx)
+    margin : float, optional
+        Source positions ``margin <= x <= nx - 1 - margin`` can be
+        resampled (0 for bilinear interpolation, which needs the pixels on
+        both sides); canvas pixels beyond would be masked in every frame.
 
     Returns
     -------
@@ -446,25 +480,24 @@ def union_canvas(transforms, shapes, reference_shape):
         Canvas shape.
     offset : (x0, y0)
         Reference pixel coordinates of canvas pixel ``(0, 0)`` (integers,
-        so the reference's pixels fall exactly on canvas pixels).
+        so that the reference's pixels fall exactly on canvas pixels).
     """
     from .transforms import as_matrix
 
     ny, nx = reference_shape
-    xs, ys = [-0.5, nx - 0.5], [-0.5, ny - 0.5]
+    xs, ys = [0.0, nx - 1.0], [0.0, ny - 1.0]
     for t, (h, w) in zip(transforms, shapes):
         m = as_matrix(t)
-        cx = np.array([-0.5, w - 0.5, -0.5, w - 0.5])
-        cy = np.array([-0.5, -0.5, h - 0.5, h - 0.5])
+        lo_x, hi_x, lo_y, hi_y = margin, w - 1.0 - margin, margin, h - 1.0 - margin
+        cx = np.array([lo_x, hi_x, lo_x, hi_x])
+        cy = np.array([lo_y, lo_y, hi_y, hi_y])
         xs.extend(m[0, 0] * cx + m[0, 1] * cy + m[0, 2])
         ys.extend(m[1, 0] * cx + m[1, 1] * cy + m[1, 2])
-    # Pixel i covers [i - 0.5, i + 0.5]; a small tolerance keeps an edge that
-    # is exactly on a pixel boundary from adding a whole row of nothing.
+    # Canvas pixel centres inside the mapped frames: a pixel whose centre is
+    # outside all of them would be masked in every frame.
     eps = 1e-6
-    x0 = int(np.floor(min(xs) + 0.5 + eps))
-    x1 = int(np.ceil(max(xs) - 0.5 - eps))
-    y0 = int(np.floor(min(ys) + 0.5 + eps))
-    y1 = int(np.ceil(max(ys) - 0.5 - eps))
+    x0, x1 = int(np.ceil(min(xs) - eps)), int(np.floor(max(xs) + eps))
+    y0, y1 = int(np.ceil(min(ys) - eps)), int(np.floor(max(ys) + eps))
     return (y1 - y0 + 1, x1 - x0 + 1), (x0, y0)
 
 
@@ -740,8 +773,10 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
                 bar.update(1)
         if found:
             order_ = sorted(found)
+            margin = -0.5 if method == "exact" else _VALID_MARGIN.get(order, 0.0)
             shape, offset = union_canvas([found[i].transform for i in order_],
-                                         [found[i].shape for i in order_], ref.shape)
+                                         [found[i].shape for i in order_], ref.shape,
+                                         margin=margin)
         else:
             shape, offset = tuple(ref.shape), (0, 0)
         if shape[0] * shape[1] > _MAX_CANVAS_PIXELS:
@@ -755,7 +790,7 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
         for i in sorted(found):
             res = found[i]
             if res.status == "skipped":
-                if tuple(res.shape) == tuple(shape) and tuple(res.offset) == tuple(offset):
+                if tuple(res.grid[0]) == tuple(shape) and tuple(res.grid[1]) == tuple(offset):
                     res.transform = _shifted(res.transform, offset, sign=-1)
                     finish(i, res)
                     if bar is not None:
@@ -772,7 +807,8 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
                     continue
             jobs2.append(_Job(i, sources[i], res.name, outputs[i], stage="apply",
                               transform=_shifted(res.transform, offset, sign=-1),
-                              quality=res.quality, canvas=(shape, offset, wcs)))
+                              quality=res.quality, canvas=(shape, offset, wcs),
+                              source_shape=res.shape))
         seconds = {i: found[i].seconds for i in found}
         for job, res in _execute(jobs2, cfg, client, workers):
             res.seconds += seconds[job.index]
