@@ -269,7 +269,7 @@ def _read_done(path):
                     if hdu.data is not None:
                         np.asarray(hdu.data).ravel()[-1:].copy()
                 header = hdul[0].header
-                shape = hdul[0].data.shape[-2:] if hdul[0].data is not None else None
+                shape = hdul[0].data.shape[:2] if hdul[0].data is not None else None
     except Exception as exc:  # noqa: BLE001 - any unreadable file is not complete
         return None, f"it is incomplete or unreadable ({type(exc).__name__}: {exc})"
     if shape is None or "AATTYPE" not in header:

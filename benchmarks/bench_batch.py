@@ -186,7 +186,8 @@ def main():
         print(f"astroalign_nd {astroalign_nd.__version__}, astroalign {astroalign.__version__}; "
               f"{os.cpu_count()} CPUs")
         print(f"{n} frames of {SIZE}x{SIZE} float32 ({N_STARS} stars in the frame), simulated "
-              f"and written in {time.perf_counter() - t0:.0f} s\n")
+              f"and written in {time.perf_counter() - t0:.0f} s")
+        print("load average before the timings: %.2f %.2f %.2f\n" % os.getloadavg())
         rows = {}
         # interleaved so that machine load affects both tools alike
         for workers in (1, 2):
@@ -199,6 +200,7 @@ def main():
                 res["median_err"] = float(np.median(errs)) if errs else np.nan
                 rows[tool, workers] = res
                 print(f"  done: {tool:10s} workers={workers}: {res['elapsed']:.1f} s", flush=True)
+        print("load average after the timings: %.2f %.2f %.2f" % os.getloadavg())
         print(f"\nThroughput, {n} frames (read FITS, register, write FITS; wall clock)")
         print(f"{'tool':14s} {'workers':>7s} {'seconds':>8s} {'frames/s':>9s} {'vs aa':>6s} "
               f"{'ok':>5s} {'files':>5s} {'median err':>10s} {'max err':>8s}")

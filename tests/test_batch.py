@@ -6,8 +6,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
-import warnings
 
 import numpy as np
 import pytest
@@ -16,7 +14,6 @@ from astropy.nddata import CCDData
 from astropy.table import Table
 from astropy.wcs import WCS
 
-import astroalign_nd
 from astroalign_nd import AstroalignWarning, Reference, register_batch
 from astroalign_nd.batch import plan_outputs, union_canvas
 from astroalign_nd.io.write import atomic_write, write_ccddata

@@ -206,3 +206,17 @@ def test_cli_subprocess_exit_codes(files, tmp_path):
     assert r.returncode == 0, r.stderr
     assert r.stdout.startswith("[1/1] s0.fits: ok ->")
     assert "frame/s" not in r.stderr  # no progress bar on a pipe
+
+
+def test_batch_on_a_dask_scheduler(files, tmp_path, capsys):
+    """--scheduler ADDRESS: the documented way to a dask.distributed cluster."""
+    distributed = pytest.importorskip("dask.distributed")
+    ref, srcs, _ = files
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster:
+        code = main(["batch", *srcs, "-r", ref, "--output-dir", str(tmp_path),
+                     "--scheduler", cluster.scheduler_address, "--canvas", "union"])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert "3 of 3 frames registered" in text
+    assert len({CCDData.read(tmp_path / f"s{k}_aligned.fits").shape for k in range(3)}) == 1
