@@ -6,7 +6,7 @@ of worker processes, or on dask.distributed.
 The reference's stars and triangles are computed once.  A bad frame does
 not stop the batch: it is reported in the result, with the reason.  Output
 names are fixed, and made unique, before any work; every file is written
-atomically (`~astroalign_nd.io.write.atomic_write`), so an interrupted
+atomically (`~astroalign_nd.io.atomic_write`), so an interrupted
 night can be resumed with ``skip_existing=True``.
 """
 
@@ -23,7 +23,7 @@ from .io.write import FITS_EXTENSIONS, check_writable_dir, write_ccddata
 from .registration import (Reference, _as_reference, _split_options, find_match,
                            quality_dict)
 
-__all__ = ["FrameResult", "BatchResult", "register_batch"]
+__all__ = ["FrameResult", "BatchResult", "register_batch", "plan_outputs", "union_canvas"]
 
 #: Status of a frame in a `BatchResult`.
 STATUSES = ("registered", "skipped", "failed")

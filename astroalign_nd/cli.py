@@ -339,6 +339,7 @@ def _cmd_batch(args):
     if args.scheduler and args.workers:
         raise CLIError("give --workers (local processes) or --scheduler (a dask.distributed "
                        "cluster), not both.")
+    _check_output_dir(args.output_dir)
     if args.summary is not None:
         from astroalign_nd.io.write import check_output_path
 
@@ -348,7 +349,6 @@ def _cmd_batch(args):
         except FileExistsError:
             raise CLIError(f"summary file {args.summary!r} already exists; pass --overwrite "
                            "(or --skip-existing) to replace it.") from None
-    _check_output_dir(args.output_dir)
 
     progress = args.progress if args.progress is not None else sys.stderr.isatty()
     client = None

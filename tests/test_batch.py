@@ -386,3 +386,19 @@ def test_in_memory_frames_return_ccds(night):
     result = register_batch(frames, ref)
     assert [f.name for f in result.frames] == ["frame0", "frame1"]
     assert all(f.ccd is not None and f.output is None for f in result.frames)
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permissions")
+def test_written_files_have_normal_permissions(tmp_path):
+    path = tmp_path / "p.fits"
+    write_ccddata(CCDData(np.zeros((4, 4)), unit="adu"), path)
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    assert (path.stat().st_mode & 0o777) == (plain.stat().st_mode & 0o777)
+
+
+def test_write_ccddata_gzip(tmp_path):
+    path = tmp_path / "g.fits.gz"
+    write_ccddata(CCDData(np.arange(16.0).reshape(4, 4), unit="adu"), path)
+    assert path.read_bytes()[:2] == b"\x1f\x8b"  # compressed, as the name says
+    assert CCDData.read(path).data[3, 3] == 15

@@ -27,11 +27,26 @@ FITS_EXTENSIONS = (".fits", ".fit", ".fts", ".fits.gz", ".fit.gz", ".fts.gz")
 _TMP_TAG = ".aat-tmp-"
 
 
+def _read_umask():
+    # os.umask can only be read by setting it; do that once, at import.
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+#: Permissions of new files, as ``open()`` would give them (mkstemp's are 0600).
+_FILE_MODE = 0o666 & ~_read_umask()
+
+
 def _temp_path(path):
     folder, base = os.path.split(os.path.abspath(path))
     # The final name is kept as the suffix, so writers that pick a format or
     # compression from the ending (``.fits.gz``) behave as for the final name.
     fd, tmp = tempfile.mkstemp(prefix=f".{base}{_TMP_TAG}", suffix=f"-{base}", dir=folder)
+    try:
+        os.fchmod(fd, _FILE_MODE)
+    except (AttributeError, OSError):  # pragma: no cover - Windows
+        pass
     os.close(fd)
     return tmp
 
@@ -110,7 +125,7 @@ def write_ccddata(ccd, path, *, overwrite=False, **kwargs):
 
     Same as ``ccd.write(path, overwrite=overwrite)``, except that the file
     appears under ``path`` only once it is complete, and an existing file
-    is replaced only by a complete new one (see `atomic_write`).
+    is replaced only by a complete new one (see `~astroalign_nd.io.atomic_write`).
 
     Parameters
     ----------
