@@ -68,6 +68,8 @@ class FrameResult:
         The registered frame, when no ``output_dir`` was given.
     source : str or None
         The input path as given, None for in-memory inputs.
+    shape : tuple or None
+        The source frame's ``(ny, nx)``, where it was needed (``canvas='union'``).
     """
 
     name: str
@@ -80,7 +82,7 @@ class FrameResult:
     ccd: object = field(default=None, repr=False)
     source: str = None
     shape: tuple = field(default=None, repr=False)  # the source frame's (ny, nx)
-    grid: tuple = field(default=None, repr=False)  # (shape, offset) of a kept output
+    grid: tuple = field(default=None, repr=False)  # internal: (shape, offset) of a kept output
 
     @property
     def ok(self):
@@ -126,21 +128,22 @@ class BatchResult:
         """
         One row per frame, in input order.
 
-        Columns: ``name``, ``status``, ``n_matches``, ``rms`` (px),
+        Columns: ``name``, ``status``, ``ok`` (registered or skipped:
+        the output is there), ``n_matches``, ``rms`` (px),
         ``log10_false_alarm``, ``seconds``, ``error``, ``output`` and
         ``source``.  Write it with ``result.to_table().write('night.ecsv')``.
         """
         rows = []
         for f in self.frames:
             q = f.quality or {}
-            rows.append((f.name, f.status, int(q.get("n_matches", 0)),
+            rows.append((f.name, f.status, f.ok, int(q.get("n_matches", 0)),
                          float(q.get("rms", np.nan)),
                          float(q.get("log10_false_alarm", np.nan)), float(f.seconds),
                          f.error or "", f.output or "", f.source or ""))
         t = Table(rows=rows or None,
-                  names=("name", "status", "n_matches", "rms", "log10_false_alarm",
+                  names=("name", "status", "ok", "n_matches", "rms", "log10_false_alarm",
                          "seconds", "error", "output", "source"),
-                  dtype=(str, str, int, float, float, float, str, str, str))
+                  dtype=(str, str, bool, int, float, float, float, str, str, str))
         t["rms"].unit = "pix"
         t["seconds"].unit = "s"
         if self.canvas_shape is not None:
@@ -780,10 +783,14 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
         else:
             shape, offset = tuple(ref.shape), (0, 0)
         if shape[0] * shape[1] > _MAX_CANVAS_PIXELS:
+            area = {i: np.prod(union_canvas([found[i].transform], [found[i].shape],
+                                            ref.shape, margin=margin)[0]) for i in found}
+            worst = max(area, key=area.get)
             raise ValueError(
                 f"the union canvas would be {shape[1]}x{shape[0]} pixels, more than "
-                f"{_MAX_CANVAS_PIXELS} pixels: some transforms map frames very far from the "
-                "reference (see result tables) - check them, or use canvas='reference'.")
+                f"{_MAX_CANVAS_PIXELS}: some frames land very far from the reference (the "
+                f"farthest is {found[worst].name}, transform {found[worst].transform!r}). "
+                "Leave such frames out, or use canvas='reference'.")
         wcs = _canvas_wcs(ref.parsed.wcs, offset, shape)
         # Pass 2: resample onto the canvas.
         jobs2 = []

@@ -260,8 +260,8 @@ def test_callback_streams_and_table(tmp_path, night):
     path = tmp_path / "night.ecsv"
     result.to_table().write(path)
     t = Table.read(path)
-    assert list(t.colnames) == ["name", "status", "n_matches", "rms", "log10_false_alarm",
-                                "seconds", "error", "output", "source"]
+    assert list(t.colnames) == ["name", "status", "ok", "n_matches", "rms",
+                                "log10_false_alarm", "seconds", "error", "output", "source"]
     assert list(t["status"]) == ["registered", "failed", "registered"]
     assert t["n_matches"][0] >= 10 and t["rms"][0] < 1 and t["log10_false_alarm"][0] < -6
     assert "not found" in t["error"][1]
@@ -402,3 +402,12 @@ def test_write_ccddata_gzip(tmp_path):
     write_ccddata(CCDData(np.arange(16.0).reshape(4, 4), unit="adu"), path)
     assert path.read_bytes()[:2] == b"\x1f\x8b"  # compressed, as the name says
     assert CCDData.read(path).data[3, 3] == 15
+
+
+def test_union_canvas_refuses_absurd_size(night, monkeypatch):
+    import astroalign_nd.batch as batch
+
+    ref, paths, _ = night
+    monkeypatch.setattr(batch, "_MAX_CANVAS_PIXELS", 200 * 200)
+    with pytest.raises(ValueError, match="union canvas would be .*farthest is f0.fits"):
+        register_batch(paths, ref, canvas="union")
