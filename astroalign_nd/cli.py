@@ -358,9 +358,10 @@ def _cmd_batch(args):
         except ImportError:
             raise CLIError("--scheduler needs dask.distributed: "
                            "pip install 'astroalign_nd[dask]'") from None
-        client = Client(args.scheduler)
 
     n = len(sources)
+    if args.canvas == "union":
+        print(f"union canvas: finding the {n} transforms first, then resampling", flush=True)
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -380,6 +381,8 @@ def _cmd_batch(args):
             print(line, flush=True)
 
     try:
+        if args.scheduler:
+            client = Client(args.scheduler)
         result = astroalign_nd.register_batch(
             sources, target, output_dir=args.output_dir, overwrite=args.overwrite,
             skip_existing=args.skip_existing, canvas=args.canvas, client=client,
@@ -390,7 +393,7 @@ def _cmd_batch(args):
             bar.close()
         if client is not None:
             client.close()
-    if result.canvas_offset != (0, 0) or args.canvas == "union":
+    if args.canvas == "union":
         ny, nx = result.canvas_shape
         print(f"canvas: {nx}x{ny} px, pixel (0, 0) at reference pixel "
               f"{tuple(int(v) for v in result.canvas_offset)}")
