@@ -411,3 +411,27 @@ def test_union_canvas_refuses_absurd_size(night, monkeypatch):
     monkeypatch.setattr(batch, "_MAX_CANVAS_PIXELS", 200 * 200)
     with pytest.raises(ValueError, match="union canvas would be .*farthest is f0.fits"):
         register_batch(paths, ref, canvas="union")
+
+
+HATP32 = (os.path.join(os.path.dirname(WORKTREE), "shared", "data", "real", "pairs",
+                       "exotic_hatp32_microobservatory"))
+
+
+@pytest.mark.skipif(not os.path.isdir(HATP32), reason="real test images not available")
+@pytest.mark.filterwarnings("ignore::astropy.wcs.FITSFixedWarning")
+def test_union_canvas_keeps_the_drifting_hatp32_night(tmp_path):
+    """The HAT-P-32 night drifts by 275 px: on the reference's grid the last frame loses
+    about 44% of its pixels, on the union canvas none."""
+    paths = sorted(os.path.join(HATP32, p) for p in os.listdir(HATP32))
+    on_ref = register_batch(paths, paths[0])
+    assert not on_ref.failed, on_ref.summary()
+    assert on_ref.frames[-1].ccd.mask.mean() > 0.35
+    result = register_batch(paths, paths[0], output_dir=tmp_path, canvas="union")
+    assert not result.failed, result.summary()
+    ny, nx = CCDData.read(paths[0], unit="adu").shape
+    cy, cx = result.canvas_shape
+    assert cx > nx + 250 and cy > ny + 50
+    for f in result.frames:
+        ccd = CCDData.read(f.output)
+        # every frame keeps all its pixels but a 1-px bilinear edge (and its hot pixels)
+        assert (~ccd.mask).sum() > 0.98 * nx * ny
