@@ -10,5 +10,6 @@ Storing transforms in files.
 """
 
 from .header import transform_from_header, transform_to_header
+from .write import atomic_write, write_ccddata
 
-__all__ = ["transform_to_header", "transform_from_header"]
+__all__ = ["transform_to_header", "transform_from_header", "atomic_write", "write_ccddata"]
