@@ -441,15 +441,19 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
     tab.meta["fwhm_source"] = "estimate"
     if est.doubtful or _too_few(tab, cand, n_sources):
-        tab = _best_scale(data, mask, cand, noise, b, opts, tab)
+        tab = _best_scale(data, mask, cand, noise, b, opts, tab,
+                          est.alternatives + _SCALE_LADDER)
+    elif est.alternatives:
+        tab = _best_scale(data, mask, cand, noise, b, opts, tab, est.alternatives)
     return tab
 
 
 class _FwhmEstimate:
-    """An FWHM estimate and whether it deserves a second opinion."""
+    """An FWHM estimate, whether it deserves a second opinion, and others to try."""
 
-    def __init__(self, fwhm, doubtful):
+    def __init__(self, fwhm, doubtful, alternatives=()):
         self.fwhm, self.doubtful = float(fwhm), bool(doubtful)
+        self.alternatives = tuple(float(a) for a in alternatives)
 
 
 def _recenter(data, mask, cand, b, fwhm):
@@ -509,42 +513,58 @@ def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
     left out, and the *mode* of the rest is taken, so that knots of
     nebulosity, galaxies, blends and bloated bright stars (all wider) and
     hot pixels (narrower) do not move it.  Stars wider than the cutouts
-    can measure are measured on a binned copy.
+    can measure are measured on a binned copy.  When both a compact and a
+    wide population are large (digitised plates: faint stars of a few
+    pixels, bright ones of tens), both widths are returned and the scale
+    search of `_best_scale` chooses.
     """
     fw, ok = _candidate_fwhms(data, mask, cand, n_max, half, noise)
     vals = fw[ok]
     wide = np.isfinite(fw) & (fw >= half / 1.5 - 0.5)
+    compact = None
     if vals.size >= 10:
         mode, frac = _log_mode(vals)
         if frac >= 0.3 and mode < half / 2.0:
             # Enough compact sources share one width: those are the stars,
-            # however many wide knots or galaxies are brighter.
-            return _FwhmEstimate(np.clip(mode, 1.0, half / 1.5), False)
+            # unless the wide ones are stars too (checked below).
+            compact = float(np.clip(mode, 1.0, half / 1.5))
     if wide.sum() >= max(3, 0.5 * max(1, ok.sum() + wide.sum())):
         # Digitised plates and defocused frames: measure on a binned copy.
-        for k in (4, 16):
-            if min(data.shape) // k < 16:
-                break
-            binned, bmask = _bin_mean(data, mask, k)
-            bnoise = estimate_noise(binned, bmask)
-            if not (np.isfinite(bnoise) and bnoise > 0):
-                break
-            bc = _binned_candidates(binned, bmask, 1, bnoise, 5.0, 150)
-            if len(bc["x"]) < 3:
-                break
-            bc = _recenter(binned, bmask, bc, 1, None)
-            bfw, bok = _candidate_fwhms(binned, bmask, bc, n_max, half, bnoise)
-            bwide = np.isfinite(bfw) & (bfw >= half / 1.5 - 0.5)
-            if bok.sum() >= 3 and bwide.sum() < 0.5 * (bok.sum() + bwide.sum()):
-                mode, frac = _log_mode(bfw[bok])
-                return _FwhmEstimate(max(mode * k, _MAX_FULL_RES_FWHM), frac < 0.3)
-        return _FwhmEstimate(half / 1.5, True)
+        broad = _wide_fwhm(data, mask, n_max, half)
+        if compact is not None:
+            # Two populations: only the two widths compete (a ladder would
+            # let a width between them win on nebulosity).
+            return _FwhmEstimate(compact, False, () if broad is None else (broad,))
+        return _FwhmEstimate(half / 1.5 if broad is None else broad, broad is None)
+    if compact is not None:
+        return _FwhmEstimate(compact, False)
     if vals.size < 3:
         return _FwhmEstimate(3.0 if vals.size == 0 else np.median(vals), True)
     mode, frac = _log_mode(vals)
     # Too few candidates share one width: the list is dominated by
     # something other than stars; let the scale search decide.
     return _FwhmEstimate(np.clip(mode, 1.0, half / 1.5), frac < 0.3 or vals.size < 8)
+
+
+def _wide_fwhm(data, mask, n_max, half):
+    """FWHM of stars too wide for the cutouts, measured on 4x or 16x binned copies."""
+    for k in (4, 16):
+        if min(data.shape) // k < 16:
+            break
+        binned, bmask = _bin_mean(data, mask, k)
+        bnoise = estimate_noise(binned, bmask)
+        if not (np.isfinite(bnoise) and bnoise > 0):
+            break
+        bc = _binned_candidates(binned, bmask, 1, bnoise, 5.0, 150)
+        if len(bc["x"]) < 3:
+            break
+        bc = _recenter(binned, bmask, bc, 1, None)
+        bfw, bok = _candidate_fwhms(binned, bmask, bc, n_max, half, bnoise)
+        bwide = np.isfinite(bfw) & (bfw >= half / 1.5 - 0.5)
+        if bok.sum() >= 3 and bwide.sum() < 0.5 * (bok.sum() + bwide.sum()):
+            mode, _ = _log_mode(bfw[bok])
+            return float(max(mode * k, _MAX_FULL_RES_FWHM))
+    return None
 
 
 def _candidate_fwhms(data, mask, cand, n_max, half, noise=None):
@@ -602,17 +622,18 @@ def _too_few(tab, cand, n_sources):
 _SCALE_LADDER = (1.6, 2.5, 4.0, 6.5, 10.0)
 
 
-def _best_scale(data, mask, cand, noise, b, opts, first):
+def _best_scale(data, mask, cand, noise, b, opts, first, alternatives=()):
     """
-    Stage 2b: when the FWHM estimate is doubtful, try a ladder of scales.
+    Stage 2b: try other widths (a ladder when the estimate is doubtful, or
+    the wide population's width on a digitised plate).
 
     Each trial FWHM gives a list of sources; a list is *consistent* when
     the median FWHM its sources measure on their own agrees with the trial
-    value.  The consistent list with the most sources at the detection
-    threshold wins; the first attempt is kept on ties.
+    value.  Among the lists with nearly the most strong sources, the most
+    consistent wins; the first attempt is kept on ties.
     """
     trials = [first]
-    for f in _SCALE_LADDER:
+    for f in alternatives:
         if any(abs(np.log(f / t.meta["fwhm"])) < 0.15 for t in trials):
             continue
         trials.append(_measure(data, mask, cand, f, noise, b, opts))
