@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from astropy.table import Table
 
+from ._input import iter_frames, parse_input
 from .registration import _as_reference, _split_options, find_match, quality_dict
 
 __all__ = ["FrameResult", "BatchResult", "register_batch"]
@@ -85,12 +86,6 @@ class BatchResult:
         return "\n".join(lines)
 
 
-def _frame_name(src, i):
-    if isinstance(src, (str, os.PathLike)):
-        return os.path.basename(os.fspath(src))
-    return f"frame{i}"
-
-
 def _output_path(output_dir, name, suffix):
     stem, _, dup = name.partition("#")
     dup = f"_{dup}" if dup else ""
@@ -100,16 +95,6 @@ def _output_path(output_dir, name, suffix):
             stem = stem[: -len(ext)]
             break
     return os.path.join(output_dir, f"{stem}{dup}{suffix}.fits")
-
-
-def _unique_names(names):
-    """Make repeated names unique (``a.fits``, ``a.fits#1``...) so outputs never collide."""
-    seen, out = {}, []
-    for n in names:
-        k = seen.get(n, 0)
-        seen[n] = k + 1
-        out.append(n if k == 0 else f"{n}#{k}")
-    return out
 
 
 def _register_one(src, name, reference, output_dir, overwrite, suffix, options,
@@ -125,11 +110,12 @@ def _register_one(src, name, reference, output_dir, overwrite, suffix, options,
             if os.path.exists(out_path) and not overwrite:
                 raise FileExistsError(
                     f"{out_path} exists; pass overwrite=True (or --overwrite) to replace it")
+        src = parse_input(src, "source")  # a FrameLoader: read the frame here, once
         result = find_match(src, reference, **options)
         ccd = apply_transform(result.transform, src, reference, quality=quality_dict(result),
                               **apply_options)
         if out_path is not None:
-            ccd.write(out_path, overwrite=overwrite)
+            ccd.write(out_path, overwrite=overwrite, hdu_flags="FLAGS")
             ccd = None
         return FrameResult(name=name, ok=True, transform=result.transform,
                            quality=quality_dict(result), output=out_path, ccd=ccd,
@@ -141,15 +127,20 @@ def _register_one(src, name, reference, output_dir, overwrite, suffix, options,
 
 def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix="_aligned",
                    client=None, progress=False, order="bilinear", conserve_flux=False,
-                   fill_value=np.nan, method="interpolate", unit=None, **options):
+                   fill_value=np.nan, method="interpolate", unit=None, hdu=None,
+                   add_keyword=True, **options):
     """
     Register every frame of ``sources`` onto ``target``.
 
     Parameters
     ----------
-    sources : iterable
+    sources : iterable or `~ccdproc.ImageFileCollection`
         Frames: paths (best for large batches: each worker reads its own
-        files), arrays, NDData/CCDData...
+        files), arrays, NDData/CCDData, ``(frame, file name)`` pairs such as
+        ``ImageFileCollection.ccds(return_fname=True)`` yields, a generator
+        of any of these, or an ``ImageFileCollection`` (its files, read
+        with its ``ext``).  Frames are taken one at a time, so a generator
+        is never held in memory all at once; file names name the outputs.
     target : anything `~astroalign_nd.find_transform` accepts, or `~astroalign_nd.Reference`
         The reference frame; prepared once.
     output_dir : str or path, optional
@@ -166,8 +157,11 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix=
         the other in this process.
     progress : bool, optional
         Show a tqdm progress bar.
-    order, conserve_flux, fill_value, method, unit
+    order, conserve_flux, fill_value, method, unit, add_keyword
         As in `~astroalign_nd.apply_transform`.
+    hdu : int or str, optional
+        The HDU to read from FITS files (and the target), as in
+        `~astroalign_nd.find_transform`.
     **options
         As in `~astroalign_nd.find_transform` (``transform_type``,
         ``n_sources``, detection and matching options).
@@ -178,39 +172,44 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix=
         Per-frame results in input order; ``result.failed`` lists the
         frames that could not be registered and why.
     """
-    sources = list(sources)
     det, _ = _split_options({k: v for k, v in options.items()
                              if k not in ("transform_type", "n_sources", "max_sources")})
     if output_dir is not None:
         output_dir = os.fspath(output_dir)
         os.makedirs(output_dir, exist_ok=True)
-    ref = _as_reference(target, "target", det)
+    ref = _as_reference(target, "target", det, hdu)
     # Compute the reference's stars and triangles once, before shipping it.
     n = options.get("n_sources", 50)
     ref.stars(n)
     ref.asterisms(n, options.get("n_neighbors", 4))
     apply_options = dict(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
-                         method=method, unit=unit)
-    names = _unique_names([_frame_name(src, i) for i, src in enumerate(sources)])
+                         method=method, unit=unit, add_keyword=add_keyword)
+    frames = iter_frames(sources, hdu=hdu, unit=unit)
     args = (output_dir, overwrite, suffix, options, apply_options)
 
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=len(sources), unit="frame")
-    results = [None] * len(sources)
+        total = len(sources.files) if hasattr(sources, "files_filtered") else (
+            len(sources) if hasattr(sources, "__len__") else None)
+        bar = tqdm(total=total, unit="frame")
+    results, names = [], []
     if client is None:
-        for i, src in enumerate(sources):
-            results[i] = _register_one(src, names[i], ref, *args)
+        for name, src in frames:
+            results.append(_register_one(src, name, ref, *args))
             if bar is not None:
                 bar.update(1)
     else:
         from dask.distributed import as_completed
 
         ref_future = client.scatter(ref, broadcast=True)
-        futures = [client.submit(_register_one, src, names[i], ref_future, *args, pure=False)
-                   for i, src in enumerate(sources)]
+        futures = []
+        for name, src in frames:
+            names.append(name)
+            futures.append(client.submit(_register_one, src, name, ref_future, *args,
+                                         pure=False))
+        results = [None] * len(futures)
         index = {f.key: i for i, f in enumerate(futures)}
         for fut in as_completed(futures):
             i = index[fut.key]

@@ -80,6 +80,13 @@ def _registration_options():
         default=None,
         help="unit of any input FITS file that has no BUNIT keyword (default: adu)",
     )
+    group.add_argument(
+        "--hdu",
+        default=None,
+        metavar="HDU",
+        help="FITS extension to read, an index or a name (default: the first one with "
+        "image data); MASK, UNCERT and FLAGS extensions are read as CCDData.read does",
+    )
     return parent
 
 
@@ -159,7 +166,15 @@ def _registration_kwargs(args):
         order=args.order,
         conserve_flux=args.conserve_flux,
         n_sources=args.n_sources,
+        hdu=_hdu(args.hdu),
     )
+
+
+def _hdu(value):
+    """``--hdu 1`` is an index, ``--hdu SCI`` an extension name."""
+    if value is None:
+        return None
+    return int(value) if value.lstrip("-").isdigit() else value
 
 
 def _check_writable(path, overwrite):
@@ -219,7 +234,7 @@ def _cmd_register(args):
     _check_writable(args.output, args.overwrite)
     aligned = astroalign_nd.register(_check_input(args.source), _check_input(args.target),
                                      unit=args.unit, **_registration_kwargs(args))
-    aligned.write(args.output, overwrite=args.overwrite)
+    aligned.write(args.output, overwrite=args.overwrite, hdu_flags="FLAGS")
     q = aligned.meta
     print(f"{_describe(astroalign_nd.transform_from_header(q))}; {q['AATNMAT']} matched "
           f"stars, RMS {q['AATRMS']:.3f} px")

@@ -24,20 +24,29 @@ Keyword         Content
 ``AATPAR``      Parity: +1 proper, -1 mirrored
 ==============  ===========================================================
 
+`add_provenance` adds, for a registered frame, the quality of the fit
+(`QUALITY_KEYWORDS`: ``AATNMAT``, ``AATRMS``, ``AATLFA``) and ``HISTORY``
+cards saying what was done.  These are all the keywords astroalign_nd
+writes; ``add_keyword=False`` (`~astroalign_nd.register`,
+`~astroalign_nd.apply_transform`) leaves every one of them out, as
+ccdproc's ``add_keyword`` does.
+
 The transform is rebuilt from ``AATTYPE`` and the matrix (the strings when
 present, else the floats); the other keywords are for people reading the
 header.  The matrix maps 0-based source pixel coordinates ``(x, y)`` onto
 target pixel coordinates, like the models of `astroalign_nd.transforms`.
 """
 
+import datetime
 import re
-import warnings
+import textwrap
 
 import numpy as np
 from astropy.io import fits
 from astropy.modeling import Model
 from astropy.utils.exceptions import AstropyUserWarning
 
+from ..exceptions import warn
 from ..transforms import (
     TRANSFORM_TYPES,
     AffineTransform,
@@ -46,7 +55,16 @@ from ..transforms import (
     transform_class,
 )
 
-__all__ = ["transform_to_header", "transform_from_header"]
+__all__ = ["transform_to_header", "transform_from_header", "add_provenance",
+           "QUALITY_KEYWORDS"]
+
+#: The fit-quality keywords of a registered frame: suffix (after the prefix),
+#: the ``transform.meta['quality']`` entry, decimals kept, and comment.
+QUALITY_KEYWORDS = (
+    ("NMAT", "n_matches", None, "astroalign_nd: matched stars"),
+    ("RMS", "rms", 6, "astroalign_nd: fit RMS [px]"),
+    ("LFA", "log10_false_alarm", 3, "astroalign_nd: log10 false-alarm probability"),
+)
 
 _MATRIX_INDICES = ("00", "01", "02", "10", "11", "12")
 _HUMAN_SUFFIXES = ("SCALE", "SCALX", "SCALY", "ROT", "SHEAR", "TX", "TY", "PAR")
@@ -199,7 +217,7 @@ def transform_to_header(model, header=None, *, prefix="AAT"):
     prefix = _check_prefix(prefix)
     matrix = _model_matrix(model)
     if getattr(model, "has_user_inverse", False):
-        warnings.warn(
+        warn(
             "the model has a user-assigned inverse, which a FITS header cannot hold; only "
             "the forward transform is stored (save to ASDF to keep the inverse).",
             AstropyUserWarning,
@@ -213,7 +231,7 @@ def transform_to_header(model, header=None, *, prefix="AAT"):
     else:
         try:
             out = fits.Header(header)
-        except Exception as exc:
+        except (TypeError, ValueError, AttributeError, KeyError) as exc:
             raise TypeError(
                 "header must be an astropy.io.fits.Header, a dict-like of keywords or None; "
                 f"got {type(header).__name__} ({exc})."
@@ -292,7 +310,7 @@ def transform_from_header(header, *, prefix="AAT"):
     if not isinstance(header, fits.Header):
         try:
             header = fits.Header(header)
-        except Exception as exc:
+        except (TypeError, ValueError, AttributeError, KeyError) as exc:
             raise TypeError(
                 "header must be an astropy.io.fits.Header or a dict-like of keywords; got "
                 f"{type(header).__name__} ({exc})."
@@ -318,3 +336,60 @@ def transform_from_header(header, *, prefix="AAT"):
         raise ValueError(
             f"the matrix in the header is not a valid {cls.__name__} ({exc})."
         ) from None
+
+
+def _add_history(header, text):
+    """HISTORY cards wrapped at word boundaries (FITS cuts long ones mid-word)."""
+    for line in textwrap.wrap(text, 70, subsequent_indent="  "):
+        header.add_history(line)
+
+
+def add_provenance(header, model, *, quality=None, source_name="source",
+                   target_name="target", order=None, conserve_flux=False, prefix="AAT"):
+    """
+    Record a registration in a header: transform, fit quality and HISTORY.
+
+    Parameters
+    ----------
+    header : `~astropy.io.fits.Header`
+        Copied, never modified.
+    model : `~astroalign_nd.transforms.LinearTransform2D`
+        The source-to-target transform (stored by `transform_to_header`).
+    quality : dict, optional
+        ``transform.meta['quality']``; adds the `QUALITY_KEYWORDS`.
+    source_name, target_name : str, optional
+        What was registered onto what, for the HISTORY cards.
+    order : str, optional
+        The resampling kernel.
+    conserve_flux : bool, optional
+    prefix : str, optional
+        Keyword prefix (default ``'AAT'``).
+
+    Returns
+    -------
+    header : `~astropy.io.fits.Header`
+        A new header.
+    """
+    from .. import __version__
+
+    out = transform_to_header(model, header, prefix=prefix)
+    m = as_matrix(model)
+    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
+    _add_history(out, f"astroalign_nd {__version__} {now} UTC: registered {source_name} "
+                      f"onto the pixel grid of {target_name}")
+    det = np.linalg.det(m[:2, :2])
+    desc = (f"{type(model).__name__} scale={np.sqrt(abs(det)):.6f}"
+            f" rot={np.degrees(np.arctan2(m[1, 0], m[0, 0])):.5f}deg"
+            f" shift=({m[0, 2]:.3f},{m[1, 2]:.3f})px{' mirrored' if det < 0 else ''}")
+    _add_history(out, f"astroalign_nd transform: {desc}")
+    if order is not None:
+        _add_history(out, f"astroalign_nd resampling: {order}, conserve_flux={conserve_flux}")
+    if quality:
+        _add_history(out, f"astroalign_nd fit: {quality['n_matches']} matched stars, "
+                          f"RMS {quality['rms']:.4f} px, log10 false-alarm "
+                          f"{quality['log10_false_alarm']:.1f}")
+        for suffix, key, decimals, comment in QUALITY_KEYWORDS:
+            value = quality[key]
+            value = int(value) if decimals is None else round(float(value), decimals)
+            out[_check_prefix(prefix) + suffix] = (value, comment)
+    return out
