@@ -101,6 +101,8 @@ def test_four_common_stars_catalogs_with_noise():
     assert err < 0.1, f"{err:.3f} px; {_describe(t)}"
 
 
+# 8 matched stars of a sparse, noisy list: the fit is rightly flagged as uncertain.
+@pytest.mark.filterwarnings("ignore::astroalign_nd.PoorFitWarning")
 def test_sparse_catalogs_neighbour_escalation():
     # 8 common stars (0.3 px noise) among 22 and 24: solvable with more
     # neighbours per star, which the escalation is meant to try.
