@@ -199,9 +199,13 @@ def _describe(transform):
     translation = getattr(transform, "translation", None)
     try:
         if rotation is not None:
-            parts.append(f"rotation={np.degrees(float(np.squeeze(rotation))):.4f} deg")
+            # Parameters hold degrees (astropy's convention); float() of a
+            # Parameter raises on astropy 8, so read its value.
+            value = getattr(rotation, "value", rotation)
+            parts.append(f"rotation={float(np.squeeze(value)):.4f} deg")
         if scale is not None:
-            s = np.atleast_1d(np.squeeze(np.asarray(scale, dtype=float)))
+            s = np.atleast_1d(np.squeeze(np.asarray(getattr(scale, "value", scale),
+                                                    dtype=float)))
             parts.append("scale=" + ", ".join(f"{v:.5f}" for v in s))
         if translation is not None:
             t = np.ravel(np.asarray(translation, dtype=float))

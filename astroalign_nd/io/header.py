@@ -132,8 +132,9 @@ def _model_matrix(model):
 
 
 def _degrees(angle):
-    """Angle in radians to degrees in (-180, 180]."""
-    degrees = float(np.degrees(np.arctan2(np.sin(angle), np.cos(angle))))
+    """Angle in degrees wrapped to (-180, 180]."""
+    rad = np.deg2rad(angle)
+    degrees = float(np.degrees(np.arctan2(np.sin(rad), np.cos(rad))))
     return 180.0 if degrees == -180.0 else degrees
 
 
@@ -205,7 +206,7 @@ def transform_to_header(model, header=None, *, prefix="AAT"):
     --------
     >>> from astroalign_nd.transforms import SimilarityTransform
     >>> from astroalign_nd.io import transform_to_header, transform_from_header
-    >>> t = SimilarityTransform(scale=1.5, rotation=0.1, translation_x=3.0,
+    >>> t = SimilarityTransform(scale=1.5, rotation=30.0, translation_x=3.0,
     ...                         translation_y=-2.0)
     >>> hdr = transform_to_header(t)
     >>> hdr["AATTYPE"]
