@@ -18,9 +18,13 @@ anything derived is a new array.
 time, so that a batch never holds all its frames in memory.
 """
 
+from __future__ import annotations
+
 import os
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from astropy import units as u
@@ -339,7 +343,8 @@ def _from_tuple(obj, name, unit):
                        wcs=wcs, meta=meta, kind="tuple", name="array")
 
 
-def parse_input(obj, name="input", *, hdu=None, unit=None):
+def parse_input(obj: Any, name: str = "input", *, hdu: int | str | tuple | None = None,
+                unit: Any = None) -> ParsedInput:
     """
     Turn any accepted input into a `ParsedInput`.
 
@@ -473,7 +478,8 @@ def _is_named_pair(item):
             and not isinstance(item[0], (str, os.PathLike)))
 
 
-def iter_frames(sources, *, hdu=None, unit=None):
+def iter_frames(sources: Any, *, hdu: int | str | tuple | None = None,
+                unit: Any = None) -> Iterator[tuple[str, FrameLoader]]:
     """
     Yield ``(name, loader)`` for each frame of a batch, one at a time.
 

@@ -6,9 +6,13 @@ The reference's stars and triangles are computed once.  A bad frame does
 not stop the batch: it is reported in the result, with the reason.
 """
 
+from __future__ import annotations
+
 import os
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from astropy.table import Table
@@ -125,10 +129,13 @@ def _register_one(src, name, reference, output_dir, overwrite, suffix, options,
                            seconds=time.perf_counter() - t0)
 
 
-def register_batch(sources, target, *, output_dir=None, overwrite=False, suffix="_aligned",
-                   client=None, progress=False, order="bilinear", conserve_flux=False,
-                   fill_value=np.nan, method="interpolate", unit=None, hdu=None,
-                   add_keyword=True, **options):
+def register_batch(sources: Iterable[Any] | Any, target: Any, *,
+                   output_dir: str | os.PathLike | None = None, overwrite: bool = False,
+                   suffix: str = "_aligned", client: Any = None, progress: bool = False,
+                   order: str | int = "bilinear", conserve_flux: bool = False,
+                   fill_value: float = np.nan, method: str = "interpolate", unit: Any = None,
+                   hdu: int | str | None = None, add_keyword: bool = True,
+                   **options: Any) -> BatchResult:
     """
     Register every frame of ``sources`` onto ``target``.
 

@@ -24,7 +24,10 @@ The output carries:
   transform when only the source has one.
 """
 
+from __future__ import annotations
+
 import warnings
+from typing import Any
 
 import numpy as np
 from astropy import units as u
@@ -145,9 +148,11 @@ def _resample_flags(flags, matrix, shape_out):
     return out
 
 
-def apply_transform(transform, source, target, *, order="bilinear", conserve_flux=False,
-                    fill_value=np.nan, method="interpolate", unit=None, parallel=True,
-                    quality=None, hdu=None, add_keyword=True):
+def apply_transform(transform: Any, source: Any, target: Any, *,
+                    order: str | int = "bilinear", conserve_flux: bool = False,
+                    fill_value: float = np.nan, method: str = "interpolate", unit: Any = None,
+                    parallel: bool = True, quality: dict | None = None,
+                    hdu: int | str | None = None, add_keyword: bool = True) -> CCDData:
     """
     Resample ``source`` onto the pixel grid of ``target``.
 

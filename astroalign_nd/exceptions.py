@@ -1,6 +1,8 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """Exceptions and warnings raised by astroalign_nd."""
 
+from __future__ import annotations
+
 import os
 import sys
 import warnings
@@ -61,6 +63,6 @@ def _stacklevel():
     return level
 
 
-def warn(message, category=AstroalignWarning):
+def warn(message: str, category: type[Warning] = AstroalignWarning) -> None:
     """`warnings.warn` pointing at the user's line that called astroalign_nd."""
     warnings.warn(message, category, stacklevel=_stacklevel())

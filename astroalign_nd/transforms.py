@@ -27,9 +27,14 @@ do not fit models with two outputs), use ``from_points`` with optional
 weights, or `fit_transform` for the parameter covariance too.
 """
 
+from __future__ import annotations
+
+from typing import Any
+
 import numpy as np
 from astropy import units as u
 from astropy.modeling import Model, Parameter
+from numpy.typing import ArrayLike
 
 __all__ = [
     "LinearTransform2D",
@@ -187,7 +192,7 @@ class LinearTransform2D(Model):
 
     # -- construction ----------------------------------------------------------
     @classmethod
-    def from_matrix(cls, matrix):
+    def from_matrix(cls, matrix: ArrayLike) -> LinearTransform2D:
         """
         Build the transform from a 2x3 or 3x3 homogeneous matrix.
 
@@ -212,7 +217,8 @@ class LinearTransform2D(Model):
         return cls._from_matrix(m)
 
     @classmethod
-    def from_points(cls, src, dst, *, weights=None, parity=None):
+    def from_points(cls, src: ArrayLike, dst: ArrayLike, *, weights: ArrayLike | None = None,
+                    parity: int | None = None) -> LinearTransform2D:
         """
         Least-squares transform that maps ``src`` onto ``dst``.
 
@@ -617,7 +623,7 @@ TRANSFORM_TYPES = {
 }
 
 
-def transform_class(transform_type):
+def transform_class(transform_type: str | type) -> type[LinearTransform2D]:
     """
     Return the model class for a ``transform_type`` name or class.
 
@@ -637,7 +643,9 @@ def transform_class(transform_type):
     )
 
 
-def fit_transform(src, dst, transform_type="similarity", *, weights=None, parity=None):
+def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "similarity", *,
+                  weights: ArrayLike | None = None, parity: int | None = None
+                  ) -> tuple[LinearTransform2D, np.ndarray, np.ndarray]:
     """
     Least-squares fit of a transform, with its parameter covariance.
 
@@ -710,7 +718,7 @@ def _covariance(model, design, resid, weights):
 
 # -- interoperability ----------------------------------------------------------
 
-def as_matrix(transform):
+def as_matrix(transform: Any) -> np.ndarray:
     """
     The 3x3 homogeneous matrix of any supported transform.
 
@@ -762,7 +770,7 @@ def as_matrix(transform):
     return m
 
 
-def from_matrix(matrix, transform_type=None):
+def from_matrix(matrix: Any, transform_type: str | type | None = None) -> LinearTransform2D:
     """
     Build a package transform from a 3x3 (or 2x3) matrix.
 
@@ -780,7 +788,7 @@ def from_matrix(matrix, transform_type=None):
     return AffineTransform.from_matrix(m)
 
 
-def to_skimage(transform):
+def to_skimage(transform: Any) -> Any:
     """Convert to the matching `skimage.transform` geometric transform."""
     from skimage import transform as sktf
 
@@ -793,12 +801,13 @@ def to_skimage(transform):
     return sktf.AffineTransform(matrix=m)
 
 
-def from_skimage(sk_transform, transform_type=None):
+def from_skimage(sk_transform: Any,
+                 transform_type: str | type | None = None) -> LinearTransform2D:
     """Convert a scikit-image geometric transform (anything with ``params``)."""
     return from_matrix(np.asarray(sk_transform.params, dtype=float), transform_type)
 
 
-def to_astropy_affine(transform):
+def to_astropy_affine(transform: Any) -> Model:
     """Convert to `astropy.modeling.projections.AffineTransformation2D`."""
     from astropy.modeling.projections import AffineTransformation2D
 
@@ -806,6 +815,7 @@ def to_astropy_affine(transform):
     return AffineTransformation2D(matrix=m[:2, :2], translation=m[:2, 2])
 
 
-def from_astropy_affine(model, transform_type=None):
+def from_astropy_affine(model: Model,
+                        transform_type: str | type | None = None) -> LinearTransform2D:
     """Convert an `~astropy.modeling.projections.AffineTransformation2D`."""
     return from_matrix(as_matrix(model), transform_type)

@@ -478,3 +478,15 @@ def test_add_keyword_opt_out(pair):
 
     for suffix, *_ in QUALITY_KEYWORDS:
         assert "AAT" + suffix in out.meta
+
+
+def test_public_api_is_typed():
+    import inspect
+    from importlib.resources import files
+
+    assert files("astroalign_nd").joinpath("py.typed").is_file()
+    for func in (register, find_transform, apply_transform, register_batch,
+                 astroalign_nd.transform_to_header, astroalign_nd.transform_from_header,
+                 astroalign_nd.SimilarityTransform.from_points):
+        sig = inspect.signature(func)
+        assert sig.return_annotation is not inspect.Signature.empty, func.__name__

@@ -37,8 +37,11 @@ header.  The matrix maps 0-based source pixel coordinates ``(x, y)`` onto
 target pixel coordinates, like the models of `astroalign_nd.transforms`.
 """
 
+from __future__ import annotations
+
 import datetime
 import re
+from collections.abc import Mapping
 import textwrap
 
 import numpy as np
@@ -165,7 +168,8 @@ def _human_cards(type_name, model, matrix):
     return cards
 
 
-def transform_to_header(model, header=None, *, prefix="AAT"):
+def transform_to_header(model: Model, header: fits.Header | Mapping | None = None, *,
+                        prefix: str = "AAT") -> fits.Header:
     """
     Store a linear 2-D transform in a FITS header.
 
@@ -284,7 +288,8 @@ def _read_matrix(header, prefix):
     return matrix
 
 
-def transform_from_header(header, *, prefix="AAT"):
+def transform_from_header(header: fits.Header | Mapping, *,
+                          prefix: str = "AAT") -> LinearTransform2D:
     """
     Rebuild a transform stored by `transform_to_header`.
 
@@ -345,8 +350,10 @@ def _add_history(header, text):
         header.add_history(line)
 
 
-def add_provenance(header, model, *, quality=None, source_name="source",
-                   target_name="target", order=None, conserve_flux=False, prefix="AAT"):
+def add_provenance(header: fits.Header, model: LinearTransform2D, *,
+                   quality: dict | None = None, source_name: str = "source",
+                   target_name: str = "target", order: str | None = None,
+                   conserve_flux: bool = False, prefix: str = "AAT") -> fits.Header:
     """
     Record a registration in a header: transform, fit quality and HISTORY.
 
