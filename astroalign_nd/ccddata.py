@@ -26,6 +26,7 @@ The output carries:
 
 from __future__ import annotations
 
+import re
 import warnings
 from typing import Any
 
@@ -113,14 +114,29 @@ def _strip_wcs(header):
     return h
 
 
+_FITS_KEY = re.compile(r"^[A-Z0-9_-]{1,8}$")
+
+
 def _as_header(meta):
+    """
+    The meta as a FITS header.
+
+    Keys that are not standard FITS keywords (ccdproc's ``subtract_bias``,
+    long or lower-case names) become HIERARCH cards rather than being
+    lost; values that FITS cannot hold are left out.
+    """
     if isinstance(meta, fits.Header):
         return meta.copy()
     h = fits.Header()
     for key, value in dict(meta or {}).items():
-        if isinstance(key, str) and len(key) <= 8 and isinstance(
+        if not isinstance(key, str) or not isinstance(
                 value, (str, int, float, bool, np.integer, np.floating)):
-            h[key] = value
+            continue
+        card_key = key if _FITS_KEY.match(key.upper()) else f"HIERARCH {key}"
+        try:
+            h[card_key] = value
+        except ValueError:  # e.g. a HIERARCH keyword and value longer than a card
+            continue
     return h
 
 

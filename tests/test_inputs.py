@@ -490,3 +490,17 @@ def test_public_api_is_typed():
                  astroalign_nd.SimilarityTransform.from_points):
         sig = inspect.signature(func)
         assert sig.return_annotation is not inspect.Signature.empty, func.__name__
+
+
+def test_long_meta_keywords_are_kept_as_hierarch(pair, tmp_path):
+    # ccdproc records its steps under keys longer than 8 characters.
+    ccd = CCDData(pair.source, unit="adu",
+                  meta={"subtract_bias": "ccd=<CCDData>, master=<CCDData>", "OBJECT": "x",
+                        "exptime": 30.0})
+    out = register(ccd, pair.target)
+    assert out.meta["subtract_bias"] == "ccd=<CCDData>, master=<CCDData>"
+    assert out.meta["EXPTIME"] == 30.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out.write(tmp_path / "out.fits")
+    assert CCDData.read(tmp_path / "out.fits").meta["subtract_bias"].startswith("ccd=")
