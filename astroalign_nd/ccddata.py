@@ -105,8 +105,8 @@ def _strip_wcs(header):
             wcs_cards = WCS(h).to_header(relax=True)
     except (ValueError, KeyError, TypeError, MemoryError):
         # An unparsable WCS (astropy.wcs raises WcsError, a ValueError):
-        # remove the cards by name below.
-        wcs_cards = ()
+        # its cards describe the old grid all the same; remove them by name.
+        wcs_cards = [k for k in h.keys() if k.startswith(_WCS_PREFIXES)]
     for key in wcs_cards:
         h.remove(key, ignore_missing=True, remove_all=True)
     for key in ("CD1_1", "CD1_2", "CD2_1", "CD2_2", "A_ORDER", "B_ORDER"):

@@ -504,3 +504,17 @@ def test_long_meta_keywords_are_kept_as_hierarch(pair, tmp_path):
         warnings.simplefilter("error")
         out.write(tmp_path / "out.fits")
     assert CCDData.read(tmp_path / "out.fits").meta["subtract_bias"].startswith("ccd=")
+
+
+def test_unparsable_wcs_cards_do_not_survive(pair, tmp_path):
+    # They described the source's pixel grid; after registration they would lie.
+    hdr = fits.Header({"CTYPE1": "RA---XXX", "CTYPE2": "DEC--XXX", "CRPIX1": 1.0,
+                       "CRPIX2": 1.0, "CRVAL1": 10.0, "CRVAL2": 20.0, "CDELT1": 1e-3,
+                       "CDELT2": 1e-3, "OBJECT": "kept"})
+    path = tmp_path / "badwcs.fits"
+    fits.PrimaryHDU(pair.source.copy(), header=hdr).writeto(path)
+    out = register(str(path), pair.target)
+    assert out.wcs is None
+    assert out.meta["OBJECT"] == "kept"
+    for key in ("CTYPE1", "CRPIX1", "CRVAL2", "CDELT2"):
+        assert key not in out.meta
