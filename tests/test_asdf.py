@@ -290,7 +290,8 @@ def test_roundtrip_single(key, tmp_path):
 
 
 def test_roundtrip_name_and_bounding_box(tmp_path):
-    model = SimilarityTransform(scale=1.1, rotation=0.2 * u.rad, translation_x=3.0, translation_y=4.0,
+    model = SimilarityTransform(scale=1.1, rotation=0.2 * u.rad, translation_x=3.0,
+                                translation_y=4.0,
                                 name="science-to-reference")
     model.bounding_box = ((0.0, 99.0), (0.0, 199.0))
     result = _roundtrip(model, tmp_path)
@@ -379,8 +380,8 @@ uri = "asdf://astroalign-nd.org/astroalign_nd/extensions/astroalign_nd-1.0.0"
 registered = [e for e in asdf.get_config().extensions if e.extension_uri == uri]
 assert registered, "the astroalign_nd extension was not loaded from the entry points"
 path = sys.argv[1]
-ours = SimilarityTransform(scale=1.25, rotation=np.degrees(0.4), translation_x=7.0, translation_y=-3.0,
-                           parity=-1)
+ours = SimilarityTransform(scale=1.25, rotation=np.degrees(0.4), translation_x=7.0,
+                           translation_y=-3.0, parity=-1)
 model = (models.Shift(1.0) & models.Shift(2.0)) | ours | models.Rotation2D(angle=10.0)
 single = EuclideanTransform(rotation=np.degrees(1.0), translation_x=2.0, translation_y=3.0)
 single.inverse = models.Shift(-2.0) & models.Shift(-3.0)
@@ -425,8 +426,8 @@ def test_fresh_process_uses_entry_points(tmp_path):
     assert "SimilarityTransform" in out["leaves"]
     assert out["single"] == "EuclideanTransform"
     assert out["single_user_inverse"]
-    ours = SimilarityTransform(scale=1.25, rotation=np.degrees(0.4), translation_x=7.0, translation_y=-3.0,
-                               parity=-1)
+    ours = SimilarityTransform(scale=1.25, rotation=np.degrees(0.4), translation_x=7.0,
+                               translation_y=-3.0, parity=-1)
     model = (models.Shift(1.0) & models.Shift(2.0)) | ours | models.Rotation2D(angle=10.0)
     assert_allclose(np.array(out["eval"]), np.array(model(XS, YS)), rtol=0.0, atol=1e-9)
     inverse = models.Shift(-2.0) & models.Shift(-3.0)

@@ -227,7 +227,8 @@ def test_astropy_affine_models_are_stored_as_affine():
 
 
 def test_user_inverse_is_dropped_with_warning():
-    model = SimilarityTransform(scale=1.5, rotation=0.2 * u.rad, translation_x=1.0, translation_y=2.0)
+    model = SimilarityTransform(scale=1.5, rotation=0.2 * u.rad, translation_x=1.0,
+                                translation_y=2.0)
     model.inverse = models.Shift(0.0) & models.Shift(0.0)
     with pytest.warns(AstropyUserWarning, match="user-assigned inverse"):
         header = transform_to_header(model)
