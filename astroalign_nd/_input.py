@@ -201,6 +201,26 @@ def _from_hdu(hdu, name, unit=None):
                        wcs=_header_wcs(header), meta=header, kind="fits", name=name)
 
 
+def _add_extensions(p, hdul):
+    """
+    The MASK, UNCERT and FLAGS extensions of an in-memory HDUList, as
+    `~astropy.nddata.CCDData.read` reads them from a file.
+    """
+    from astropy.nddata import InverseVariance, StdDevUncertainty, VarianceUncertainty
+
+    names = {h.name for h in hdul}
+    shape = p.data.shape[:2]
+    if "MASK" in names and np.shape(hdul["MASK"].data)[:2] == shape:
+        p.mask = _user_mask(p.data, np.asarray(hdul["MASK"].data).astype(bool))
+    if "UNCERT" in names and np.shape(hdul["UNCERT"].data) == p.data.shape:
+        cls = {"StdDevUncertainty": StdDevUncertainty, "VarianceUncertainty": VarianceUncertainty,
+               "InverseVariance": InverseVariance}.get(
+            hdul["UNCERT"].header.get("UTYPE"), StdDevUncertainty)
+        p.uncertainty = cls(np.array(hdul["UNCERT"].data))
+    if "FLAGS" in names and np.shape(hdul["FLAGS"].data)[:2] == shape:
+        p.flags = np.array(hdul["FLAGS"].data)
+
+
 def _as_unit(unit):
     return None if unit is None else u.Unit(unit)
 
@@ -377,7 +397,9 @@ def parse_input(obj: Any, name: str = "input", *, hdu: int | str | tuple | None 
     if isinstance(obj, (str, os.PathLike)):
         return _read_path(obj, name, hdu, unit)
     if isinstance(obj, fits.HDUList):
-        return _from_hdu(obj[_image_hdu_index(obj, hdu, name, "the HDUList")], name, unit)
+        p = _from_hdu(obj[_image_hdu_index(obj, hdu, name, "the HDUList")], name, unit)
+        _add_extensions(p, obj)
+        return p
     if isinstance(obj, (fits.PrimaryHDU, fits.ImageHDU, fits.CompImageHDU)):
         return _from_hdu(obj, name, unit)
     if isinstance(obj, Table):

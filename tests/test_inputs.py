@@ -518,3 +518,13 @@ def test_unparsable_wcs_cards_do_not_survive(pair, tmp_path):
     assert out.meta["OBJECT"] == "kept"
     for key in ("CTYPE1", "CRPIX1", "CRVAL2", "CDELT2"):
         assert key not in out.meta
+
+
+@pytest.mark.parametrize("cls", UNCERTAINTIES)
+def test_hdulist_in_memory_keeps_extensions(pair, tmp_path, cls):
+    ccd = _source_ccd(pair, cls)
+    path = _write(ccd, tmp_path / "src.fits")
+    with fits.open(path) as hdul:
+        out = register(hdul, pair.target)
+    expected = register(ccd, pair.target)
+    _assert_same_frame(out, expected, cls)
