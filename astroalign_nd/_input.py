@@ -159,20 +159,23 @@ def _catalog_points(obj, name):
 
 
 def _header_unit(header, name):
-    """The unit of a header's BUNIT (None when absent), as CCDData.read parses it."""
+    """
+    The unit of a header's BUNIT (None when absent), as CCDData.read parses it.
+
+    A unit astropy does not know (``W/m^2-sr``) is kept as it is written,
+    as an `~astropy.units.UnrecognizedUnit`: registration does not need it,
+    and the output's BUNIT keeps it.
+    """
+    from astropy.nddata import CCDData
+
     value = header.get("BUNIT")
     if value is None or not str(value).strip():
         return None
     text = str(value).strip()
     if text.lower() == "adu":
         text = "adu"
-    try:
-        return u.Unit(text)
-    except ValueError:
-        raise ValueError(
-            f"{name}: the header's BUNIT {value!r} is not a unit astropy understands; fix "
-            "the header, or pass the image as CCDData with its unit."
-        ) from None
+    text = CCDData.known_invalid_fits_unit_strings.get(text, text)
+    return u.Unit(text, parse_strict="silent")
 
 
 def _header_wcs(header):
@@ -268,7 +271,10 @@ def _read_fits(path, name, hdu, unit):
     has_flags = "FLAGS" in ext_names or any(n.startswith("FLAGS_") for n in ext_names)
     # CCDData needs a unit: a file without BUNIT gets the caller's (or adu),
     # but is reported as unit-less so that the output's default applies.
-    read_unit = None if file_unit is not None else (unit if unit is not None else "adu")
+    if isinstance(file_unit, u.UnrecognizedUnit):
+        read_unit = file_unit  # CCDData.read refuses it; given, it is kept as written
+    else:
+        read_unit = None if file_unit is not None else (unit if unit is not None else "adu")
     with warnings.catch_warnings():
         # Non-standard WCS keywords are fixed silently, not warned about per frame.
         warnings.simplefilter("ignore", FITSFixedWarning)

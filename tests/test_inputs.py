@@ -146,8 +146,18 @@ def test_unit_fallback_and_bunit(pair, tmp_path):
     bad = tmp_path / "bad.fits"
     fits.PrimaryHDU(pair.source.copy(), header=fits.Header({"BUNIT": "furlongs/fortnite"})
                     ).writeto(bad)
-    with pytest.raises(ValueError, match="BUNIT"):
-        register(str(bad), pair.target)
+    # a BUNIT astropy does not know is kept as written (registration needs no unit)
+    out = register(str(bad), pair.target)
+    assert isinstance(out.unit, u.UnrecognizedUnit)
+    assert out.unit.to_string() == "furlongs/fortnite"
+    out.write(tmp_path / "out.fits")
+    with fits.open(tmp_path / "out.fits") as hdul:
+        assert hdul[0].header["BUNIT"] == "furlongs/fortnite"
+    # and astropy's list of known misspellings is used as CCDData.read uses it
+    fixed = tmp_path / "electrons.fits"
+    fits.PrimaryHDU(pair.source.copy(), header=fits.Header({"BUNIT": "ELECTRONS/S"})
+                    ).writeto(fixed)
+    assert register(str(fixed), pair.target).unit == u.electron / u.s
 
 
 # -- command line ----------------------------------------------------------------------------
