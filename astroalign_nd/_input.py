@@ -13,16 +13,18 @@ JPEG/PNG/TIFF through scikit-image), and catalogs: an
 The caller's objects are never modified: arrays are only read, and
 anything derived is a new array.
 
-`iter_frames` turns the ``sources`` of a batch (a list, a generator, an
-`~ccdproc.ImageFileCollection`) into ``(name, loader)`` pairs, one at a
-time, so that a batch never holds all its frames in memory.
+`batch_frames` turns the ``sources`` of a batch (a list, a generator, an
+`~ccdproc.ImageFileCollection`) into ``(frame, label)`` pairs: a list when
+the sources are already in memory (or are a collection's files), else an
+iterator taken one frame at a time, so that a batch never holds a
+generator's frames in memory all at once.
 """
 
 from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,7 +35,7 @@ from astropy.nddata import NDData
 from astropy.table import Table
 from astropy.wcs import WCS, FITSFixedWarning
 
-__all__ = ["ParsedInput", "parse_input", "image_and_mask", "iter_frames", "FrameLoader"]
+__all__ = ["ParsedInput", "parse_input", "image_and_mask", "iter_frames", "batch_frames"]
 
 _X_NAMES = ("x", "x_centroid", "xcentroid", "x_0", "x_fit", "xcen", "X_IMAGE")
 _Y_NAMES = ("y", "y_centroid", "ycentroid", "y_0", "y_fit", "ycen", "Y_IMAGE")
@@ -398,8 +400,6 @@ def parse_input(obj: Any, name: str = "input", *, hdu: int | str | tuple | None 
         return obj
     if isinstance(getattr(obj, "parsed", None), ParsedInput):  # a Reference
         return obj.parsed
-    if isinstance(obj, FrameLoader):
-        return obj()
     if isinstance(obj, (str, os.PathLike)):
         return _read_path(obj, name, hdu, unit)
     if isinstance(obj, fits.HDUList):
@@ -460,7 +460,7 @@ def image_and_mask(image, mask=None, name="image"):
         return image, mask
     if not isinstance(image, (str, os.PathLike, NDData, fits.HDUList, fits.PrimaryHDU,
                               fits.ImageHDU, fits.CompImageHDU, np.ma.MaskedArray,
-                              Table, ParsedInput, FrameLoader)) and not _is_header_tuple(image):
+                              Table, ParsedInput)) and not _is_header_tuple(image):
         return image, mask
     p = parse_input(image, name)
     if p.is_catalog:
@@ -476,82 +476,90 @@ def image_and_mask(image, mask=None, name="image"):
     return p.detection_image, own
 
 
-class FrameLoader:
-    """
-    A frame of a batch, read (parsed) only when called, where it runs.
-
-    Paths are read by the worker that registers them; in-memory frames are
-    parsed there too.  Picklable, for dask.distributed.
-    """
-
-    def __init__(self, frame, hdu=None, unit=None):
-        self.frame, self.hdu, self.unit = frame, hdu, unit
-
-    def __call__(self):
-        return parse_input(self.frame, "source", hdu=self.hdu, unit=self.unit)
-
-    def __repr__(self):
-        return f"FrameLoader({self.frame!r:.60})"
-
-
-def _frame_name(frame, i):
-    if isinstance(frame, (str, os.PathLike)):
-        return os.path.basename(os.fspath(frame))
-    return f"frame{i}"
-
-
 def _is_named_pair(item):
     """``(frame, file name)``, as ``ImageFileCollection.ccds(return_fname=True)`` yields."""
     return (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], str)
             and not isinstance(item[0], (str, os.PathLike)))
 
 
-def iter_frames(sources: Any, *, hdu: int | str | tuple | None = None,
-                unit: Any = None) -> Iterator[tuple[str, FrameLoader]]:
+def _is_collection(sources):
+    """A `ccdproc.ImageFileCollection` (duck-typed: ccdproc is optional)."""
+    return hasattr(sources, "files_filtered") and hasattr(sources, "location")
+
+
+def _labelled(item):
+    """``(frame, label)``: the label is a path as given, a pair's file name, or None."""
+    if _is_named_pair(item):
+        return item[0], item[1]
+    if isinstance(item, (str, os.PathLike)):
+        return item, os.fspath(item)
+    return item, None
+
+
+def iter_frames(sources: Iterable[Any]) -> Iterator[tuple[Any, str | None]]:
     """
-    Yield ``(name, loader)`` for each frame of a batch, one at a time.
+    Yield ``(frame, label)`` for each item of ``sources``, one at a time.
+
+    ``label`` names the frame's output: the path as given for a path, the
+    file name of a ``(frame, file name)`` pair (as
+    ``ImageFileCollection.ccds(return_fname=True)`` yields them), None for
+    an in-memory frame.  Nothing is read here: frames are parsed where they
+    are registered.
+    """
+    for item in sources:
+        yield _labelled(item)
+
+
+def batch_frames(sources: Any, hdu: int | str | tuple | None = None
+                 ) -> tuple[list | Iterator, int | str | tuple | None]:
+    """
+    The frames of a batch, and the HDU to read from their files.
 
     Parameters
     ----------
     sources : iterable or `~ccdproc.ImageFileCollection`
-        Paths, arrays, NDData/CCDData, ``(frame, file name)`` pairs (as
-        ``ImageFileCollection.ccds(return_fname=True)`` yields them), a
+        Paths, arrays, NDData/CCDData, ``(frame, file name)`` pairs, a
         generator of any of these, or an ``ImageFileCollection`` (its
         files, with the collection's ``ext`` as the default HDU).
-    hdu, unit
+    hdu : int, str or (str, int), optional
         As in `parse_input`.
 
-    Yields
+    Returns
+    -------
+    frames : list or iterator of ``(frame, label)``
+        A list when ``sources`` is already held in memory (a list, tuple
+        or array) or is a collection (its file paths); an iterator, taken
+        one frame at a time, for generators and other iterators.
+    hdu : int, str, tuple or None
+        ``hdu``, or the collection's ``ext`` when ``hdu`` is None.
+
+    Raises
     ------
-    name : str
-        The file name (unique within the batch: ``a.fits``, ``a.fits#1``
-        ...), or ``frame<i>`` for in-memory frames.
-    loader : `FrameLoader`
-        Call it to read the frame.
+    TypeError
+        For a single path, or anything that is not iterable.
     """
     if isinstance(sources, (str, os.PathLike)):
         raise TypeError(
             f"sources must be a list of frames; got the single path {os.fspath(sources)!r}. "
             "Pass [path], or an ImageFileCollection for a folder."
         )
-    if hasattr(sources, "files_filtered") and hasattr(sources, "location"):
-        # ccdproc.ImageFileCollection: its files, read one at a time.
-        if hdu is None:
-            hdu = getattr(sources, "ext", None)
-        sources = sources.files_filtered(include_path=True) if sources.files else []
-    try:
-        iterator = iter(sources)
-    except TypeError:
-        raise TypeError(
-            f"sources must be an iterable of frames (a list, a generator, an "
-            f"ImageFileCollection); got {type(sources).__name__}."
-        ) from None
-    seen = {}
-    for i, item in enumerate(iterator):
-        if _is_named_pair(item):
-            frame, name = item[0], os.path.basename(item[1])
-        else:
-            frame, name = item, _frame_name(item, i)
-        k = seen.get(name, 0)
-        seen[name] = k + 1
-        yield (name if k == 0 else f"{name}#{k}"), FrameLoader(frame, hdu, unit)
+    if _is_collection(sources):
+        # ccdproc.ImageFileCollection: its (filtered) files, read one at a
+        # time by whoever registers them.  ext=0 is ccdproc's default and
+        # CCDData.read's "first HDU with data"; other values choose an HDU.
+        ext = getattr(sources, "ext", None)
+        if hdu is None and ext not in (None, 0):
+            hdu = ext
+        paths = list(sources.files_filtered(include_path=True)) if sources.files else []
+        return [_labelled(p) for p in paths], hdu
+    if isinstance(sources, Iterator) or not hasattr(sources, "__len__"):
+        try:
+            iterator = iter(sources)
+        except TypeError:
+            raise TypeError(
+                f"sources must be an iterable of frames (a list, a generator, an "
+                f"ImageFileCollection); got {type(sources).__name__}."
+            ) from None
+        return iter_frames(iterator), hdu
+    # Already in memory (list, tuple, array of frames): a list of references.
+    return [_labelled(item) for item in sources], hdu

@@ -6,15 +6,17 @@ Subcommands
 -----------
 ``register SOURCE TARGET -o OUT.fits``
     Register one image onto another and write the aligned image.
-``batch TARGET SOURCES... --output-dir DIR``
-    Register several images onto one target, going on past failures.
+``batch SOURCES... -r TARGET --output-dir DIR``
+    Register several images onto one target, going on past failures
+    (``batch TARGET SOURCES...``, the older form, still works).
 ``demo --output-dir DIR``
     Simulate a star-field pair with a known transform, register it and
     report how close the recovered transform is to the truth.
 
-Exit codes: 0 on success, 1 when some frames of a ``batch`` failed, 2 on a
-usage or registration error (the message is printed to standard error,
-without a traceback).
+Exit codes: 0 on success (frames skipped by ``--skip-existing`` included), 1
+when some frames of a ``batch`` failed, 2 on a usage or registration error or
+any other error, out of memory included (one line on standard error, without
+a traceback).
 
 The package itself is imported lazily, inside the subcommands, so that
 ``astroalign-nd --help`` stays fast.
@@ -76,6 +78,14 @@ def _registration_options():
         help="number of brightest sources used to build triangles (default: %(default)s)",
     )
     group.add_argument(
+        "--max-sources",
+        type=int,
+        default=None,
+        metavar="N",
+        help="if no trustworthy match is found, control points are doubled up to N "
+        "(default: 200)",
+    )
+    group.add_argument(
         "--unit",
         default=None,
         help="unit of any input FITS file that has no BUNIT keyword (default: adu)",
@@ -87,7 +97,36 @@ def _registration_options():
         help="FITS extension to read, an index or a name (default: the first one with "
         "image data); MASK, UNCERT and FLAGS extensions are read as CCDData.read does",
     )
+    det = parent.add_argument_group(
+        "detection options", "as in astroalign_nd.find_sources; by default estimated from "
+        "each image")
+    det.add_argument("--fwhm", type=float, default=None, metavar="PX",
+                     help="stellar FWHM in pixels (give it when the estimate fails, e.g. on "
+                     "nebulosity)")
+    det.add_argument("--nsigma", type=float, default=None, metavar="K",
+                     help="detection threshold in background standard deviations")
+    det.add_argument("--peak-max", type=float, default=None, metavar="ADU",
+                     help="ignore sources whose peak exceeds this value (saturated stars)")
+    det.add_argument("--sharpness-range", type=float, nargs=2, default=None,
+                     metavar=("LO", "HI"), help="accepted DAOFIND sharpness range")
+    det.add_argument("--roundness-range", type=float, nargs=2, default=None,
+                     metavar=("LO", "HI"), help="accepted DAOFIND roundness range")
+    det.add_argument("--bin-factor", type=int, default=None, metavar="B",
+                     help="detect on the image binned BxB (for large, oversampled frames)")
+    mat = parent.add_argument_group("matching options",
+                                    "as in astroalign_nd.matching.match_points")
+    mat.add_argument("--tolerance", type=float, default=None, metavar="PX",
+                     help="largest distance (px) for a star to count as matched")
+    mat.add_argument("--max-false-alarm", type=float, default=None, metavar="P",
+                     help="largest false-alarm probability accepted (default: 1e-6)")
+    mat.add_argument("--no-mirror", dest="allow_mirror", action="store_false", default=None,
+                     help="do not consider mirrored (flipped) solutions")
     return parent
+
+
+#: CLI destinations forwarded to find_transform when given (None: the library's default).
+_FORWARDED = ("max_sources", "fwhm", "nsigma", "peak_max", "sharpness_range",
+              "roundness_range", "bin_factor", "tolerance", "max_false_alarm", "allow_mirror")
 
 
 def _build_parser():
@@ -120,23 +159,40 @@ def _build_parser():
         "batch",
         parents=[reg_opts],
         help="register several images onto one target",
-        description="Register each SOURCE onto the pixel grid of TARGET, writing "
-        "DIR/<name>_aligned.fits for each. A frame that fails is reported and skipped; "
-        "the exit code is 1 if any frame failed.",
+        description="Register each SOURCE onto TARGET, writing DIR/<name>_aligned.fits for "
+        "each, and print each frame's line as soon as it is done. Give the target with "
+        "-r/--reference (sources first, as in register and in the Python API "
+        "register_batch(sources, target)); without -r, the first image is the target (the "
+        "older form 'batch TARGET SOURCES...'). A frame that fails is reported and the "
+        "others go on; the exit code is 1 if any frame failed.",
     )
-    p.add_argument("target", metavar="TARGET", help="image that defines the output grid")
-    p.add_argument("sources", metavar="SOURCES", nargs="+",
-                   help="images to be transformed (FITS, or JPEG/PNG/TIFF)")
+    p.add_argument("images", metavar="SOURCES", nargs="+",
+                   help="images to be transformed (FITS, or JPEG/PNG/TIFF); without "
+                   "-r/--reference, the first one is the target")
+    p.add_argument("-r", "--reference", metavar="TARGET", default=None,
+                   help="image that defines the output grid")
     p.add_argument("--output-dir", required=True, metavar="DIR",
                    help="folder for the aligned images (created if needed)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument("--skip-existing", action="store_true",
+                   help="resume: keep complete outputs already in DIR and report those frames "
+                   "as skipped")
+    p.add_argument("--canvas", choices=("reference", "union"), default="reference",
+                   help="output grid: the reference's (default), or 'union', a grid holding "
+                   "every frame (for dithered and mosaic sets)")
+    p.add_argument("--summary", metavar="FILE.ecsv", default=None,
+                   help="write one row per frame (name, status, matches, RMS, false alarm, "
+                   "seconds, error) to this ECSV (or .csv) table")
+    p.add_argument("--workers", type=int, default=0, metavar="N",
+                   help="run the frames in N local worker processes (default: one after the "
+                   "other in this process)")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="run the frames on this dask.distributed scheduler "
                    "(e.g. tcp://host:8786)")
-    p.add_argument("--workers", type=int, default=0, metavar="N",
-                   help="start a local dask.distributed cluster of N worker processes "
-                   "(default: run in this process)")
-    p.add_argument("--progress", action="store_true", help="show a progress bar")
+    p.add_argument("--progress", dest="progress", action="store_true", default=None,
+                   help="show a progress bar (default: when standard error is a terminal)")
+    p.add_argument("--no-progress", dest="progress", action="store_false",
+                   help="never show a progress bar")
     p.set_defaults(func=_cmd_batch)
 
     p = sub.add_parser(
@@ -161,13 +217,18 @@ def _build_parser():
 
 
 def _registration_kwargs(args):
-    return dict(
+    kwargs = dict(
         transform_type=args.transform_type,
         order=args.order,
         conserve_flux=args.conserve_flux,
         n_sources=args.n_sources,
         hdu=_hdu(args.hdu),
     )
+    for name in _FORWARDED:
+        value = getattr(args, name, None)
+        if value is not None:
+            kwargs[name] = tuple(value) if isinstance(value, list) else value
+    return kwargs
 
 
 def _hdu(value):
@@ -178,9 +239,26 @@ def _hdu(value):
 
 
 def _check_writable(path, overwrite):
-    """Refuse to replace an existing file unless ``overwrite`` is set."""
-    if os.path.exists(path) and not overwrite:
-        raise CLIError(f"output file {path!r} already exists; pass --overwrite to replace it.")
+    """Refuse, before any work, a path that cannot take the output."""
+    from astroalign_nd.io.write import check_output_path
+
+    try:
+        check_output_path(path, overwrite)
+    except FileExistsError:
+        raise CLIError(f"output file {path!r} already exists; pass --overwrite to replace "
+                       "it.") from None
+
+
+def _check_output_dir(path):
+    from astroalign_nd.io.write import check_writable_dir
+
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise CLIError(f"--output-dir {path!r} is a file, not a folder.")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as exc:
+        raise CLIError(f"cannot create output folder {path!r}: {exc.strerror or exc}.") from None
+    check_writable_dir(path)
 
 
 def _check_input(path):
@@ -234,11 +312,12 @@ def _max_corner_error(recovered, truth, shape):
 
 def _cmd_register(args):
     import astroalign_nd
+    from astroalign_nd.io.write import write_ccddata
 
     _check_writable(args.output, args.overwrite)
     aligned = astroalign_nd.register(_check_input(args.source), _check_input(args.target),
                                      unit=args.unit, **_registration_kwargs(args))
-    aligned.write(args.output, overwrite=args.overwrite, hdu_flags="FLAGS")
+    write_ccddata(aligned, args.output, overwrite=args.overwrite, hdu_flags="FLAGS")
     q = aligned.meta
     print(f"{_describe(astroalign_nd.transform_from_header(q))}; {q['AATNMAT']} matched "
           f"stars, RMS {q['AATRMS']:.3f} px")
@@ -246,41 +325,105 @@ def _cmd_register(args):
     return 0
 
 
+def _frame_line(f):
+    if f.status == "failed":
+        return f"{f.name}: FAILED ({f.error})"
+    q = f.quality or {}
+    fig = []
+    if "n_matches" in q:
+        fig.append(f"{q['n_matches']} stars")
+    if "rms" in q:
+        fig.append(f"RMS {q['rms']:.3f} px")
+    if "log10_false_alarm" in q:
+        fig.append(f"log10 FA {q['log10_false_alarm']:.1f}")
+    what = "ok" if f.status == "registered" else "skipped (complete output there)"
+    return f"{f.name}: {what} -> {f.output} ({', '.join(fig)}; {f.seconds:.1f} s)"
+
+
 def _cmd_batch(args):
     import astroalign_nd
 
-    _check_input(args.target)
-    client = cluster = None
-    if args.scheduler or args.workers:
+    if args.reference is not None:
+        target, sources = args.reference, list(args.images)
+    else:
+        if len(args.images) < 2:
+            raise CLIError("give the target with -r/--reference TARGET, or as the first of "
+                           "at least two images ('batch TARGET SOURCES...').")
+        target, sources = args.images[0], list(args.images[1:])
+    _check_input(target)
+    for src in sources:
+        _check_input(src)
+    if args.workers < 0:
+        raise CLIError(f"--workers must be 0 or more; got {args.workers}.")
+    if args.scheduler and args.workers:
+        raise CLIError("give --workers (local processes) or --scheduler (a dask.distributed "
+                       "cluster), not both.")
+    _check_output_dir(args.output_dir)
+    if args.summary is not None:
+        from astroalign_nd.io.write import check_output_path
+
         try:
-            from dask.distributed import Client, LocalCluster
+            check_output_path(args.summary, args.overwrite or args.skip_existing,
+                              extensions=(".ecsv", ".csv"))
+        except FileExistsError:
+            raise CLIError(f"summary file {args.summary!r} already exists; pass --overwrite "
+                           "(or --skip-existing) to replace it.") from None
+
+    progress = args.progress if args.progress is not None else sys.stderr.isatty()
+    client = None
+    if args.scheduler:
+        try:
+            from dask.distributed import Client
         except ImportError:
-            raise CLIError("--scheduler/--workers need dask.distributed: "
+            raise CLIError("--scheduler needs dask.distributed: "
                            "pip install 'astroalign_nd[dask]'") from None
+
+    n = len(sources)
+    if args.canvas == "union":
+        print(f"union canvas: finding the {n} transforms first, then resampling", flush=True)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n, unit="frame", file=sys.stderr)
+    done = []
+
+    def report(f):
+        # Printed as each frame finishes; a night's log is useful while it runs.
+        done.append(f)
+        line = f"[{len(done)}/{n}] {_frame_line(f)}"
+        if bar is not None:
+            bar.write(line, file=sys.stdout)
+            sys.stdout.flush()
+            bar.update(1)
+        else:
+            print(line, flush=True)
+
+    try:
         if args.scheduler:
             client = Client(args.scheduler)
-        else:
-            cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1,
-                                   dashboard_address=None)
-            client = Client(cluster)
-    try:
-        kwargs = _registration_kwargs(args)
         result = astroalign_nd.register_batch(
-            args.sources, args.target, output_dir=args.output_dir, overwrite=args.overwrite,
-            client=client, progress=args.progress, unit=args.unit, **kwargs)
+            sources, target, output_dir=args.output_dir, overwrite=args.overwrite,
+            skip_existing=args.skip_existing, canvas=args.canvas, client=client,
+            workers=args.workers or None, callback=report, unit=args.unit,
+            **_registration_kwargs(args))
     finally:
+        if bar is not None:
+            bar.close()
         if client is not None:
             client.close()
-        if cluster is not None:
-            cluster.close()
-    for i, f in enumerate(result.frames, start=1):
-        prefix = f"[{i}/{len(result.frames)}] {args.sources[i - 1]}"
-        if f.ok:
-            print(f"{prefix}: ok -> {f.output} ({f.quality['n_matches']} stars, "
-                  f"RMS {f.quality['rms']:.3f} px)")
-        else:
-            print(f"{prefix}: FAILED ({f.error})")
+    if args.canvas == "union":
+        ny, nx = result.canvas_shape
+        print(f"canvas: {nx}x{ny} px, pixel (0, 0) at reference pixel "
+              f"{tuple(int(v) for v in result.canvas_offset)}")
     print(result.summary())
+    if args.summary is not None:
+        from astroalign_nd.io.write import atomic_write
+
+        fmt = "ascii.ecsv" if args.summary.lower().endswith(".ecsv") else "ascii.csv"
+        with atomic_write(args.summary, overwrite=True) as tmp:
+            result.to_table().write(tmp, format=fmt, overwrite=True)
+        print(f"wrote {args.summary}")
     return 1 if result.failed else 0
 
 
@@ -289,14 +432,15 @@ def _cmd_demo(args):
     from astropy.nddata import CCDData
 
     import astroalign_nd
+    from astroalign_nd.io.write import write_ccddata
     from astroalign_nd.simulate import simulate_pair
 
     out_dir = args.output_dir
     paths = {name: os.path.join(out_dir, f"{name}.fits")
              for name in ("source", "target", "aligned")}
+    _check_output_dir(out_dir)
     for path in paths.values():
         _check_writable(path, args.overwrite)
-    os.makedirs(out_dir, exist_ok=True)
 
     pair = simulate_pair(
         shape=(512, 512),
@@ -308,11 +452,11 @@ def _cmd_demo(args):
     )
     source = CCDData(pair.source, unit=u.adu)
     target = CCDData(pair.target, unit=u.adu)
-    source.write(paths["source"], overwrite=args.overwrite)
-    target.write(paths["target"], overwrite=args.overwrite)
+    write_ccddata(source, paths["source"], overwrite=args.overwrite)
+    write_ccddata(target, paths["target"], overwrite=args.overwrite)
 
     aligned = astroalign_nd.register(source, target)
-    aligned.write(paths["aligned"], overwrite=args.overwrite)
+    write_ccddata(aligned, paths["aligned"], overwrite=args.overwrite)
 
     # The registered frame records how it was made: rebuild the transform.
     recovered = astroalign_nd.transform_from_header(aligned.meta)
@@ -376,12 +520,26 @@ def main(argv=None):
         errors = _expected_errors()
     except ImportError as exc:
         return _error(f"could not import astroalign_nd: {exc}")
+    import warnings
+
+    def one_line_warning(message, category, filename, lineno, file=None, line=None):
+        print(f"{PROG}: warning: {message}", file=sys.stderr)
+
+    old_showwarning = warnings.showwarning
+    warnings.showwarning = one_line_warning
     try:
         return args.func(args)
     except errors as exc:
         return _error(str(exc) or type(exc).__name__)
+    except MemoryError as exc:
+        return _error(f"out of memory{': ' + str(exc) if str(exc) else ''}; try a smaller "
+                      "--max-sources or --n-sources, --bin-factor, or fewer --workers.")
     except KeyboardInterrupt:
         return _error("interrupted.")
+    except Exception as exc:  # noqa: BLE001 - never a traceback on the command line
+        return _error(f"{type(exc).__name__}: {exc}")
+    finally:
+        warnings.showwarning = old_showwarning
 
 
 if __name__ == "__main__":

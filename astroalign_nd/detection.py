@@ -248,7 +248,7 @@ def estimate_fwhm(data, *, mask=None, n_stars=30):
     if len(cand["x"]) == 0:
         return float("nan")
     cand = _recenter(data, mask, cand, b, None)
-    return _estimate_fwhm(data, mask, cand, n_max=max(3 * n_stars, 30)).fwhm
+    return _estimate_fwhm(data, mask, cand, noise, n_max=max(5 * n_stars, 30)).fwhm
 
 
 def _auto_bin(shape):
@@ -443,7 +443,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
         return tab
 
     # Stage 2: the FWHM of the population of compact sources.
-    est = _estimate_fwhm(data, mask, cand)
+    est = _estimate_fwhm(data, mask, cand, noise)
     tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
     tab.meta["fwhm_source"] = "estimate"
     if est.doubtful or _too_few(tab, cand, n_sources):
@@ -505,7 +505,7 @@ def _log_mode(values, width=0.1):
     return float(10 ** np.median(lv[close])), float(close.mean())
 
 
-def _estimate_fwhm(data, mask, cand, n_max=100, half=14):
+def _estimate_fwhm(data, mask, cand, noise=None, n_max=150, half=14):
     """
     Stage 2: FWHM from the population of compact candidates.
 
@@ -517,7 +517,7 @@ def _estimate_fwhm(data, mask, cand, n_max=100, half=14):
     hot pixels (narrower) do not move it.  Stars wider than the cutouts
     can measure are measured on a binned copy.
     """
-    fw, ok = _candidate_fwhms(data, mask, cand, n_max, half)
+    fw, ok = _candidate_fwhms(data, mask, cand, n_max, half, noise)
     vals = fw[ok]
     wide = np.isfinite(fw) & (fw >= half / 1.5 - 0.5)
     if vals.size >= 10:
@@ -539,7 +539,7 @@ def _estimate_fwhm(data, mask, cand, n_max=100, half=14):
             if len(bc["x"]) < 3:
                 break
             bc = _recenter(binned, bmask, bc, 1, None)
-            bfw, bok = _candidate_fwhms(binned, bmask, bc, n_max, half)
+            bfw, bok = _candidate_fwhms(binned, bmask, bc, n_max, half, bnoise)
             bwide = np.isfinite(bfw) & (bfw >= half / 1.5 - 0.5)
             if bok.sum() >= 3 and bwide.sum() < 0.5 * (bok.sum() + bwide.sum()):
                 mode, frac = _log_mode(bfw[bok])
@@ -553,13 +553,9 @@ def _estimate_fwhm(data, mask, cand, n_max=100, half=14):
     return _FwhmEstimate(np.clip(mode, 1.0, half / 1.5), frac < 0.3 or vals.size < 8)
 
 
-def _candidate_fwhms(data, mask, cand, n_max, half):
+def _candidate_fwhms(data, mask, cand, n_max, half, noise=None):
     """FWHM of each of the first ``n_max`` candidates, and which are usable."""
-    # Bright candidates only: faint ones are mostly noise peaks, whose
-    # width is the noise's correlation length, not the stars'.
-    top = np.flatnonzero(cand["snr"] >= 10.0)[:n_max]
-    if top.size < 5:
-        top = np.arange(min(n_max, len(cand["x"])))
+    top = np.arange(min(n_max, len(cand["x"])))
     x, y, bkg = cand["x"][top], cand["y"][top], cand["bkg"][top]
     xc = np.round(x).astype(int)
     yc = np.round(y).astype(int)
@@ -574,12 +570,20 @@ def _candidate_fwhms(data, mask, cand, n_max, half):
     # stars a biased one; cutouts that leave the frame or touch a mask a
     # wrong one (overscan strips, frame edges).
     inner = ~bad[:, half - 3:half + 4, half - 3:half + 4].any(axis=(1, 2))
-    ok = np.isfinite(fwhm) & (fwhm > 1.0) & (fwhm < half / 1.5) & inner
+    ok = np.isfinite(fwhm) & (fwhm > 0.7) & (fwhm < half / 1.5) & inner
     ok &= bad.mean(axis=(1, 2)) < 0.25
     if ok.sum() >= 3:
         sat = peak >= 0.98 * np.max(peak[ok])
         if (sat & ok).sum() >= 2:  # several equal peaks: a saturation plateau
             ok &= ~sat
+    # Bright peaks only, when there are enough: faint candidates are mostly
+    # noise peaks, whose width is the noise's correlation length, not the
+    # stars'.  The full-resolution peak counts (binning that drops each
+    # block's brightest pixel hides undersampled stars).
+    if noise is not None and np.isfinite(noise) and noise > 0:
+        bright = ok & (peak >= 10.0 * noise)
+        if bright.sum() >= 5:
+            ok = bright
     return fwhm, ok
 
 
@@ -714,7 +718,9 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     xs = lx[sel]
     ys = ly[sel]
     if opts["refine_centroids"]:
-        sigma = np.full(len(sel), fwhm / _GAUSS_SIGMA_TO_FWHM)
+        # A window narrower than ~2 px follows the pixel grid, not the star
+        # (pixel-phase bias of undersampled stars): floor its width.
+        sigma = np.full(len(sel), max(fwhm, _MIN_WINDOW_FWHM) / _GAUSS_SIGMA_TO_FWHM)
         xs, ys = _windowed_centroid(cut[kk], bad[kk], xs, ys, sigma)
         # A refinement that wandered away means a blend: keep DAOFIND's.
         moved = np.hypot(xs - lx[sel], ys - ly[sel]) > 0.5 * fwhm
@@ -783,6 +789,8 @@ def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
 
 
 _MAX_FULL_RES_FWHM = 10.0
+#: Narrowest Gaussian window (as an FWHM, pixels) of the centroid refinement.
+_MIN_WINDOW_FWHM = 4.0
 
 
 def _find_on_binned(data, mask, k, fwhm, opts):

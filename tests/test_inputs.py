@@ -286,7 +286,9 @@ def test_generator_is_consumed_one_frame_at_a_time(pair, tmp_path):
     gen_paths = (str(p) for p in [_write(CCDData(pair.source.copy(), unit="adu"),
                                          tmp_path / "g.fits")] * 2)
     result = register_batch(gen_paths, pair.target)
-    assert [f.name for f in result.frames] == ["g.fits", "g.fits#1"]
+    # the n-th use of a name is shown as name#n, as a list shows it (and as
+    # its output is renamed <stem>_n<suffix>.fits)
+    assert [f.name for f in result.frames] == ["g.fits", "g.fits#2"]
 
 
 def test_batch_bad_sources(pair):
