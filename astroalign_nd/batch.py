@@ -54,8 +54,10 @@ class FrameResult:
     Attributes
     ----------
     name : str
-        File name (the path as given when two inputs share a file name), or
-        ``frame<i>`` for in-memory inputs.
+        File name (the path as given when two inputs of a list share a file
+        name; ``<name>#2``, ``#3``... for a generator's repeated names), the
+        file name of a ``(frame, file name)`` pair, or ``frame<i>`` for
+        in-memory inputs.
     status : {'registered', 'skipped', 'failed'}
         'skipped': a complete output was already there (``skip_existing``);
         its transform and quality are read back from that file's header.
