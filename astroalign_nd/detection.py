@@ -505,7 +505,7 @@ def _log_mode(values, width=0.1):
     return float(10 ** np.median(lv[close])), float(close.mean())
 
 
-def _estimate_fwhm(data, mask, cand, noise=None, n_max=150, half=14):
+def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
     """
     Stage 2: FWHM from the population of compact candidates.
 

@@ -20,7 +20,7 @@ from astropy import log
 
 from ._input import parse_input
 from .detection import find_sources
-from .exceptions import TransformNotFoundError
+from .exceptions import TooFewSourcesError, TransformNotFoundError
 from .asterisms import build_asterisms
 from .matching import match_points
 from .transforms import transform_class
@@ -122,6 +122,10 @@ class Reference:
                     strong = table[table["snr"] >= 5.0]
                     if len(strong) >= n_sources:
                         table = strong
+                if len(table) < 3:
+                    raise TooFewSourcesError(_too_few_advice(
+                        getattr(self, "role", "reference"), len(table), table.meta,
+                        user_nsigma or 3.0, "fwhm" in opts))
                 ny, nx = p.shape
                 pts = np.column_stack([np.asarray(table["x"], float),
                                        np.asarray(table["y"], float)])
@@ -147,10 +151,24 @@ def _no_detections_warning():
     return NoDetectionsWarning
 
 
+def _too_few_advice(role, n, meta, nsigma, user_fwhm):
+    """A TooFewSourcesError message whose advice fits what detection saw."""
+    fwhm = meta.get("fwhm", float("nan"))
+    msg = (f"the {role} gave {n} usable source(s) at {nsigma:g} sigma with a stellar FWHM of "
+           f"{fwhm:.1f} px; at least 3 are needed to find a transform. ")
+    if user_fwhm:
+        return msg + ("Check fwhm (the stars' width at half maximum, in pixels), lower "
+                      "nsigma, or pass a catalog of positions.")
+    return msg + (f"If its stars are not about {fwhm:.1f} px wide, pass fwhm=<their width in "
+                  "pixels> (CLI: --fwhm); if they are and the frame is faint or sparse, lower "
+                  "nsigma; or pass a catalog of positions.")
+
+
 def _as_reference(obj, name, detect_options, hdu=None, unit=None):
     if isinstance(obj, Reference):
         return obj
     ref = Reference.__new__(Reference)
+    ref.role = name
     ref.parsed = parse_input(obj, name, hdu=hdu, unit=unit)
     ref.detect_options = detect_options
     ref._stars, ref._asterisms = {}, {}

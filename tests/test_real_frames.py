@@ -251,3 +251,12 @@ def test_real_seestar_loop_closure():
     q = np.column_stack([xx.ravel(), yy.ravel(), np.ones(xx.size)])
     d = q @ (np.asarray(tbc) @ np.asarray(tab)).T - q @ np.asarray(tac).T
     assert np.max(np.hypot(d[:, 0], d[:, 1])) < 0.4
+
+
+def test_too_few_sources_advice_names_fwhm():
+    """The refusal says what detection saw and what to pass (fwhm, nsigma, a catalog)."""
+    from astroalign_nd.exceptions import TooFewSourcesError
+
+    noise = np.random.default_rng(0).normal(100.0, 5.0, (128, 128)).astype(np.float32)
+    with pytest.raises(TooFewSourcesError, match=r"FWHM of .* px.*fwhm=.*nsigma"):
+        find_transform(noise, noise)
