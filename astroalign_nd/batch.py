@@ -841,8 +841,9 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
         outputs' headers).
     hdu : int or str, optional
         The HDU to read from FITS files (frames and target), as in
-        `~astroalign_nd.find_transform`; for an ``ImageFileCollection``,
-        its ``ext`` unless given.
+        `~astroalign_nd.find_transform`; by default the first one with
+        image data.  The files of an ``ImageFileCollection`` are read with
+        its ``ext`` unless ``hdu`` is given.
     **options
         As in `~astroalign_nd.find_transform` (``transform_type``,
         ``n_sources``, ``max_sources``, detection and matching options).

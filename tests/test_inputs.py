@@ -207,6 +207,11 @@ def test_cli_hdu_option(pair, tmp_path, capsys):
     assert main(["register", str(path), target_file, "-o", str(out), "--overwrite",
                  "--hdu", "NOPE"]) == 2
     assert "has no HDU 'NOPE'" in capsys.readouterr().err
+    # batch: every frame and the target read from that extension
+    assert main(["batch", str(path), "-r", target_file, "--output-dir", str(tmp_path / "b"),
+                 "--hdu", "SCI2"]) == 0
+    assert CCDData.read(tmp_path / "b" / "mef_aligned.fits").meta["EXTNAME"] == "SCI2"
+    capsys.readouterr()
 
 
 # -- register_batch ---------------------------------------------------------------------------
