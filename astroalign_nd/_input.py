@@ -5,22 +5,37 @@ The ONE input parser: everything the public functions accept becomes a
 
 Accepted: 2-D (or channels-last 3-D) ndarrays, numpy masked arrays,
 `~astropy.nddata.NDData` / `~astropy.nddata.CCDData`, FITS HDUs and
-HDULists, file paths (FITS through astropy's readers; JPEG/PNG/TIFF through
-scikit-image), and catalogs: an `~astropy.table.Table` with x/y columns or
-an (N, 2) array of positions.  The caller's objects are never modified:
-arrays are only read, and anything derived is a new array.
+HDULists, ``(array, header)`` and ``(array, WCS)`` tuples (as reproject
+takes them), file paths (FITS read as `~astropy.nddata.CCDData.read` reads
+them: data, ``MASK``, ``UNCERT`` and ``FLAGS``, unit from ``BUNIT``;
+JPEG/PNG/TIFF through scikit-image), and catalogs: an
+`~astropy.table.Table` with x/y columns or an (N, 2) array of positions.
+The caller's objects are never modified: arrays are only read, and
+anything derived is a new array.
+
+`batch_frames` turns the ``sources`` of a batch (a list, a generator, an
+`~ccdproc.ImageFileCollection`) into ``(frame, label)`` pairs: a list when
+the sources are already in memory (or are a collection's files), else an
+iterator taken one frame at a time, so that a batch never holds a
+generator's frames in memory all at once.
 """
 
+from __future__ import annotations
+
 import os
+import warnings
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from astropy import units as u
 from astropy.io import fits
 from astropy.nddata import NDData
 from astropy.table import Table
+from astropy.wcs import WCS, FITSFixedWarning
 
-__all__ = ["ParsedInput", "parse_input"]
+__all__ = ["ParsedInput", "parse_input", "image_and_mask", "iter_frames", "batch_frames"]
 
 _X_NAMES = ("x", "x_centroid", "xcentroid", "x_0", "x_fit", "xcen", "X_IMAGE")
 _Y_NAMES = ("y", "y_centroid", "ycentroid", "y_0", "y_fit", "ycen", "Y_IMAGE")
@@ -41,13 +56,15 @@ class ParsedInput:
         pixels are not included: every stage treats them as masked itself.
     uncertainty : `~astropy.nddata.NDUncertainty` or None
     unit : `~astropy.units.Unit` or None
+    flags : ndarray, `~astropy.nddata.FlagCollection` or None
+        Per-pixel flags (resampled by nearest neighbour).
     wcs : `~astropy.wcs.WCS` or None
     meta : dict-like
         A copy of the header/meta.
     points : (N, 2) ndarray or None
         Catalog positions (brightest first) for catalog input.
     kind : str
-        'array', 'masked', 'nddata', 'fits', 'image-file' or 'catalog'.
+        'array', 'masked', 'nddata', 'fits', 'tuple', 'image-file' or 'catalog'.
     name : str
         A short description for messages and history.
     """
@@ -56,6 +73,7 @@ class ParsedInput:
     mask: object = None
     uncertainty: object = None
     unit: object = None
+    flags: object = None
     wcs: object = None
     meta: dict = field(default_factory=dict)
     points: object = None
@@ -121,6 +139,7 @@ def _user_mask(data, mask):
 
 
 def _catalog_points(obj, name):
+    """(N, 2) finite positions; masked entries (Table or masked array) are left out."""
     if isinstance(obj, Table):
         cols = {c.lower(): c for c in obj.colnames}
         xc = next((cols[n.lower()] for n in _X_NAMES if n.lower() in cols), None)
@@ -130,43 +149,150 @@ def _catalog_points(obj, name):
                 f"{name} is a Table without position columns; it needs columns named 'x' and "
                 f"'y' (or one of {_X_NAMES}); it has {obj.colnames}."
             )
-        pts = np.column_stack([np.asarray(obj[xc], float), np.asarray(obj[yc], float)])
+        masked = np.ma.getmaskarray(obj[xc]) | np.ma.getmaskarray(obj[yc])
+        pts = np.column_stack([np.ma.getdata(obj[xc]).astype(float),
+                               np.ma.getdata(obj[yc]).astype(float)])
     else:
-        pts = np.asarray(obj, dtype=float)
-    good = np.all(np.isfinite(pts), axis=1)
+        pts = np.asarray(np.ma.getdata(obj), dtype=float)
+        masked = (np.ma.getmaskarray(obj).any(axis=1) if np.ma.isMaskedArray(obj)
+                  else np.zeros(len(pts), bool))
+    good = np.all(np.isfinite(pts), axis=1) & ~masked
     return pts[good].copy()
 
 
-def _from_hdu(hdu, name):
+def _header_unit(header, name):
+    """
+    The unit of a header's BUNIT (None when absent), as CCDData.read parses it.
+
+    A unit astropy does not know (``W/m^2-sr``) is kept as it is written,
+    as an `~astropy.units.UnrecognizedUnit`: registration does not need it,
+    and the output's BUNIT keeps it.
+    """
+    from astropy.nddata import CCDData
+
+    value = header.get("BUNIT")
+    if value is None or not str(value).strip():
+        return None
+    text = str(value).strip()
+    if text.lower() == "adu":
+        text = "adu"
+    text = CCDData.known_invalid_fits_unit_strings.get(text, text)
+    return u.Unit(text, parse_strict="silent")
+
+
+def _header_wcs(header):
+    """A celestial WCS from a header, or None (a broken WCS must not stop registration)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FITSFixedWarning)
+            w = WCS(header)
+    except (ValueError, KeyError, TypeError, MemoryError):
+        # astropy.wcs raises WcsError (a ValueError) and its subclasses on
+        # invalid keywords; KeyError/TypeError for malformed cards.
+        return None
+    return w if w.has_celestial else None
+
+
+def _from_hdu(hdu, name, unit=None):
     data = hdu.data
     if data is None:
         raise ValueError(f"{name} has no image data.")
     header = hdu.header.copy()
-    unit = None
-    if "BUNIT" in header:
-        try:
-            unit = u.Unit(header["BUNIT"], parse_strict="silent")
-        except (ValueError, TypeError):
-            unit = None
-    wcs = None
-    try:
-        from astropy.wcs import WCS, FITSFixedWarning
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", FITSFixedWarning)
-            w = WCS(header)
-        if w.has_celestial:
-            wcs = w
-    except Exception:  # a broken WCS must not stop registration
-        wcs = None
+    file_unit = _header_unit(header, name)
     # The HDU's data array belongs to the caller: work on a copy.
     arr = np.array(data)
     return ParsedInput(data=_check_image_array(arr, name), mask=None,
-                       unit=unit, wcs=wcs, meta=header, kind="fits", name=name)
+                       unit=file_unit if file_unit is not None else _as_unit(unit),
+                       wcs=_header_wcs(header), meta=header, kind="fits", name=name)
 
 
-def _read_path(path, name):
+def _add_extensions(p, hdul):
+    """
+    The MASK, UNCERT and FLAGS extensions of an in-memory HDUList, as
+    `~astropy.nddata.CCDData.read` reads them from a file.
+    """
+    from astropy.nddata import InverseVariance, StdDevUncertainty, VarianceUncertainty
+
+    names = {h.name for h in hdul}
+    shape = p.data.shape[:2]
+    if "MASK" in names and np.shape(hdul["MASK"].data)[:2] == shape:
+        p.mask = _user_mask(p.data, np.asarray(hdul["MASK"].data).astype(bool))
+    if "UNCERT" in names and np.shape(hdul["UNCERT"].data) == p.data.shape:
+        cls = {"StdDevUncertainty": StdDevUncertainty, "VarianceUncertainty": VarianceUncertainty,
+               "InverseVariance": InverseVariance}.get(
+            hdul["UNCERT"].header.get("UTYPE"), StdDevUncertainty)
+        p.uncertainty = cls(np.array(hdul["UNCERT"].data))
+    if "FLAGS" in names and np.shape(hdul["FLAGS"].data)[:2] == shape:
+        p.flags = np.array(hdul["FLAGS"].data)
+
+
+def _as_unit(unit):
+    return None if unit is None else u.Unit(unit)
+
+
+def _image_hdu_index(hdul, hdu, name, where):
+    """Index of the HDU to read: ``hdu`` if given, else the first one with image data."""
+    if hdu is not None:
+        try:
+            index = hdul.index_of(hdu)
+            h = hdul[index]
+        except (KeyError, IndexError):
+            names = [h.name for h in hdul]
+            raise ValueError(
+                f"{name}: {where} has no HDU {hdu!r}; it has {len(hdul)} HDUs named "
+                f"{names}. Pass hdu= as an index or an extension name."
+            ) from None
+        if not getattr(h, "is_image", False) or h.data is None or np.ndim(h.data) < 2:
+            raise ValueError(
+                f"{name}: HDU {hdu!r} of {where} holds no image (it is a "
+                f"{type(h).__name__} with data of shape {np.shape(h.data)})."
+            )
+        return index
+    for index, h in enumerate(hdul):
+        if getattr(h, "is_image", False) and h.data is not None and np.ndim(h.data) >= 2:
+            return index
+    raise ValueError(f"{name}: {where} has no image HDU.")
+
+
+def _read_fits(path, name, hdu, unit):
+    """Read a FITS file as `~astropy.nddata.CCDData.read` does, HDU chosen by ``hdu``."""
+    from astropy.nddata import CCDData
+
+    try:
+        with fits.open(path) as hdul:
+            index = _image_hdu_index(hdul, hdu, name, repr(path))
+            header = hdul[index].header
+            primary = hdul[0].header.copy() if index != 0 and hdu is None else None
+            file_unit = _header_unit(header, name)
+            ext_names = {h.name for h in hdul}
+    except OSError as exc:
+        raise ValueError(
+            f"{name}: could not read {path!r} as FITS ({exc}). Pass a FITS, JPEG, PNG or TIFF "
+            "file, an array, or an NDData/CCDData."
+        ) from None
+    has_flags = "FLAGS" in ext_names or any(n.startswith("FLAGS_") for n in ext_names)
+    # CCDData needs a unit: a file without BUNIT gets the caller's (or adu),
+    # but is reported as unit-less so that the output's default applies.
+    if isinstance(file_unit, u.UnrecognizedUnit):
+        read_unit = file_unit  # CCDData.read refuses it; given, it is kept as written
+    else:
+        read_unit = None if file_unit is not None else (unit if unit is not None else "adu")
+    with warnings.catch_warnings():
+        # Non-standard WCS keywords are fixed silently, not warned about per frame.
+        warnings.simplefilter("ignore", FITSFixedWarning)
+        ccd = CCDData.read(path, hdu=index, unit=read_unit,
+                           hdu_flags="FLAGS" if has_flags else None)
+    if primary is not None:
+        # As CCDData.read does for an empty primary HDU: the extension's
+        # header, completed by the primary's keywords.
+        ccd.meta.extend(primary, unique=True)
+    p = _from_nddata(ccd, name)
+    p.unit = file_unit if file_unit is not None else _as_unit(unit)
+    p.kind = "fits"
+    return p
+
+
+def _read_path(path, name, hdu=None, unit=None):
     path = os.fspath(path)
     if not os.path.exists(path):
         raise ValueError(f"{name}: file not found: {path!r}.")
@@ -177,26 +303,76 @@ def _read_path(path, name):
         arr = np.asarray(imread(path))
         if arr.ndim == 3 and arr.shape[2] == 4:
             arr = arr[..., :3]  # drop alpha
-        p = ParsedInput(data=_check_image_array(arr, name), mask=None,
+        p = ParsedInput(data=_check_image_array(arr, name), mask=None, unit=_as_unit(unit),
                         kind="image-file", name=os.path.basename(path))
         return p
-    try:
-        with fits.open(path) as hdul:
-            hdu = next((h for h in hdul if getattr(h, "data", None) is not None
-                        and getattr(h, "is_image", True) and np.ndim(h.data) >= 2), None)
-            if hdu is None:
-                raise ValueError(f"{name}: {path!r} has no image HDU.")
-            p = _from_hdu(hdu, name)
-    except OSError as exc:
-        raise ValueError(
-            f"{name}: could not read {path!r} as FITS ({exc}). Pass a FITS, JPEG, PNG or TIFF "
-            "file, an array, or an NDData/CCDData."
-        ) from None
+    p = _read_fits(path, name, hdu, unit)
     p.name = os.path.basename(path)
     return p
 
 
-def parse_input(obj, name="input"):
+def _copy_flags(flags):
+    if flags is None:
+        return None
+    from astropy.nddata import FlagCollection
+
+    if isinstance(flags, FlagCollection):
+        out = FlagCollection(shape=flags.shape)
+        for key, value in flags.items():
+            out[key] = np.array(value)
+        return out
+    return np.array(flags)
+
+
+def _from_nddata(obj, name):
+    arr = np.asarray(obj.data)
+    _check_image_array(arr, name)
+    meta = obj.meta.copy() if obj.meta is not None else {}
+    unc = obj.uncertainty
+    if unc is not None:
+        unc = unc.__class__(np.array(unc.array), unit=unc.unit)
+    return ParsedInput(
+        data=arr, mask=_user_mask(arr, obj.mask), uncertainty=unc, unit=obj.unit,
+        flags=_copy_flags(getattr(obj, "flags", None)),
+        wcs=obj.wcs if getattr(obj.wcs, "has_celestial", False) else None,
+        meta=meta, kind="nddata", name=type(obj).__name__)
+
+
+def _is_header_tuple(obj):
+    return (isinstance(obj, tuple) and len(obj) == 2
+            and isinstance(obj[1], (fits.Header, WCS)))
+
+
+def _from_tuple(obj, name, unit):
+    """reproject's ``(array, header)`` and ``(array, WCS)`` forms."""
+    data, desc = obj
+    if isinstance(data, (NDData, str, os.PathLike, fits.HDUList, fits.PrimaryHDU,
+                         fits.ImageHDU)):
+        raise TypeError(
+            f"{name}: the first element of an (array, header) tuple must be an array; got "
+            f"{type(data).__name__}. Pass that object on its own."
+        )
+    if np.ma.isMaskedArray(data):
+        arr, mask = np.asarray(np.ma.getdata(data)), np.ma.getmaskarray(data)
+    else:
+        arr, mask = np.asarray(data), None
+    _check_image_array(arr, name)
+    if isinstance(desc, fits.Header):
+        meta = desc.copy()
+        file_unit = _header_unit(meta, name)
+        wcs = _header_wcs(meta)
+    else:
+        meta, file_unit = fits.Header(), None
+        wcs = desc.deepcopy() if desc.has_celestial else None
+    if wcs is not None and wcs.pixel_n_dim != 2:
+        wcs = wcs.celestial if wcs.celestial.pixel_n_dim == 2 else None
+    return ParsedInput(data=arr, mask=_user_mask(arr, mask),
+                       unit=file_unit if file_unit is not None else _as_unit(unit),
+                       wcs=wcs, meta=meta, kind="tuple", name="array")
+
+
+def parse_input(obj: Any, name: str = "input", *, hdu: int | str | tuple | None = None,
+                unit: Any = None) -> ParsedInput:
     """
     Turn any accepted input into a `ParsedInput`.
 
@@ -206,6 +382,12 @@ def parse_input(obj, name="input"):
         See the module docstring for what is accepted.
     name : str
         Used in error messages ('source', 'target').
+    hdu : int, str or (str, int), optional
+        The HDU of a FITS path or `~astropy.io.fits.HDUList` to read (an
+        index or an extension name, as in `~astropy.nddata.CCDData.read`);
+        by default the first HDU with image data.
+    unit : `~astropy.units.Unit` or str, optional
+        The unit of an input that has none (no ``BUNIT``, a bare array).
 
     Raises
     ------
@@ -219,43 +401,165 @@ def parse_input(obj, name="input"):
     if isinstance(getattr(obj, "parsed", None), ParsedInput):  # a Reference
         return obj.parsed
     if isinstance(obj, (str, os.PathLike)):
-        return _read_path(obj, name)
+        return _read_path(obj, name, hdu, unit)
     if isinstance(obj, fits.HDUList):
-        hdu = next((h for h in obj if getattr(h, "data", None) is not None
-                    and np.ndim(h.data) >= 2), None)
-        if hdu is None:
-            raise ValueError(f"{name} is an HDUList with no image HDU.")
-        return _from_hdu(hdu, name)
+        p = _from_hdu(obj[_image_hdu_index(obj, hdu, name, "the HDUList")], name, unit)
+        _add_extensions(p, obj)
+        return p
     if isinstance(obj, (fits.PrimaryHDU, fits.ImageHDU, fits.CompImageHDU)):
-        return _from_hdu(obj, name)
+        return _from_hdu(obj, name, unit)
     if isinstance(obj, Table):
         return ParsedInput(points=_catalog_points(obj, name), kind="catalog", name="catalog")
     if isinstance(obj, NDData):
-        arr = np.asarray(obj.data)
-        _check_image_array(arr, name)
-        meta = obj.meta.copy() if obj.meta is not None else {}
-        unc = obj.uncertainty
-        if unc is not None:
-            unc = unc.__class__(np.array(unc.array), unit=unc.unit)
-        return ParsedInput(
-            data=arr, mask=_user_mask(arr, obj.mask), uncertainty=unc, unit=obj.unit,
-            wcs=obj.wcs if getattr(obj.wcs, "has_celestial", False) else None,
-            meta=meta, kind="nddata", name=type(obj).__name__)
+        p = _from_nddata(obj, name)
+        if p.unit is None:
+            p.unit = _as_unit(unit)
+        return p
+    if _is_header_tuple(obj):
+        return _from_tuple(obj, name, unit)
     if isinstance(obj, np.ma.MaskedArray):
         arr = np.asarray(obj.data)
+        if arr.ndim == 2 and arr.shape[1] == 2 and arr.dtype.kind in "iuf":
+            return ParsedInput(points=_catalog_points(obj, name), kind="catalog",
+                               name="catalog")
         _check_image_array(arr, name)
         m = np.ma.getmaskarray(obj)
-        return ParsedInput(data=arr, mask=_user_mask(arr, m), kind="masked",
-                           name="masked array")
+        return ParsedInput(data=arr, mask=_user_mask(arr, m), unit=_as_unit(unit),
+                           kind="masked", name="masked array")
     if isinstance(obj, (list, tuple)) or hasattr(obj, "__array__"):
-        arr = np.asarray(obj)
+        try:
+            arr = np.asarray(obj)
+        except ValueError:
+            raise TypeError(
+                f"{name} is a {type(obj).__name__} that is not an array. Pass a 2-D array, an "
+                "(array, header) or (array, WCS) tuple, an NDData/CCDData, a FITS path or a "
+                "catalog."
+            ) from None
         if arr.ndim == 2 and arr.shape[1] == 2 and arr.dtype.kind in "iuf":
             return ParsedInput(points=_catalog_points(arr, name), kind="catalog",
                                name="catalog")
         _check_image_array(arr, name)
-        return ParsedInput(data=arr, mask=None, kind="array", name="array")
+        return ParsedInput(data=arr, mask=None, unit=_as_unit(unit), kind="array",
+                           name="array")
     raise TypeError(
         f"{name} of type {type(obj).__name__} is not supported. Pass a 2-D array, a masked "
-        "array, an NDData/CCDData, a FITS HDU or path, or a catalog (Table with x/y columns "
-        "or an (N, 2) array of positions)."
+        "array, an NDData/CCDData, a FITS HDU or path, an (array, header) or (array, WCS) "
+        "tuple, or a catalog (Table with x/y columns or an (N, 2) array of positions)."
     )
+
+
+def image_and_mask(image, mask=None, name="image"):
+    """
+    The 2-D detection image and the combined mask of any image input.
+
+    Plain arrays pass through unchanged (their checks are the caller's);
+    paths, NDData, HDUs, tuples and masked arrays are parsed, and their own
+    mask is combined (OR) with ``mask``.
+    """
+    if isinstance(image, np.ndarray) and not np.ma.isMaskedArray(image):
+        return image, mask
+    if not isinstance(image, (str, os.PathLike, NDData, fits.HDUList, fits.PrimaryHDU,
+                              fits.ImageHDU, fits.CompImageHDU, np.ma.MaskedArray,
+                              Table, ParsedInput)) and not _is_header_tuple(image):
+        return image, mask
+    p = parse_input(image, name)
+    if p.is_catalog:
+        raise TypeError(f"{name} is a catalog; sources are found in images.")
+    own = p.mask
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != p.shape:
+            raise ValueError(
+                f"mask shape {mask.shape} does not match the image shape {p.shape}."
+            )
+        own = mask if own is None else (own | mask)
+    return p.detection_image, own
+
+
+def _is_named_pair(item):
+    """``(frame, file name)``, as ``ImageFileCollection.ccds(return_fname=True)`` yields."""
+    return (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], str)
+            and not isinstance(item[0], (str, os.PathLike)))
+
+
+def _is_collection(sources):
+    """A `ccdproc.ImageFileCollection` (duck-typed: ccdproc is optional)."""
+    return hasattr(sources, "files_filtered") and hasattr(sources, "location")
+
+
+def _labelled(item):
+    """``(frame, label)``: the label is a path as given, a pair's file name, or None."""
+    if _is_named_pair(item):
+        return item[0], item[1]
+    if isinstance(item, (str, os.PathLike)):
+        return item, os.fspath(item)
+    return item, None
+
+
+def iter_frames(sources: Iterable[Any]) -> Iterator[tuple[Any, str | None]]:
+    """
+    Yield ``(frame, label)`` for each item of ``sources``, one at a time.
+
+    ``label`` names the frame's output: the path as given for a path, the
+    file name of a ``(frame, file name)`` pair (as
+    ``ImageFileCollection.ccds(return_fname=True)`` yields them), None for
+    an in-memory frame.  Nothing is read here: frames are parsed where they
+    are registered.
+    """
+    for item in sources:
+        yield _labelled(item)
+
+
+def batch_frames(sources: Any, hdu: int | str | tuple | None = None
+                 ) -> tuple[list | Iterator, int | str | tuple | None]:
+    """
+    The frames of a batch, and the HDU to read from their files.
+
+    Parameters
+    ----------
+    sources : iterable or `~ccdproc.ImageFileCollection`
+        Paths, arrays, NDData/CCDData, ``(frame, file name)`` pairs, a
+        generator of any of these, or an ``ImageFileCollection`` (its
+        files, with the collection's ``ext`` as the default HDU).
+    hdu : int, str or (str, int), optional
+        As in `parse_input`.
+
+    Returns
+    -------
+    frames : list or iterator of ``(frame, label)``
+        A list when ``sources`` is already held in memory (a list, tuple
+        or array) or is a collection (its file paths); an iterator, taken
+        one frame at a time, for generators and other iterators.
+    hdu : int, str, tuple or None
+        ``hdu``, or the collection's ``ext`` when ``hdu`` is None.
+
+    Raises
+    ------
+    TypeError
+        For a single path, or anything that is not iterable.
+    """
+    if isinstance(sources, (str, os.PathLike)):
+        raise TypeError(
+            f"sources must be a list of frames; got the single path {os.fspath(sources)!r}. "
+            "Pass [path], or an ImageFileCollection for a folder."
+        )
+    if _is_collection(sources):
+        # ccdproc.ImageFileCollection: its (filtered) files, read one at a
+        # time by whoever registers them.  ext=0 is ccdproc's default and
+        # CCDData.read's "first HDU with data"; other values choose an HDU.
+        ext = getattr(sources, "ext", None)
+        if hdu is None and ext not in (None, 0):
+            hdu = ext
+        paths = list(sources.files_filtered(include_path=True)) if sources.files else []
+        return [_labelled(p) for p in paths], hdu
+    if isinstance(sources, Iterator) or not hasattr(sources, "__len__"):
+        try:
+            iterator = iter(sources)
+        except TypeError:
+            raise TypeError(
+                f"sources must be an iterable of frames (a list, a generator, an "
+                f"ImageFileCollection); got {type(sources).__name__}."
+            ) from None
+        return iter_frames(iterator), hdu
+    # Already in memory (list, tuple, array of frames): a list of references.
+    return [_labelled(item) for item in sources], hdu

@@ -10,15 +10,21 @@ atomically (`~astroalign_nd.io.atomic_write`), so an interrupted
 night can be resumed with ``skip_existing=True``.
 """
 
+from __future__ import annotations
+
+import itertools
 import os
 import time
 import warnings
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from astropy.table import Table
 
-from .exceptions import AstroalignWarning
+from ._input import batch_frames, parse_input
+from .exceptions import warn
 from .io.write import FITS_EXTENSIONS, check_writable_dir, write_ccddata
 from .registration import (Reference, _as_reference, _split_options, find_match,
                            quality_dict)
@@ -48,8 +54,10 @@ class FrameResult:
     Attributes
     ----------
     name : str
-        File name (the path as given when two inputs share a file name), or
-        ``frame<i>`` for in-memory inputs.
+        File name (the path as given when two inputs of a list share a file
+        name; ``<name>#2``, ``#3``... for a generator's repeated names), the
+        file name of a ``(frame, file name)`` pair, or ``frame<i>`` for
+        in-memory inputs.
     status : {'registered', 'skipped', 'failed'}
         'skipped': a complete output was already there (``skip_existing``);
         its transform and quality are read back from that file's header.
@@ -180,15 +188,33 @@ def _stem(name):
     return name
 
 
-def _display_names(sources):
-    """Basenames, or the path as given where two inputs share a basename."""
-    base = [os.path.basename(os.fspath(s)) if _is_path(s) else f"frame{i}"
-            for i, s in enumerate(sources)]
+def _base(label, i):
+    """A frame's short name: its file name, or ``frame<i>`` in memory."""
+    return os.path.basename(label) if label is not None else f"frame{i}"
+
+
+def _in_folder(path, folder_real):
+    """True when ``path`` (as given) names a file directly inside ``folder_real``."""
+    return os.path.realpath(os.path.dirname(os.path.abspath(path))) == folder_real
+
+
+def _located(frame, label):
+    """The input file a frame was read from, when known (it must never be written to)."""
+    if _is_path(frame):
+        return os.fspath(frame)
+    if label is not None and os.path.dirname(label):  # a pair's file name with its folder
+        return label
+    return None
+
+
+def _display_names(items):
+    """Basenames, or the label as given where two inputs share a basename."""
+    base = [_base(label, i) for i, (_, label) in enumerate(items)]
     counts = {}
     for b in base:
         counts[b] = counts.get(b, 0) + 1
-    names = [os.fspath(s) if _is_path(s) and counts[b] > 1 else b
-             for s, b in zip(sources, base)]
+    names = [label if label is not None and counts[b] > 1 else b
+             for (_, label), b in zip(items, base)]
     seen, out = {}, []
     for n in names:  # the same path given twice
         k = seen.get(n, 0)
@@ -202,17 +228,18 @@ def plan_outputs(sources, output_dir, suffix="_aligned", protected=()):
     Output file of each frame, unique by construction.
 
     A frame's natural output is ``<stem><suffix>.fits``, where ``stem`` is
-    its file name without the extension (``frame<i>`` in memory).  When two
-    frames would share it (``in/a.fits`` and ``in2/a.fits``, ``a.fits`` and
-    ``a.fit``, or names differing only in case, which collide on macOS and
-    Windows), or when it would replace an input file, the later frame in
-    input order gets ``<stem>_2<suffix>.fits`` (``_3``...), skipping every
-    name that another frame uses naturally.  The same input list always
-    gives the same names, so a resumed run finds its outputs again.
+    its file name without the extension (``frame<i>`` in memory; the file
+    name of a ``(frame, file name)`` pair).  When two frames would share it
+    (``in/a.fits`` and ``in2/a.fits``, ``a.fits`` and ``a.fit``, or names
+    differing only in case, which collide on macOS and Windows), or when it
+    would replace an input file, the later frame in input order gets
+    ``<stem>_2<suffix>.fits`` (``_3``...), skipping every name that another
+    frame uses naturally.  The same input list always gives the same names,
+    so a resumed run finds its outputs again.
 
     Parameters
     ----------
-    sources : list
+    sources : list or `~ccdproc.ImageFileCollection`
         The frames, as given to `register_batch`.
     output_dir : str
     suffix : str, optional
@@ -226,13 +253,17 @@ def plan_outputs(sources, output_dir, suffix="_aligned", protected=()):
     renamed : list of (int, str, str)
         ``(index, natural name, name used)`` for each frame renamed.
     """
-    stems = [_stem(os.path.basename(os.fspath(s))) if _is_path(s) else f"frame{i}"
-             for i, s in enumerate(sources)]
+    items, _ = batch_frames(sources)
+    return _plan_outputs(list(items), output_dir, suffix, protected)
+
+
+def _plan_outputs(items, output_dir, suffix, protected):
+    stems = [_stem(_base(label, i)) for i, (_, label) in enumerate(items)]
     natural = [f"{s}{suffix}.fits" for s in stems]
     out_real = os.path.realpath(output_dir)
+    located = [_located(frame, label) for frame, label in items]
     inputs = {os.path.basename(os.fspath(p)).casefold()
-              for p in [*sources, *protected]
-              if _is_path(p) and os.path.realpath(os.path.dirname(os.path.abspath(p))) == out_real}
+              for p in [*located, *protected] if p is not None and _in_folder(p, out_real)}
     reserved = {n.casefold() for n in natural}
     used, paths, renamed = set(), [], []
     for i, (stem, nat) in enumerate(zip(stems, natural)):
@@ -251,6 +282,47 @@ def plan_outputs(sources, output_dir, suffix="_aligned", protected=()):
     return paths, renamed
 
 
+class _StreamNamer:
+    """
+    Names and outputs of a generator's frames, decided as each frame arrives.
+
+    A generator cannot be looked ahead, so the rule is `plan_outputs`'s
+    without the reservation of later frames' natural names: a frame whose
+    natural output is already used in this run, or is an input file seen
+    so far (or the target), gets the next free ``_2``, ``_3``... name, and
+    a display name already shown gets ``#2``, ``#3``...  Deterministic: the
+    same sequence of frames always gives the same names.
+    """
+
+    def __init__(self, output_dir, suffix, protected):
+        self.output_dir, self.suffix = output_dir, suffix
+        self.out_real = os.path.realpath(output_dir) if output_dir is not None else None
+        self.inputs = {os.path.basename(os.fspath(p)).casefold() for p in protected
+                       if self.out_real is not None and _in_folder(p, self.out_real)}
+        self.used, self.shown = set(), set()
+
+    def __call__(self, i, frame, label):
+        """``(display name, output path or None, renamed (natural, used) or None)``."""
+        base = name = _base(label, i)
+        k = 2
+        while name in self.shown:
+            name, k = f"{base}#{k}", k + 1
+        self.shown.add(name)
+        if self.output_dir is None:
+            return name, None, None
+        here = _located(frame, label)
+        if here is not None and _in_folder(here, self.out_real):
+            self.inputs.add(os.path.basename(here).casefold())
+        stem = _stem(base)
+        natural = chosen = f"{stem}{self.suffix}.fits"
+        k = 2
+        while chosen.casefold() in self.used or chosen.casefold() in self.inputs:
+            chosen, k = f"{stem}_{k}{self.suffix}.fits", k + 1
+        self.used.add(chosen.casefold())
+        return name, os.path.join(self.output_dir, chosen), (
+            None if chosen == natural else (natural, chosen))
+
+
 # -- resuming --------------------------------------------------------------------------------
 
 
@@ -264,9 +336,13 @@ def _read_done(path):
     from .io.header import transform_from_header
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")  # "file may have been truncated" counts as incomplete
-            with fits.open(path, memmap=not path.lower().endswith(".gz")) as hdul:
+        # A warning ("file may have been truncated") counts as incomplete.  It
+        # is recorded, not raised: raised inside fits.open it would leave the
+        # file open; here the file is ours to close, whatever happens.
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with open(path, "rb") as fh, fits.open(
+                    fh, memmap=not path.lower().endswith(".gz")) as hdul:
                 hdul.readall()
                 for hdu in hdul:  # every data block is there, in full
                     if hdu.data is not None:
@@ -275,6 +351,10 @@ def _read_done(path):
                 shape = hdul[0].data.shape[:2] if hdul[0].data is not None else None
     except Exception as exc:  # noqa: BLE001 - any unreadable file is not complete
         return None, f"it is incomplete or unreadable ({type(exc).__name__}: {exc})"
+    if caught:
+        w = caught[0]
+        return None, (f"it is incomplete or unreadable ({w.category.__name__}: "
+                      f"{w.message})")
     if shape is None or "AATTYPE" not in header:
         return None, "it is not a frame registered by astroalign_nd"
     try:
@@ -307,6 +387,9 @@ class _Config:
     overwrite: bool
     skip_existing: bool
     union: bool
+    hdu: object = None  # the HDU to read from the frames' files
+    unit: object = None  # the unit of frames without one
+    add_keyword: bool = True  # record the registration (and canvas) in each header
 
 
 @dataclass
@@ -379,7 +462,8 @@ def _run(job, cfg):
                                grid=(done["shape"], done["offset"]))
         det, _ = _split_options({k: v for k, v in cfg.options.items()
                                  if k not in ("transform_type", "n_sources", "max_sources")})
-        src = _as_reference(job.source, "source", det)  # read once, for both stages
+        # Read (parsed) once, here on the worker, for both stages.
+        src = _as_reference(job.source, "source", det, cfg.hdu, cfg.unit)
         result = find_match(src, cfg.reference, **cfg.options)
         quality = quality_dict(result)
         if job.stage == "find":
@@ -397,32 +481,31 @@ def _run(job, cfg):
 def _apply(job, cfg, t0, src_path=None):
     from .ccddata import apply_transform
 
+    # Already parsed in the 'full' stage (a Reference); read here in 'apply'.
+    src = parse_input(job.source, "source", hdu=cfg.hdu, unit=cfg.unit)
     if job.canvas is None:
-        ccd = apply_transform(job.transform, job.source, cfg.reference,
+        ccd = apply_transform(job.transform, src, cfg.reference,
                               quality=job.quality, **cfg.apply_options)
     else:
         shape, offset, wcs = job.canvas
-        ccd = apply_transform(job.transform, job.source, tuple(shape), quality=job.quality,
+        ccd = apply_transform(job.transform, src, tuple(shape), quality=job.quality,
                               **cfg.apply_options)
         if wcs is not None:
             ccd.wcs = wcs
-        ccd.meta[_CANVAS_KEYS[0]] = (int(offset[0]), "canvas x0 [reference px]")
-        ccd.meta[_CANVAS_KEYS[1]] = (int(offset[1]), "canvas y0 [reference px]")
-    src_shape = job.source_shape or _shape_of(job.source)
-    ccd.meta[_SOURCE_SHAPE_KEYS[0]] = (int(src_shape[1]), "source frame width [px]")
-    ccd.meta[_SOURCE_SHAPE_KEYS[1]] = (int(src_shape[0]), "source frame height [px]")
+        if cfg.add_keyword:
+            ccd.meta[_CANVAS_KEYS[0]] = (int(offset[0]), "canvas x0 [reference px]")
+            ccd.meta[_CANVAS_KEYS[1]] = (int(offset[1]), "canvas y0 [reference px]")
+    src_shape = job.source_shape or src.shape
+    if cfg.add_keyword:  # what a resumed run needs to find this frame's grid again
+        ccd.meta[_SOURCE_SHAPE_KEYS[0]] = (int(src_shape[1]), "source frame width [px]")
+        ccd.meta[_SOURCE_SHAPE_KEYS[1]] = (int(src_shape[0]), "source frame height [px]")
     if job.output is not None:
-        write_ccddata(ccd, job.output, overwrite=cfg.overwrite)
+        # FLAGS as an extension, so that CCDData.read(..., hdu_flags='FLAGS') reads it back.
+        write_ccddata(ccd, job.output, overwrite=cfg.overwrite, hdu_flags="FLAGS")
         ccd = None  # memory stays flat: nothing of the frame is kept
     return FrameResult(name=job.name, status="registered", transform=job.transform,
                        quality=job.quality, output=job.output, ccd=ccd, source=src_path,
                        seconds=time.perf_counter() - t0)
-
-
-def _shape_of(source):
-    from ._input import parse_input
-
-    return parse_input(source, "source").shape
 
 
 # -- the union canvas ------------------------------------------------------------------------
@@ -529,30 +612,66 @@ def _run_in_worker(job):
     return _run(job, _WORKER_CONFIG)
 
 
-def _execute(jobs, cfg, client, workers):
-    """Run the jobs; yield ``(job, FrameResult)`` in completion order."""
-    if not jobs:
-        return
-    if client is not None:
-        from dask.distributed import as_completed
+def _execute(jobs, cfg, client, workers, stream=False):
+    """
+    Run the jobs; yield ``(job, FrameResult)`` in completion order.
 
-        cfg_future = client.scatter(cfg, broadcast=True)
-        futures = [client.submit(_run, job, cfg_future, pure=False) for job in jobs]
-        by_key = {f.key: job for f, job in zip(futures, jobs)}
-        for fut in as_completed(futures):
-            job = by_key[fut.key]
-            try:
-                res = fut.result()
-            except Exception as exc:  # a worker died: report, go on
-                res = _failed(job, exc, time.perf_counter())
-            fut.release()
-            yield job, res
+    ``jobs`` may be a generator (a batch's generator of frames): jobs are
+    taken from it only as workers free up, a few in flight per worker, so
+    that the frames of a generator are never all in memory at once.
+    """
+    jobs = iter(jobs)
+    first = next(jobs, None)
+    if first is None:
+        return
+    jobs = _prepend(first, jobs)
+    del first
+    if client is not None:
+        yield from _execute_dask(jobs, cfg, client, stream)
         return
     if workers is None or workers <= 1:
         for job in jobs:
             yield job, _run(job, cfg)
         return
     yield from _execute_pool(jobs, cfg, workers)
+
+
+def _prepend(first, rest):
+    """``first``, then ``rest``; unlike itertools.chain([first], rest), ``first`` is let go."""
+    box = [first]
+    del first  # a generator's first frame must not stay alive for the whole batch
+    yield box.pop()
+    yield from rest
+
+
+def _execute_dask(jobs, cfg, client, stream):
+    from dask.distributed import as_completed
+
+    cfg_future = client.scatter(cfg, broadcast=True)
+    by_key, running = {}, as_completed()
+
+    def submit(job):
+        fut = client.submit(_run, job, cfg_future, pure=False)
+        by_key[fut.key] = job
+        running.add(fut)
+
+    # A list of frames is submitted at once (the scheduler plans it all); a
+    # generator's frames a few per worker thread at a time.
+    window = max(2, 2 * sum(client.nthreads().values())) if stream else None
+    for job in itertools.islice(jobs, window):
+        submit(job)
+    for fut in running:
+        job = by_key.pop(fut.key)
+        try:
+            res = fut.result()
+        except Exception as exc:  # a worker died: report, go on
+            res = _failed(job, exc, time.perf_counter())
+        fut.release()
+        yield job, res
+        if stream:
+            nxt = next(jobs, None)
+            if nxt is not None:
+                submit(nxt)
 
 
 def _execute_pool(jobs, cfg, workers):
@@ -565,23 +684,31 @@ def _execute_pool(jobs, cfg, workers):
     ctx = multiprocessing.get_context("fork" if "fork" in methods and os.name == "posix"
                                       and not _is_macos() else None)
     threads = max(1, (os.cpu_count() or 1) // workers)
-    pending, todo = {}, list(jobs)[::-1]
+    pending, back = {}, []  # ``back``: a job whose submission failed
+
+    def next_job():
+        return back.pop() if back else next(jobs, None)
+
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
                              initargs=(cfg, threads)) as pool:
         broken = None
-        while todo or pending:
+        while True:
             # A few frames in flight per worker: memory does not grow with the batch.
-            while todo and len(pending) < 2 * workers and broken is None:
-                job = todo.pop()
+            while len(pending) < 2 * workers and broken is None:
+                job = next_job()
+                if job is None:
+                    break
                 try:
                     pending[pool.submit(_run_in_worker, job)] = job
                 except Exception as exc:  # the pool broke
                     broken = exc
-                    todo.append(job)
+                    back.append(job)
             if broken is not None and not pending:
-                for job in reversed(todo):
+                for job in itertools.chain(back, jobs):
                     yield job, _failed(job, RuntimeError(
                         f"not run: a worker process died ({broken})"), time.perf_counter())
+                return
+            if not pending:
                 return
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for fut in done:
@@ -616,13 +743,33 @@ def _verified(results):
     return results
 
 
+def _in_order(results):
+    """The results (a dict by input index) as a list in input order."""
+    return [results[i] for i in range(len(results))]
+
+
+def _stream_jobs(items, namer):
+    """Jobs of a generator's frames, named as they arrive; nothing of earlier frames kept."""
+    for i, (frame, label) in enumerate(items):
+        name, output, renamed = namer(i, frame, label)
+        if renamed is not None:
+            warn(f"output names collide; renamed: {name} -> {renamed[1]} ({renamed[0]} "
+                 "is taken)")
+        yield _Job(i, frame, name, output, stage="full")
+
+
 # -- the public function ---------------------------------------------------------------------
 
 
-def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_existing=False,
-                   suffix="_aligned", canvas="reference", client=None, workers=None,
-                   progress=False, callback=None, order="bilinear", conserve_flux=False,
-                   fill_value=np.nan, method="interpolate", unit=None, **options):
+def register_batch(sources: Iterable[Any] | Any, target: Any, *,
+                   output_dir: str | os.PathLike | None = None, overwrite: bool = False,
+                   skip_existing: bool = False, suffix: str = "_aligned",
+                   canvas: str = "reference", client: Any = None, workers: int | None = None,
+                   progress: bool = False, callback: Callable[[FrameResult], Any] | None = None,
+                   order: str | int = "bilinear", conserve_flux: bool = False,
+                   fill_value: float = np.nan, method: str = "interpolate", unit: Any = None,
+                   hdu: int | str | None = None, add_keyword: bool = True,
+                   **options: Any) -> BatchResult:
     """
     Register every frame of ``sources`` onto ``target``.
 
@@ -632,18 +779,26 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
 
     Parameters
     ----------
-    sources : iterable
+    sources : iterable or `~ccdproc.ImageFileCollection`
         Frames: paths (best for large batches: each worker reads its own
-        files), arrays, NDData/CCDData...
+        files), arrays, NDData/CCDData, ``(frame, file name)`` pairs such as
+        ``ImageFileCollection.ccds(return_fname=True)`` yields, a generator
+        of any of these, or an ``ImageFileCollection`` (its files, read
+        with its ``ext``).  File names name the outputs.  A generator is
+        taken one frame at a time and never held in memory all at once
+        (except with ``canvas='union'``, see there); its output names are
+        planned as its frames arrive (see `plan_outputs`).
     target : anything `~astroalign_nd.find_transform` accepts, or `~astroalign_nd.Reference`
         The reference frame; prepared once.  The detection options of a
         `~astroalign_nd.Reference` (``Reference(img, fwhm=4)``) apply to
         every frame too, unless given again here.
     output_dir : str or path, optional
         Write each registered frame to ``<output_dir>/<name><suffix>.fits``
-        instead of returning it.  Names are made unique before any work
-        (see `plan_outputs`); files are written atomically: a killed run
-        leaves no partial file under a final name.
+        (with ``MASK``, ``UNCERT`` and ``FLAGS`` extensions, as
+        `~astropy.nddata.CCDData.write` writes them) instead of returning
+        it.  For a list or a collection, names are made unique before any
+        work (see `plan_outputs`); files are written atomically: a killed
+        run leaves no partial file under a final name.
     overwrite : bool, optional
         Replace existing output files (default False: such a frame fails,
         and the others go on).  An old output is replaced only once the new
@@ -664,7 +819,10 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
         nothing cut off.  Each frame's mask is True outside its footprint;
         the reference's WCS goes along (CRPIX shifted).  This takes two
         passes: all transforms first, then the resampling (frames are read
-        twice; only the transforms are kept in between).
+        twice; only the transforms are kept in between).  The second pass
+        needs every frame again, so a generator's items are collected into
+        a list first: give paths (or a collection), not in-memory frames,
+        to keep memory flat.
     client : ``dask.distributed.Client``, optional
         Run the frames as dask.distributed tasks (the reference is
         broadcast to the workers once): the way to use several machines.
@@ -676,8 +834,16 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
     callback : callable, optional
         Called with each frame's `FrameResult` as soon as that frame is
         done, in completion order (the returned result is in input order).
-    order, conserve_flux, fill_value, method, unit
-        As in `~astroalign_nd.apply_transform`.
+    order, conserve_flux, fill_value, method, unit, add_keyword
+        As in `~astroalign_nd.apply_transform`.  ``add_keyword=False``
+        leaves the frames' headers as they were, so it cannot be combined
+        with ``skip_existing`` (resuming reads the transform back from the
+        outputs' headers).
+    hdu : int or str, optional
+        The HDU to read from FITS files (frames and target), as in
+        `~astroalign_nd.find_transform`; by default the first one with
+        image data.  The files of an ``ImageFileCollection`` are read with
+        its ``ext`` unless ``hdu`` is given.
     **options
         As in `~astroalign_nd.find_transform` (``transform_type``,
         ``n_sources``, ``max_sources``, detection and matching options).
@@ -693,12 +859,15 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
 
     if _is_path(sources):
         raise TypeError("sources must be a list of frames or paths, not a single path; "
-                        f"pass [{os.fspath(sources)!r}].")
-    sources = list(sources)
+                        f"pass [{os.fspath(sources)!r}], or an ImageFileCollection for a "
+                        "folder.")
     if canvas not in ("reference", "union"):
         raise ValueError(f"canvas must be 'reference' or 'union'; got {canvas!r}.")
     if skip_existing and output_dir is None:
         raise ValueError("skip_existing=True needs an output_dir (the outputs to look for).")
+    if skip_existing and not add_keyword:
+        raise ValueError("skip_existing=True reads each output's transform back from its "
+                         "header, which add_keyword=False leaves out; pass add_keyword=True.")
     if not isinstance(suffix, str) or os.sep in suffix or (os.altsep and os.altsep in suffix):
         raise ValueError(f"suffix must be a string without path separators; got {suffix!r}.")
     if client is not None and workers not in (None, 0, 1):
@@ -710,23 +879,30 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
     transform_class(options.get("transform_type", "similarity"))
     det, _ = _split_options({k: v for k, v in options.items()
                              if k not in ("transform_type", "n_sources", "max_sources")})
+    union = canvas == "union"
+    # A list of (frame, label); or, for a generator, an iterator of them.
+    items, frames_hdu = batch_frames(sources, hdu)
+    stream = not isinstance(items, list)
+    if stream and union:
+        items, stream = list(items), False  # pass 2 needs every frame again
     if isinstance(target, Reference):
         # The reference's detection options are the batch's, unless overridden here.
         options = {**target.detect_options, **options}
+    protected = [os.fspath(target)] if _is_path(target) else []
     if output_dir is not None:
         output_dir = os.fspath(output_dir)
         os.makedirs(output_dir, exist_ok=True)
         check_writable_dir(output_dir)
-        outputs, renamed = plan_outputs(sources, output_dir, suffix,
-                                        protected=[target] if _is_path(target) else [])
-        if renamed:
-            names = _display_names(sources)
-            warnings.warn("output names collide; renamed: " + "; ".join(
-                f"{names[i]} -> {new} ({old} is taken)" for i, old, new in renamed),
-                AstroalignWarning, stacklevel=2)
-    else:
-        outputs = [None] * len(sources)
-    ref = _as_reference(target, "target", det)
+    if not stream:
+        names = _display_names(items)
+        if output_dir is not None:
+            outputs, renamed = _plan_outputs(items, output_dir, suffix, protected)
+            if renamed:
+                warn("output names collide; renamed: " + "; ".join(
+                    f"{names[i]} -> {new} ({old} is taken)" for i, old, new in renamed))
+        else:
+            outputs = [None] * len(items)
+    ref = _as_reference(target, "target", det, hdu)
     if ref.parsed.is_catalog:
         raise TypeError("the target of register_batch must be an image (it defines the "
                         "output grid); it is a catalog.")
@@ -735,21 +911,23 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
     ref.stars(n)
     ref.asterisms(n, options.get("n_neighbors", 4))
     apply_options = dict(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
-                         method=method, unit=unit)
-    union = canvas == "union"
+                         method=method, unit=unit, add_keyword=add_keyword)
     cfg = _Config(reference=ref, options=options, apply_options=apply_options,
-                  overwrite=overwrite, skip_existing=skip_existing, union=union)
-    names = _display_names(sources)
-    jobs = [_Job(i, src, names[i], outputs[i], stage="find" if union else "full")
-            for i, src in enumerate(sources)]
+                  overwrite=overwrite, skip_existing=skip_existing, union=union,
+                  hdu=frames_hdu, unit=unit, add_keyword=add_keyword)
+    if stream:
+        jobs = _stream_jobs(items, _StreamNamer(output_dir, suffix, protected))
+    else:
+        jobs = [_Job(i, frame, names[i], outputs[i], stage="find" if union else "full")
+                for i, (frame, _) in enumerate(items)]
 
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=len(sources) * (2 if union else 1), unit="frame")
+        bar = tqdm(total=None if stream else len(items) * (2 if union else 1), unit="frame")
 
-    results = [None] * len(sources)
+    results = {}
 
     def finish(i, res):
         results[i] = res
@@ -758,11 +936,11 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
 
     try:
         if not union:
-            for job, res in _execute(jobs, cfg, client, workers):
+            for job, res in _execute(jobs, cfg, client, workers, stream=stream):
                 finish(job.index, res)
                 if bar is not None:
                     bar.update(1)
-            return BatchResult(_verified(results), canvas_shape=ref.shape,
+            return BatchResult(_verified(_in_order(results)), canvas_shape=ref.shape,
                                canvas_offset=(0, 0))
 
         # Pass 1: every transform (nothing of the frames is kept).
@@ -812,7 +990,7 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
                     if bar is not None:
                         bar.update(1)
                     continue
-            jobs2.append(_Job(i, sources[i], res.name, outputs[i], stage="apply",
+            jobs2.append(_Job(i, items[i][0], res.name, outputs[i], stage="apply",
                               transform=_shifted(res.transform, offset, sign=-1),
                               quality=res.quality, canvas=(shape, offset, wcs),
                               source_shape=res.shape))
@@ -822,7 +1000,8 @@ def register_batch(sources, target, *, output_dir=None, overwrite=False, skip_ex
             finish(job.index, res)
             if bar is not None:
                 bar.update(1)
-        return BatchResult(_verified(results), canvas_shape=shape, canvas_offset=offset)
+        return BatchResult(_verified(_in_order(results)), canvas_shape=shape,
+                           canvas_offset=offset)
     finally:
         if bar is not None:
             bar.close()

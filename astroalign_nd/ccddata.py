@@ -13,24 +13,32 @@ The output carries:
   resampled with the squared weights) and returned in the class that came
   in.  Resampling correlates neighbouring output pixels; the per-pixel
   variance is right, but the pixels are no longer independent;
+* ``flags`` of the source, resampled by nearest neighbour (0 outside the
+  footprint); written to a ``FLAGS`` extension by
+  ``ccd.write(path, hdu_flags="FLAGS")``;
 * ``unit`` of the source (``adu`` when nothing says otherwise);
 * ``meta``: the source header with HISTORY lines and machine-readable
   ``AAT*`` keywords from which the transform can be rebuilt
-  (`~astroalign_nd.transform_from_header`);
+  (`~astroalign_nd.transform_from_header`), unless ``add_keyword=False``;
 * ``wcs``: the target's WCS, or the source's carried through the
   transform when only the source has one.
 """
 
-import datetime
+from __future__ import annotations
+
+import re
+import warnings
+from typing import Any
 
 import numpy as np
 from astropy import units as u
 from astropy.io import fits
-from astropy.nddata import (CCDData, InverseVariance, StdDevUncertainty,
+from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUncertainty,
                             VarianceUncertainty)
+from astropy.wcs import FITSFixedWarning
 
 from ._input import parse_input
-from .io.header import transform_to_header
+from .io.header import add_provenance
 from .resample import ORDERS, resample, resample_exact
 from .transforms import LinearTransform2D, as_matrix, from_matrix
 
@@ -92,63 +100,75 @@ def _strip_wcs(header):
     if not any(k.startswith(_WCS_PREFIXES) for k in h.keys()):
         return h  # nothing to strip (and parsing a WCS costs ~1.5 ms)
     try:
-        wcs_cards = WCS(h).to_header(relax=True)
-        for key in wcs_cards:
-            h.remove(key, ignore_missing=True, remove_all=True)
-        for key in ("CD1_1", "CD1_2", "CD2_1", "CD2_2", "A_ORDER", "B_ORDER"):
-            h.remove(key, ignore_missing=True, remove_all=True)
-    except Exception:  # an unparsable WCS: leave the header as it was
-        pass
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FITSFixedWarning)
+            wcs_cards = WCS(h).to_header(relax=True)
+    except (ValueError, KeyError, TypeError, MemoryError):
+        # An unparsable WCS (astropy.wcs raises WcsError, a ValueError):
+        # its cards describe the old grid all the same; remove them by name.
+        wcs_cards = [k for k in h.keys() if k.startswith(_WCS_PREFIXES)]
+    for key in wcs_cards:
+        h.remove(key, ignore_missing=True, remove_all=True)
+    for key in ("CD1_1", "CD1_2", "CD2_1", "CD2_2", "A_ORDER", "B_ORDER"):
+        h.remove(key, ignore_missing=True, remove_all=True)
     return h
 
 
+_FITS_KEY = re.compile(r"^[A-Z0-9_-]{1,8}$")
+
+
 def _as_header(meta):
+    """
+    The meta as a FITS header.
+
+    Keys that are not standard FITS keywords (ccdproc's ``subtract_bias``,
+    long or lower-case names) become HIERARCH cards rather than being
+    lost; values that FITS cannot hold are left out.
+    """
     if isinstance(meta, fits.Header):
         return meta.copy()
     h = fits.Header()
     for key, value in dict(meta or {}).items():
-        if isinstance(key, str) and len(key) <= 8 and isinstance(
+        if not isinstance(key, str) or not isinstance(
                 value, (str, int, float, bool, np.integer, np.floating)):
-            h[key] = value
+            continue
+        card_key = key if _FITS_KEY.match(key.upper()) else f"HIERARCH {key}"
+        try:
+            h[card_key] = value
+        except ValueError:  # e.g. a HIERARCH keyword and value longer than a card
+            continue
     return h
 
 
-def _add_history(header, text):
-    """HISTORY cards wrapped at word boundaries (FITS cuts long ones mid-word)."""
-    import textwrap
+def _resample_flags(flags, matrix, shape_out):
+    """
+    Flags on the output grid by nearest neighbour (0 outside the footprint).
 
-    for line in textwrap.wrap(text, 70, subsequent_indent="  "):
-        header.add_history(line)
-
-
-def _history(header, model, quality, src_name, dst_name, order, conserve_flux):
-    from . import __version__
-
-    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
-    m = as_matrix(model)
-    _add_history(header, f"astroalign_nd {__version__} {now} UTC: registered {src_name} "
-                         f"onto the pixel grid of {dst_name}")
-    desc = f"{type(model).__name__}"
-    if isinstance(model, LinearTransform2D):
-        desc += (f" scale={np.sqrt(abs(np.linalg.det(m[:2, :2]))):.6f}"
-                 f" rot={np.degrees(np.arctan2(m[1, 0], m[0, 0])):.5f}deg"
-                 f" shift=({m[0, 2]:.3f},{m[1, 2]:.3f})px"
-                 f"{' mirrored' if np.linalg.det(m[:2, :2]) < 0 else ''}")
-    _add_history(header, f"astroalign_nd transform: {desc}")
-    _add_history(header, f"astroalign_nd resampling: {order}, conserve_flux={conserve_flux}")
-    if quality:
-        _add_history(header, f"astroalign_nd fit: {quality['n_matches']} matched stars, "
-                             f"RMS {quality['rms']:.4f} px, log10 false-alarm "
-                             f"{quality['log10_false_alarm']:.1f}")
-        header["AATNMAT"] = (quality["n_matches"], "astroalign_nd: matched stars")
-        header["AATRMS"] = (round(quality["rms"], 6), "astroalign_nd: fit RMS [px]")
-        header["AATLFA"] = (round(quality["log10_false_alarm"], 3),
-                            "astroalign_nd: log10 false-alarm probability")
+    Flags are bit sets or labels: interpolating them has no meaning, so
+    each output pixel takes the flags of the source pixel it falls on.
+    """
+    if isinstance(flags, FlagCollection):
+        out = FlagCollection(shape=tuple(shape_out))
+        for key, value in flags.items():
+            out[key] = _resample_flags(np.asarray(value), matrix, shape_out)
+        return out
+    flags = np.asarray(flags)
+    ny, nx = shape_out
+    inv = np.linalg.inv(matrix)
+    yo, xo = np.mgrid[:ny, :nx]
+    xs = np.rint(inv[0, 0] * xo + inv[0, 1] * yo + inv[0, 2]).astype(np.intp)
+    ys = np.rint(inv[1, 0] * xo + inv[1, 1] * yo + inv[1, 2]).astype(np.intp)
+    inside = (xs >= 0) & (xs < flags.shape[1]) & (ys >= 0) & (ys < flags.shape[0])
+    out = np.zeros((ny, nx) + flags.shape[2:], dtype=flags.dtype)
+    out[inside] = flags[ys[inside], xs[inside]]
+    return out
 
 
-def apply_transform(transform, source, target, *, order="bilinear", conserve_flux=False,
-                    fill_value=np.nan, method="interpolate", unit=None, parallel=True,
-                    quality=None):
+def apply_transform(transform: Any, source: Any, target: Any, *,
+                    order: str | int = "bilinear", conserve_flux: bool = False,
+                    fill_value: float = np.nan, method: str = "interpolate", unit: Any = None,
+                    parallel: bool = True, quality: dict | None = None,
+                    hdu: int | str | None = None, add_keyword: bool = True) -> CCDData:
     """
     Resample ``source`` onto the pixel grid of ``target``.
 
@@ -158,8 +178,11 @@ def apply_transform(transform, source, target, *, order="bilinear", conserve_flu
         The source-to-target transform (as `~astroalign_nd.find_transform`
         returns it).  Any affine 2-in/2-out astropy model, a scikit-image
         transform or a 3x3 matrix works too.
-    source : array-like, `~astropy.nddata.NDData`, HDU or path
-        The image to resample (2-D or channels-last multichannel).
+    source : array-like, `~astropy.nddata.NDData`, HDU, path or tuple
+        The image to resample (2-D or channels-last multichannel).  A FITS
+        path is read as `~astropy.nddata.CCDData.read` reads it (``MASK``,
+        ``UNCERT``, ``FLAGS`` extensions, unit from ``BUNIT``); an
+        ``(array, header)`` or ``(array, WCS)`` tuple as reproject takes it.
     target : array-like, `~astropy.nddata.NDData`, HDU, path or tuple
         Defines the output grid (its shape and WCS); an ``(ny, nx)`` tuple
         gives just the shape.
@@ -179,13 +202,22 @@ def apply_transform(transform, source, target, *, order="bilinear", conserve_flu
         'exact' uses `reproject.reproject_exact` (flux-conserving
         polygon overlap; slower).
     unit : `~astropy.units.Unit` or str, optional
-        Output unit when the source has none (default ``adu``).
+        Unit of a source that has none (no ``BUNIT``, a bare array); the
+        default is ``adu``.
     parallel : bool, optional
         Use both cores of the compiled kernel.
     quality : dict, optional
         Fit figures (from `~astroalign_nd.find_transform`'s
         ``transform.meta['quality']``) to record in the header; taken from
         the transform's meta when not given.
+    hdu : int or str, optional
+        The HDU to read from FITS paths and HDULists (index or extension
+        name); by default the first one with image data.
+    add_keyword : bool, optional
+        Record the registration in the header (default True): the
+        transform and fit keywords and HISTORY cards of
+        `~astroalign_nd.io.add_provenance`.  False leaves the source's
+        header as it was (without its celestial WCS cards).
 
     Returns
     -------
@@ -199,14 +231,14 @@ def apply_transform(transform, source, target, *, order="bilinear", conserve_flu
         raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
     if method not in ("interpolate", "exact"):
         raise ValueError(f"method must be 'interpolate' or 'exact'; got {method!r}.")
-    src = parse_input(source, "source")
+    src = parse_input(source, "source", hdu=hdu, unit=unit)
     if src.is_catalog:
         raise TypeError("source is a catalog; apply_transform needs an image to resample.")
     if isinstance(target, tuple) and len(target) == 2 and all(
             isinstance(v, (int, np.integer)) for v in target):
         shape_out, dst = tuple(int(v) for v in target), None
     else:
-        dst = parse_input(target, "target")
+        dst = parse_input(target, "target", hdu=hdu)
         if dst.is_catalog:
             raise TypeError(
                 "target is a catalog, which has no pixel grid; pass the target image or its "
@@ -241,10 +273,11 @@ def apply_transform(transform, source, target, *, order="bilinear", conserve_flu
     header = _strip_wcs(_as_header(src.meta))
     if quality is None and isinstance(getattr(transform, "meta", None), dict):
         quality = transform.meta.get("quality")
-    model = transform if isinstance(transform, LinearTransform2D) else from_matrix(m)
-    header = transform_to_header(model, header)
-    _history(header, model, quality, src.name, dst.name if dst is not None else "shape",
-             order_name, conserve_flux)
+    if add_keyword:
+        model = transform if isinstance(transform, LinearTransform2D) else from_matrix(m)
+        header = add_provenance(header, model, quality=quality, source_name=src.name,
+                                target_name=dst.name if dst is not None else "shape",
+                                order=order_name, conserve_flux=conserve_flux)
 
     wcs = None
     if dst is not None and dst.wcs is not None:
@@ -253,5 +286,6 @@ def apply_transform(transform, source, target, *, order="bilinear", conserve_flu
         wcs = _carry_wcs(src.wcs, m, shape_out)
     full_mask = mask_out if out.ndim == 2 else np.broadcast_to(
         mask_out[..., None], out.shape).copy()
+    flags = None if src.flags is None else _resample_flags(src.flags, m, shape_out)
     return CCDData(out, unit=out_unit, mask=full_mask, uncertainty=uncertainty, meta=header,
-                   wcs=wcs)
+                   wcs=wcs, flags=flags)

@@ -90,6 +90,13 @@ def _registration_options():
         default=None,
         help="unit of any input FITS file that has no BUNIT keyword (default: adu)",
     )
+    group.add_argument(
+        "--hdu",
+        default=None,
+        metavar="HDU",
+        help="FITS extension to read, an index or a name (default: the first one with "
+        "image data); MASK, UNCERT and FLAGS extensions are read as CCDData.read does",
+    )
     det = parent.add_argument_group(
         "detection options", "as in astroalign_nd.find_sources; by default estimated from "
         "each image")
@@ -215,12 +222,20 @@ def _registration_kwargs(args):
         order=args.order,
         conserve_flux=args.conserve_flux,
         n_sources=args.n_sources,
+        hdu=_hdu(args.hdu),
     )
     for name in _FORWARDED:
         value = getattr(args, name, None)
         if value is not None:
             kwargs[name] = tuple(value) if isinstance(value, list) else value
     return kwargs
+
+
+def _hdu(value):
+    """``--hdu 1`` is an index, ``--hdu SCI`` an extension name."""
+    if value is None:
+        return None
+    return int(value) if value.lstrip("-").isdigit() else value
 
 
 def _check_writable(path, overwrite):
@@ -262,9 +277,13 @@ def _describe(transform):
     translation = getattr(transform, "translation", None)
     try:
         if rotation is not None:
-            parts.append(f"rotation={np.degrees(float(np.squeeze(rotation))):.4f} deg")
+            # Parameters hold degrees (astropy's convention); float() of a
+            # Parameter raises on astropy 8, so read its value.
+            value = getattr(rotation, "value", rotation)
+            parts.append(f"rotation={float(np.squeeze(value)):.4f} deg")
         if scale is not None:
-            s = np.atleast_1d(np.squeeze(np.asarray(scale, dtype=float)))
+            s = np.atleast_1d(np.squeeze(np.asarray(getattr(scale, "value", scale),
+                                                    dtype=float)))
             parts.append("scale=" + ", ".join(f"{v:.5f}" for v in s))
         if translation is not None:
             t = np.ravel(np.asarray(translation, dtype=float))
@@ -298,7 +317,7 @@ def _cmd_register(args):
     _check_writable(args.output, args.overwrite)
     aligned = astroalign_nd.register(_check_input(args.source), _check_input(args.target),
                                      unit=args.unit, **_registration_kwargs(args))
-    write_ccddata(aligned, args.output, overwrite=args.overwrite)
+    write_ccddata(aligned, args.output, overwrite=args.overwrite, hdu_flags="FLAGS")
     q = aligned.meta
     print(f"{_describe(astroalign_nd.transform_from_header(q))}; {q['AATNMAT']} matched "
           f"stars, RMS {q['AATRMS']:.3f} px")

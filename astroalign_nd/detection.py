@@ -33,6 +33,7 @@ from astropy.table import Table
 from astropy.utils.exceptions import AstropyWarning
 from photutils.detection import DAOStarFinder
 
+from ._input import image_and_mask
 from ._kernels import bin_despike, peak_candidates
 
 __all__ = ["find_sources", "estimate_noise", "estimate_fwhm"]
@@ -367,8 +368,10 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
 
     Parameters
     ----------
-    image : 2-D array-like
-        The image.  NaN and infinite pixels count as masked.
+    image : 2-D array-like, `~astropy.nddata.NDData`, path, HDU or tuple
+        The image: an array, a masked array, NDData/CCDData, a FITS path or
+        HDU, or an ``(array, header)`` tuple; its own mask is honoured.
+        NaN and infinite pixels count as masked.
     mask : 2-D bool array-like, optional
         True for pixels to ignore.
     n_sources : int, optional
@@ -409,6 +412,9 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     n_sources = _check_positive_int(n_sources, "n_sources")
     if fwhm is not None and not (np.isfinite(fwhm) and fwhm > 0):
         raise ValueError(f"fwhm must be a positive number of pixels or None; got {fwhm!r}.")
+    # Paths, NDData, HDUs, (array, header) tuples, masked arrays: their own
+    # mask is combined with ``mask``.
+    image, mask = image_and_mask(image, mask)
     data, mask = _as_image(image, mask)
     if mask is not None and mask.all():
         raise ValueError("every pixel of the image is masked or not finite.")

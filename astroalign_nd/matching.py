@@ -19,7 +19,6 @@ Stage 3 of the method: match triangles, verify, refine.
    every hypothesis tried, in the spirit of astrometry.net's odds test).
 """
 
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,7 +27,7 @@ from scipy.special import betainc
 
 from ._kernels import PointGrid, count_inliers
 from .asterisms import build_asterisms
-from .exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError
+from .exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
 from .transforms import AffineTransform, fit_transform, transform_class
 
 __all__ = ["MatchResult", "match_points", "match_triangles", "hypothesis_matrices"]
@@ -627,21 +626,21 @@ def _result(c, stats, n_scored, src_pts, dst_pts, src_err, dst_err, dst_frame):
     si, dj = c["si"], c["dj"]
     predicted = _predicted_error(c["model"], c["cov"], dst_frame or _bbox(dst_pts[dj]))
     if predicted > 0.3:  # 3 sigma above 1 px somewhere in the frame
-        warnings.warn(
+        warn(
             f"the transform is uncertain: its parameter covariance gives a 1-sigma position "
             f"error of up to {predicted:.2f} px over the frame ({len(si)} matched stars, RMS "
             f"{rms:.2f} px). Check it, or give more or brighter stars (n_sources, nsigma).",
-            PoorFitWarning, stacklevel=4)
+            PoorFitWarning)
     misfit = _model_misfit(c["model"], src_pts[si], dst_pts[dj],
                            None if src_err is None else src_err[si],
                            None if dst_err is None else dst_err[dj], dst_frame)
     if misfit > 0.5:
         name = type(c["model"]).__name__
-        warnings.warn(
+        warn(
             f"the {name} leaves systematic residuals: an affine fit of the same "
             f"{len(si)} stars differs from it by up to {misfit:.2f} px over the frame. The "
             "images have shear, anisotropic scale or distortion; use transform_type='affine'.",
-            PoorFitWarning, stacklevel=4)
+            PoorFitWarning)
     return MatchResult(
         transform=c["model"], source_index=si, target_index=dj, residuals=resid,
         rms=rms, covariance=c["cov"], log10_false_alarm=c["lfa"], n_hypotheses=n_scored,

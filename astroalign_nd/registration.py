@@ -10,7 +10,13 @@ The high-level API, top to bottom as the method goes:
 (`~astroalign_nd.ccddata`).  ``register`` = find, then apply.
 """
 
+from __future__ import annotations
+
+import warnings
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
+from astropy import log
 
 from ._input import parse_input
 from .detection import find_sources
@@ -18,6 +24,12 @@ from .exceptions import TooFewSourcesError, TransformNotFoundError
 from .asterisms import build_asterisms
 from .matching import match_points
 from .transforms import transform_class
+
+if TYPE_CHECKING:
+    from astropy.nddata import CCDData
+
+    from .matching import MatchResult
+    from .transforms import LinearTransform2D
 
 __all__ = ["find_transform", "find_match", "register", "Reference"]
 
@@ -41,8 +53,11 @@ class Reference:
 
     Parameters
     ----------
-    image : array-like, `~astropy.nddata.NDData`, HDU, path or catalog
+    image : array-like, `~astropy.nddata.NDData`, HDU, path, tuple or catalog
         Anything `find_transform` accepts.
+    hdu : int or str, optional
+        The HDU of a FITS path or HDUList (index or extension name); by
+        default the first one with image data.
     **detect_options
         Options of `~astroalign_nd.find_sources` (``fwhm``, ``nsigma``...).
 
@@ -55,23 +70,24 @@ class Reference:
     >>> t, _ = find_transform(pair.source, ref)
     """
 
-    def __init__(self, image, **detect_options):
+    def __init__(self, image: Any, *, hdu: int | str | None = None,
+                 **detect_options: Any) -> None:
         unknown = set(detect_options) - set(_DETECT_KEYS)
         if unknown:
             raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}; Reference "
-                            f"accepts the detection options {list(_DETECT_KEYS)}.")
-        self.parsed = parse_input(image, "reference")
+                            f"accepts the detection options {list(_DETECT_KEYS)} and hdu.")
+        self.parsed = parse_input(image, "reference", hdu=hdu)
         self.detect_options = detect_options
         self._stars = {}
         self._asterisms = {}
         self.fwhm = None
 
     @property
-    def shape(self):
+    def shape(self) -> tuple[int, int] | None:
         """(ny, nx) of the image, None for a catalog."""
         return self.parsed.shape
 
-    def stars(self, n_sources):
+    def stars(self, n_sources: int) -> tuple[np.ndarray, np.ndarray | None, tuple | None]:
         """
         Stars for ``n_sources`` control points (cached).
 
@@ -95,8 +111,13 @@ class Reference:
                 user_nsigma = opts.pop("nsigma", None)
                 # One detection pass, deep enough for faint fields; the 5-sigma
                 # sources are kept when there are enough of them.
-                table = find_sources(p.detection_image, mask=p.mask, n_sources=2 * n_sources,
-                                     nsigma=user_nsigma or 3.0, **opts)
+                with warnings.catch_warnings():
+                    # An empty image is reported by the caller (TooFewSourcesError),
+                    # not by photutils' per-frame warning.
+                    warnings.simplefilter("ignore", _no_detections_warning())
+                    table = find_sources(p.detection_image, mask=p.mask,
+                                         n_sources=2 * n_sources,
+                                         nsigma=user_nsigma or 3.0, **opts)
                 if user_nsigma is None:
                     strong = table[table["snr"] >= 5.0]
                     if len(strong) >= n_sources:
@@ -113,13 +134,21 @@ class Reference:
                 self.fwhm = table.meta.get("fwhm")
         return self._stars[n_sources]
 
-    def asterisms(self, n_sources, n_neighbors=4):
+    def asterisms(self, n_sources: int, n_neighbors: int = 4) -> Any:
         """Triangles of the ``n_sources`` brightest stars (cached)."""
         key = (n_sources, n_neighbors)
         if key not in self._asterisms:
             pts = self.stars(n_sources)[0][:n_sources]
             self._asterisms[key] = build_asterisms(pts, n_neighbors=n_neighbors)
         return self._asterisms[key]
+
+
+def _no_detections_warning():
+    try:
+        from photutils.utils.exceptions import NoDetectionsWarning
+    except ImportError:  # moved in a future photutils: its base class then
+        from astropy.utils.exceptions import AstropyWarning as NoDetectionsWarning
+    return NoDetectionsWarning
 
 
 def _too_few_advice(role, n, meta, nsigma, user_fwhm):
@@ -135,12 +164,12 @@ def _too_few_advice(role, n, meta, nsigma, user_fwhm):
                   "nsigma; or pass a catalog of positions.")
 
 
-def _as_reference(obj, name, detect_options):
+def _as_reference(obj, name, detect_options, hdu=None, unit=None):
     if isinstance(obj, Reference):
         return obj
     ref = Reference.__new__(Reference)
     ref.role = name
-    ref.parsed = parse_input(obj, name)
+    ref.parsed = parse_input(obj, name, hdu=hdu, unit=unit)
     ref.detect_options = detect_options
     ref._stars, ref._asterisms = {}, {}
     ref.fwhm = None
@@ -159,21 +188,24 @@ def _split_options(options):
     return det, mat
 
 
-def find_match(source, target, *, transform_type="similarity", n_sources=50,
-               max_sources=200, **options):
+def find_match(source: Any, target: Any, *, transform_type: str | type = "similarity",
+               n_sources: int = 50, max_sources: int = 200, hdu: int | str | None = None,
+               **options: Any) -> MatchResult:
     """
     Find the transform from ``source`` to ``target`` with its quality.
 
     Same arguments as `find_transform`; returns the full
     `~astroalign_nd.matching.MatchResult`, whose ``source_points`` and
     ``target_points`` (added to ``extra``) hold the matched positions.
+    Each attempt of the search is logged at debug level to astropy's
+    logger (``astropy.log.setLevel("DEBUG")`` shows them).
     """
     transform_class(transform_type)  # validate early, with a clear message
     n_sources = _positive_int(n_sources, "n_sources")
     max_sources = max(_positive_int(max_sources, "max_sources"), n_sources)
     det, mat = _split_options(options)
-    src = _as_reference(source, "source", det)
-    dst = _as_reference(target, "target", det)
+    src = _as_reference(source, "source", det, hdu)
+    dst = _as_reference(target, "target", det, hdu)
 
     # Escalation: more control points help crowded fields, small overlaps
     # and pairs whose brightest stars differ; more neighbours per star help
@@ -202,6 +234,8 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
             if "tolerance" not in options:
                 # Wide stars (defocus, digitised plates) have wide position errors.
                 mat["tolerance"] = max(3.0, 0.5 * (dst.fwhm or 0.0))
+            log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "
+                      f"{key[1]} of {key[3]} target stars, {nn} neighbours per star")
             try:
                 result = match_points(src_pts, dst_pts, transform_type=transform_type,
                                       source_frame=src_frame, target_frame=dst_frame,
@@ -215,10 +249,14 @@ def find_match(source, target, *, transform_type="similarity", n_sources=50,
                 # Earlier attempts count in the trials factor of later ones.
                 trials += getattr(exc, "n_hypotheses", 0)
                 last_exc = exc
-        if k == len(plan):
-            _widen(plan, src_pts, dst_pts, user_nn)
+                log.debug(f"astroalign_nd: attempt {len(tried)} found no trusted match; "
+                          f"{trials} hypotheses so far")
+        if k == len(plan) and _widen(plan, src_pts, dst_pts, user_nn):
+            log.debug("astroalign_nd: escalating to more neighbours per star")
     if result is None:
         raise last_exc
+    log.debug(f"astroalign_nd: match found at attempt {len(tried)}: {result.n_matches} "
+              f"stars, RMS {result.rms:.3f} px")
     n = max(ns, nd)
     result.extra.update(
         source_points=src_pts[result.source_index],
@@ -243,18 +281,23 @@ def _widen(plan, src_pts, dst_pts, user_nn):
     return True
 
 
-def find_transform(source, target, *, transform_type="similarity", n_sources=50,
-                   max_sources=200, **options):
+def find_transform(source: Any, target: Any, *, transform_type: str | type = "similarity",
+                   n_sources: int = 50, max_sources: int = 200,
+                   hdu: int | str | None = None,
+                   **options: Any) -> tuple[LinearTransform2D, tuple[np.ndarray, np.ndarray]]:
     """
     Find the transform that maps ``source`` pixel coordinates onto ``target``.
 
     Parameters
     ----------
-    source, target : array-like, `~astropy.nddata.NDData`, path or catalog
-        2-D (or channels-last) arrays, numpy masked arrays, NDData/CCDData,
-        FITS HDUs or paths (JPEG/PNG/TIFF too), or catalogs: an
-        `~astropy.table.Table` with ``x``/``y`` columns or an (N, 2) array
-        of positions, brightest first.
+    source, target : array-like, `~astropy.nddata.NDData`, path, tuple or catalog
+        2-D (or channels-last) arrays, numpy masked arrays, NDData/CCDData
+        (their masks are honoured), FITS HDUs or paths (read as
+        `~astropy.nddata.CCDData.read` reads them, with their ``MASK``;
+        JPEG/PNG/TIFF too), ``(array, header)`` or ``(array, WCS)`` tuples
+        (as reproject takes them), or catalogs: an `~astropy.table.Table`
+        with ``x``/``y`` columns (masked entries are left out) or an
+        (N, 2) array of positions, brightest first.
     transform_type : {'similarity', 'euclidean', 'translation', 'affine'}, optional
         The model to fit (default 'similarity': scale, rotation, shift,
         mirrored or not).
@@ -263,6 +306,10 @@ def find_transform(source, target, *, transform_type="similarity", n_sources=50,
     max_sources : int, optional
         If no trustworthy match is found, the number of control points is
         doubled up to this limit before giving up (default 200).
+    hdu : int or str, optional
+        The HDU of FITS paths and HDULists to read (index or extension
+        name, as in `~astropy.nddata.CCDData.read`); by default the first
+        one with image data.
     **options
         Detection options (``fwhm``, ``nsigma``, ``sharpness_range``,
         ``roundness_range``, ``peak_max``, ``bin_factor``; see
@@ -298,13 +345,13 @@ def find_transform(source, target, *, transform_type="similarity", n_sources=50,
     True
     """
     result = find_match(source, target, transform_type=transform_type, n_sources=n_sources,
-                        max_sources=max_sources, **options)
+                        max_sources=max_sources, hdu=hdu, **options)
     model = result.transform
     model.meta["quality"] = quality_dict(result)
     return model, (result.extra["source_points"], result.extra["target_points"])
 
 
-def quality_dict(result):
+def quality_dict(result: MatchResult) -> dict:
     """The quality figures of a `~astroalign_nd.matching.MatchResult` as a dict."""
     return dict(
         n_matches=int(result.n_matches),
@@ -326,9 +373,12 @@ def _positive_int(value, name):
     return int(value)
 
 
-def register(source, target, *, transform_type="similarity", n_sources=50, max_sources=200,
-             order="bilinear", conserve_flux=False, fill_value=np.nan, method="interpolate",
-             unit=None, parallel=True, **options):
+def register(source: Any, target: Any, *, transform_type: str | type = "similarity",
+             n_sources: int = 50, max_sources: int = 200, order: str | int = "bilinear",
+             conserve_flux: bool = False, fill_value: float = np.nan,
+             method: str = "interpolate", unit: Any = None, parallel: bool = True,
+             hdu: int | str | None = None, add_keyword: bool = True,
+             **options: Any) -> CCDData:
     """
     Align ``source`` onto ``target``: `find_transform`, then
     `~astroalign_nd.apply_transform`.
@@ -338,9 +388,9 @@ def register(source, target, *, transform_type="similarity", n_sources=50, max_s
     source, target
         As in `find_transform`, but both must be images: the source is
         resampled onto the target's pixel grid.
-    transform_type, n_sources, max_sources, **options
+    transform_type, n_sources, max_sources, hdu, **options
         As in `find_transform`.
-    order, conserve_flux, fill_value, method, unit, parallel
+    order, conserve_flux, fill_value, method, unit, parallel, add_keyword
         As in `~astroalign_nd.apply_transform`.
 
     Returns
@@ -363,8 +413,8 @@ def register(source, target, *, transform_type="similarity", n_sources=50, max_s
     from .ccddata import apply_transform
 
     det, _ = _split_options(options)
-    src = _as_reference(source, "source", det)
-    dst = _as_reference(target, "target", det)
+    src = _as_reference(source, "source", det, hdu, unit)
+    dst = _as_reference(target, "target", det, hdu)
     for name, p in (("source", src.parsed), ("target", dst.parsed)):
         if p.is_catalog:
             raise TypeError(
@@ -375,4 +425,5 @@ def register(source, target, *, transform_type="similarity", n_sources=50, max_s
                         max_sources=max_sources, **options)
     return apply_transform(result.transform, src.parsed, dst.parsed, order=order,
                            conserve_flux=conserve_flux, fill_value=fill_value, method=method,
-                           unit=unit, parallel=parallel, quality=quality_dict(result))
+                           unit=unit, parallel=parallel, quality=quality_dict(result),
+                           add_keyword=add_keyword)

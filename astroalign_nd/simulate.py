@@ -843,7 +843,7 @@ def _build_transform(rng, shape, target_shape, rotation, scale, translation, mir
     c_tgt = np.array([(target_shape[1] - 1) / 2.0, (target_shape[0] - 1) / 2.0])
     shift = c_tgt + translation - lin @ c_src
     model = SimilarityTransform(
-        scale=scale, rotation=theta, translation_x=shift[0], translation_y=shift[1],
+        scale=scale, rotation=rotation, translation_x=shift[0], translation_y=shift[1],
         parity=parity,
     )
     info = {
@@ -896,8 +896,8 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
         that represents it).  Cannot be combined with ``rotation``,
         ``scale``, ``translation`` or ``mirror``.
     rotation : float, optional
-        Counter-clockwise rotation in **degrees** (the model stores
-        radians), about the frame centres.  An angular
+        Counter-clockwise rotation in degrees (as the model stores it),
+        about the frame centres.  An angular
         `~astropy.units.Quantity` is converted.
     scale : float, optional
         Magnification from source to target pixels (> 1: stars farther
@@ -968,7 +968,7 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     ...                      translation=(5.0, -3.0), seed=42)
     >>> pair.source.shape, type(pair.transform).__name__
     ((256, 256), 'SimilarityTransform')
-    >>> bool(np.isclose(np.rad2deg(pair.transform.rotation.value), 30.0))
+    >>> bool(np.isclose(pair.transform.rotation.value, 30.0))
     True
     >>> m = pair.matched_stars()
     >>> xt, yt = pair.transform(m["x_source"], m["y_source"])

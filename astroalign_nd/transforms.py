@@ -9,16 +9,32 @@ astropy use them).  They compose with any other astropy model
 (``Shift(1) & Shift(2) | SimilarityTransform(...)``), have an analytic
 ``inverse``, and expose the attributes that scikit-image and astroalign
 users know: ``params`` / ``matrix`` (3x3 homogeneous matrix), ``scale``,
-``rotation`` (radians) and ``translation``.
+``rotation`` and ``translation``.
+
+Angles are in degrees, counter-clockwise, as in astropy's
+`~astropy.modeling.rotations.Rotation2D`; an angle can also be given as a
+`~astropy.units.Quantity` (``rotation=0.3 * u.rad``), which is converted to
+degrees.  (scikit-image's transforms use radians: `to_skimage` and
+`from_skimage` convert through the matrix.)
 
 Mirrored (reflected) transforms are represented, not rejected: the
 rotation-like models carry a fixed ``parity`` parameter, +1 for a proper
 transform and -1 for one that includes a reflection of the y axis *before*
-the rotation.
+the rotation.  Any other value of ``parity`` is refused.
+
+To refit a transform on matched positions of your own (astropy's fitters
+do not fit models with two outputs), use ``from_points`` with optional
+weights, or `fit_transform` for the parameter covariance too.
 """
 
+from __future__ import annotations
+
+from typing import Any
+
 import numpy as np
+from astropy import units as u
 from astropy.modeling import Model, Parameter
+from numpy.typing import ArrayLike
 
 __all__ = [
     "LinearTransform2D",
@@ -50,6 +66,31 @@ def _as_points(points, name):
     return pts
 
 
+def _as_degrees(value, name="rotation"):
+    """An angle in degrees from a number (degrees) or an angle Quantity."""
+    if isinstance(value, Parameter):
+        value = value.quantity if value.unit is not None else value.value
+    if isinstance(value, u.Quantity):
+        try:
+            return value.to_value(u.deg)
+        except u.UnitsError:
+            raise u.UnitsError(
+                f"{name} must be an angle (a number of degrees or an angle Quantity); got "
+                f"a Quantity in {value.unit}."
+            ) from None
+    return value
+
+
+def _check_parity_value(parity):
+    values = np.ravel(np.asarray(parity.value if isinstance(parity, Parameter) else parity,
+                                 dtype=float))
+    if not np.all(np.isin(values, (1.0, -1.0))):
+        raise ValueError(
+            f"parity must be +1 (proper) or -1 (mirrored); got {parity!r}. A mirrored "
+            "transform is parity=-1 with the rotation that follows the flip of the y axis."
+        )
+
+
 class LinearTransform2D(Model):
     """
     Base class of the package's 2-D linear (affine-family) transforms.
@@ -69,9 +110,21 @@ class LinearTransform2D(Model):
     min_points = 3
 
     def __init__(self, *args, **kwargs):
+        if "rotation" in kwargs:
+            kwargs["rotation"] = _as_degrees(kwargs["rotation"])
+        if "parity" in kwargs:
+            _check_parity_value(kwargs["parity"])
         super().__init__(*args, **kwargs)
         self.inputs = ("x", "y")
         self.outputs = ("x", "y")
+
+    def __setattr__(self, name, value):
+        # Keep the conventions when a parameter is set after construction.
+        if name == "rotation" and "rotation" in getattr(type(self), "param_names", ()):
+            value = _as_degrees(value)
+        elif name == "parity" and "parity" in getattr(type(self), "param_names", ()):
+            _check_parity_value(value)
+        super().__setattr__(name, value)
     #: Degrees of freedom (number of free parameters).
     n_dof = 6
 
@@ -97,8 +150,9 @@ class LinearTransform2D(Model):
 
     @property
     def rotation_deg(self):
-        """The rotation in degrees (counter-clockwise)."""
-        return float(np.degrees(np.asarray(self.rotation, dtype=float)))
+        """The rotation in degrees (counter-clockwise), as a float."""
+        rotation = self.rotation
+        return float(np.ravel(getattr(rotation, "value", rotation))[0])
 
     @property
     def mirrored(self):
@@ -138,7 +192,7 @@ class LinearTransform2D(Model):
 
     # -- construction ----------------------------------------------------------
     @classmethod
-    def from_matrix(cls, matrix):
+    def from_matrix(cls, matrix: ArrayLike) -> LinearTransform2D:
         """
         Build the transform from a 2x3 or 3x3 homogeneous matrix.
 
@@ -163,7 +217,8 @@ class LinearTransform2D(Model):
         return cls._from_matrix(m)
 
     @classmethod
-    def from_points(cls, src, dst, *, weights=None, parity=None):
+    def from_points(cls, src: ArrayLike, dst: ArrayLike, *, weights: ArrayLike | None = None,
+                    parity: int | None = None) -> LinearTransform2D:
         """
         Least-squares transform that maps ``src`` onto ``dst``.
 
@@ -172,7 +227,9 @@ class LinearTransform2D(Model):
         src, dst : (N, 2) array-like
             Corresponding (x, y) positions in the source and target frames.
         weights : (N,) array-like, optional
-            Non-negative weights of the point pairs.
+            Non-negative weights of the point pairs, e.g. inverse variances
+            ``1 / sigma**2`` of the positions; pairs with weight 0 are left
+            out.  Equal weights by default.
         parity : {None, 1, -1}, optional
             For rotation-like transforms: force a proper (+1) or mirrored
             (-1) solution.  `None` (default) picks whichever fits better.
@@ -181,6 +238,28 @@ class LinearTransform2D(Model):
         -------
         transform : `LinearTransform2D`
             An instance of the class it is called on.
+
+        Notes
+        -----
+        This is how to refit a transform on a matched catalog of your own:
+        astropy's fitters (`~astropy.modeling.fitting`) fit models with one
+        output only.  For the parameter covariance as well, use
+        `fit_transform`.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from astroalign_nd import SimilarityTransform
+        >>> truth = SimilarityTransform(scale=1.02, rotation=30.0, translation_x=5.0,
+        ...                             translation_y=-2.0)
+        >>> src = np.random.default_rng(0).uniform(0, 500, (40, 2))
+        >>> dst = np.column_stack(truth(*src.T))
+        >>> dst[0] += 50.0  # a bad match...
+        >>> weights = np.ones(40)
+        >>> weights[0] = 0.0  # ...left out
+        >>> t = SimilarityTransform.from_points(src, dst, weights=weights)
+        >>> round(t.rotation_deg, 6), round(float(t.scale.value), 6)
+        (30.0, 1.02)
         """
         model, _, _ = cls._fit(src, dst, weights=weights, parity=parity)
         return model
@@ -201,7 +280,17 @@ class LinearTransform2D(Model):
             )
         w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=float)
         if w.shape != (len(src),) or np.any(w < 0) or not np.all(np.isfinite(w)):
-            raise ValueError("weights must be a finite, non-negative (N,) array.")
+            raise ValueError(
+                f"weights must be a finite, non-negative array of shape ({len(src)},), one "
+                f"per point pair; got shape {w.shape}."
+            )
+        if np.count_nonzero(w) < need:
+            raise ValueError(
+                f"{cls.__name__} needs at least {need} point pairs with non-zero weight; got "
+                f"{np.count_nonzero(w)}."
+            )
+        if parity is not None:
+            _check_parity(parity)
         parities = [parity] if parity is not None else cls._parities
         best = None
         for p in parities:
@@ -252,7 +341,7 @@ class TranslationTransform(LinearTransform2D):
 
     @property
     def rotation(self):
-        """Always 0 (radians)."""
+        """Always 0 (degrees)."""
         return 0.0
 
     @classmethod
@@ -283,6 +372,13 @@ def _check_parity(parity):
         raise ValueError(f"parity must be +1 (proper) or -1 (mirrored); got {parity!r}.")
 
 
+def _radians(rotation):
+    """The evaluate()-time rotation (degrees, or an angle Quantity) in radians."""
+    if isinstance(rotation, u.Quantity):
+        return rotation.to_value(u.rad)
+    return np.deg2rad(rotation)
+
+
 class EuclideanTransform(LinearTransform2D):
     """
     Rotation plus shift (rigid motion), optionally mirrored.
@@ -291,8 +387,9 @@ class EuclideanTransform(LinearTransform2D):
 
     Parameters
     ----------
-    rotation : float
-        Counter-clockwise rotation in radians (the scikit-image convention).
+    rotation : float or `~astropy.units.Quantity`
+        Counter-clockwise rotation in degrees (as in astropy's
+        `~astropy.modeling.rotations.Rotation2D`), or an angle Quantity.
     translation_x, translation_y : float
         Shift in target pixels.
     parity : {1, -1}
@@ -300,7 +397,7 @@ class EuclideanTransform(LinearTransform2D):
         Fixed, never fitted as a continuous parameter.
     """
 
-    rotation = Parameter(default=0.0, description="Rotation (radians, counter-clockwise)")
+    rotation = Parameter(default=0.0, description="Rotation (degrees, counter-clockwise)")
     translation_x = Parameter(default=0.0, description="Shift along x (pixels)")
     translation_y = Parameter(default=0.0, description="Shift along y (pixels)")
     parity = Parameter(default=1.0, fixed=True, description="+1 proper, -1 mirrored")
@@ -310,7 +407,8 @@ class EuclideanTransform(LinearTransform2D):
 
     @staticmethod
     def evaluate(x, y, rotation, translation_x, translation_y, parity):
-        c, s = np.cos(rotation), np.sin(rotation)
+        theta = _radians(rotation)
+        c, s = np.cos(theta), np.sin(theta)
         yp = parity * y
         return c * x - s * yp + translation_x, s * x + c * yp + translation_y
 
@@ -331,7 +429,7 @@ class EuclideanTransform(LinearTransform2D):
                 "AffineTransform instead of EuclideanTransform."
             )
         return cls(
-            rotation=np.arctan2(r[1, 0], r[0, 0]),
+            rotation=np.degrees(np.arctan2(r[1, 0], r[0, 0])),
             translation_x=m[0, 2],
             translation_y=m[1, 2],
             parity=parity,
@@ -374,8 +472,9 @@ class SimilarityTransform(LinearTransform2D):
     ----------
     scale : float
         Magnification from source to target pixels.
-    rotation : float
-        Counter-clockwise rotation in radians (the scikit-image convention).
+    rotation : float or `~astropy.units.Quantity`
+        Counter-clockwise rotation in degrees (as in astropy's
+        `~astropy.modeling.rotations.Rotation2D`), or an angle Quantity.
     translation_x, translation_y : float
         Shift in target pixels.
     parity : {1, -1}
@@ -386,16 +485,18 @@ class SimilarityTransform(LinearTransform2D):
     --------
     >>> import numpy as np
     >>> from astroalign_nd import SimilarityTransform
-    >>> t = SimilarityTransform(scale=2.0, rotation=np.pi / 2,
+    >>> t = SimilarityTransform(scale=2.0, rotation=90.0,
     ...                         translation_x=10.0, translation_y=0.0)
-    >>> t(1.0, 0.0)
-    (10.0, 2.0)
+    >>> np.round(t(1.0, 0.0), 12)
+    array([10.,  2.])
+    >>> float(t.rotation.value)  # degrees, as in astropy's Rotation2D
+    90.0
     >>> np.allclose(t.inverse(*t(3.0, 4.0)), (3.0, 4.0))
     True
     """
 
     scale = Parameter(default=1.0, description="Scale factor")
-    rotation = Parameter(default=0.0, description="Rotation (radians, counter-clockwise)")
+    rotation = Parameter(default=0.0, description="Rotation (degrees, counter-clockwise)")
     translation_x = Parameter(default=0.0, description="Shift along x (pixels)")
     translation_y = Parameter(default=0.0, description="Shift along y (pixels)")
     parity = Parameter(default=1.0, fixed=True, description="+1 proper, -1 mirrored")
@@ -405,7 +506,8 @@ class SimilarityTransform(LinearTransform2D):
 
     @staticmethod
     def evaluate(x, y, scale, rotation, translation_x, translation_y, parity):
-        c, s = scale * np.cos(rotation), scale * np.sin(rotation)
+        theta = _radians(rotation)
+        c, s = scale * np.cos(theta), scale * np.sin(theta)
         yp = parity * y
         return c * x - s * yp + translation_x, s * x + c * yp + translation_y
 
@@ -425,7 +527,7 @@ class SimilarityTransform(LinearTransform2D):
             )
         return cls(
             scale=scale,
-            rotation=np.arctan2(r[1, 0], r[0, 0]),
+            rotation=np.degrees(np.arctan2(r[1, 0], r[0, 0])),
             translation_x=m[0, 2],
             translation_y=m[1, 2],
             parity=parity,
@@ -477,20 +579,20 @@ class AffineTransform(LinearTransform2D):
         # scikit-image: sy is the length of the second column times |cos(shear)|.
         return np.array([
             np.hypot(lin[0, 0], lin[1, 0]),
-            np.hypot(lin[0, 1], lin[1, 1]) * abs(np.cos(self.shear)),
+            np.hypot(lin[0, 1], lin[1, 1]) * abs(np.cos(np.deg2rad(self.shear))),
         ])
 
     @property
     def rotation(self):
-        """Rotation of the x axis, radians (scikit-image's definition)."""
+        """Rotation of the x axis, degrees (scikit-image's definition, in degrees)."""
         lin = self.matrix[:2, :2]
-        return float(np.arctan2(lin[1, 0], lin[0, 0]))
+        return float(np.degrees(np.arctan2(lin[1, 0], lin[0, 0])))
 
     @property
     def shear(self):
-        """Shear angle in radians (scikit-image's definition)."""
+        """Shear angle in degrees (scikit-image's definition, in degrees)."""
         lin = self.matrix[:2, :2]
-        return float(np.arctan2(-lin[0, 1], lin[1, 1]) - self.rotation)
+        return float(np.degrees(np.arctan2(-lin[0, 1], lin[1, 1]))) - self.rotation
 
     @classmethod
     def _from_matrix(cls, m):
@@ -521,7 +623,7 @@ TRANSFORM_TYPES = {
 }
 
 
-def transform_class(transform_type):
+def transform_class(transform_type: str | type) -> type[LinearTransform2D]:
     """
     Return the model class for a ``transform_type`` name or class.
 
@@ -541,7 +643,9 @@ def transform_class(transform_type):
     )
 
 
-def fit_transform(src, dst, transform_type="similarity", *, weights=None, parity=None):
+def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "similarity", *,
+                  weights: ArrayLike | None = None, parity: int | None = None
+                  ) -> tuple[LinearTransform2D, np.ndarray, np.ndarray]:
     """
     Least-squares fit of a transform, with its parameter covariance.
 
@@ -552,7 +656,8 @@ def fit_transform(src, dst, transform_type="similarity", *, weights=None, parity
     transform_type : str or type, optional
         See `transform_class`.
     weights : (N,) array-like, optional
-        Weights of the point pairs.
+        Non-negative weights of the point pairs (e.g. inverse variances);
+        see `LinearTransform2D.from_points`.
     parity : {None, 1, -1}, optional
         Force a proper or mirrored solution for rotation-like models.
 
@@ -561,9 +666,9 @@ def fit_transform(src, dst, transform_type="similarity", *, weights=None, parity
     transform : `LinearTransform2D`
     covariance : ndarray
         Covariance matrix of the model's free parameters (in the order of
-        ``transform.param_names``, without the fixed ``parity``), scaled by
-        the residual variance.  NaN where there are no spare degrees of
-        freedom.
+        ``transform.param_names``, without the fixed ``parity``; a rotation
+        in degrees), scaled by the residual variance.  NaN where there are
+        no spare degrees of freedom.
     residuals : (N, 2) ndarray
         ``transform(src) - dst`` in target pixels.
     """
@@ -592,7 +697,9 @@ def _covariance(model, design, resid, weights):
     except np.linalg.LinAlgError:
         return np.full((len(free), len(free)), np.nan)
     # Map linear parameters to model parameters: they coincide for
-    # translation, euclidean and affine; similarity goes (a, b) -> (scale, rot).
+    # translation and affine; euclidean's angle goes from radians to
+    # degrees; similarity goes (a, b) -> (scale, rotation in degrees).
+    deg = 180.0 / np.pi
     if isinstance(model, SimilarityTransform):
         m = model.matrix
         a, b = m[0, 0], m[1, 0]
@@ -600,15 +707,18 @@ def _covariance(model, design, resid, weights):
         s = np.sqrt(r2)
         jac = np.zeros((4, 4))
         jac[0, :2] = [a / s, b / s]
-        jac[1, :2] = [-b / r2, a / r2]
+        jac[1, :2] = [-b / r2 * deg, a / r2 * deg]
         jac[2, 2] = jac[3, 3] = 1.0
+        return jac @ cov_lin @ jac.T
+    if isinstance(model, EuclideanTransform):
+        jac = np.diag([deg, 1.0, 1.0])
         return jac @ cov_lin @ jac.T
     return cov_lin
 
 
 # -- interoperability ----------------------------------------------------------
 
-def as_matrix(transform):
+def as_matrix(transform: Any) -> np.ndarray:
     """
     The 3x3 homogeneous matrix of any supported transform.
 
@@ -660,7 +770,7 @@ def as_matrix(transform):
     return m
 
 
-def from_matrix(matrix, transform_type=None):
+def from_matrix(matrix: Any, transform_type: str | type | None = None) -> LinearTransform2D:
     """
     Build a package transform from a 3x3 (or 2x3) matrix.
 
@@ -678,7 +788,7 @@ def from_matrix(matrix, transform_type=None):
     return AffineTransform.from_matrix(m)
 
 
-def to_skimage(transform):
+def to_skimage(transform: Any) -> Any:
     """Convert to the matching `skimage.transform` geometric transform."""
     from skimage import transform as sktf
 
@@ -691,12 +801,13 @@ def to_skimage(transform):
     return sktf.AffineTransform(matrix=m)
 
 
-def from_skimage(sk_transform, transform_type=None):
+def from_skimage(sk_transform: Any,
+                 transform_type: str | type | None = None) -> LinearTransform2D:
     """Convert a scikit-image geometric transform (anything with ``params``)."""
     return from_matrix(np.asarray(sk_transform.params, dtype=float), transform_type)
 
 
-def to_astropy_affine(transform):
+def to_astropy_affine(transform: Any) -> Model:
     """Convert to `astropy.modeling.projections.AffineTransformation2D`."""
     from astropy.modeling.projections import AffineTransformation2D
 
@@ -704,6 +815,7 @@ def to_astropy_affine(transform):
     return AffineTransformation2D(matrix=m[:2, :2], translation=m[:2, 2])
 
 
-def from_astropy_affine(model, transform_type=None):
+def from_astropy_affine(model: Model,
+                        transform_type: str | type | None = None) -> LinearTransform2D:
     """Convert an `~astropy.modeling.projections.AffineTransformation2D`."""
     return from_matrix(as_matrix(model), transform_type)

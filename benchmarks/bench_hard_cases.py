@@ -101,7 +101,7 @@ def _catalog_case(name, seed, n_common, n_src_only, n_dst_only, noise):
     """Catalogs in a 512 x 512 frame sharing only ``n_common`` stars (shuffled)."""
     from astroalign_nd import SimilarityTransform
 
-    truth = SimilarityTransform(scale=0.7, rotation=np.deg2rad(200.0), translation_x=310.0,
+    truth = SimilarityTransform(scale=0.7, rotation=200.0, translation_x=310.0,
                                 translation_y=45.5).matrix
     rng = np.random.default_rng(seed)
     common = rng.uniform(0, 500, (n_common, 2))

@@ -21,6 +21,7 @@ from pathlib import Path
 import asdf
 import numpy as np
 import pytest
+from astropy import units as u
 import yaml
 from asdf.exceptions import ValidationError
 from asdf.extension import Converter
@@ -51,13 +52,13 @@ YS = np.array([0.0, 2.0, 7.25, -45.5, 2047.0, 10.0, 3000.0])
 TRANSFORMS = {
     "translation": TranslationTransform(translation_x=12.345678901234567,
                                         translation_y=-7.0 / 3.0),
-    "euclidean": EuclideanTransform(rotation=0.7, translation_x=-12.5,
+    "euclidean": EuclideanTransform(rotation=0.7 * u.rad, translation_x=-12.5,
                                     translation_y=3.0 / 7.0),
-    "euclidean-mirrored": EuclideanTransform(rotation=-2.1, translation_x=100.0,
+    "euclidean-mirrored": EuclideanTransform(rotation=-2.1 * u.rad, translation_x=100.0,
                                              translation_y=-50.25, parity=-1),
-    "similarity": SimilarityTransform(scale=1.0123456789, rotation=np.pi / 7,
+    "similarity": SimilarityTransform(scale=1.0123456789, rotation=np.pi / 7 * u.rad,
                                       translation_x=1e3 / 3.0, translation_y=-0.1),
-    "similarity-mirrored": SimilarityTransform(scale=0.5, rotation=3.0,
+    "similarity-mirrored": SimilarityTransform(scale=0.5, rotation=3.0 * u.rad,
                                                translation_x=-20.0, translation_y=5.5,
                                                parity=-1),
     "affine": AffineTransform(a11=1.01, a12=0.02, a21=-0.03, a22=0.98,
@@ -289,7 +290,8 @@ def test_roundtrip_single(key, tmp_path):
 
 
 def test_roundtrip_name_and_bounding_box(tmp_path):
-    model = SimilarityTransform(scale=1.1, rotation=0.2, translation_x=3.0, translation_y=4.0,
+    model = SimilarityTransform(scale=1.1, rotation=0.2 * u.rad, translation_x=3.0,
+                                translation_y=4.0,
                                 name="science-to-reference")
     model.bounding_box = ((0.0, 99.0), (0.0, 199.0))
     result = _roundtrip(model, tmp_path)
@@ -324,7 +326,7 @@ def test_roundtrip_mixed_with_astropy_models(key, tmp_path):
 
 
 def test_roundtrip_user_inverse(tmp_path):
-    model = SimilarityTransform(scale=1.5, rotation=0.25, translation_x=10.0,
+    model = SimilarityTransform(scale=1.5, rotation=0.25 * u.rad, translation_x=10.0,
                                 translation_y=-5.0, parity=-1)
     # Deliberately not the analytic inverse, so we can tell them apart.
     custom = models.Rotation2D(angle=12.0) | (models.Shift(1.5) & models.Shift(-2.5))
@@ -378,10 +380,10 @@ uri = "asdf://astroalign-nd.org/astroalign_nd/extensions/astroalign_nd-1.0.0"
 registered = [e for e in asdf.get_config().extensions if e.extension_uri == uri]
 assert registered, "the astroalign_nd extension was not loaded from the entry points"
 path = sys.argv[1]
-ours = SimilarityTransform(scale=1.25, rotation=0.4, translation_x=7.0, translation_y=-3.0,
-                           parity=-1)
+ours = SimilarityTransform(scale=1.25, rotation=np.degrees(0.4), translation_x=7.0,
+                           translation_y=-3.0, parity=-1)
 model = (models.Shift(1.0) & models.Shift(2.0)) | ours | models.Rotation2D(angle=10.0)
-single = EuclideanTransform(rotation=1.0, translation_x=2.0, translation_y=3.0)
+single = EuclideanTransform(rotation=np.degrees(1.0), translation_x=2.0, translation_y=3.0)
 single.inverse = models.Shift(-2.0) & models.Shift(-3.0)
 asdf.AsdfFile({"model": model, "single": single}).write_to(path)
 with asdf.config_context() as config:
@@ -424,8 +426,8 @@ def test_fresh_process_uses_entry_points(tmp_path):
     assert "SimilarityTransform" in out["leaves"]
     assert out["single"] == "EuclideanTransform"
     assert out["single_user_inverse"]
-    ours = SimilarityTransform(scale=1.25, rotation=0.4, translation_x=7.0, translation_y=-3.0,
-                               parity=-1)
+    ours = SimilarityTransform(scale=1.25, rotation=np.degrees(0.4), translation_x=7.0,
+                               translation_y=-3.0, parity=-1)
     model = (models.Shift(1.0) & models.Shift(2.0)) | ours | models.Rotation2D(angle=10.0)
     assert_allclose(np.array(out["eval"]), np.array(model(XS, YS)), rtol=0.0, atol=1e-9)
     inverse = models.Shift(-2.0) & models.Shift(-3.0)

@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -120,7 +121,7 @@ def test_failed_write_keeps_old_output(tmp_path, night, monkeypatch):
     out = tmp_path / "out"
     first = register_batch(paths[:1], ref, output_dir=out)
     target = first.frames[0].output
-    before = open(target, "rb").read()
+    before = Path(target).read_bytes()
 
     def broken_write(self, filename, *args, **kwargs):
         with open(filename, "wb") as fh:  # half a file, then the disk "fills up"
@@ -131,7 +132,7 @@ def test_failed_write_keeps_old_output(tmp_path, night, monkeypatch):
     result = register_batch(paths[:1], ref, output_dir=out, overwrite=True)
     assert result.frames[0].status == "failed"
     assert "No space left" in result.frames[0].error
-    assert open(target, "rb").read() == before  # the old output is intact
+    assert Path(target).read_bytes() == before  # the old output is intact
     assert sorted(os.listdir(out)) == [os.path.basename(target)]  # no temporary left over
     # without an old output: nothing under the final name
     result = register_batch(paths[1:2], ref, output_dir=out)
@@ -172,6 +173,8 @@ def test_killed_during_write_leaves_no_partial_file(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
+            proc.wait(timeout=30)
+        proc.stdout.close()
     assert final.read_bytes() == old
     leftovers = [p for p in os.listdir(tmp_path) if p != "out.fits"]
     # only a hidden temporary (which globs like *.fits do not match) may remain
@@ -186,7 +189,7 @@ def test_atomic_write_refuses_existing(tmp_path):
     assert np.all(CCDData.read(path).data == 0)
     with pytest.raises(RuntimeError):
         with atomic_write(path, overwrite=True) as tmp:
-            open(tmp, "w").write("partial")
+            Path(tmp).write_text("partial")
             raise RuntimeError("stop")
     assert np.all(CCDData.read(path).data == 0)
     assert os.listdir(tmp_path) == ["x.fits"]
@@ -219,7 +222,7 @@ def test_resume_skips_complete_outputs(tmp_path, night):
 
     # an incomplete file under the final name (e.g. from another tool) is not "done"
     victim = resumed.frames[1].output
-    data = open(victim, "rb").read()
+    data = Path(victim).read_bytes()
     with open(victim, "wb") as fh:
         fh.write(data[: len(data) // 2])
     res = register_batch(paths, ref, output_dir=out, skip_existing=True)
@@ -418,7 +421,6 @@ HATP32 = (os.path.join(os.path.dirname(WORKTREE), "shared", "data", "real", "pai
 
 
 @pytest.mark.skipif(not os.path.isdir(HATP32), reason="real test images not available")
-@pytest.mark.filterwarnings("ignore::astropy.wcs.FITSFixedWarning")
 def test_union_canvas_keeps_the_drifting_hatp32_night(tmp_path):
     """The HAT-P-32 night drifts by 275 px: on the reference's grid the last frame loses
     about 44% of its pixels, on the union canvas none."""
@@ -435,3 +437,130 @@ def test_union_canvas_keeps_the_drifting_hatp32_night(tmp_path):
         ccd = CCDData.read(f.output)
         # every frame keeps all its pixels but a 1-px bilinear edge (and its hot pixels)
         assert (~ccd.mask).sum() > 0.98 * nx * ny
+
+
+# -- collections, pairs and generators -------------------------------------------------------
+
+
+def test_generator_outputs_are_named_as_frames_arrive(tmp_path, night):
+    """A generator cannot be looked ahead: each frame's name is fixed when it arrives,
+    never reusing one already taken, and the same sequence gives the same names."""
+    ref, paths, shifts = night
+    (tmp_path / "other").mkdir()
+    twin = _write(tmp_path / "other" / "f0.fits", fits.getdata(paths[0]), OBJECT="twin")
+    order = [paths[0], twin, paths[1], paths[0]]
+    out = tmp_path / "out"
+
+    def frames():
+        yield from order
+
+    with pytest.warns(AstroalignWarning, match="renamed") as record:
+        result = register_batch(frames(), ref, output_dir=out)
+    assert len(record) == 2  # one warning per renamed frame, as it arrives
+    assert [f.name for f in result.frames] == ["f0.fits", "f0.fits#2", "f1.fits", "f0.fits#3"]
+    assert [os.path.basename(f.output) for f in result.frames] == [
+        "f0_aligned.fits", "f0_2_aligned.fits", "f1_aligned.fits", "f0_3_aligned.fits"]
+    assert [f.source for f in result.frames] == order
+    for f, obj, shift in zip(result.frames, ["f0", "twin", "f1", "f0"],
+                             [shifts[0], shifts[0], shifts[1], shifts[0]]):
+        assert CCDData.read(f.output).meta["OBJECT"] == obj
+        assert _shift_error(f.transform, shift) < 0.05
+    # resumed from a new generator of the same frames: the same names, all found again
+    with pytest.warns(AstroalignWarning, match="renamed"):
+        again = register_batch(frames(), ref, output_dir=out, skip_existing=True)
+    assert [f.status for f in again.frames] == ["skipped"] * 4
+    assert [f.output for f in again.frames] == [f.output for f in result.frames]
+
+
+def test_generator_never_writes_onto_an_input_it_has_seen(tmp_path, night):
+    ref, paths, _ = night
+    folder = os.path.dirname(paths[2])
+    # an input whose name is the natural output of a later frame, in the output folder
+    decoy = _write(os.path.join(folder, "f2_aligned.fits"), fits.getdata(paths[2]),
+                   OBJECT="decoy")
+    before = Path(decoy).read_bytes()
+    with pytest.warns(AstroalignWarning, match="f2_aligned.fits is taken"):
+        result = register_batch((p for p in [decoy, paths[2]]), ref, output_dir=folder,
+                                overwrite=True)
+    assert not result.failed, result.summary()
+    assert [os.path.basename(f.output) for f in result.frames] == [
+        "f2_aligned_aligned.fits", "f2_2_aligned.fits"]
+    assert Path(decoy).read_bytes() == before
+    # nor onto the target
+    with pytest.warns(AstroalignWarning, match="renamed"):
+        result = register_batch(iter([paths[0]]), ref, output_dir=os.path.dirname(ref),
+                                suffix="", overwrite=True)
+    assert os.path.basename(result.frames[0].output) == "f0_2.fits"
+
+
+def test_generator_in_workers_and_on_a_union_canvas(night):
+    ref, paths, shifts = night
+
+    def frames():
+        for p in paths:
+            yield CCDData.read(p)
+
+    par = register_batch(frames(), ref, workers=2)
+    assert [f.name for f in par.frames] == ["frame0", "frame1", "frame2"]
+    for f, s in zip(par.frames, shifts):
+        assert f.status == "registered" and _shift_error(f.transform, s) < 0.05
+    # two passes: the generator's frames are collected first (documented)
+    union = register_batch(frames(), ref, canvas="union")
+    listed = register_batch(list(frames()), ref, canvas="union")
+    assert union.canvas_shape == listed.canvas_shape != SHAPE
+    assert union.canvas_offset == listed.canvas_offset
+    for f, g in zip(union.frames, listed.frames):
+        assert np.array_equal(f.ccd.data, g.ccd.data, equal_nan=True)
+
+
+def test_generator_on_dask_is_fed_as_workers_free_up(night):
+    distributed = pytest.importorskip("dask.distributed")
+    ref, paths, shifts = night
+    taken = []
+
+    def frames():
+        for k, p in enumerate(paths * 3):
+            taken.append(k)
+            yield CCDData.read(p), f"n{k}.fits"  # (frame, file name) pairs
+
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        with distributed.Client(cluster) as client:
+            seen = []
+            result = register_batch(frames(), ref, client=client,
+                                    callback=lambda f: seen.append(len(taken)))
+    assert [f.name for f in result.frames] == [f"n{k}.fits" for k in range(9)]
+    assert not result.failed, result.summary()
+    # when the first frame was done, the generator had not been run to its end
+    assert seen[0] <= 3
+    for k, f in enumerate(result.frames):
+        assert _shift_error(f.transform, shifts[k % 3]) < 0.05
+
+
+def test_pairs_collections_and_plan_outputs(tmp_path, night):
+    ccdproc = pytest.importorskip("ccdproc")
+    ref, paths, _ = night
+    frames = [(CCDData.read(p), f"raw/{os.path.basename(p)}") for p in paths]
+    result = register_batch(frames, ref, output_dir=tmp_path / "out")
+    assert [f.name for f in result.frames] == ["f0.fits", "f1.fits", "f2.fits"]
+    assert sorted(os.listdir(tmp_path / "out")) == [
+        "f0_aligned.fits", "f1_aligned.fits", "f2_aligned.fits"]
+    assert all(f.source is None for f in result.frames)  # in memory: no input path
+    # plan_outputs takes what register_batch takes: pairs and collections too
+    ifc = ccdproc.ImageFileCollection(os.path.dirname(ref), glob_include="f*.fits")
+    planned, renamed = plan_outputs(ifc, str(tmp_path / "out"))
+    assert [os.path.basename(p) for p in planned] == [
+        "f0_aligned.fits", "f1_aligned.fits", "f2_aligned.fits"]
+    assert not renamed
+    assert plan_outputs(frames, str(tmp_path / "out"))[0] == planned
+
+
+def test_add_keyword_false_in_a_batch(tmp_path, night):
+    ref, paths, _ = night
+    result = register_batch(paths[:1], ref, output_dir=tmp_path, add_keyword=False)
+    header = fits.getheader(result.frames[0].output)
+    assert header["OBJECT"] == "f0"
+    assert not any(k.startswith("AA") for k in header)
+    with pytest.raises(ValueError, match="add_keyword=False"):
+        register_batch(paths[:1], ref, output_dir=tmp_path, add_keyword=False,
+                       skip_existing=True)

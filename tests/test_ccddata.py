@@ -542,7 +542,7 @@ def test_history_and_transform_keywords(pair):
 
 
 def test_header_from_apply_transform_without_quality(pair):
-    t = SimilarityTransform(scale=1.02, rotation=0.1, translation_x=1.0, translation_y=2.0)
+    t = SimilarityTransform(scale=1.02, rotation=0.1 * u.rad, translation_x=1.0, translation_y=2.0)
     out = apply_transform(t, pair.source, pair.target)
     assert "astroalign_nd" in "".join(str(h) for h in out.meta["HISTORY"])
     assert_allclose(transform_from_header(out.meta).matrix, t.matrix, atol=1e-15)
@@ -567,7 +567,7 @@ def test_source_wcs_is_carried_through_transform(use_cd, rot_deg):
     data = rng.normal(100, 5, (120, 140))
     w_src = _simple_tan_wcs(crpix=(60.5, 55.0), crval=(210.0, -30.0), use_cd=use_cd,
                             scale=2e-4, rot_deg=rot_deg)
-    t = SimilarityTransform(scale=1.2, rotation=np.radians(25.0), translation_x=14.2,
+    t = SimilarityTransform(scale=1.2, rotation=25.0, translation_x=14.2,
                             translation_y=-9.7)
     out = apply_transform(t, CCDData(data, unit="adu", wcs=w_src), (130, 150))
     assert out.wcs is not None
@@ -608,7 +608,7 @@ def stack_frames():
     for k, (rot, dx, dy) in enumerate([(3.0, 5.2, -4.1), (-2.0, -6.3, 3.7),
                                        (1.0, 2.5, 7.9)]):
         # S maps target pixels to source pixels; registration must find S^-1
-        s = SimilarityTransform(scale=1.0, rotation=np.radians(rot), translation_x=dx,
+        s = SimilarityTransform(scale=1.0, rotation=rot, translation_x=dx,
                                 translation_y=dy)
         xs, ys = s(x, y)
         src = simulate_image(shape, xs, ys, flux, seed=k)
@@ -711,7 +711,7 @@ def test_inputs_not_modified(pair, tmp_path):
 
 def test_bad_inputs(pair):
     cat = Table({"x": [1.0, 5.0, 9.0, 20.0], "y": [2.0, 8.0, 3.0, 15.0]})
-    t = SimilarityTransform(scale=1.0, rotation=0.1, translation_x=1.0, translation_y=2.0)
+    t = SimilarityTransform(scale=1.0, rotation=0.1 * u.rad, translation_x=1.0, translation_y=2.0)
     with pytest.raises(TypeError, match="catalog"):
         apply_transform(t, cat, pair.target)
     with pytest.raises(TypeError, match="catalog"):

@@ -6,6 +6,7 @@ import re
 
 import numpy as np
 import pytest
+from astropy import units as u
 from astropy.io import fits
 from astropy.nddata import CCDData, NDData, StdDevUncertainty
 from astropy.table import Table
@@ -93,7 +94,7 @@ def test_outliers_are_rejected():
 
 # -- (b) catalogs --------------------------------------------------------------------------
 
-TRUTH = SimilarityTransform(scale=0.7, rotation=np.deg2rad(200.0), translation_x=310.0,
+TRUTH = SimilarityTransform(scale=0.7, rotation=200.0, translation_x=310.0,
                             translation_y=45.5)
 TRIANGLE = np.array([[12.0, 30.0], [210.0, 75.0], [95.0, 260.0]])  # scalene
 
@@ -166,7 +167,7 @@ def test_mirrored_pair_refused_when_mirror_not_allowed():
 
 
 def test_mirrored_catalog():
-    mirrored = SimilarityTransform(scale=1.1, rotation=0.4, translation_x=5.0,
+    mirrored = SimilarityTransform(scale=1.1, rotation=0.4 * u.rad, translation_x=5.0,
                                    translation_y=7.0, parity=-1)
     rng = np.random.default_rng(23)
     src = rng.uniform(0, 500, size=(40, 2))
@@ -519,7 +520,7 @@ def test_affine_type_strong_shear(inputs, seed):
                                                  ("affine", AffineTransform)])
 def test_transform_types_on_catalogs(transform_type, cls):
     truth = {"translation": TranslationTransform(3.5, -8.25),
-             "euclidean": EuclideanTransform(rotation=2.0, translation_x=300.0,
+             "euclidean": EuclideanTransform(rotation=2.0 * u.rad, translation_x=300.0,
                                              translation_y=20.0),
              "similarity": TRUTH,
              "affine": AffineTransform(a11=1.1, a12=0.1, a21=-0.05, a22=0.9,

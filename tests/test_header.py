@@ -5,6 +5,7 @@ import warnings
 
 import numpy as np
 import pytest
+from astropy import units as u
 from astropy.io import fits
 from astropy.modeling import models
 from astropy.utils.exceptions import AstropyUserWarning
@@ -27,13 +28,13 @@ YS = np.array([0.0, 2.0, 7.25, -45.5, 2047.0, 10.0, 3000.0])
 TRANSFORMS = {
     "translation": TranslationTransform(translation_x=12.345678901234567,
                                         translation_y=-7.0 / 3.0),
-    "euclidean": EuclideanTransform(rotation=0.7, translation_x=-12.5,
+    "euclidean": EuclideanTransform(rotation=0.7 * u.rad, translation_x=-12.5,
                                     translation_y=3.0 / 7.0),
-    "euclidean-mirrored": EuclideanTransform(rotation=-2.1, translation_x=100.0,
+    "euclidean-mirrored": EuclideanTransform(rotation=-2.1 * u.rad, translation_x=100.0,
                                              translation_y=-50.25, parity=-1),
-    "similarity": SimilarityTransform(scale=1.0123456789, rotation=np.pi / 7,
+    "similarity": SimilarityTransform(scale=1.0123456789, rotation=np.pi / 7 * u.rad,
                                       translation_x=1e3 / 3.0, translation_y=-1.2345e-7),
-    "similarity-mirrored": SimilarityTransform(scale=0.5, rotation=3.0,
+    "similarity-mirrored": SimilarityTransform(scale=0.5, rotation=3.0 * u.rad,
                                                translation_x=-20.0, translation_y=5.5,
                                                parity=-1),
     "affine": AffineTransform(a11=1.01, a12=0.02, a21=-0.03, a22=0.98,
@@ -105,7 +106,7 @@ def test_roundtrip_through_fits_file(key, tmp_path):
 def test_header_floats_are_rounded_but_strings_are_exact():
     # astropy writes float cards in at most 20 characters, rounding the mantissa;
     # the companion string cards keep every digit.
-    model = SimilarityTransform(scale=1.2345678901234567e-5, rotation=0.3,
+    model = SimilarityTransform(scale=1.2345678901234567e-5, rotation=0.3 * u.rad,
                                 translation_x=1e-7 / 3.0, translation_y=2.0 / 3.0)
     header = fits.Header.fromstring(transform_to_header(model).tostring())
     m = model.matrix
@@ -121,7 +122,7 @@ def test_header_floats_are_rounded_but_strings_are_exact():
 
 
 def test_human_readable_keywords():
-    model = SimilarityTransform(scale=2.0, rotation=np.radians(30.0), translation_x=5.0,
+    model = SimilarityTransform(scale=2.0, rotation=30.0, translation_x=5.0,
                                 translation_y=-6.0, parity=-1)
     header = transform_to_header(model)
     assert header["AATSCALE"] == pytest.approx(2.0)
@@ -145,7 +146,7 @@ def test_human_readable_keywords():
 
 
 def test_rotation_keyword_is_wrapped():
-    model = EuclideanTransform(rotation=np.radians(30.0) + 4 * np.pi, translation_x=0.0,
+    model = EuclideanTransform(rotation=30.0 + 720.0, translation_x=0.0,
                                translation_y=0.0)
     header = transform_to_header(model)
     assert header["AATROT"] == pytest.approx(30.0)
@@ -226,7 +227,8 @@ def test_astropy_affine_models_are_stored_as_affine():
 
 
 def test_user_inverse_is_dropped_with_warning():
-    model = SimilarityTransform(scale=1.5, rotation=0.2, translation_x=1.0, translation_y=2.0)
+    model = SimilarityTransform(scale=1.5, rotation=0.2 * u.rad, translation_x=1.0,
+                                translation_y=2.0)
     model.inverse = models.Shift(0.0) & models.Shift(0.0)
     with pytest.warns(AstropyUserWarning, match="user-assigned inverse"):
         header = transform_to_header(model)

@@ -7,6 +7,7 @@ to/from_astropy_affine).
 
 import numpy as np
 import pytest
+from astropy import units as u
 from astropy.modeling import models
 from numpy.testing import assert_allclose, assert_array_equal
 from skimage import transform as sktf
@@ -31,13 +32,13 @@ POINTS = np.column_stack([XS, YS])
 TRANSFORMS = {
     "translation": TranslationTransform(translation_x=12.345678901234567,
                                         translation_y=-7.0 / 3.0),
-    "euclidean": EuclideanTransform(rotation=0.7, translation_x=-12.5,
+    "euclidean": EuclideanTransform(rotation=0.7 * u.rad, translation_x=-12.5,
                                     translation_y=3.0 / 7.0),
-    "euclidean-mirrored": EuclideanTransform(rotation=-2.1, translation_x=100.0,
+    "euclidean-mirrored": EuclideanTransform(rotation=-2.1 * u.rad, translation_x=100.0,
                                              translation_y=-50.25, parity=-1),
-    "similarity": SimilarityTransform(scale=1.0123456789, rotation=np.pi / 7,
+    "similarity": SimilarityTransform(scale=1.0123456789, rotation=np.pi / 7 * u.rad,
                                       translation_x=1e3 / 3.0, translation_y=-0.1),
-    "similarity-mirrored": SimilarityTransform(scale=0.5, rotation=3.0,
+    "similarity-mirrored": SimilarityTransform(scale=0.5, rotation=3.0 * u.rad,
                                                translation_x=-20.0, translation_y=5.5,
                                                parity=-1),
     "affine": AffineTransform(a11=1.01, a12=0.02, a21=-0.03, a22=0.98,
@@ -107,7 +108,7 @@ def test_mirrored_flag_and_inverse(key):
 def test_matrix_is_exact_with_large_translation():
     # The matrix must not be computed by differencing A e + t and t, which
     # loses the low bits of A when the shift is much larger than A.
-    model = SimilarityTransform(scale=1.2345678901234567e-5, rotation=0.3,
+    model = SimilarityTransform(scale=1.2345678901234567e-5, rotation=0.3 * u.rad,
                                 translation_x=1e4 / 3.0, translation_y=-2e4 / 7.0)
     m = model.matrix
     c, s = 1.2345678901234567e-5 * np.cos(0.3), 1.2345678901234567e-5 * np.sin(0.3)
@@ -164,7 +165,7 @@ def test_from_matrix_picks_simplest_class(matrix, expected):
 @pytest.mark.parametrize(
     ("model", "not_a"),
     [
-        (SimilarityTransform(scale=1.000004, rotation=0.2, translation_x=5.0,
+        (SimilarityTransform(scale=1.000004, rotation=0.2 * u.rad, translation_x=5.0,
                              translation_y=3.0), (TranslationTransform, EuclideanTransform)),
         (AffineTransform(a11=1.000004, a12=0.0, a21=0.0, a22=1.0, translation_x=5.0,
                          translation_y=3.0),
@@ -252,13 +253,13 @@ def test_skimage_attributes_match():
         model = TRANSFORMS[key]
         sk = to_skimage(model)
         assert_allclose(sk.translation, model.translation, rtol=0, atol=1e-12)
-        assert_allclose(sk.rotation, np.asarray(model.rotation, dtype=float), rtol=0,
+        assert_allclose(sk.rotation, np.deg2rad(model.rotation_deg), rtol=0,
                         atol=1e-12)
         if hasattr(sk, "scale"):  # scikit-image's EuclideanTransform has none
             assert_allclose(sk.scale, np.asarray(model.scale, dtype=float), rtol=0,
                             atol=1e-12)
         if hasattr(sk, "shear"):
-            assert_allclose(sk.shear, model.shear, rtol=0, atol=1e-12)
+            assert_allclose(sk.shear, np.deg2rad(model.shear), rtol=0, atol=1e-12)
 
 
 def test_affine_scale_shear_rotation_like_skimage():
@@ -268,8 +269,8 @@ def test_affine_scale_shear_rotation_like_skimage():
                               translation=(5.0, -6.0))
     model = from_skimage(sk, "affine")
     assert_allclose(model.scale, [1.3, 0.7], rtol=0, atol=1e-12)
-    assert model.rotation == pytest.approx(0.4, abs=1e-12)
-    assert model.shear == pytest.approx(0.25, abs=1e-12)
+    assert model.rotation == pytest.approx(np.degrees(0.4), abs=1e-10)
+    assert model.shear == pytest.approx(np.degrees(0.25), abs=1e-10)
     assert_allclose(model.translation, [5.0, -6.0], rtol=0, atol=1e-12)
 
 
@@ -278,7 +279,7 @@ def test_from_skimage_native_transforms():
     model = from_skimage(sk)
     assert type(model) is SimilarityTransform
     assert model.scale.value == pytest.approx(1.7)
-    assert model.rotation.value == pytest.approx(-0.4)
+    assert model.rotation.value == pytest.approx(np.degrees(-0.4))
     _assert_same_evaluation(sk, model)
 
     sk = sktf.EuclideanTransform(rotation=2.5, translation=(3.0, 4.0))
@@ -336,7 +337,7 @@ def test_from_astropy_affine_native():
                                            translation=[10.0, 20.0])
     model = from_astropy_affine(affine)
     assert type(model) is EuclideanTransform
-    assert model.rotation.value == pytest.approx(np.pi / 2)
+    assert model.rotation.value == pytest.approx(90.0)
     _assert_same_evaluation(affine, model)
     with pytest.raises(ValueError, match="rotation, scale or shear"):
         from_astropy_affine(affine, "translation")

@@ -20,7 +20,8 @@ def run(*args, **kwargs):
 
 
 def similarity(scale=1.0, rotation=0.0, tx=0.0, ty=0.0):
-    return SimilarityTransform(scale=scale, rotation=rotation, translation_x=tx,
+    """The matrix of a similarity; ``rotation`` in radians."""
+    return SimilarityTransform(scale=scale, rotation=np.degrees(rotation), translation_x=tx,
                                translation_y=ty).matrix
 
 

@@ -218,7 +218,7 @@ def test_pair_default_transform_is_random_rotation_and_small_shift():
     assert p.transform.scale.value == pytest.approx(1.0)
     assert p.transform.parity.value == 1.0
     assert 0 <= p.meta["rotation"] < 360
-    assert np.rad2deg(p.transform.rotation.value) % 360 == pytest.approx(p.meta["rotation"])
+    assert p.transform.rotation.value % 360 == pytest.approx(p.meta["rotation"])
     dx, dy = p.meta["translation"]
     assert abs(dx) <= 0.1 * 300 and abs(dy) <= 0.1 * 200
     assert p.meta["random_transform"]
@@ -230,7 +230,7 @@ def test_pair_positions_follow_transform():
                       seed=5)
     t = p.transform
     assert isinstance(t, SimilarityTransform)
-    assert t.rotation.value == pytest.approx(np.deg2rad(37.0))
+    assert t.rotation.value == pytest.approx(37.0)
     assert t.scale.value == pytest.approx(0.8)
     assert t.parity.value == -1
     # Rotation and scale are about the frame centres, the shift is of the centre.

@@ -3,6 +3,7 @@
 
 import numpy as np
 import pytest
+from astropy import units as u
 from astropy.modeling import Model
 from astropy.modeling.models import Identity, Shift
 
@@ -15,12 +16,12 @@ from astroalign_nd.transforms import (TRANSFORM_TYPES, fit_transform, from_matri
 # rotations beyond 90 degrees, mirrored variants).
 MODELS = {
     "translation": TranslationTransform(translation_x=-12.25, translation_y=301.5),
-    "euclidean": EuclideanTransform(rotation=2.1, translation_x=250.0, translation_y=-40.0),
-    "euclidean-mirrored": EuclideanTransform(rotation=-0.7, translation_x=5.0,
+    "euclidean": EuclideanTransform(rotation=2.1 * u.rad, translation_x=250.0, translation_y=-40.0),
+    "euclidean-mirrored": EuclideanTransform(rotation=-0.7 * u.rad, translation_x=5.0,
                                              translation_y=612.0, parity=-1),
-    "similarity": SimilarityTransform(scale=1.37, rotation=np.deg2rad(271.0),
+    "similarity": SimilarityTransform(scale=1.37, rotation=271.0,
                                       translation_x=-80.5, translation_y=1000.25),
-    "similarity-mirrored": SimilarityTransform(scale=0.52, rotation=0.3, translation_x=17.0,
+    "similarity-mirrored": SimilarityTransform(scale=0.52, rotation=0.3 * u.rad, translation_x=17.0,
                                                translation_y=-3.5, parity=-1),
     "affine": AffineTransform(a11=1.2, a12=0.31, a21=-0.12, a22=0.9, translation_x=33.0,
                               translation_y=-7.0),
@@ -346,11 +347,11 @@ def test_fit_transform_parity_argument():
 # -- attributes ----------------------------------------------------------------------------
 
 def test_similarity_attributes():
-    t = SimilarityTransform(scale=2.0, rotation=np.pi / 6, translation_x=10.0,
+    t = SimilarityTransform(scale=2.0, rotation=np.pi / 6 * u.rad, translation_x=10.0,
                             translation_y=-4.0)
     assert t.scale == pytest.approx(2.0)
     assert float(t.scale.value) == pytest.approx(2.0)
-    assert t.rotation == pytest.approx(np.pi / 6)
+    assert t.rotation == pytest.approx(30.0)
     assert isinstance(t.rotation_deg, float)
     assert t.rotation_deg == pytest.approx(30.0)
     np.testing.assert_allclose(t.translation, [10.0, -4.0])
@@ -366,7 +367,7 @@ def test_similarity_attributes():
 
 
 def test_mirrored_attribute():
-    t = SimilarityTransform(scale=1.5, rotation=0.2, parity=-1)
+    t = SimilarityTransform(scale=1.5, rotation=0.2 * u.rad, parity=-1)
     assert t.mirrored is True
     assert np.linalg.det(t.matrix[:2, :2]) == pytest.approx(-1.5 ** 2)
     assert MODELS["affine-mirrored"].mirrored is True
@@ -384,7 +385,7 @@ def test_translation_attributes():
 
 
 def test_euclidean_attributes():
-    t = EuclideanTransform(rotation=np.deg2rad(-37.0), translation_x=1.0, translation_y=2.0)
+    t = EuclideanTransform(rotation=-37.0, translation_x=1.0, translation_y=2.0)
     assert t.scale == 1.0
     assert t.rotation_deg == pytest.approx(-37.0)
     assert np.linalg.det(t.matrix[:2, :2]) == pytest.approx(1.0)
@@ -395,8 +396,8 @@ def test_affine_attributes_match_skimage():
     t = MODELS["affine"]
     ref = skt.AffineTransform(matrix=t.matrix)
     np.testing.assert_allclose(t.scale, ref.scale, rtol=1e-12)
-    assert t.rotation == pytest.approx(ref.rotation, abs=1e-12)
-    assert t.shear == pytest.approx(ref.shear, abs=1e-12)
+    assert t.rotation == pytest.approx(np.degrees(ref.rotation), abs=1e-10)
+    assert t.shear == pytest.approx(np.degrees(ref.shear), abs=1e-10)
     np.testing.assert_allclose(t.translation, ref.translation)
     np.testing.assert_allclose(t.params, ref.params)
 
@@ -407,7 +408,7 @@ def test_similarity_attributes_match_skimage():
     ref = skt.SimilarityTransform(matrix=t.matrix)
     assert t.scale == pytest.approx(ref.scale, rel=1e-12)
     # same angle modulo 2 pi
-    d = (float(t.rotation.value) - ref.rotation + np.pi) % (2 * np.pi) - np.pi
+    d = (np.deg2rad(float(t.rotation.value)) - ref.rotation + np.pi) % (2 * np.pi) - np.pi
     assert d == pytest.approx(0.0, abs=1e-12)
     np.testing.assert_allclose(t.translation, ref.translation)
 

@@ -3,13 +3,17 @@
 Storing transforms in files.
 
 * FITS headers: `transform_to_header` / `transform_from_header` write and
-  read a linear 2-D transform as ``AAT*`` keywords.
+  read a linear 2-D transform as ``AAT*`` keywords; `add_provenance` adds
+  the fit quality (`QUALITY_KEYWORDS`) and HISTORY of a registration.
+* Writing: `write_ccddata` / `atomic_write` write a file atomically, so an
+  interrupted run never leaves half a file under the final name.
 * ASDF: any transform, alone or inside an astropy compound model, through
   the extension in ``astroalign_nd.io.asdf`` (registered with asdf by entry
   points when the package is installed).
 """
 
-from .header import transform_from_header, transform_to_header
+from .header import QUALITY_KEYWORDS, add_provenance, transform_from_header, transform_to_header
 from .write import atomic_write, write_ccddata
 
-__all__ = ["transform_to_header", "transform_from_header", "atomic_write", "write_ccddata"]
+__all__ = ["transform_to_header", "transform_from_header", "add_provenance",
+           "QUALITY_KEYWORDS", "atomic_write", "write_ccddata"]

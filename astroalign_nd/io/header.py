@@ -24,20 +24,32 @@ Keyword         Content
 ``AATPAR``      Parity: +1 proper, -1 mirrored
 ==============  ===========================================================
 
+`add_provenance` adds, for a registered frame, the quality of the fit
+(`QUALITY_KEYWORDS`: ``AATNMAT``, ``AATRMS``, ``AATLFA``) and ``HISTORY``
+cards saying what was done.  These are all the keywords astroalign_nd
+writes; ``add_keyword=False`` (`~astroalign_nd.register`,
+`~astroalign_nd.apply_transform`) leaves every one of them out, as
+ccdproc's ``add_keyword`` does.
+
 The transform is rebuilt from ``AATTYPE`` and the matrix (the strings when
 present, else the floats); the other keywords are for people reading the
 header.  The matrix maps 0-based source pixel coordinates ``(x, y)`` onto
 target pixel coordinates, like the models of `astroalign_nd.transforms`.
 """
 
+from __future__ import annotations
+
+import datetime
 import re
-import warnings
+from collections.abc import Mapping
+import textwrap
 
 import numpy as np
 from astropy.io import fits
 from astropy.modeling import Model
 from astropy.utils.exceptions import AstropyUserWarning
 
+from ..exceptions import warn
 from ..transforms import (
     TRANSFORM_TYPES,
     AffineTransform,
@@ -46,7 +58,16 @@ from ..transforms import (
     transform_class,
 )
 
-__all__ = ["transform_to_header", "transform_from_header"]
+__all__ = ["transform_to_header", "transform_from_header", "add_provenance",
+           "QUALITY_KEYWORDS"]
+
+#: The fit-quality keywords of a registered frame: suffix (after the prefix),
+#: the ``transform.meta['quality']`` entry, decimals kept, and comment.
+QUALITY_KEYWORDS = (
+    ("NMAT", "n_matches", None, "astroalign_nd: matched stars"),
+    ("RMS", "rms", 6, "astroalign_nd: fit RMS [px]"),
+    ("LFA", "log10_false_alarm", 3, "astroalign_nd: log10 false-alarm probability"),
+)
 
 _MATRIX_INDICES = ("00", "01", "02", "10", "11", "12")
 _HUMAN_SUFFIXES = ("SCALE", "SCALX", "SCALY", "ROT", "SHEAR", "TX", "TY", "PAR")
@@ -114,8 +135,9 @@ def _model_matrix(model):
 
 
 def _degrees(angle):
-    """Angle in radians to degrees in (-180, 180]."""
-    degrees = float(np.degrees(np.arctan2(np.sin(angle), np.cos(angle))))
+    """Angle in degrees wrapped to (-180, 180]."""
+    rad = np.deg2rad(angle)
+    degrees = float(np.degrees(np.arctan2(np.sin(rad), np.cos(rad))))
     return 180.0 if degrees == -180.0 else degrees
 
 
@@ -146,7 +168,8 @@ def _human_cards(type_name, model, matrix):
     return cards
 
 
-def transform_to_header(model, header=None, *, prefix="AAT"):
+def transform_to_header(model: Model, header: fits.Header | Mapping | None = None, *,
+                        prefix: str = "AAT") -> fits.Header:
     """
     Store a linear 2-D transform in a FITS header.
 
@@ -187,7 +210,7 @@ def transform_to_header(model, header=None, *, prefix="AAT"):
     --------
     >>> from astroalign_nd.transforms import SimilarityTransform
     >>> from astroalign_nd.io import transform_to_header, transform_from_header
-    >>> t = SimilarityTransform(scale=1.5, rotation=0.1, translation_x=3.0,
+    >>> t = SimilarityTransform(scale=1.5, rotation=30.0, translation_x=3.0,
     ...                         translation_y=-2.0)
     >>> hdr = transform_to_header(t)
     >>> hdr["AATTYPE"]
@@ -199,7 +222,7 @@ def transform_to_header(model, header=None, *, prefix="AAT"):
     prefix = _check_prefix(prefix)
     matrix = _model_matrix(model)
     if getattr(model, "has_user_inverse", False):
-        warnings.warn(
+        warn(
             "the model has a user-assigned inverse, which a FITS header cannot hold; only "
             "the forward transform is stored (save to ASDF to keep the inverse).",
             AstropyUserWarning,
@@ -213,7 +236,7 @@ def transform_to_header(model, header=None, *, prefix="AAT"):
     else:
         try:
             out = fits.Header(header)
-        except Exception as exc:
+        except (TypeError, ValueError, AttributeError, KeyError) as exc:
             raise TypeError(
                 "header must be an astropy.io.fits.Header, a dict-like of keywords or None; "
                 f"got {type(header).__name__} ({exc})."
@@ -265,7 +288,8 @@ def _read_matrix(header, prefix):
     return matrix
 
 
-def transform_from_header(header, *, prefix="AAT"):
+def transform_from_header(header: fits.Header | Mapping, *,
+                          prefix: str = "AAT") -> LinearTransform2D:
     """
     Rebuild a transform stored by `transform_to_header`.
 
@@ -292,7 +316,7 @@ def transform_from_header(header, *, prefix="AAT"):
     if not isinstance(header, fits.Header):
         try:
             header = fits.Header(header)
-        except Exception as exc:
+        except (TypeError, ValueError, AttributeError, KeyError) as exc:
             raise TypeError(
                 "header must be an astropy.io.fits.Header or a dict-like of keywords; got "
                 f"{type(header).__name__} ({exc})."
@@ -318,3 +342,62 @@ def transform_from_header(header, *, prefix="AAT"):
         raise ValueError(
             f"the matrix in the header is not a valid {cls.__name__} ({exc})."
         ) from None
+
+
+def _add_history(header, text):
+    """HISTORY cards wrapped at word boundaries (FITS cuts long ones mid-word)."""
+    for line in textwrap.wrap(text, 70, subsequent_indent="  "):
+        header.add_history(line)
+
+
+def add_provenance(header: fits.Header, model: LinearTransform2D, *,
+                   quality: dict | None = None, source_name: str = "source",
+                   target_name: str = "target", order: str | None = None,
+                   conserve_flux: bool = False, prefix: str = "AAT") -> fits.Header:
+    """
+    Record a registration in a header: transform, fit quality and HISTORY.
+
+    Parameters
+    ----------
+    header : `~astropy.io.fits.Header`
+        Copied, never modified.
+    model : `~astroalign_nd.transforms.LinearTransform2D`
+        The source-to-target transform (stored by `transform_to_header`).
+    quality : dict, optional
+        ``transform.meta['quality']``; adds the `QUALITY_KEYWORDS`.
+    source_name, target_name : str, optional
+        What was registered onto what, for the HISTORY cards.
+    order : str, optional
+        The resampling kernel.
+    conserve_flux : bool, optional
+    prefix : str, optional
+        Keyword prefix (default ``'AAT'``).
+
+    Returns
+    -------
+    header : `~astropy.io.fits.Header`
+        A new header.
+    """
+    from .. import __version__
+
+    out = transform_to_header(model, header, prefix=prefix)
+    m = as_matrix(model)
+    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
+    _add_history(out, f"astroalign_nd {__version__} {now} UTC: registered {source_name} "
+                      f"onto the pixel grid of {target_name}")
+    det = np.linalg.det(m[:2, :2])
+    desc = (f"{type(model).__name__} scale={np.sqrt(abs(det)):.6f}"
+            f" rot={np.degrees(np.arctan2(m[1, 0], m[0, 0])):.5f}deg"
+            f" shift=({m[0, 2]:.3f},{m[1, 2]:.3f})px{' mirrored' if det < 0 else ''}")
+    _add_history(out, f"astroalign_nd transform: {desc}")
+    if order is not None:
+        _add_history(out, f"astroalign_nd resampling: {order}, conserve_flux={conserve_flux}")
+    if quality:
+        _add_history(out, f"astroalign_nd fit: {quality['n_matches']} matched stars, "
+                          f"RMS {quality['rms']:.4f} px, log10 false-alarm "
+                          f"{quality['log10_false_alarm']:.1f}")
+        for suffix, key, decimals, comment in QUALITY_KEYWORDS:
+            value = quality[key]
+            value = int(value) if decimals is None else round(float(value), decimals)
+            out[_check_prefix(prefix) + suffix] = (value, comment)
+    return out

@@ -69,7 +69,7 @@ flux = draw_fluxes(n_field, flux_range=(300.0, 3e5), seed=43)
 pointings = [(0.0, (0.0, 0.0)), (8.0, (12.5, -7.0)), (-15.0, (-9.0, 14.0)),
              (25.0, (5.0, 10.5))]
 centre = (np.array(shape[::-1]) - 1.0) / 2.0
-to_detector = [SimilarityTransform(rotation=np.deg2rad(rot),
+to_detector = [SimilarityTransform(rotation=rot,
                                    translation_x=centre[0] + dx,
                                    translation_y=centre[1] + dy)
                for rot, (dx, dy) in pointings]
