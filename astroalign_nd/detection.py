@@ -541,7 +541,10 @@ def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
             # Two populations: only the two widths compete (a ladder would
             # let a width between them win on nebulosity).
             return _FwhmEstimate(compact, False, () if broad is None else (broad,))
-        return _FwhmEstimate(half / 1.5 if broad is None else broad, broad is None)
+        # A few compact candidates beside the wide ones: the wide ones may be
+        # galaxies or knots, so let the scale search have a say.
+        return _FwhmEstimate(half / 1.5 if broad is None else broad,
+                             broad is None or vals.size >= 3)
     if compact is not None:
         return _FwhmEstimate(compact, False)
     if vals.size < 3:
@@ -775,7 +778,12 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     }
     order = np.argsort(-cols["flux"], kind="stable")[:opts["n_sources"]]
     out = Table({k: v[order] for k, v in cols.items()}, copy=False)
+    # The sources' own widths, from the strong ones when there are enough:
+    # faint ones are often noise peaks, as wide as the noise's correlation.
     own = own_fwhm[keep][order]
+    strong = cols["snr"][order] >= 10.0
+    if strong.sum() >= 3:
+        own = own[strong]
     own = own[np.isfinite(own)]
     out.meta.update(fwhm=float(fwhm), noise=float(noise), bin_factor=int(b),
                     own_fwhm_median=float(np.median(own)) if own.size else float("nan"))
