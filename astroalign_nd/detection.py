@@ -550,9 +550,10 @@ def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
     if vals.size < 3:
         return _FwhmEstimate(3.0 if vals.size == 0 else np.median(vals), True)
     mode, frac = _log_mode(vals)
-    # Too few candidates share one width: the list is dominated by
-    # something other than stars; let the scale search decide.
-    return _FwhmEstimate(np.clip(mode, 1.0, half / 1.5), frac < 0.3 or vals.size < 8)
+    # Too few candidates share one width (or too few to tell): the list is
+    # dominated by something other than stars; let the scale search decide.
+    doubtful = frac < 0.3 or vals.size < 5 or (vals.size < 8 and frac < 0.6)
+    return _FwhmEstimate(np.clip(mode, 1.0, half / 1.5), doubtful)
 
 
 def _wide_fwhm(data, mask, n_max, half):
@@ -742,9 +743,12 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     xs = lx[sel]
     ys = ly[sel]
     if opts["refine_centroids"]:
-        # A window narrower than ~2 px follows the pixel grid, not the star
-        # (pixel-phase bias of undersampled stars): floor its width.
-        sigma = np.full(len(sel), max(fwhm, _MIN_WINDOW_FWHM) / _GAUSS_SIGMA_TO_FWHM)
+        # On undersampled stars a window as narrow as the star follows the
+        # pixel grid (pixel-phase bias), and hot pixels and noise pull it:
+        # a wider one measures them better.  Well-sampled stars keep the
+        # matched window, the most precise.
+        win = fwhm if fwhm >= _UNDERSAMPLED_FWHM else _MIN_WINDOW_FWHM
+        sigma = np.full(len(sel), win / _GAUSS_SIGMA_TO_FWHM)
         xs, ys = _windowed_centroid(cut[kk], bad[kk], xs, ys, sigma)
         # A refinement that wandered away means a blend: keep DAOFIND's.
         moved = np.hypot(xs - lx[sel], ys - ly[sel]) > 0.5 * fwhm
@@ -818,7 +822,9 @@ def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
 
 
 _MAX_FULL_RES_FWHM = 10.0
-#: Narrowest Gaussian window (as an FWHM, pixels) of the centroid refinement.
+#: Stars narrower than this (FWHM, pixels) count as undersampled ...
+_UNDERSAMPLED_FWHM = 2.5
+#: ... and get a centroid window of this FWHM (pixels).
 _MIN_WINDOW_FWHM = 4.0
 
 
