@@ -606,6 +606,13 @@ def _candidate_fwhms(data, mask, cand, n_max, half, noise=None):
     # block's brightest pixel hides undersampled stars).
     if noise is not None and np.isfinite(noise) and noise > 0:
         bright = ok & (peak >= 10.0 * noise)
+        if bright.sum() < 10:
+            # Sparse or faint: the ten highest peaks above 5 sigma instead.
+            top = np.flatnonzero(ok & (peak >= 5.0 * noise))
+            top = top[np.argsort(-peak[top], kind="stable")[:10]]
+            if top.size > bright.sum():
+                bright = np.zeros_like(ok)
+                bright[top] = True
         if bright.sum() >= 5:
             ok = bright
     return fwhm, ok
