@@ -176,12 +176,30 @@ def _as_reference(obj, name, detect_options, hdu=None, unit=None):
     return ref
 
 
+#: astroalign's keywords -> what to use here (see docs/migration.rst).
+_ASTROALIGN_ADVICE = {
+    "max_control_points": "pass n_sources=<number of brightest stars used as control points> "
+                          "(the search escalates up to max_sources)",
+    "detection_sigma": "pass nsigma=<detection threshold in noise units> (adaptive if not "
+                       "given)",
+    "min_area": "pass nothing (no equivalent: detection rejects hot pixels and cosmic rays by "
+                "their shape), or fwhm=<the stars' width in pixels> if it is misjudged",
+    "propagate_mask": "pass nothing: the returned CCDData's mask always holds the source's "
+                      "mask (resampled) and the pixels outside the source",
+}
+
+
 def _split_options(options):
     unknown = set(options) - set(_DETECT_KEYS) - set(_MATCH_KEYS)
     if unknown:
+        advice = "".join(f" Instead of astroalign's {k}, {_ASTROALIGN_ADVICE[k]}."
+                         for k in sorted(unknown) if k in _ASTROALIGN_ADVICE)
+        if advice:
+            advice += (" Or keep astroalign's API and return values with "
+                       "'from astroalign_nd import compat as aa'.")
         raise TypeError(
             f"unexpected keyword argument(s) {sorted(unknown)}; detection accepts "
-            f"{list(_DETECT_KEYS)} and matching accepts {list(_MATCH_KEYS)}."
+            f"{list(_DETECT_KEYS)} and matching accepts {list(_MATCH_KEYS)}.{advice}"
         )
     det = {k: v for k, v in options.items() if k in _DETECT_KEYS}
     mat = {k: v for k, v in options.items() if k in _MATCH_KEYS}
