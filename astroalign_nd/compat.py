@@ -428,8 +428,9 @@ def apply_transform(transform: Any, source: Any, target: Any, fill_value: float 
     Returns
     -------
     aligned_image : ndarray
-        The transformed source (float64), clipped to the source's range as
-        astroalign does; ``(ny, nx, channels)`` for multichannel input.
+        The transformed source, clipped to the source's range as astroalign
+        does: float32 for float32 input, float64 otherwise;
+        ``(ny, nx, channels)`` for multichannel input.
     footprint : (ny, nx) bool ndarray
         True where the aligned image holds no pixel information: outside
         the source, touching a NaN source pixel, and (with
@@ -451,7 +452,9 @@ def apply_transform(transform: Any, source: Any, target: Any, fill_value: float 
     from .resample import resample
 
     m = _snapped_matrix(transform)
-    data = np.asarray(_data(source), dtype=float)
+    data = np.asarray(_data(source))
+    # float32 stays float32 (as astroalign's warp returns it); anything else is float64.
+    data = data.astype(np.float32 if data.dtype == np.float32 else np.float64, copy=False)
     if data.ndim not in (2, 3):
         raise TypeError(
             f"source must be a 2-D or (ny, nx, channels) image; got shape {data.shape}.")

@@ -154,7 +154,7 @@ def test_constants_are_read_at_call_time(monkeypatch, pair, found):
 
 def test_register_round_trip(pair, found):
     aligned, footprint = aa.register(pair.source, pair.target)
-    assert type(aligned) is np.ndarray and aligned.dtype == np.float64
+    assert type(aligned) is np.ndarray and aligned.dtype == pair.source.dtype == np.float32
     assert footprint.dtype == bool and footprint.shape == pair.target.shape == aligned.shape
     ref, _ = aa.apply_transform(found[0], pair.source, pair.target)
     assert_allclose(aligned, ref)
@@ -197,6 +197,17 @@ def test_apply_transform_accepts_transforms(pair, make):
     out, fp = aa.apply_transform(make(m), pair.source, pair.target)
     assert_allclose(out, ref, atol=1e-9)
     assert_array_equal(fp, ref_fp)
+
+
+@pytest.mark.parametrize("dtype, out_dtype", [
+    (np.float32, np.float32), (np.float64, np.float64), (np.int32, np.float64),
+    (np.uint8, np.float64), (np.uint16, np.float64)])
+def test_apply_transform_dtypes(dtype, out_dtype):
+    # As astroalign's warp returns them.
+    img = (np.arange(256) % 200).reshape(16, 16).astype(dtype)
+    out, fp = aa.apply_transform(sktf.EuclideanTransform(translation=(1.5, 0.3)), img, img)
+    assert out.dtype == out_dtype and fp.dtype == bool
+    assert out.min() >= 0 and out.max() <= 199  # clipped to the input's range
 
 
 def test_apply_transform_euclidean_shift_is_exact():
