@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from .exceptions import AstroalignWarning, TooFewSourcesError, TransformNotFoundError
+from .exceptions import TooFewSourcesError, TransformNotFoundError, warn
 
 __all__ = [
     "MIN_MATCHES_FRACTION",
@@ -279,6 +279,12 @@ def find_transform(source: Any, target: Any, max_control_points: int = 50,
     MaxIterError
         If no transformation is found.
 
+    Warns
+    -----
+    `~astroalign_nd.PoorFitWarning`
+        If the transform is uncertain (few stars) or a similarity does not
+        describe the pair; astroalign returns such answers silently.
+
     Notes
     -----
     The engine (`~astroalign_nd.find_sources` and
@@ -311,10 +317,7 @@ def find_transform(source: Any, target: Any, max_control_points: int = 50,
     refs = tuple(Reference(x, **det) for x in inputs)
     refs[0].role, refs[1].role = "source", "target"
     try:
-        with warnings.catch_warnings():
-            # astroalign does not warn about an answer it returns.
-            warnings.simplefilter("ignore", AstroalignWarning)
-            result = find_match(*refs, n_sources=n, max_sources=n, **opts)
+        result = find_match(*refs, n_sources=n, max_sources=n, **opts)
     except (TransformNotFoundError, TooFewSourcesError) as exc:
         result = _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc)
     return (_skimage_transform(result.transform.matrix),
@@ -357,29 +360,36 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
     common = dict(n_neighbors=opts.get("n_neighbors", 4), source_frame=src_frame,
                   target_frame=dst_frame, n_control=(n, n),
                   prior_trials=getattr(exc, "n_hypotheses", 0))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", AstroalignWarning)
+    try:
+        return _with_points(match_points(src_pts, dst_pts,
+                                         tolerance=opts.get("tolerance", 3.0), **common),
+                            src_pts, dst_pts)
+    except TransformNotFoundError:
+        pass
+    # The candidate's warnings (an uncertain fit) are shown only if the rule accepts it.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         try:
-            result = match_points(src_pts, dst_pts, tolerance=opts.get("tolerance", 3.0),
-                                  **common)
+            result = match_points(src_pts, dst_pts, tolerance=float(PIXEL_TOL),
+                                  max_false_alarm=1.0, **common)
         except TransformNotFoundError:
-            result = None
-        if result is None:
-            try:
-                result = match_points(src_pts, dst_pts, tolerance=float(PIXEL_TOL),
-                                      max_false_alarm=1.0, **common)
-            except TransformNotFoundError:
-                raise MaxIterError(str(exc)) from exc
-            m = result.transform.matrix
-            n_in = max(int(np.sum(_in_frame(_apply(m, src_pts), dst_frame))),
-                       int(np.sum(_in_frame(_apply(np.linalg.inv(m), dst_pts), src_frame))))
-            need = 3 if n_in == 3 else max(4, math.ceil(MIN_MATCHES_FRACTION * n_in - 1e-9))
-            resid = np.hypot(*np.asarray(result.residuals, float).reshape(-1, 2).T)
-            if result.n_matches < need or np.max(resid, initial=0.0) >= PIXEL_TOL:
-                raise MaxIterError(
-                    f"{exc} Nor does astroalign's rule accept a solution: {result.n_matches} "
-                    f"of the {n_in} stars in the overlap agree (at least {need} needed, within "
-                    f"PIXEL_TOL={PIXEL_TOL} px).") from exc
+            raise MaxIterError(str(exc)) from exc
+    m = result.transform.matrix
+    n_in = max(int(np.sum(_in_frame(_apply(m, src_pts), dst_frame))),
+               int(np.sum(_in_frame(_apply(np.linalg.inv(m), dst_pts), src_frame))))
+    need = 3 if n_in == 3 else max(4, math.ceil(MIN_MATCHES_FRACTION * n_in - 1e-9))
+    resid = np.hypot(*np.asarray(result.residuals, float).reshape(-1, 2).T)
+    if result.n_matches < need or np.max(resid, initial=0.0) >= PIXEL_TOL:
+        raise MaxIterError(
+            f"{exc} Nor does astroalign's rule accept a solution: {result.n_matches} "
+            f"of the {n_in} stars in the overlap agree (at least {need} needed, within "
+            f"PIXEL_TOL={PIXEL_TOL} px).") from exc
+    for w in caught:
+        warn(str(w.message), w.category)
+    return _with_points(result, src_pts, dst_pts)
+
+
+def _with_points(result, src_pts, dst_pts):
     result.extra.update(source_points=src_pts[result.source_index],
                         target_points=dst_pts[result.target_index])
     return result

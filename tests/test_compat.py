@@ -9,6 +9,7 @@ keywords.
 """
 
 import inspect
+import warnings
 
 import numpy as np
 import pytest
@@ -17,7 +18,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 from skimage import transform as sktf
 
 import astroalign_nd
-from astroalign_nd import TooFewSourcesError, TransformNotFoundError, compat as aa
+from astroalign_nd import (PoorFitWarning, TooFewSourcesError, TransformNotFoundError,
+                           compat as aa)
 from astroalign_nd.simulate import simulate_pair
 from astroalign_nd.transforms import from_matrix
 
@@ -119,6 +121,23 @@ def test_few_star_catalogs_follow_astroalign_s_rule():
     t, (s, d) = aa.find_transform(src[:3], dst[:3])
     assert frame_error(t.params, truth.params, (512, 512)) < 1.0
     assert len(s) == 3
+
+
+def test_uncertain_few_star_fit_warns_only_when_accepted():
+    src = np.array([[100.0, 150.0], [120.0, 200.0], [400.0, 200.0], [400.0, 320.0],
+                    [250.0, 400.0]])
+    truth = sktf.SimilarityTransform(rotation=0.8, translation=(300.0, -40.0))
+    dst = truth(src) + np.random.default_rng(0).normal(0.0, 1.0, (5, 2))
+    with pytest.warns(PoorFitWarning, match="uncertain"):
+        t, (s, d) = aa.find_transform(src, dst)
+    assert frame_error(t.params, truth.params, (512, 512)) < 3.0
+    # Two stars of five off: rejected, and the rejected candidate's warning is not shown.
+    bad = dst.copy()
+    bad[[1, 3]] += 40.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(aa.MaxIterError, match=r"3 of the \d stars"):
+            aa.find_transform(src, bad)
 
 
 def test_errors():

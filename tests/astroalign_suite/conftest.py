@@ -49,13 +49,16 @@ def pytest_make_collect_report(collector):
 
 
 def pytest_collection_modifyitems(config, items):
-    if HAVE_SEP:
-        return
     skip = pytest.mark.skip(reason="astroalign's suite needs sep (pip install sep) to count "
                                    "the stars of the aligned images")
+    # astroalign never warns; compat warns (PoorFitWarning) when a fit of a few
+    # stars is uncertain to more than 0.3 px, as the suite's 3-6 star fits are.
+    quiet = pytest.mark.filterwarnings("ignore::astroalign_nd.PoorFitWarning")
     for item in items:
         if item.path.name == "test_align.py" and item.path.parent.name == "astroalign_suite":
-            item.add_marker(skip)
+            item.add_marker(quiet)
+            if not HAVE_SEP:
+                item.add_marker(skip)
 
 
 @pytest.fixture(scope="module")
