@@ -10,6 +10,9 @@ The pipeline, one module per stage: `~astroalign_nd.detection` (sources)
 `~astroalign_nd.resample` (pixels) -> `~astroalign_nd.ccddata` (CCDData).
 `~astroalign_nd.registration` strings them together.
 
+Code written for astroalign 2.6 runs on this package's engine with
+``from astroalign_nd import compat as aa`` (`astroalign_nd.compat`).
+
 Public names are imported on first use, so that ``import astroalign_nd``
 (and the command line's ``--help``) stays fast.
 """

@@ -155,7 +155,8 @@ def _control_input(obj, name):
         )
     mask = _mask(obj)
     if mask is not None and mask.shape != arr.shape:
-        mask = None  # astroalign would fail here; a mask that does not fit is ignored
+        raise ValueError(f"the {name}'s mask has shape {mask.shape}, its image {arr.shape}; "
+                         "pass a mask of the image's shape (True for bad pixels).")
     return np.ma.MaskedArray(np.asarray(arr, dtype=float), mask=mask)
 
 
@@ -463,11 +464,13 @@ def apply_transform(transform: Any, source: Any, target: Any, fill_value: float 
 
     m = _snapped_matrix(transform)
     data = np.asarray(_data(source))
+    if data.dtype.kind not in "biuf" or data.ndim not in (2, 3):
+        raise TypeError(
+            "source must be a 2-D or (ny, nx, channels) image of numbers (NumPy array, "
+            f"NDData/CCDData or PIL image); got {type(source).__name__} of dtype {data.dtype} "
+            f"and shape {data.shape}.")
     # float32 stays float32 (as astroalign's warp returns it); anything else is float64.
     data = data.astype(np.float32 if data.dtype == np.float32 else np.float64, copy=False)
-    if data.ndim not in (2, 3):
-        raise TypeError(
-            f"source must be a 2-D or (ny, nx, channels) image; got shape {data.shape}.")
     shape_out = tuple(int(s) for s in np.shape(_data(target))[:2])
     finite = data[np.isfinite(data)]
     cval = float(np.median(finite)) if finite.size else 0.0

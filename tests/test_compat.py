@@ -157,6 +157,14 @@ def test_errors():
         aa.find_transform(np.zeros((64, 64)), np.zeros((64, 64)), max_control_points=2)
     with pytest.raises(TooFewSourcesError):  # an empty frame
         aa.find_transform(np.zeros((64, 64)), np.zeros((64, 64)))
+    with pytest.raises(ValueError, match="mask of the image's shape"):
+        aa.find_transform(NDData(np.zeros((64, 64)), mask=np.zeros((32, 32), bool)),
+                          np.zeros((64, 64)))
+    ident = sktf.SimilarityTransform()
+    with pytest.raises(TypeError, match="image of numbers"):
+        aa.apply_transform(ident, "not an image", np.zeros((8, 8)))
+    with pytest.raises(TypeError, match="transform must be"):
+        aa.apply_transform((ident, (None, None)), np.zeros((8, 8)), np.zeros((8, 8)))
 
 
 def test_constants_are_read_at_call_time(monkeypatch, pair, found):
