@@ -75,7 +75,8 @@ class Reference:
         unknown = set(detect_options) - set(_DETECT_KEYS)
         if unknown:
             raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}; Reference "
-                            f"accepts the detection options {list(_DETECT_KEYS)} and hdu.")
+                            f"accepts the detection options {list(_DETECT_KEYS)} and hdu."
+                            f"{_astroalign_advice(unknown)}")
         self.parsed = parse_input(image, "reference", hdu=hdu)
         self.detect_options = detect_options
         self._stars = {}
@@ -189,17 +190,23 @@ _ASTROALIGN_ADVICE = {
 }
 
 
+def _astroalign_advice(unknown):
+    """What to pass instead of the astroalign keywords among ``unknown`` ('' if none)."""
+    advice = "".join(f" Instead of astroalign's {k}, {_ASTROALIGN_ADVICE[k]}."
+                     for k in sorted(unknown) if k in _ASTROALIGN_ADVICE)
+    if advice:
+        advice += (" Or keep astroalign's API and return values with "
+                   "'from astroalign_nd import compat as aa'.")
+    return advice
+
+
 def _split_options(options):
     unknown = set(options) - set(_DETECT_KEYS) - set(_MATCH_KEYS)
     if unknown:
-        advice = "".join(f" Instead of astroalign's {k}, {_ASTROALIGN_ADVICE[k]}."
-                         for k in sorted(unknown) if k in _ASTROALIGN_ADVICE)
-        if advice:
-            advice += (" Or keep astroalign's API and return values with "
-                       "'from astroalign_nd import compat as aa'.")
         raise TypeError(
             f"unexpected keyword argument(s) {sorted(unknown)}; detection accepts "
-            f"{list(_DETECT_KEYS)} and matching accepts {list(_MATCH_KEYS)}.{advice}"
+            f"{list(_DETECT_KEYS)} and matching accepts {list(_MATCH_KEYS)}."
+            f"{_astroalign_advice(unknown)}"
         )
     det = {k: v for k, v in options.items() if k in _DETECT_KEYS}
     mat = {k: v for k, v in options.items() if k in _MATCH_KEYS}

@@ -354,7 +354,9 @@ def test_compat_is_an_attribute_of_the_package():
     ("propagate_mask", True, "mask always holds"),
 ])
 def test_main_api_names_our_equivalents(pair, keyword, value, hint):
-    for func in (astroalign_nd.find_transform, astroalign_nd.register):
+    for func in (astroalign_nd.find_transform, astroalign_nd.register,
+                 lambda s, t, **kw: astroalign_nd.Reference(s, **kw),
+                 lambda s, t, **kw: astroalign_nd.register_batch([s], t, **kw)):
         with pytest.raises(TypeError, match=hint) as info:
             func(pair.source, pair.target, **{keyword: value})
         assert keyword in str(info.value) and "compat" in str(info.value)
