@@ -20,9 +20,13 @@ What the engine does better carries over: mirrored images (returned as a
 `skimage.transform.AffineTransform`, since a skimage similarity cannot hold
 a reflection), hot pixels and cosmic rays (rejected by detection), wide or
 sparse fields (adaptive threshold and tolerance), NaN pixels (reported in
-the footprint instead of spreading).  Where the two differ on purpose, this
-module follows astroalign's documented behaviour; see the migration page
-of the documentation for the list.
+the footprint instead of spreading), a deterministic answer, and a
+`~astroalign_nd.PoorFitWarning` for an uncertain fit.  Where the engine
+finds nothing it trusts, astroalign's own detection criterion and
+acceptance rule are tried before `MaxIterError` is raised (see
+`find_transform`).  Where the two differ on purpose, this module follows
+astroalign's documented behaviour; the migration page of the
+documentation lists the differences.
 
 The module constants are read at every call, as in astroalign:
 ``PIXEL_TOL`` (matching tolerance, pixels), ``MIN_MATCHES_FRACTION`` and
