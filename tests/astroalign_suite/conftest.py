@@ -29,6 +29,11 @@ except ImportError:
 else:
     HAVE_SEP = True
 
+try:
+    import PIL  # noqa: F401 - imported by the upstream suite (scikit-image needs it too)
+except ImportError:
+    collect_ignore.append("test_align.py")
+
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_make_collect_report(collector):
