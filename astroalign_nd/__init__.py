@@ -10,6 +10,9 @@ The pipeline, one module per stage: `~astroalign_nd.detection` (sources)
 `~astroalign_nd.resample` (pixels) -> `~astroalign_nd.ccddata` (CCDData).
 `~astroalign_nd.registration` strings them together.
 
+Code written for astroalign 2.6 runs on this package's engine with
+``from astroalign_nd import compat as aa`` (`astroalign_nd.compat`).
+
 Public names are imported on first use, so that ``import astroalign_nd``
 (and the command line's ``--help``) stays fast.
 """
@@ -50,7 +53,13 @@ __all__ = [
 ]
 
 
+# submodules reachable as attributes without an explicit import
+_SUBMODULES = ("compat",)
+
+
 def __getattr__(name):
+    if name in _SUBMODULES:
+        return importlib.import_module(f".{name}", __name__)
     if name in _LAZY:
         value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
         globals()[name] = value  # later look-ups skip this function
@@ -59,4 +68,4 @@ def __getattr__(name):
 
 
 def __dir__():
-    return sorted(set(globals()) | set(__all__))
+    return sorted(set(globals()) | set(__all__) | set(_SUBMODULES))

@@ -75,7 +75,8 @@ class Reference:
         unknown = set(detect_options) - set(_DETECT_KEYS)
         if unknown:
             raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}; Reference "
-                            f"accepts the detection options {list(_DETECT_KEYS)} and hdu.")
+                            f"accepts the detection options {list(_DETECT_KEYS)} and hdu."
+                            f"{_astroalign_advice(unknown)}")
         self.parsed = parse_input(image, "reference", hdu=hdu)
         self.detect_options = detect_options
         self._stars = {}
@@ -176,12 +177,36 @@ def _as_reference(obj, name, detect_options, hdu=None, unit=None):
     return ref
 
 
+#: astroalign's keywords -> what to use here (see docs/migration.rst).
+_ASTROALIGN_ADVICE = {
+    "max_control_points": "pass n_sources=<number of brightest stars used as control points> "
+                          "(the search escalates up to max_sources)",
+    "detection_sigma": "pass nsigma=<detection threshold in noise units> (adaptive if not "
+                       "given)",
+    "min_area": "pass nothing (no equivalent: detection rejects hot pixels and cosmic rays by "
+                "their shape), or fwhm=<the stars' width in pixels> if it is misjudged",
+    "propagate_mask": "pass nothing: the returned CCDData's mask always holds the source's "
+                      "mask (resampled) and the pixels outside the source",
+}
+
+
+def _astroalign_advice(unknown):
+    """What to pass instead of the astroalign keywords among ``unknown`` ('' if none)."""
+    advice = "".join(f" Instead of astroalign's {k}, {_ASTROALIGN_ADVICE[k]}."
+                     for k in sorted(unknown) if k in _ASTROALIGN_ADVICE)
+    if advice:
+        advice += (" Or keep astroalign's API and return values with "
+                   "'from astroalign_nd import compat as aa'.")
+    return advice
+
+
 def _split_options(options):
     unknown = set(options) - set(_DETECT_KEYS) - set(_MATCH_KEYS)
     if unknown:
         raise TypeError(
             f"unexpected keyword argument(s) {sorted(unknown)}; detection accepts "
             f"{list(_DETECT_KEYS)} and matching accepts {list(_MATCH_KEYS)}."
+            f"{_astroalign_advice(unknown)}"
         )
     det = {k: v for k, v in options.items() if k in _DETECT_KEYS}
     mat = {k: v for k, v in options.items() if k in _MATCH_KEYS}
