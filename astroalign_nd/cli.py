@@ -153,6 +153,9 @@ def _build_parser():
     p.add_argument("-o", "--output", required=True, metavar="OUT.fits",
                    help="FITS file to write the aligned image to")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    p.add_argument("--plot", metavar="PLOT.png", default=None,
+                   help="also write a diagnostic figure (matched stars, invariants, residuals, "
+                   "difference image; needs matplotlib)")
     p.set_defaults(func=_cmd_register)
 
     p = sub.add_parser(
@@ -315,6 +318,10 @@ def _cmd_register(args):
     from astroalign_nd.io.write import write_ccddata
 
     _check_writable(args.output, args.overwrite)
+    if args.plot:  # before the work: matplotlib missing or PLOT existing stops here
+        from astroalign_nd.visualization import _check_plot_path, save_diagnostic_figure
+
+        _check_plot_path(args.plot, args.overwrite)
     aligned = astroalign_nd.register(_check_input(args.source), _check_input(args.target),
                                      unit=args.unit, **_registration_kwargs(args))
     write_ccddata(aligned, args.output, overwrite=args.overwrite, hdu_flags="FLAGS")
@@ -322,6 +329,10 @@ def _cmd_register(args):
     print(f"{_describe(astroalign_nd.transform_from_header(q))}; {q['AATNMAT']} matched "
           f"stars, RMS {q['AATRMS']:.3f} px")
     print(f"wrote {args.output}")
+    if args.plot:
+        print("wrote " + save_diagnostic_figure(args.plot, args.source, args.target, aligned,
+                                                overwrite=args.overwrite,
+                                                **_registration_kwargs(args)))
     return 0
 
 

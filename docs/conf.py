@@ -51,11 +51,28 @@ version = ".".join(release.split(".")[:2])
 exclude_patterns.append("_templates")  # noqa: F405
 exclude_patterns.append("**.ipynb_checkpoints")  # noqa: F405
 
-# The notebook tutorials are stored with their outputs (see tutorials/make_*.py, which
-# builds and executes them); the documentation build only renders them.
-extensions.append("nbsphinx")  # noqa: F405
-nbsphinx_execute = "never"
-nbsphinx_allow_errors = False
+# The tutorials are notebooks stored as text (MyST markdown, docs/tutorials/*.md), run by
+# myst-nb at every build: no outputs are stored, so none can go stale, and no program
+# outside pip (nbsphinx needs pandoc) is needed.
+extensions.append("myst_nb")  # noqa: F405
+nb_execution_mode = "force"
+nb_execution_timeout = 300
+nb_execution_raise_on_error = True
+nb_execution_show_tb = True
+# Run in a temporary folder, so that files the tutorials write do not land in docs/.
+nb_execution_in_temp = True
+# Anything a tutorial prints to stderr (a warning) fails the build under -W.
+nb_output_stderr = "warn"
+nb_merge_streams = True
+myst_enable_extensions = ["dollarmath", "colon_fence"]
+
+# Class pages list inherited members too (rotation_deg, matrix, from_points of the
+# transforms, and what astropy's Model gives them), as astropy's own documentation does.
+automodsumm_inherited_members = True
+# Types are given in the numpydoc Parameters/Returns sections; the annotations would repeat
+# them in the signatures, with names (np.ndarray, CCDData under TYPE_CHECKING) that do not
+# resolve.
+autodoc_typehints = "none"
 
 # Every cross-reference must resolve (build with -W).
 nitpicky = True
@@ -116,6 +133,60 @@ man_pages = [("index", project.lower(), project + " Documentation", [author], 1)
 # -- Extension hooks -------------------------------------------------------------------------
 
 
+def _documented_name(name):
+    """Where the top-level name ``astroalign_nd.<name>`` is documented (api.rst)."""
+    import astroalign_nd
+
+    if name in astroalign_nd._LAZY:
+        return f"astroalign_nd.{astroalign_nd._LAZY[name]}.{name}"
+    module = getattr(getattr(astroalign_nd, name, None), "__module__", None)
+    if name in astroalign_nd.__all__ and module and module.startswith("astroalign_nd."):
+        return f"{module}.{name}"
+    return None
+
+
+def _resolve_package_names(app, env, node, contnode):
+    """
+    Resolve references to names that are documented under another of their names.
+
+    Each public name is documented once, in the module that defines it (api.rst), so
+    ``astroalign_nd.register`` points to ``astroalign_nd.registration.register``.  A short
+    name in a docstring (```plan_outputs```) is looked up in its module's parent packages,
+    as for ``astroalign_nd.io.header``'s names, documented under ``astroalign_nd.io``.
+    """
+    target = node["reftarget"]
+    if node.get("refdomain") == "std" and node.get("reftype") == "ref":
+        # astropy's docstrings (inherited members of Model) link to labels of astropy's
+        # documentation, as "astropy:label": offline, show their text without a link.
+        project = target.partition(":")[0]
+        if not app.config.intersphinx_mapping and project in _EXTERNAL_PACKAGES:
+            return contnode
+        return None
+    if node.get("refdomain") != "py":
+        return None
+    candidates = []
+    if target.startswith("astroalign_nd."):
+        candidates.append(target)
+    else:
+        module = node.get("py:module") or ""
+        while module.startswith("astroalign_nd"):
+            candidates.append(f"{module}.{target}")
+            module = module.rpartition(".")[0]
+    domain = env.get_domain("py")
+    for candidate in candidates:
+        head, _, rest = candidate[len("astroalign_nd."):].partition(".")
+        documented = _documented_name(head)
+        if documented:
+            candidate = documented + ("." + rest if rest else "")
+        if candidate == target:
+            continue
+        found = domain.resolve_xref(env, node["refdoc"], app.builder, node["reftype"],
+                                    candidate, node, contnode)
+        if found is not None:
+            return found
+    return None
+
+
 def _offline_nitpick(app, config):
     """Ignore references to other projects when intersphinx is off (offline builds)."""
     if not config.intersphinx_mapping:
@@ -125,3 +196,4 @@ def _offline_nitpick(app, config):
 def setup(app):
     # After sphinx_astropy.ext.intersphinx_toggle (priority 500), which may clear the mapping.
     app.connect("config-inited", _offline_nitpick, priority=900)
+    app.connect("missing-reference", _resolve_package_names)

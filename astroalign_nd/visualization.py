@@ -1,0 +1,569 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Diagnostic plots of a registration.
+
+* `plot_matches`: the matched stars on both frames, each pair in its own
+  colour (figure 2 of the astroalign paper);
+* `plot_invariants`: the triangles of the matched stars in invariant space,
+  ``L2/L1`` against ``L1/L0``, with the boundary ``y = 1/(x - 1)`` where
+  triangles become flat (figure 1 of the paper);
+* `plot_residuals`: the residual of each matched star after the fit, as a
+  vector field;
+* `plot_difference`: the registered frame minus the target, with a zscale
+  stretch;
+* `plot_registration`: all of them in one figure, and
+  `save_diagnostic_figure`, which writes it to a file (the command line's
+  ``register --plot``).
+
+The functions take what `~astroalign_nd.find_transform` and
+`~astroalign_nd.register` return (the transform, the matched points, the
+registered `~astropy.nddata.CCDData`) and the images as
+`~astroalign_nd.find_transform` accepts them.  They draw on the Axes given
+(``ax=``/``axes=``/``fig=``) or on new ones, and return them.
+
+matplotlib is an optional dependency, imported only when a function is
+called: ``pip install matplotlib`` (or the ``plot`` extra,
+``pip install "astroalign_nd[plot]"``).
+"""
+
+import os
+
+import numpy as np
+
+__all__ = ["plot_matches", "plot_invariants", "plot_residuals", "plot_difference",
+           "plot_registration", "save_diagnostic_figure", "match_colors"]
+
+#: Options of `plot_registration` used to resample the source (when ``aligned`` is not
+#: given) rather than to find the transform.
+_APPLY_KEYS = ("order", "conserve_flux", "fill_value", "method", "unit", "parallel")
+
+_GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+
+
+def _matplotlib():
+    """Import matplotlib, or say how to install it."""
+    try:
+        import matplotlib
+    except ImportError:
+        raise ImportError(
+            "astroalign_nd.visualization needs matplotlib, which is not installed: "
+            'pip install matplotlib (or pip install "astroalign_nd[plot]").'
+        ) from None
+    return matplotlib
+
+
+def _new_axes(ax, ncols=1):
+    """``ax`` if given, else new Axes on a new pyplot figure."""
+    if ax is not None:
+        return ax
+    _matplotlib()
+    import matplotlib.pyplot as plt
+
+    _, axes = plt.subplots(1, ncols, figsize=(4.5 * ncols, 4.2), layout="constrained")
+    return axes
+
+
+def match_colors(n):
+    """
+    ``n`` distinct colours, one per matched star.
+
+    Hues step by the golden ratio, so that neighbouring indices (stars of
+    similar brightness, often neighbours on the sky) get well separated
+    colours, and no colour repeats however many stars are matched.
+
+    Parameters
+    ----------
+    n : int
+        Number of colours.
+
+    Returns
+    -------
+    colors : (n, 4) ndarray
+        RGBA colours.
+
+    Examples
+    --------
+    >>> from astroalign_nd.visualization import match_colors
+    >>> match_colors(3).shape
+    (3, 4)
+    """
+    _matplotlib()
+    from matplotlib.colors import hsv_to_rgb
+
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise ValueError(f"n must be a non-negative integer; got {n!r}.")
+    hsv = np.column_stack([(np.arange(n) * _GOLDEN) % 1.0, np.full(n, 0.85),
+                           np.full(n, 0.95)])
+    return np.column_stack([hsv_to_rgb(hsv).reshape(n, 3), np.ones(n)])
+
+
+def _points_pair(points):
+    """Check ``(source_points, target_points)`` as find_transform returns them."""
+    try:
+        src, dst = points
+    except (TypeError, ValueError):
+        raise TypeError("points must be (source_points, target_points), the second value "
+                        "find_transform returns; got "
+                        f"{type(points).__name__}.") from None
+    src = _points(src, "source_points")
+    dst = _points(dst, "target_points")
+    if len(src) != len(dst):
+        raise ValueError(f"source_points and target_points must pair up; got {len(src)} "
+                         f"and {len(dst)} points.")
+    return src, dst
+
+
+def _points(points, name):
+    arr = np.asarray(points, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"{name} must be an (N, 2) array of (x, y) positions; got shape "
+                         f"{arr.shape}.")
+    return arr
+
+
+def _image(image, name):
+    """A 2-D float array to display (masked pixels as NaN), or None for a catalog."""
+    from ._input import parse_input
+
+    parsed = parse_input(image, name)
+    if parsed.is_catalog:
+        return None
+    data = np.array(parsed.detection_image, dtype=float)  # a copy: the caller's is kept
+    if parsed.mask is not None:
+        data[parsed.mask] = np.nan
+    return data
+
+
+def _zscale_norm(data):
+    from astropy.visualization import ImageNormalize, ZScaleInterval
+
+    good = data[np.isfinite(data)]
+    if good.size == 0:
+        good = np.zeros(1)
+    return ImageNormalize(good, interval=ZScaleInterval())
+
+
+def _show(ax, data, cmap="gray"):
+    import matplotlib
+
+    cmap = matplotlib.colormaps[cmap].with_extremes(bad="#4a6fa5")
+    return ax.imshow(data, origin="lower", cmap=cmap, norm=_zscale_norm(data),
+                     interpolation="nearest")
+
+
+def plot_matches(source, target, points, *, axes=None, marker_size=80.0, show_images=True):
+    """
+    Show the matched stars on both frames, each matched pair in its own colour.
+
+    Parameters
+    ----------
+    source, target : array-like, `~astropy.nddata.NDData`, path or catalog
+        The two frames, as `~astroalign_nd.find_transform` takes them.
+        For a catalog, only the stars are drawn.
+    points : tuple of two (K, 2) array-like
+        ``(source_points, target_points)``, the matched positions that
+        `~astroalign_nd.find_transform` returns.
+    axes : sequence of two `~matplotlib.axes.Axes`, optional
+        Where to draw the source and the target; new ones by default.
+    marker_size : float, optional
+        Area of the circles, in points squared.
+    show_images : bool, optional
+        Draw the images under the stars (default True).
+
+    Returns
+    -------
+    axes : tuple of two `~matplotlib.axes.Axes`
+        The source's and the target's.  Each holds one scatter collection
+        of K circles, in the colours of `match_colors`, the same on both.
+
+    Examples
+    --------
+    >>> from astroalign_nd import find_transform
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> from astroalign_nd.visualization import plot_matches
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> transform, points = find_transform(pair.source, pair.target)
+    >>> ax_source, ax_target = plot_matches(pair.source, pair.target, points)
+    """
+    src, dst = _points_pair(points)
+    ax_src, ax_dst = _new_axes(axes, ncols=2) if axes is None else axes
+    colors = match_colors(len(src))
+    for ax, image, pts, name in ((ax_src, source, src, "source"),
+                                 (ax_dst, target, dst, "target")):
+        data = _image(image, name) if show_images else None
+        if data is not None:
+            _show(ax, data)
+        ax.scatter(pts[:, 0], pts[:, 1], s=marker_size, facecolors="none",
+                   edgecolors=colors, linewidths=1.5)
+        ax.set_aspect("equal")
+        if data is not None:
+            ax.set_xlim(-0.5, data.shape[1] - 0.5)
+            ax.set_ylim(-0.5, data.shape[0] - 0.5)
+        ax.set_title(f"{name}: {len(pts)} matched stars")
+        ax.set_xlabel("x [px]")
+        ax.set_ylabel("y [px]")
+    return ax_src, ax_dst
+
+
+def _invariant_ratios(points, n_neighbors):
+    from .asterisms import build_asterisms
+
+    ast = build_asterisms(points, n_neighbors=n_neighbors)
+    # The asterisms keep log(L2/L1), log(L1/L0); the paper plots the ratios.
+    return np.exp(ast.invariants)
+
+
+def plot_invariants(source_points, target_points=None, *, ax=None, n_neighbors=4):
+    """
+    Plot triangles in the invariant space of the method: ``L2/L1`` against ``L1/L0``.
+
+    ``L0 <= L1 <= L2`` are a triangle's sides.  The triangle inequality
+    ``L2 <= L0 + L1`` confines every triangle to ``y <= 1 / (x - 1)``; on that
+    boundary the triangle is flat (its three stars collinear), and near it a
+    small centroid error moves the invariants a long way, which is why the
+    method compares invariants with a tolerance (see :doc:`/method`).
+
+    Parameters
+    ----------
+    source_points : (N, 2) array-like
+        Star positions; their nearest-neighbour triangles are built as the
+        method builds them (`~astroalign_nd.asterisms.build_asterisms`).
+    target_points : (M, 2) array-like, optional
+        A second set (the target's), drawn with another marker.  With the
+        matched points of `~astroalign_nd.find_transform`, each triangle of
+        the source falls on its counterpart in the target.
+    ax : `~matplotlib.axes.Axes`, optional
+        Where to draw; new Axes by default.
+    n_neighbors : int, optional
+        Neighbours per star (4, the method's default, gives 10 triangles
+        per star).
+
+    Returns
+    -------
+    ax : `~matplotlib.axes.Axes`
+        With one scatter collection per point set (one point per triangle)
+        and the boundary line.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.visualization import plot_invariants
+    >>> stars = np.random.default_rng(0).uniform(0, 500, size=(40, 2))
+    >>> ax = plot_invariants(stars)
+    """
+    sets = [(_points(source_points, "source_points"), "source", "o")]
+    if target_points is not None:
+        sets.append((_points(target_points, "target_points"), "target", "x"))
+    ax = _new_axes(ax)
+    from matplotlib.ticker import FormatStrFormatter
+
+    hi = 5.0
+    for pts, label, marker in sets:
+        ratios = _invariant_ratios(pts, n_neighbors)
+        if len(ratios):
+            hi = max(hi, float(np.percentile(ratios[:, 1], 99)) * 1.2)
+        style = dict(facecolors="none", edgecolors="C0") if marker == "o" else dict(c="C1")
+        ax.scatter(ratios[:, 0], ratios[:, 1], s=18, marker=marker, linewidths=1.0,
+                   label=f"{label}: {len(ratios)} triangles", **style)
+    # Flat triangles: L2 = L0 + L1, i.e. y = 1 / (x - 1); since L1/L0 >= 1, x <= 2.
+    x = np.linspace(1.0 + 1.0 / hi, 2.0, 400)
+    ax.plot(x, 1.0 / (x - 1.0), color="k", lw=1.2, label="collinear: y = 1/(x-1)")
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
+    ax.set_xlim(0.98, 2.05)
+    ax.set_ylim(0.95, hi)
+    ax.set_xlabel("L2 / L1")
+    ax.set_ylabel("L1 / L0")
+    ax.set_title("triangle invariants")
+    ax.legend(loc="upper right", fontsize="small")
+    return ax
+
+
+def plot_residuals(transform, points, *, ax=None, scale=None, shape=None):
+    """
+    Draw the residual of each matched star after the fit, as an arrow.
+
+    The arrow of a star starts at its position in the target and points
+    from where the transform puts the source star to where the target star
+    is, magnified by ``scale``.  A pattern in the arrows (a swirl, arrows
+    growing towards the edges) is distortion that the linear model does not
+    follow; see :doc:`/limits`.
+
+    Parameters
+    ----------
+    transform : `~astroalign_nd.transforms.LinearTransform2D` or callable
+        The source-to-target transform (``transform(x, y)`` gives target
+        positions), as `~astroalign_nd.find_transform` returns it.
+    points : tuple of two (K, 2) array-like
+        ``(source_points, target_points)``, the matched positions.
+    ax : `~matplotlib.axes.Axes`, optional
+        Where to draw; new Axes by default.
+    scale : float, optional
+        Magnification of the arrows; by default the median arrow is drawn
+        about 5% of the field across.
+    shape : (ny, nx), optional
+        The target frame's shape, to set the limits of the plot.
+
+    Returns
+    -------
+    ax : `~matplotlib.axes.Axes`
+        With one `~matplotlib.quiver.Quiver` of K arrows.
+
+    Examples
+    --------
+    >>> from astroalign_nd import find_transform
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> from astroalign_nd.visualization import plot_residuals
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> transform, points = find_transform(pair.source, pair.target)
+    >>> ax = plot_residuals(transform, points, shape=pair.target.shape)
+    """
+    src, dst = _points_pair(points)
+    if not callable(transform):
+        raise TypeError("transform must be a transform model (find_transform's first value); "
+                        f"got {type(transform).__name__}.")
+    ax = _new_axes(ax)
+    xy = np.column_stack([np.asarray(v, dtype=float) for v in transform(src[:, 0], src[:, 1])])
+    resid = dst - xy
+    size = np.hypot(resid[:, 0], resid[:, 1])
+    rms = float(np.sqrt(np.mean(size ** 2))) if len(size) else float("nan")
+    if shape is not None:
+        extent = float(max(shape))
+    elif len(dst):
+        extent = float(np.ptp(dst, axis=0).max()) or 1.0
+    else:
+        extent = 1.0
+    if scale is None:
+        typical = float(np.median(size)) if len(size) and np.median(size) > 0 else 1.0
+        scale = 0.05 * extent / typical
+    if not np.isfinite(scale) or scale <= 0:
+        raise ValueError(f"scale must be a positive number; got {scale!r}.")
+    q = ax.quiver(dst[:, 0], dst[:, 1], resid[:, 0] * scale, resid[:, 1] * scale,
+                  color=match_colors(len(dst)), angles="xy", scale_units="xy", scale=1.0,
+                  width=0.006)
+    ax.set_aspect("equal")
+    if shape is not None:
+        ax.set_xlim(-0.5, shape[1] - 0.5)
+        ax.set_ylim(-0.5, shape[0] - 0.5)
+    ax.set_title(f"residuals x{scale:.3g}: RMS {rms:.3f} px")
+    ax.set_xlabel("x [px] (target)")
+    ax.set_ylabel("y [px] (target)")
+    key = max(rms, 1e-3) if np.isfinite(rms) else 1.0
+    ax.quiverkey(q, 0.75, 0.05, scale * key, f"{key:.2g} px", labelpos="E",
+                 coordinates="axes")
+    return ax
+
+
+def plot_difference(aligned, target, *, ax=None, colorbar=True):
+    """
+    Show the registered frame minus the target, with a zscale stretch.
+
+    Stars that are well registered cancel to noise (if the two frames have
+    the same seeing and exposure); a misregistration leaves pairs of
+    positive and negative residuals.  Pixels masked in either frame (outside
+    the source's footprint) are drawn in blue.
+
+    Parameters
+    ----------
+    aligned : `~astropy.nddata.CCDData`, array-like or path
+        The registered frame, on the target's pixel grid (what
+        `~astroalign_nd.register` returns).
+    target : `~astropy.nddata.NDData`, array-like or path
+        The target frame.
+    ax : `~matplotlib.axes.Axes`, optional
+        Where to draw; new Axes by default.
+    colorbar : bool, optional
+        Add a colour bar (default True).
+
+    Returns
+    -------
+    ax : `~matplotlib.axes.Axes`
+        With one image, normalized by `~astropy.visualization.ImageNormalize`
+        with a `~astropy.visualization.ZScaleInterval`.
+
+    Examples
+    --------
+    >>> from astroalign_nd import register
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> from astroalign_nd.visualization import plot_difference
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> aligned = register(pair.source, pair.target)
+    >>> ax = plot_difference(aligned, pair.target)
+    """
+    a = _image(aligned, "aligned")
+    t = _image(target, "target")
+    if a is None or t is None:
+        raise TypeError("plot_difference needs two images, not catalogs.")
+    if a.shape != t.shape:
+        raise ValueError(f"aligned (shape {a.shape}) is not on the target's pixel grid (shape "
+                         f"{t.shape}); pass the output of register(source, target).")
+    ax = _new_axes(ax)
+    im = _show(ax, a - t)
+    if colorbar:
+        ax.figure.colorbar(im, ax=ax, shrink=0.8, label="aligned - target")
+    ax.set_title("aligned - target")
+    ax.set_xlabel("x [px]")
+    ax.set_ylabel("y [px]")
+    return ax
+
+
+def _quality_text(transform):
+    q = getattr(transform, "meta", {}).get("quality", {})
+    lines = [type(transform).__name__]
+    for name, fmt in (("scale", "{:.5f}"), ("rotation_deg", "{:.3f} deg")):
+        value = getattr(transform, name, None)
+        try:
+            lines.append(f"{name}: " + fmt.format(float(np.squeeze(getattr(value, "value",
+                                                                             value)))))
+        except (TypeError, ValueError):
+            pass
+    tx, ty = np.asarray(getattr(transform, "translation", (np.nan, np.nan)), float).ravel()[:2]
+    lines.append(f"translation: ({tx:.2f}, {ty:.2f}) px")
+    if q:
+        lines += [f"matched stars: {q['n_matches']}", f"RMS: {q['rms']:.3f} px",
+                  f"log10 false alarm: {q['log10_false_alarm']:.1f}"]
+    return "\n".join(lines)
+
+
+def plot_registration(source, target, transform=None, points=None, aligned=None, *,
+                      fig=None, **options):
+    """
+    One figure with every diagnostic of a registration.
+
+    Top row: the matched stars on the source and on the target
+    (`plot_matches`), and the difference image (`plot_difference`).  Bottom
+    row: the invariant space (`plot_invariants`), the residuals
+    (`plot_residuals`) and the transform with its quality figures.
+
+    Parameters
+    ----------
+    source, target : array-like, `~astropy.nddata.NDData` or path
+        The two frames, as `~astroalign_nd.find_transform` takes them.
+    transform, points : optional
+        What `~astroalign_nd.find_transform` returned; found here (with
+        ``options``) when not given.
+    aligned : `~astropy.nddata.CCDData`, optional
+        What `~astroalign_nd.register` returned; computed here with
+        `~astroalign_nd.apply_transform` when not given.
+    fig : `~matplotlib.figure.Figure`, optional
+        The figure to draw on (cleared first); a new pyplot figure by
+        default.
+    **options
+        Options of `~astroalign_nd.find_transform` (``transform_type``,
+        ``fwhm``, ``hdu``...) and of `~astroalign_nd.apply_transform`
+        (``order``, ``conserve_flux``...), used for what is not given.
+
+    Returns
+    -------
+    fig : `~matplotlib.figure.Figure`
+
+    Examples
+    --------
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> from astroalign_nd.visualization import plot_registration
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> fig = plot_registration(pair.source, pair.target)
+    >>> len(fig.axes)  # six panels and the difference image's colour bar
+    7
+    """
+    from ._input import parse_input
+    from .ccddata import apply_transform
+    from .registration import find_transform
+
+    apply_options = {k: options.pop(k) for k in _APPLY_KEYS if k in options}
+    # Read the frames once (files too), for the search, the resampling and the plots.
+    hdu = options.pop("hdu", None)
+    source = parse_input(source, "source", hdu=hdu)
+    target = parse_input(target, "target", hdu=hdu)
+    if (transform is None) != (points is None):
+        raise TypeError("pass transform and points together (both values find_transform "
+                        "returns), or neither.")
+    if transform is None:
+        transform, points = find_transform(source, target, **options)
+    if aligned is None:
+        aligned = apply_transform(transform, source, target, **apply_options)
+    if fig is None:
+        _matplotlib()
+        import matplotlib.pyplot as plt
+
+        fig = plt.figure(figsize=(14, 9), layout="constrained")
+    else:
+        fig.clear()
+    axes = fig.subplots(2, 3)
+    plot_matches(source, target, points, axes=axes[0, :2])
+    plot_difference(aligned, target, ax=axes[0, 2])
+    plot_invariants(*points, ax=axes[1, 0])
+    plot_residuals(transform, points, ax=axes[1, 1], shape=target.shape)
+    axes[1, 2].axis("off")
+    axes[1, 2].text(0.02, 0.98, _quality_text(transform), va="top", ha="left",
+                    family="monospace", transform=axes[1, 2].transAxes)
+    axes[1, 2].set_title("transform (source -> target)")
+    return fig
+
+
+def _check_plot_path(path, overwrite=False):
+    """Check, before any work, that a figure can be written at ``path``."""
+    _matplotlib()
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    from .io.write import check_output_path
+
+    extensions = tuple("." + e for e in sorted(FigureCanvasBase.get_supported_filetypes()))
+    check_output_path(path, overwrite, extensions=extensions)
+
+
+def save_diagnostic_figure(path, source, target, aligned=None, *, overwrite=False, dpi=100,
+                           **options):
+    """
+    Write the figure of `plot_registration` to a file.
+
+    No pyplot window is opened (the figure is drawn with the Agg backend),
+    and the file is written atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The image file; its ending gives the format (``.png``, ``.pdf``,
+        ``.svg``...).
+    source, target, aligned
+        As in `plot_registration`.
+    overwrite : bool, optional
+        Replace ``path`` if it exists (default False: `FileExistsError`).
+    dpi : float, optional
+        Resolution of raster formats.
+    **options
+        As in `plot_registration` (``transform``, ``points``, options of
+        `~astroalign_nd.find_transform`).
+
+    Returns
+    -------
+    path : str
+        The file written.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> from astroalign_nd.visualization import save_diagnostic_figure
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     out = save_diagnostic_figure(os.path.join(folder, "check.png"),
+    ...                                  pair.source, pair.target)
+    ...     os.path.getsize(out) > 0
+    True
+    """
+    _check_plot_path(path, overwrite)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from .io.write import atomic_write
+
+    fig = Figure(figsize=(14, 9), layout="constrained")
+    FigureCanvasAgg(fig)
+    plot_registration(source, target, aligned=aligned, fig=fig, **options)
+    path = os.fspath(path)
+    fmt = os.path.splitext(path)[1][1:].lower()
+    with atomic_write(path, overwrite=overwrite) as tmp:
+        fig.savefig(tmp, format=fmt, dpi=dpi)
+    return path
