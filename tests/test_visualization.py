@@ -216,7 +216,7 @@ def test_save_diagnostic_figure(pair, fit, tmp_path):
     transform, points, aligned = fit
     path = tmp_path / "diag.png"
     out = vis.save_diagnostic_figure(path, pair.source, pair.target, aligned,
-                                     transform=transform, points=points)
+                                     transform=transform, points=points, dpi=40)
     assert out == str(path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     before = path.read_bytes()
