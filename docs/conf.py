@@ -1,15 +1,16 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 #
 # Sphinx configuration for astroalign_nd, built on sphinx-astropy's v3 configuration
-# (pydata-sphinx-theme). Build with:
+# (pydata-sphinx-theme). Everything it needs comes from pip (pip install -e ".[docs]"; no
+# pandoc), and it executes every notebook tutorial. Build with:
 #
-#     sphinx-build -W -b html docs docs/_build/html
+#     python -m sphinx -W -b html docs docs/_build/html
 #
 # Links to other projects' documentation (intersphinx) need their inventories, downloaded
 # at build time. They are fetched only when ASTROALIGN_ND_INTERSPHINX=1 is set (or on Read
 # the Docs), so that an offline build is quiet:
 #
-#     ASTROALIGN_ND_INTERSPHINX=1 sphinx-build -W -b html docs docs/_build/html
+#     ASTROALIGN_ND_INTERSPHINX=1 python -m sphinx -W -b html docs docs/_build/html
 #
 # ``-D disable_intersphinx=1`` (sphinx_astropy.ext.intersphinx_toggle) turns them off again.
 
