@@ -408,18 +408,26 @@ def plot_difference(aligned, target, *, ax=None, colorbar=True):
     return ax
 
 
+def _numbers(value):
+    """The numbers of a Parameter, a float or a tuple, as a 1-D float array (or None)."""
+    if value is None:
+        return None
+    try:
+        return np.atleast_1d(np.asarray(getattr(value, "value", value), dtype=float)).ravel()
+    except (TypeError, ValueError):
+        return None
+
+
 def _quality_text(transform):
-    q = getattr(transform, "meta", {}).get("quality", {})
+    """The transform's parameters and fit quality, one per line."""
+    meta = getattr(transform, "meta", None)
+    q = meta.get("quality", {}) if isinstance(meta, dict) else {}
     lines = [type(transform).__name__]
-    for name, fmt in (("scale", "{:.5f}"), ("rotation_deg", "{:.3f} deg")):
-        value = getattr(transform, name, None)
-        try:
-            lines.append(f"{name}: " + fmt.format(float(np.squeeze(getattr(value, "value",
-                                                                             value)))))
-        except (TypeError, ValueError):
-            pass
-    tx, ty = np.asarray(getattr(transform, "translation", (np.nan, np.nan)), float).ravel()[:2]
-    lines.append(f"translation: ({tx:.2f}, {ty:.2f}) px")
+    for name, fmt, unit in (("scale", "{:.6f}", ""), ("rotation_deg", "{:.4f}", " deg"),
+                            ("translation", "{:.3f}", " px")):
+        values = _numbers(getattr(transform, name, None))
+        if values is not None and values.size:
+            lines.append(f"{name}: " + ", ".join(fmt.format(v) for v in values) + unit)
     if q:
         lines += [f"matched stars: {q['n_matches']}", f"RMS: {q['rms']:.3f} px",
                   f"log10 false alarm: {q['log10_false_alarm']:.1f}"]

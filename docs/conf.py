@@ -65,6 +65,9 @@ nb_execution_in_temp = True
 # Anything a tutorial prints to stderr (a warning) fails the build under -W.
 nb_output_stderr = "warn"
 nb_merge_streams = True
+# The kernels inherit this environment: an MPLBACKEND set for the tests (tox and CI set
+# agg) would stop IPython from using its inline backend, and the figures would be lost.
+os.environ.pop("MPLBACKEND", None)
 myst_enable_extensions = ["dollarmath", "colon_fence"]
 
 # Class pages list inherited members too (rotation_deg, matrix, from_points of the
