@@ -53,8 +53,9 @@ __all__ = [
 ]
 
 
-# submodules reachable as attributes without an explicit import
-_SUBMODULES = ("compat",)
+# Submodules reachable as attributes without an explicit import, imported on first use
+# (matplotlib stays optional: visualization imports it only when a plot is drawn).
+_SUBMODULES = ("compat", "visualization")
 
 
 def __getattr__(name):

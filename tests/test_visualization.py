@@ -2,6 +2,7 @@
 """The diagnostic plots (astroalign_nd.visualization): the artists they draw, on Agg."""
 
 import doctest
+import os
 import sys
 
 import numpy as np
@@ -279,3 +280,18 @@ def test_cli_register_plot_without_matplotlib(pair, tmp_path, capsys, monkeypatc
                  str(tmp_path / "p.png")]) == 2
     assert "pip install matplotlib" in capsys.readouterr().err
     assert not out.exists()  # stopped before the work
+
+
+def test_lazy_submodule_does_not_import_matplotlib():
+    """``astroalign_nd.visualization`` is there on first use; matplotlib only when drawing."""
+    import subprocess
+
+    code = ("import sys, astroalign_nd; v = astroalign_nd.visualization; "
+            "assert v.__name__ == 'astroalign_nd.visualization'; "
+            "assert 'visualization' in dir(astroalign_nd); "
+            "assert 'matplotlib' not in sys.modules, 'matplotlib imported'")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert astroalign_nd.visualization is vis
