@@ -114,7 +114,11 @@ def _points_pair(points):
 
 
 def _points(points, name):
-    arr = np.asarray(points, dtype=float)
+    try:
+        arr = np.asarray(points, dtype=float)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be an (N, 2) array of (x, y) positions; got "
+                        f"{type(points).__name__}.") from None
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise ValueError(f"{name} must be an (N, 2) array of (x, y) positions; got shape "
                          f"{arr.shape}.")

@@ -104,6 +104,7 @@ def test_plot_matches_masked_pixels_shown_as_bad(pair, fit):
     (np.zeros((5, 2)), TypeError, "source_points, target_points"),
     ((np.zeros((5, 2)), np.zeros((4, 2))), ValueError, "pair up"),
     ((np.zeros((5, 3)), np.zeros((5, 3))), ValueError, r"\(N, 2\)"),
+    ((["a", "b"], np.zeros((2, 2))), TypeError, r"\(N, 2\) array"),
 ])
 def test_plot_matches_bad_points(pair, bad, exc, match):
     with pytest.raises(exc, match=match):
