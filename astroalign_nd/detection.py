@@ -31,7 +31,6 @@ import warnings
 import numpy as np
 from astropy.table import Table
 from astropy.utils.exceptions import AstropyWarning
-from photutils.detection import DAOStarFinder
 
 from ._input import image_and_mask
 from ._kernels import bin_despike, peak_candidates
@@ -676,6 +675,36 @@ def _inconsistency(tab):
     return abs(np.log(own / tab.meta["fwhm"]))
 
 
+_DAO_COLUMNS = ("x_centroid", "y_centroid", "flux", "peak", "sharpness", "roundness1",
+                "roundness2")
+
+
+def _daofind(finder, data, mask):
+    """
+    ``finder(data, mask=mask)`` as a dict of float arrays (None if empty).
+
+    The same measurements and filters as calling the finder, read straight
+    from its catalog: `~photutils.detection.DAOStarFinder` builds its output
+    table with metadata that imports matplotlib, scikit-image and more on
+    first use (a tenth of a second in a fresh process) and costs a table per
+    call.  Falls back to the public call if photutils' internals change.
+    """
+    if hasattr(finder, "_get_raw_catalog"):
+        try:
+            cat = finder._get_raw_catalog(data, mask=mask)
+            if cat is not None:
+                cat = cat.apply_all_filters()
+            if cat is None:
+                return None
+            return {c: np.asarray(getattr(cat, c), float) for c in _DAO_COLUMNS}
+        except (AttributeError, TypeError):  # internals changed: use the public call
+            pass
+    tab = finder(data, mask=mask)
+    if tab is None:
+        return None
+    return {c: np.asarray(tab[c], float) for c in _DAO_COLUMNS}
+
+
 def _measure(data, mask, cand, fwhm, noise, b, opts):
     """
     Stage 3: measure the candidates with DAOStarFinder at a given FWHM.
@@ -713,6 +742,11 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     kk = np.arange(n)
     centers[:, 0] = (kk % ncol) * tile + half + (cand["x"] - xc)
     centers[:, 1] = (kk // ncol) * tile + half + (cand["y"] - yc)
+    # Imported here: photutils' import is the largest part of a fresh
+    # process's first call, and a bare ``import astroalign_nd.detection``
+    # (or a catalog-only run) does not need it.
+    from photutils.detection import DAOStarFinder
+
     finder = DAOStarFinder(
         threshold=nsigma * noise,
         fwhm=fwhm,
@@ -724,8 +758,8 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", AstropyWarning)
-        tab = finder(mosaic, mask=mmask if mmask.any() else None)
-    if tab is None or len(tab) == 0:
+        tab = _daofind(finder, mosaic, mmask if mmask.any() else None)
+    if tab is None or len(tab["flux"]) == 0:
         return _empty_table(fwhm, noise, b)
 
     # Keep, per tile, the brightest detection near the candidate's centre.
