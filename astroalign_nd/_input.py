@@ -330,7 +330,9 @@ def _from_nddata(obj, name):
     meta = obj.meta.copy() if obj.meta is not None else {}
     unc = obj.uncertainty
     if unc is not None:
-        unc = unc.__class__(np.array(unc.array), unit=unc.unit)
+        # A new object (detached from the caller's NDData) on the same array:
+        # the array is only read, and a copy costs a full plane.
+        unc = unc.__class__(unc.array, unit=unc.unit, copy=False)
     return ParsedInput(
         data=arr, mask=_user_mask(arr, obj.mask), uncertainty=unc, unit=obj.unit,
         flags=_copy_flags(getattr(obj, "flags", None)),

@@ -47,24 +47,48 @@ __all__ = ["apply_transform"]
 _UNCERTAINTY_CLASSES = (StdDevUncertainty, VarianceUncertainty, InverseVariance)
 
 
-def _variance_of(uncertainty):
-    """Variance array of an uncertainty."""
+def _variance_of(uncertainty, dtype):
+    """
+    Variance array of an uncertainty, in ``dtype`` (the data's working type).
+
+    Computed here rather than with ``represent_as``, which makes two copies
+    of the plane (the conversion, then a deep copy of it): a
+    VarianceUncertainty's array is used as it is (only read), a StdDev's is
+    squared and an InverseVariance's inverted into one new array.
+    """
     if not isinstance(uncertainty, _UNCERTAINTY_CLASSES):
         raise TypeError(
             f"uncertainty of type {type(uncertainty).__name__} cannot be propagated; use "
             "StdDevUncertainty, VarianceUncertainty or InverseVariance."
         )
-    return np.asarray(uncertainty.represent_as(VarianceUncertainty).array)
+    arr = np.asarray(uncertainty.array)
+    if isinstance(uncertainty, VarianceUncertainty):
+        return arr
+    var = np.empty(arr.shape, dtype)
+    if isinstance(uncertainty, StdDevUncertainty):
+        return np.square(arr, out=var, dtype=dtype, casting="unsafe")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.divide(1.0, arr, out=var, dtype=dtype, casting="unsafe")
 
 
 def _uncertainty_like(template, variance, unit):
-    """Variance back into the uncertainty class that came in."""
-    var = VarianceUncertainty(variance, unit=(unit**2 if unit is not None else None))
+    """
+    Variance back into the uncertainty class that came in.
+
+    ``variance`` is the resampler's own output: it is converted in place and
+    wrapped without a copy (astropy's ``represent_as`` would make two).
+    """
+    var_unit = unit**2 if unit is not None else None
     cls = type(template)
     if cls is VarianceUncertainty:
-        return var
+        return VarianceUncertainty(variance, unit=var_unit, copy=False)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return var.represent_as(cls)
+        if cls is StdDevUncertainty:
+            np.sqrt(variance, out=variance)
+            return cls(variance, unit=None if var_unit is None else var_unit ** (1 / 2),
+                       copy=False)
+        np.divide(1.0, variance, out=variance)
+        return cls(variance, unit=None if var_unit is None else 1 / var_unit, copy=False)
 
 
 def _carry_wcs(wcs, matrix, shape_out):
@@ -249,10 +273,15 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     data = src.data
     variance = None
     if src.uncertainty is not None:
-        variance = _variance_of(src.uncertainty)
+        # float32 data is resampled in float32 (see `resample`): so is its variance.
+        dtype = np.float32 if data.dtype.kind == "f" and data.dtype.itemsize == 4 else np.float64
+        variance = _variance_of(src.uncertainty, dtype)
+        # A new array (not the caller's) that resample may use as scratch.
+        scratch = not np.may_share_memory(variance, src.uncertainty.array)
         if data.ndim == 3 and variance.ndim == 2:  # one plane for every channel
             variance = variance[..., None]
-        variance = np.broadcast_to(variance, data.shape)
+        if variance.shape != data.shape:
+            variance = np.broadcast_to(variance, data.shape)
     if method == "exact":
         out, var_out, mask_out = resample_exact(data, m, shape_out, variance=variance,
                                                 mask=src.mask, fill_value=fill_value,
@@ -261,7 +290,8 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     else:
         out, var_out, mask_out = resample(data, m, shape_out, order=order, variance=variance,
                                           mask=src.mask, fill_value=fill_value,
-                                          conserve_flux=conserve_flux, parallel=parallel)
+                                          conserve_flux=conserve_flux, parallel=parallel,
+                                          _scratch_variance=variance is not None and scratch)
         order_name = order if isinstance(order, str) else {v: k for k, v in ORDERS.items()}[
             int(order)]
 

@@ -343,7 +343,7 @@ def _parse_fill(fill_value):
 # -- public API ------------------------------------------------------------------
 
 def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=None,
-             fill_value=np.nan, conserve_flux=False, parallel=True):
+             fill_value=np.nan, conserve_flux=False, parallel=True, _scratch_variance=False):
     """
     Resample an image onto the target pixel grid, with variance and mask.
 
@@ -439,13 +439,21 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     sd = 1.0 / det if conserve_flux else 1.0
     sv = sd * sd
 
+    nc = data_cf.shape[0]
+    has_var = var_cf is not None
     if bad is not None and bad.any():
         # Masked pixels become NaN in a working copy: the kernel then needs a
         # single finiteness test for NaN, inf and masked inputs (cheaper than
-        # reading the mask at every tap).
-        data_cf = np.where(bad, np.array(np.nan, dtype), data_cf)
-    nc = data_cf.shape[0]
-    has_var = var_cf is not None
+        # reading the mask at every tap).  It tests data and variance
+        # together, so a variance that is scratch (a copy made above, or one
+        # the caller marks as such: apply_transform's squared
+        # StdDevUncertainty) takes the NaNs in place and spares a copy of
+        # the data.
+        if has_var and var_cf.flags.writeable and (
+                _scratch_variance or not np.may_share_memory(var_cf, variance)):
+            var_cf[:, bad] = np.nan
+        else:
+            data_cf = np.where(bad, np.array(np.nan, dtype), data_cf)
     out = np.empty((nc,) + shape, dtype=dtype)
     masks = np.empty((nc,) + shape, dtype=bool)
     # The compiled kernel needs typed arrays even for absent inputs/outputs: tiny dummies.

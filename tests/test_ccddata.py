@@ -799,3 +799,51 @@ def test_zz_print_flux_report():
         print(f"\n{case}:")
         for label, (med, std, n) in rows.items():
             print(f"  {label:30s} median ratio {med:.5f}  std {std:.5f}  (N={n})")
+
+
+@pytest.mark.parametrize("order", ["nearest-neighbor", "bilinear", "biquadratic", "bicubic"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, ">f4"])
+@pytest.mark.parametrize("nchan", [None, 3])
+def test_uncertainty_classes_agree_with_mask_and_inputs_untouched(dtype, order, nchan):
+    # StdDev/InverseVariance are squared/inverted into a scratch plane that
+    # also takes the mask (issue 16); a VarianceUncertainty is the caller's
+    # array, so the data are copied instead.  Both paths must give the same
+    # data, mask and variance, and leave the caller's arrays as they were.
+    rng = np.random.default_rng(7)
+    shape = (64, 80) if nchan is None else (64, 80, nchan)
+    data = (100.0 + 10.0 * rng.standard_normal(shape)).astype(dtype)
+    sigma = (1.0 + rng.random(shape)).astype(dtype)
+    mask = np.zeros((64, 80), bool)
+    mask[20:23, 30:50] = True
+    mask[5, 7] = True
+    if nchan:
+        mask = np.repeat(mask[..., None], nchan, axis=2)
+    t = SimilarityTransform(scale=1.0, rotation=7.0, translation_x=2.3, translation_y=-1.7)
+    out = {}
+    for cls, arr in ((StdDevUncertainty, sigma), (VarianceUncertainty, sigma.astype(float)**2),
+                     (InverseVariance, 1.0 / sigma.astype(float)**2)):
+        ccd = CCDData(data, unit="adu", mask=mask.copy(), uncertainty=cls(arr))
+        keep = (ccd.data.copy(), ccd.mask.copy(), ccd.uncertainty.array.copy())
+        r = apply_transform(t, ccd, shape[:2], order=order)
+        assert_array_equal(ccd.data, keep[0])
+        assert_array_equal(ccd.mask, keep[1])
+        assert_array_equal(ccd.uncertainty.array, keep[2])
+        assert type(r.uncertainty) is cls
+        assert r.uncertainty.unit == ccd.uncertainty.unit
+        with np.errstate(divide="ignore"):  # InverseVariance 0 -> inf
+            var = r.uncertainty.represent_as(VarianceUncertainty).array
+        out[cls] = (r.data, r.mask, var)
+    d0, m0, v0 = out[StdDevUncertainty]
+    # Masked input pixels reach the output mask (the block is far from the edges).
+    assert m0[20:23, 30:50].any()
+    for cls in (VarianceUncertainty, InverseVariance):
+        d, m, v = out[cls]
+        assert_array_equal(m, m0)
+        assert_array_equal(np.isnan(d), np.isnan(d0))
+        assert_allclose(d[~m], d0[~m], rtol=1e-6)
+        assert np.all(np.isinf(v[m]))
+        assert_allclose(v[~m], v0[~m], rtol=1e-5)
+    # Without an uncertainty the mask is the same too.
+    r = apply_transform(t, CCDData(data, unit="adu", mask=mask), shape[:2], order=order)
+    assert_array_equal(r.mask, m0)
+    assert_allclose(r.data[~m0], d0[~m0], rtol=1e-6)
