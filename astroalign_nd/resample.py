@@ -449,11 +449,16 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
         # the caller marks as such: apply_transform's squared
         # StdDevUncertainty) takes the NaNs in place and spares a copy of
         # the data.
+        # (copyto with ``where`` is several times faster than np.where or
+        # boolean-index assignment on a full frame.)
         if has_var and var_cf.flags.writeable and (
                 _scratch_variance or not np.may_share_memory(var_cf, variance)):
-            var_cf[:, bad] = np.nan
+            np.copyto(var_cf, np.array(np.nan, dtype), where=bad)
         else:
-            data_cf = np.where(bad, np.array(np.nan, dtype), data_cf)
+            given = data.data if isinstance(data, np.ma.MaskedArray) else np.asarray(data)
+            if np.may_share_memory(data_cf, given):  # never write into the caller's array
+                data_cf = data_cf.copy()
+            np.copyto(data_cf, np.array(np.nan, dtype), where=bad)
     out = np.empty((nc,) + shape, dtype=dtype)
     masks = np.empty((nc,) + shape, dtype=bool)
     # The compiled kernel needs typed arrays even for absent inputs/outputs: tiny dummies.
