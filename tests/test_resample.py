@@ -420,3 +420,33 @@ def test_exact_multichannel_and_errors():
     assert_allclose(out[..., 1][~bad], 1.0, rtol=1e-9)
     with pytest.raises(ValueError, match="singular"):
         resample_exact(rgb, np.diag([1.0, 0.0, 1.0]), (24, 24))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16, ">f4"])
+@pytest.mark.parametrize("kind", ["plain", "masked_array", "variance32", "variance64"])
+def test_masked_resample_leaves_inputs_untouched(dtype, kind):
+    # Masked pixels are written as NaN into a working array (the data, or a
+    # variance that is already a copy): never into the caller's arrays.
+    rng = np.random.default_rng(2)
+    data = (50 + 10 * rng.standard_normal((40, 48))).astype(dtype)
+    mask = np.zeros(data.shape, bool)
+    mask[10:13, 20:30] = True
+    var = None
+    if kind.startswith("variance"):
+        var = rng.uniform(1.0, 4.0, data.shape).astype(
+            np.float32 if kind == "variance32" else np.float64)
+    arg = np.ma.MaskedArray(data, mask=mask.copy()) if kind == "masked_array" else data
+    keep = (np.array(data), None if var is None else var.copy(), mask.copy())
+    m = np.array([[1.0, 0.0, 1.5], [0.0, 1.0, -0.5], [0.0, 0.0, 1.0]])
+    out, vout, bad = resample(arg, m, data.shape, variance=var,
+                              mask=None if kind == "masked_array" else mask)
+    assert_array_equal(data, keep[0])
+    assert_array_equal(mask, keep[2])
+    if var is not None:
+        assert_array_equal(var, keep[1])
+        assert np.all(np.isinf(vout[bad]))
+    # The masked block moved by (+1.5, -0.5) px: bilinear taps reach it from
+    # output columns 21..32 of rows 9..13.
+    assert bad[10:12, 23:30].all()
+    assert not bad[20:38, 5:40].any()
+    assert np.all(np.isnan(out[bad]))
