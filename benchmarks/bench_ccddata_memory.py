@@ -140,7 +140,8 @@ def main(argv=None):
     if not args.no_astroalign:
         cases.append(("astroalign", HERE))
     print(f"{n}x{n} float32, {args.stars} stars; {os.cpu_count()} CPUs; load average "
-          f"{os.getloadavg()[0]:.1f}; {args.repeats} rounds; input plane {src.nbytes / 2**20:.0f} MB")
+          f"{os.getloadavg()[0]:.1f}; {args.repeats} rounds; "
+          f"input plane {src.nbytes / 2**20:.0f} MB")
     res = {c: [] for c in cases}
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "pair.npz")

@@ -128,9 +128,10 @@ def main(argv=None):
     aa = med["astroalign"]
     for name, _ in tools:
         if name != "astroalign":
-            print(f"{name:>14} / astroalign: first register {med[name]['register'] / aa['register']:.2f}, "
-                  f"read+import+register {med[name]['total'] / aa['total']:.2f}, "
-                  f"process wall {med[name]['wall'] / aa['wall']:.2f}")
+            r = med[name]
+            print(f"{name:>14} / astroalign: first register {r['register'] / aa['register']:.2f}, "
+                  f"read+import+register {r['total'] / aa['total']:.2f}, "
+                  f"process wall {r['wall'] / aa['wall']:.2f}")
     print("\nper-repeat ratio ours/astroalign of read+import+register: "
           + " ".join(f"{o['total'] / a['total']:.2f}"
                      for o, a in zip(rows["astroalign_nd"], rows["astroalign"])))
