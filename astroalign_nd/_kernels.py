@@ -80,10 +80,11 @@ def _pool(n):
         return _POOL
 
 
-def run_split(fn, n, args, min_per_thread=1, parallel=True):
+def run_split(fn, n, args, min_per_thread=1, parallel=True, start=0):
     """
-    Call ``fn(*args, start, stop)`` over ``range(n)`` split into contiguous
-    chunks, one per thread; return the list of results in chunk order.
+    Call ``fn(*args, start, stop)`` over ``range(start, start + n)`` split
+    into contiguous chunks, one per thread; return the list of results in
+    chunk order.
 
     The compiled functions release the GIL, so the chunks run at the same
     time.  Each chunk writes its own rows, so the result does not depend on
@@ -92,8 +93,8 @@ def run_split(fn, n, args, min_per_thread=1, parallel=True):
     most = num_threads() if parallel else 1
     nt = max(1, min(most, n // max(1, min_per_thread)))
     if nt == 1:
-        return [fn(*args, 0, n)]
-    bounds = [int(k) for k in np.linspace(0, n, nt + 1)]
+        return [fn(*args, start, start + n)]
+    bounds = [start + int(k) for k in np.linspace(0, n, nt + 1)]
     # The calling thread runs the first chunk itself; the pool (one size per
     # thread setting, whatever this call's chunk count) runs the others.
     pool = _pool(most - 1)

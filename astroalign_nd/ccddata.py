@@ -47,7 +47,7 @@ __all__ = ["apply_transform"]
 _UNCERTAINTY_CLASSES = (StdDevUncertainty, VarianceUncertainty, InverseVariance)
 
 
-def _variance_of(uncertainty, dtype):
+def _variance_of(uncertainty, dtype, check_only=False):
     """
     Variance array of an uncertainty, in ``dtype`` (the data's working type).
 
@@ -61,14 +61,17 @@ def _variance_of(uncertainty, dtype):
             f"uncertainty of type {type(uncertainty).__name__} cannot be propagated; use "
             "StdDevUncertainty, VarianceUncertainty or InverseVariance."
         )
+    if check_only:
+        return None
     arr = np.asarray(uncertainty.array)
     if isinstance(uncertainty, VarianceUncertainty):
         return arr
     var = np.empty(arr.shape, dtype)
+    # In the array's own type, then stored as ``dtype`` (as represent_as and a cast would).
     if isinstance(uncertainty, StdDevUncertainty):
-        return np.square(arr, out=var, dtype=dtype, casting="unsafe")
+        return np.square(arr, out=var, casting="unsafe")
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.divide(1.0, arr, out=var, dtype=dtype, casting="unsafe")
+        return np.divide(1.0, arr, out=var, casting="unsafe")
 
 
 def _uncertainty_like(template, variance, unit):
@@ -80,10 +83,10 @@ def _uncertainty_like(template, variance, unit):
     """
     var_unit = unit**2 if unit is not None else None
     cls = type(template)
-    if cls is VarianceUncertainty:
-        return VarianceUncertainty(variance, unit=var_unit, copy=False)
+    if issubclass(cls, VarianceUncertainty):
+        return cls(variance, unit=var_unit, copy=False)
     with np.errstate(divide="ignore", invalid="ignore"):
-        if cls is StdDevUncertainty:
+        if issubclass(cls, StdDevUncertainty):
             np.sqrt(variance, out=variance)
             return cls(variance, unit=None if var_unit is None else var_unit ** (1 / 2),
                        copy=False)
@@ -272,12 +275,21 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
 
     data = src.data
     variance = None
+    kind = "variance"
     if src.uncertainty is not None:
-        # float32 data is resampled in float32 (see `resample`): so is its variance.
-        dtype = np.float32 if data.dtype.kind == "f" and data.dtype.itemsize == 4 else np.float64
-        variance = _variance_of(src.uncertainty, dtype)
-        # A new array (not the caller's) that resample may use as scratch.
-        scratch = not np.may_share_memory(variance, src.uncertainty.array)
+        unc = src.uncertainty
+        if method == "exact":
+            # float32 data is resampled in float32 (see `resample`): so is its variance.
+            dtype = np.float32 if data.dtype.kind == "f" and data.dtype.itemsize == 4 \
+                else np.float64
+            variance = _variance_of(unc, dtype)
+        else:
+            _variance_of(unc, None, check_only=True)
+            # resample squares (or inverts) the plane band by band: no
+            # whole-frame variance is made.
+            variance = np.asarray(unc.array)
+            kind = ("stddev" if isinstance(unc, StdDevUncertainty) else
+                    "inverse" if isinstance(unc, InverseVariance) else "variance")
         if data.ndim == 3 and variance.ndim == 2:  # one plane for every channel
             variance = variance[..., None]
         if variance.shape != data.shape:
@@ -291,7 +303,7 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
         out, var_out, mask_out = resample(data, m, shape_out, order=order, variance=variance,
                                           mask=src.mask, fill_value=fill_value,
                                           conserve_flux=conserve_flux, parallel=parallel,
-                                          _scratch_variance=variance is not None and scratch)
+                                          _variance_kind=kind)
         order_name = order if isinstance(order, str) else {v: k for k, v in ORDERS.items()}[
             int(order)]
 

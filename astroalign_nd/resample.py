@@ -270,7 +270,7 @@ def _parse_shape_out(shape_out, nchan):
     return shape
 
 
-def _prepare(data, variance, mask, shape_out):
+def _prepare(data, variance, mask, shape_out, keep_var_dtype=False):
     """
     Check the inputs.
 
@@ -301,9 +301,9 @@ def _prepare(data, variance, mask, shape_out):
     dtype = np.float32 if arr.dtype.kind == "f" and arr.dtype.itemsize == 4 else np.float64
     multichannel = arr.ndim == 3
 
-    def channels_first(a):
+    def channels_first(a, keep_dtype=False):
         return np.ascontiguousarray(np.moveaxis(a, -1, 0) if multichannel else a[None],
-                                    dtype=dtype)
+                                    dtype=None if keep_dtype else dtype)
 
     data_cf = channels_first(arr)
     var_cf = None
@@ -315,7 +315,9 @@ def _prepare(data, variance, mask, shape_out):
             raise ValueError(
                 f"variance must have the same shape as data {arr.shape}; got {var.shape}."
             )
-        var_cf = channels_first(var)
+        # (A standard deviation or inverse variance keeps its type: it is
+        # converted band by band, see `resample`.)
+        var_cf = channels_first(var, keep_var_dtype and var.dtype.kind in "biuf")
     bad = None
     if mask is not None:
         mk = np.asarray(mask)
@@ -340,10 +342,52 @@ def _parse_fill(fill_value):
         ) from None
 
 
+# Output pixels per band when working planes are made band by band (see `resample`).
+_BAND_PIXELS = 1 << 21
+
+
+def _to_variance(arr, kind, dtype, out=None):
+    """Variance from a standard deviation ('stddev'), inverse variance ('inverse') or itself."""
+    if kind == "variance":
+        return np.asarray(arr, dtype)
+    if out is None:
+        out = np.empty(np.shape(arr), dtype)
+    # Computed in the input's own type, then stored as ``dtype`` (as
+    # astropy's represent_as followed by a cast would).
+    if kind == "stddev":
+        return np.square(arr, out=out, casting="unsafe")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.divide(1.0, arr, out=out, casting="unsafe")
+
+
+def _bands(coeffs, shape_out, ny, order):
+    """
+    Bands of output rows ``(r0, r1)`` with the source rows ``(s0, s1)`` they read.
+
+    The source rows cover every tap of every output pixel in the band (the
+    affine map's extremes are at the band's corners) with a margin, so that
+    the kernel, given only those rows, finds each tap where the full image
+    has it; where the band reaches the image's edge it stops there, as the
+    image does.
+    """
+    ny_out, nx_out = shape_out
+    step = max(16, _BAND_PIXELS // max(nx_out, 1))
+    margin = 4 + order
+    out = []
+    for r0 in range(0, ny_out, step):
+        r1 = min(r0 + step, ny_out)
+        v = [coeffs[3] * x + coeffs[4] * y + coeffs[5]
+             for x in (0.0, nx_out - 1.0) for y in (float(r0), r1 - 1.0)]
+        s0 = min(max(int(np.floor(min(v))) - margin, 0), ny - 1)
+        s1 = max(min(int(np.ceil(max(v))) + margin + 1, ny), s0 + 1)
+        out.append((r0, r1, s0, s1))
+    return out
+
+
 # -- public API ------------------------------------------------------------------
 
 def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=None,
-             fill_value=np.nan, conserve_flux=False, parallel=True, _scratch_variance=False):
+             fill_value=np.nan, conserve_flux=False, parallel=True, _variance_kind="variance"):
     """
     Resample an image onto the target pixel grid, with variance and mask.
 
@@ -432,8 +476,8 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     """
     order = _parse_order(order)
     m = _parse_matrix(matrix)
-    data_cf, var_cf, bad, shape, multichannel, dtype = _prepare(data, variance, mask,
-                                                                shape_out)
+    data_cf, var_cf, bad, shape, multichannel, dtype = _prepare(
+        data, variance, mask, shape_out, keep_var_dtype=_variance_kind != "variance")
     fill = _parse_fill(fill_value)
     coeffs, det = _inverse_coefficients(m)
     sd = 1.0 / det if conserve_flux else 1.0
@@ -441,24 +485,19 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
 
     nc = data_cf.shape[0]
     has_var = var_cf is not None
-    if bad is not None and bad.any():
-        # Masked pixels become NaN in a working copy: the kernel then needs a
-        # single finiteness test for NaN, inf and masked inputs (cheaper than
-        # reading the mask at every tap).  It tests data and variance
-        # together, so a variance that is scratch (a copy made above, or one
-        # the caller marks as such: apply_transform's squared
-        # StdDevUncertainty) takes the NaNs in place and spares a copy of
-        # the data.
-        # (copyto with ``where`` is several times faster than np.where or
-        # boolean-index assignment on a full frame.)
-        if has_var and var_cf.flags.writeable and (
-                _scratch_variance or not np.may_share_memory(var_cf, variance)):
-            np.copyto(var_cf, np.array(np.nan, dtype), where=bad)
-        else:
-            given = data.data if isinstance(data, np.ma.MaskedArray) else np.asarray(data)
-            if np.may_share_memory(data_cf, given):  # never write into the caller's array
-                data_cf = data_cf.copy()
-            np.copyto(data_cf, np.array(np.nan, dtype), where=bad)
+    if bad is not None and not bad.any():
+        bad = None
+    if _variance_kind not in ("variance", "stddev", "inverse"):
+        raise ValueError(f"unknown _variance_kind {_variance_kind!r}")
+    convert = has_var and _variance_kind != "variance"
+    compiled = _USE_COMPILED and HAVE_COMPILED
+    if not compiled and (convert or bad is not None):
+        # NumPy path: whole-frame working copies (it is the slow path anyway).
+        if convert:
+            var_cf = _to_variance(var_cf, _variance_kind, dtype)
+        if bad is not None:
+            data_cf = np.where(bad, np.array(np.nan, dtype), data_cf)
+        convert, bad = False, None
     out = np.empty((nc,) + shape, dtype=dtype)
     masks = np.empty((nc,) + shape, dtype=bool)
     # The compiled kernel needs typed arrays even for absent inputs/outputs: tiny dummies.
@@ -467,21 +506,49 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
 
     # Channels one at a time, so that the compiled kernel is 2-D only; the
     # positions are recomputed per channel.
-    compiled = _USE_COMPILED and HAVE_COMPILED
     rows_per_thread = max(1, _MIN_PIXELS_PER_THREAD // shape[1])
+    if compiled and (convert or bad is not None):
+        bands = _bands(coeffs, shape, data_cf.shape[1], order)
+        scratch = np.empty((max(s1 - s0 for _, _, s0, s1 in bands), data_cf.shape[2]), dtype)
     for c in range(nc):
-        args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
         outs = (out[c], out_var[c] if has_var else dummy)
         if not compiled:
+            args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
             _resample_numpy(*args, fill, sd, sv, *outs, masks[c], order=order)
-        elif order == 1:  # the default has a hand-specialised kernel
-            run_split(_ckernels.bilinear_rows, shape[0],
-                      args + (fill, sd, sv) + outs + (masks[c].view(np.uint8),),
+            continue
+        kernel = _ckernels.bilinear_rows if order == 1 else _ckernels.resample_rows
+        extra = (fill, sd, sv) if order == 1 else (order, fill, sd, sv)
+        if not (convert or bad is not None):
+            args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
+            run_split(kernel, shape[0], args + extra + outs + (masks[c].view(np.uint8),),
                       min_per_thread=rows_per_thread, parallel=parallel)
-        else:
-            run_split(_ckernels.resample_rows, shape[0],
-                      args + (order, fill, sd, sv) + outs + (masks[c].view(np.uint8),),
-                      min_per_thread=rows_per_thread, parallel=parallel)
+            continue
+        # Working planes (the variance from a standard deviation or inverse
+        # variance; masked pixels as NaN, so that the kernel needs a single
+        # finiteness test for NaN, inf and masked inputs) are made one band of
+        # output rows at a time, for the source rows that band reads: a
+        # scratch of a fraction of a frame instead of whole-frame copies.
+        for r0, r1, s0, s1 in bands:
+            h = s1 - s0
+            d = data_cf[c, s0:s1]
+            v = var_cf[c, s0:s1] if has_var else dummy
+            if convert:
+                v = _to_variance(v, _variance_kind, dtype, out=scratch[:h])
+            if bad is not None:
+                # The kernel tests data and variance together: the NaNs go
+                # into whichever plane is already scratch.
+                if not convert:
+                    np.copyto(scratch[:h], d)
+                    d = scratch[:h]
+                    np.copyto(d, np.array(np.nan, dtype), where=bad[s0:s1])
+                else:
+                    np.copyto(v, np.array(np.nan, dtype), where=bad[s0:s1])
+            band_coeffs = coeffs.copy()
+            band_coeffs[5] -= s0  # source row s0 is row 0 of the band
+            run_split(kernel, r1 - r0,
+                      (d, v, has_var, band_coeffs) + extra + outs
+                      + (masks[c].view(np.uint8),),
+                      min_per_thread=rows_per_thread, parallel=parallel, start=r0)
 
     mask_out = masks[0]
     if nc > 1:

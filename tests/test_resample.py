@@ -450,3 +450,36 @@ def test_masked_resample_leaves_inputs_untouched(dtype, kind):
     assert bad[10:12, 23:30].all()
     assert not bad[20:38, 5:40].any()
     assert np.all(np.isnan(out[bad]))
+
+
+@pytest.mark.parametrize("order", [0, 1, 2, 3])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_banded_working_planes_match_whole_frame(monkeypatch, order, dtype):
+    # With a mask or a standard deviation, working planes are made one band of
+    # output rows at a time (issue 16): many small bands give what one band
+    # gives (to the last bits of the weights) and the same mask, for every
+    # way of passing the uncertainty.
+    rng = np.random.default_rng(order)
+    data = rng.normal(100, 10, (90, 110)).astype(dtype)
+    std = rng.uniform(1, 3, data.shape).astype(dtype)
+    bad = rng.random(data.shape) < 0.01
+    th = np.deg2rad(33.0)
+    m = np.array([[1.1 * np.cos(th), -1.1 * np.sin(th), 60.0],
+                  [1.1 * np.sin(th), 1.1 * np.cos(th), -20.0], [0, 0, 1]])
+    monkeypatch.setattr(rs, "_BAND_PIXELS", 1 << 30)
+    ref = resample(data, m, (100, 95), order=order, variance=std.astype(float) ** 2, mask=bad)
+    assert ref[2].any() and not ref[2].all()
+    monkeypatch.setattr(rs, "_BAND_PIXELS", 700)  # bands of 16 rows
+    assert len(rs._bands(rs._inverse_coefficients(m)[0], (100, 95), 90, order)) > 5
+    rtol = 1e-6 if dtype == np.float32 else 1e-12
+    for kind, var in (("stddev", std), ("variance", std.astype(float) ** 2),
+                      ("inverse", 1 / std.astype(float) ** 2)):
+        out, vout, mask = resample(data, m, (100, 95), order=order, variance=var, mask=bad,
+                                   _variance_kind=kind)
+        assert_array_equal(mask, ref[2])
+        assert_allclose(out[~mask], ref[0][~mask], rtol=rtol)
+        assert_allclose(vout[~mask], ref[1][~mask], rtol=rtol)
+        assert np.all(np.isinf(vout[mask])) and np.all(np.isnan(out[mask]))
+    out, _, mask = resample(data, m, (100, 95), order=order, mask=bad)
+    assert_array_equal(mask, ref[2])
+    assert_allclose(out[~mask], ref[0][~mask], rtol=rtol)
