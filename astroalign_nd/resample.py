@@ -343,7 +343,7 @@ def _parse_fill(fill_value):
 
 
 # Output pixels per band when working planes are made band by band (see `resample`).
-_BAND_PIXELS = 1 << 21
+_BAND_PIXELS = 1 << 22
 
 
 def _to_variance(arr, kind, dtype, out=None):
