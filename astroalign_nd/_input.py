@@ -259,7 +259,9 @@ def _read_fits(path, name, hdu, unit):
     from astropy.nddata import CCDData
 
     try:
-        with fits.open(path) as hdul:
+        # Our own file object: fits.open leaves its file open when a damaged
+        # header (e.g. NAXIS = 3 without NAXIS3) fails while it is read.
+        with open(path, "rb") as fh, fits.open(fh) as hdul:
             index = _image_hdu_index(hdul, hdu, name, repr(path))
             header = hdul[index].header
             primary = hdul[0].header.copy() if index != 0 and hdu is None else None

@@ -35,7 +35,7 @@ from astroalign_nd.resample import resample
 from astroalign_nd.transforms import (AffineTransform, EuclideanTransform, SimilarityTransform,
                                       TranslationTransform, transform_class)
 
-FAST = settings(max_examples=12, deadline=None, derandomize=True,
+FAST = settings(max_examples=12, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow])
 MATCHER = settings(FAST, max_examples=40)
 TYPES = ["translation", "euclidean", "similarity", "affine"]

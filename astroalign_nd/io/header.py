@@ -306,18 +306,17 @@ def header_from_meta(meta):
 
     A `~astropy.io.fits.Header` is copied as it is.  From another mapping
     (e.g. ``NDData.meta``), keys that are not standard FITS keywords become
-    HIERARCH cards; entries whose key is not printable ASCII or whose value a
-    card cannot hold (NaN, infinity, nested containers, objects) are
-    skipped, and strings with non-ASCII characters are escaped
-    (`fits_text`), with one warning that lists them: a registration is never
-    lost at the end for a header card.
+    HIERARCH cards (a string too long for one is shortened), ``(value,
+    comment)`` tuples become commented cards; entries whose key is not
+    printable ASCII or whose value a card cannot hold (NaN, infinity,
+    nested containers, objects) are skipped, and strings with non-ASCII
+    characters are escaped (`fits_text`), with one warning that lists them:
+    a registration is never lost at the end for a header card.
 
     Returns
     -------
     header : `~astropy.io.fits.Header`
     """
-    from ..exceptions import AstroalignWarning
-
     if isinstance(meta, fits.Header):
         return meta.copy()
     out = fits.Header()
@@ -325,8 +324,8 @@ def header_from_meta(meta):
     try:
         items = list(dict(meta or {}).items())
     except (TypeError, ValueError):
-        warnings.warn(f"meta of type {type(meta).__name__} is not a mapping; the output "
-                      "header starts empty.", AstroalignWarning)
+        warn(f"meta of type {type(meta).__name__} is not a mapping; the output header "
+             "starts empty.")
         return out
     for key, value in items:
         if not isinstance(key, str) or not key or fits_text(key) != key or "=" in key:
@@ -335,6 +334,10 @@ def header_from_meta(meta):
         # Keys that are not standard FITS keywords (ccdproc's ``subtract_bias``,
         # long or lower-case names) become HIERARCH cards rather than being lost.
         card_key = key if _FITS_KEY.match(key.upper()) else f"HIERARCH {key}"
+        comment = None
+        if isinstance(value, tuple) and len(value) == 2 and isinstance(value[1], str):
+            # astropy's (value, comment) convention, as ccdproc stores its steps.
+            value, comment = value[0], fits_text(value[1])
         if isinstance(value, (np.generic,)):
             value = value.item()
         if isinstance(value, str):
@@ -349,9 +352,21 @@ def header_from_meta(meta):
             skipped.append(key)
             continue
         try:
-            out[card_key] = value
-        except (ValueError, TypeError, KeyError):  # e.g. too long for a HIERARCH card
-            skipped.append(key)
+            out[card_key] = value if comment is None else (value, comment)
+            continue
+        except (ValueError, TypeError, KeyError):
+            pass
+        if isinstance(value, str) and card_key.startswith("HIERARCH"):
+            # A HIERARCH card cannot continue: a long value (ccdproc's
+            # ``subtract_bias`` history) is shortened to fit one card.
+            room = 80 - len(card_key) - 6
+            if room >= 8:
+                try:
+                    out[card_key] = value[:room - 3] + "..."
+                    continue
+                except (ValueError, TypeError, KeyError):
+                    pass
+        skipped.append(key)
     if skipped or escaped:
         parts = []
         if skipped:
@@ -359,8 +374,7 @@ def header_from_meta(meta):
                          "infinity or containers that a card cannot hold)")
         if escaped:
             parts.append(f"escaped the non-ASCII characters of {escaped}")
-        warnings.warn("writing meta into the FITS header: " + "; ".join(parts) + ".",
-                      AstroalignWarning)
+        warn("writing meta into the FITS header: " + "; ".join(parts) + ".")
     return out
 
 
