@@ -551,8 +551,8 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     n_scored = 0
 
     log_limit = np.log10(max_false_alarm)
-    # A transform whose 3-sigma position error somewhere in the target frame
-    # exceeds the matching radius is not a registration: refused, not warned.
+    # A transform whose 3-sigma position error somewhere in the overlap of the
+    # frames exceeds the matching radius is not a registration: refused.
     max_predicted = tolerance / 3.0
     # Free parameters of the fitted model: an affine fit bends to chance
     # agreements that a similarity cannot, so its matches are worth less.
