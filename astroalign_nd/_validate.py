@@ -15,8 +15,8 @@ import numbers
 
 import numpy as np
 
-__all__ = ["OPTIONS", "check_options", "check_option", "check_points", "MAX_TRIANGLES",
-           "MAX_COORDINATE"]
+__all__ = ["OPTIONS", "check_options", "check_option", "check_count", "check_points",
+           "MAX_TRIANGLES", "MAX_COORDINATE"]
 
 #: Largest number of triangles built for one image (about 100 bytes each
 #: with their invariants and k-d tree): larger requests get a ValueError
@@ -168,6 +168,15 @@ def check_option(name, value):
     except (TypeError, ValueError) as exc:
         kind = type(exc) if type(exc) in (TypeError, ValueError) else ValueError
         raise kind(f"{name} must be {spec.describe()}; got {value!r}.") from None
+
+
+def check_count(value, name, lo=3):
+    """A star count: an integer >= ``lo`` (3 by default: a triangle), named in the message."""
+    try:
+        return _Int(lo, None).convert(value)
+    except (TypeError, ValueError) as exc:
+        raise type(exc)(f"{name} must be an integer >= {lo} (a triangle needs 3 stars); got "
+                        f"{value!r}.") from None
 
 
 def check_options(options):

@@ -551,9 +551,12 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     n_scored = 0
 
     log_limit = np.log10(max_false_alarm)
-    # A transform whose 3-sigma position error somewhere in the overlap of the
-    # frames exceeds the matching radius is not a registration: refused.
-    max_predicted = tolerance / 3.0
+    # An affine fit extrapolates its shear and anisotropic scale from the
+    # matched stars: when they fix it only to a 3-sigma position error above
+    # the matching radius somewhere in the overlap of the frames (stars
+    # clustered in a corner), it is refused.  Rotation-like models keep the
+    # PoorFitWarning: a few widely spread stars (3 are enough) fix them.
+    max_predicted = tolerance / 3.0 if transform_class(transform_type).n_dof > 4 else np.inf
     # Free parameters of the fitted model: an affine fit bends to chance
     # agreements that a similarity cannot, so its matches are worth less.
     n_dof = transform_class(transform_type).n_dof
@@ -641,7 +644,7 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
         detail = (f"; the best candidate matched {len(best['si'])} stars, but they fix the "
                   f"transform only to {best['pred']:.1f} px (1 sigma) somewhere in the frame "
                   f"(limit tolerance / 3 = {max_predicted:.2f} px): they cover too small a "
-                  "part of it for this model")
+                  "part of it for an affine model; try transform_type='similarity'")
     raise _not_found(n_scored, (
         f"no trustworthy transform found: the source gave {len(src_pts)} sources and the "
         f"target {len(dst_pts)}; {n_tri} triangle matches gave {n_scored} hypotheses, the best "
