@@ -259,7 +259,9 @@ def _read_fits(path, name, hdu, unit):
     from astropy.nddata import CCDData
 
     try:
-        with fits.open(path) as hdul:
+        # Our own file object: fits.open leaves its file open when a damaged
+        # header (e.g. NAXIS = 3 without NAXIS3) fails while it is read.
+        with open(path, "rb") as fh, fits.open(fh) as hdul:
             index = _image_hdu_index(hdul, hdu, name, repr(path))
             header = hdul[index].header
             primary = hdul[0].header.copy() if index != 0 and hdu is None else None
@@ -300,13 +302,24 @@ def _read_path(path, name, hdu=None, unit=None):
     if low.endswith(_IMAGE_EXT):
         from skimage.io import imread
 
-        arr = np.asarray(imread(path))
+        try:
+            arr = np.asarray(imread(path))
+        except Exception as exc:  # each image library fails in its own way
+            raise ValueError(f"{name}: could not read {path!r} as an image "
+                             f"({type(exc).__name__}: {exc}).") from None
         if arr.ndim == 3 and arr.shape[2] == 4:
             arr = arr[..., :3]  # drop alpha
         p = ParsedInput(data=_check_image_array(arr, name), mask=None, unit=_as_unit(unit),
                         kind="image-file", name=os.path.basename(path))
         return p
-    p = _read_fits(path, name, hdu, unit)
+    try:
+        p = _read_fits(path, name, hdu, unit)
+    except (OSError, KeyError, IndexError, SyntaxError, fits.VerifyError) as exc:
+        # A damaged header (e.g. NAXIS = 3 without NAXIS3) fails in astropy.
+        raise ValueError(
+            f"{name}: could not read {path!r} as FITS ({type(exc).__name__}: {exc}). Pass a "
+            "FITS, JPEG, PNG or TIFF file, an array, or an NDData/CCDData."
+        ) from None
     p.name = os.path.basename(path)
     return p
 

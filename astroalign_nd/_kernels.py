@@ -46,11 +46,14 @@ def num_threads():
     env = os.environ.get("ASTROALIGN_ND_NUM_THREADS", "").strip()
     if env:
         try:
-            return max(1, int(env))
+            n = int(env)
         except ValueError:
+            n = 0
+        if n < 1:
             raise ValueError(
-                f"ASTROALIGN_ND_NUM_THREADS must be a positive integer; got {env!r}."
-            ) from None
+                f"ASTROALIGN_ND_NUM_THREADS must be a positive integer (1 or more; unset it "
+                f"to use every CPU); got {env!r}.")
+        return n
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):  # pragma: no cover - not Linux
@@ -192,11 +195,21 @@ class PointGrid:
 
     def __init__(self, points, radius, max_cells=4_000_000):
         pts = np.ascontiguousarray(points, dtype=np.float64)
+        radius = float(radius)
+        if not (np.isfinite(radius) and radius > 0):
+            raise ValueError(f"the matching radius (tolerance) must be a finite number > 0 "
+                             f"pixels; got {radius!r}.")
+        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) == 0 or not np.all(np.isfinite(pts)):
+            raise ValueError("PointGrid needs a non-empty (N, 2) array of finite positions.")
         lo = pts.min(axis=0) - radius
         hi = pts.max(axis=0) + radius
-        cell = float(radius)
         span = hi - lo
-        while (span[0] / cell + 1) * (span[1] / cell + 1) > max_cells:
+        # Cells at least `radius` wide, and few enough: a cell of
+        # sqrt(area / max_cells) already fits, so doubling ends within a few steps.
+        cell = max(radius, float(np.sqrt(span[0] * span[1] / max_cells)))
+        for _ in range(64):
+            if (span[0] / cell + 1) * (span[1] / cell + 1) <= max_cells:
+                break
             cell *= 2.0
         self.radius = float(radius)
         self.cell = cell

@@ -15,11 +15,14 @@ match is mirrored.
 
 from dataclasses import dataclass
 from itertools import combinations
+from math import comb
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["Asterisms", "build_asterisms"]
+from ._validate import MAX_TRIANGLES, check_option, check_points
+
+__all__ = ["Asterisms", "build_asterisms", "check_triangle_budget"]
 
 _COMBOS = np.array(list(combinations(range(5), 3)))
 
@@ -61,6 +64,28 @@ class Asterisms:
         return self._tree
 
 
+def check_triangle_budget(n_points, n_neighbors):
+    """
+    Refuse, before allocating, more triangles than ``MAX_TRIANGLES``.
+
+    Each of ``n_points`` stars gives at most ``C(n_neighbors + 1, 3)``
+    triangles.
+
+    Raises
+    ------
+    ValueError
+        Naming both numbers and what to lower.
+    """
+    per_star = comb(min(n_neighbors + 1, max(n_points, 3)), 3)
+    n_tri = n_points * per_star
+    if n_tri > MAX_TRIANGLES:
+        raise ValueError(
+            f"{n_points} control points with n_neighbors={n_neighbors} would build up to "
+            f"{n_tri:,} triangles per image ({per_star} per star); the limit is "
+            f"{MAX_TRIANGLES:,} (about {MAX_TRIANGLES * 100 // 10**6} MB). Lower max_sources "
+            f"(at most {MAX_TRIANGLES // per_star} for this n_neighbors) or n_neighbors.")
+
+
 def build_asterisms(points, *, n_neighbors=4, min_side=1.0):
     """
     Build the nearest-neighbour triangles of a point set.
@@ -79,12 +104,14 @@ def build_asterisms(points, *, n_neighbors=4, min_side=1.0):
     -------
     asterisms : `Asterisms`
     """
-    pts = np.asarray(points, dtype=float)
+    pts = check_points(points, "star")
+    n_neighbors = check_option("n_neighbors", n_neighbors)
     n = len(pts)
     empty = Asterisms(pts, np.empty((0, 3), int), np.empty((0, 2)), np.empty(0), np.empty(0))
     if n < 3:
         return empty
     k = min(n_neighbors + 1, n)
+    check_triangle_budget(n, n_neighbors)
     _, nbr = cKDTree(pts).query(pts, k)
     nbr = np.asarray(nbr).reshape(n, k)
     combos = np.array(list(combinations(range(k), 3)))

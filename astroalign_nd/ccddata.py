@@ -26,19 +26,17 @@ The output carries:
 
 from __future__ import annotations
 
-import re
 import warnings
 from typing import Any
 
 import numpy as np
 from astropy import units as u
-from astropy.io import fits
 from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUncertainty,
                             VarianceUncertainty)
 from astropy.wcs import FITSFixedWarning
 
 from ._input import parse_input
-from .io.header import add_provenance
+from .io.header import add_provenance, check_quality, header_from_meta
 from .resample import ORDERS, resample, resample_exact
 from .transforms import LinearTransform2D, as_matrix, from_matrix
 
@@ -141,30 +139,15 @@ def _strip_wcs(header):
     return h
 
 
-_FITS_KEY = re.compile(r"^[A-Z0-9_-]{1,8}$")
-
-
 def _as_header(meta):
     """
-    The meta as a FITS header.
+    The meta as a FITS header (`~astroalign_nd.io.header.header_from_meta`).
 
     Keys that are not standard FITS keywords (ccdproc's ``subtract_bias``,
     long or lower-case names) become HIERARCH cards rather than being
-    lost; values that FITS cannot hold are left out.
+    lost; values that FITS cannot hold are left out, with a warning.
     """
-    if isinstance(meta, fits.Header):
-        return meta.copy()
-    h = fits.Header()
-    for key, value in dict(meta or {}).items():
-        if not isinstance(key, str) or not isinstance(
-                value, (str, int, float, bool, np.integer, np.floating)):
-            continue
-        card_key = key if _FITS_KEY.match(key.upper()) else f"HIERARCH {key}"
-        try:
-            h[card_key] = value
-        except ValueError:  # e.g. a HIERARCH keyword and value longer than a card
-            continue
-    return h
+    return header_from_meta(meta)
 
 
 def _resample_flags(flags, matrix, shape_out):
@@ -258,6 +241,9 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
         raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
     if method not in ("interpolate", "exact"):
         raise ValueError(f"method must be 'interpolate' or 'exact'; got {method!r}.")
+    if quality is None and isinstance(getattr(transform, "meta", None), dict):
+        quality = transform.meta.get("quality")
+    quality = check_quality(quality)  # before the work, not after it
     src = parse_input(source, "source", hdu=hdu, unit=unit)
     if src.is_catalog:
         raise TypeError("source is a catalog; apply_transform needs an image to resample.")
@@ -290,6 +276,11 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
             variance = np.asarray(unc.array)
             kind = ("stddev" if isinstance(unc, StdDevUncertainty) else
                     "inverse" if isinstance(unc, InverseVariance) else "variance")
+        if variance.shape not in (data.shape, data.shape[:2]):
+            raise ValueError(
+                f"the source's uncertainty has shape {variance.shape}, but its data "
+                f"{data.shape}; give one uncertainty per pixel (shape {data.shape[:2]}"
+                f"{' or ' + str(data.shape) if data.ndim == 3 else ''}).")
         if data.ndim == 3 and variance.ndim == 2:  # one plane for every channel
             variance = variance[..., None]
         if variance.shape != data.shape:
@@ -313,8 +304,6 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
         uncertainty = _uncertainty_like(src.uncertainty, var_out, out_unit)
 
     header = _strip_wcs(_as_header(src.meta))
-    if quality is None and isinstance(getattr(transform, "meta", None), dict):
-        quality = transform.meta.get("quality")
     if add_keyword:
         model = transform if isinstance(transform, LinearTransform2D) else from_matrix(m)
         header = add_provenance(header, model, quality=quality, source_name=src.name,

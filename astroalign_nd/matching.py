@@ -26,6 +26,7 @@ from scipy.spatial import cKDTree
 from scipy.special import betainc
 
 from ._kernels import PointGrid, count_inliers
+from ._validate import check_options, check_points
 from .asterisms import build_asterisms
 from .exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
 from .transforms import AffineTransform, fit_transform, transform_class
@@ -80,9 +81,19 @@ class MatchResult:
         return len(self.source_index)
 
 
+#: Most candidate triangle pairs held in memory at once (about 24 bytes each).
+MAX_PAIRS = 2_000_000
+
+
 def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
     """
     Pairs of triangles whose invariants are within ``radius``, best first.
+
+    Memory is bounded: when more than ``4 * max_matches`` pairs (at most
+    ``MAX_PAIRS``) would lie within ``radius``, the radius shrinks until
+    about half that many do (the pairs kept are the best ones anyway), and
+    if even near-identical invariants are too many (a regular lattice of
+    points), each source triangle keeps only its nearest target triangles.
 
     Returns
     -------
@@ -93,13 +104,43 @@ def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
     """
     if len(src_ast) == 0 or len(dst_ast) == 0:
         return np.empty((0, 2), int), np.empty(0)
+    budget = MAX_PAIRS if max_matches is None else min(MAX_PAIRS, max(4 * max_matches, 10_000))
+    # The number of pairs, estimated from up to 1000 source triangles (exact
+    # when there are fewer) before any pair is listed: counting them all
+    # costs as much as listing them.
+    step = max(1, len(src_ast) // 1000)
+    sample = src_ast.invariants[::step]
+
+    def n_pairs(r):
+        counts = dst_ast.tree.query_ball_point(sample, r, return_length=True)
+        return float(np.sum(counts)) * len(src_ast) / len(sample)
+
+    if n_pairs(radius) > budget:
+        # Shrink the radius (the pairs kept are the closest ones anyway).
+        for r in radius * np.geomspace(1.0, 1e-6, 25)[1:]:
+            if n_pairs(r) <= budget / 2:
+                radius = float(r)
+                break
+        else:
+            # Even near-identical invariants are too many (a lattice of points):
+            # each source triangle keeps its nearest target triangles only.
+            k = max(1, min(len(dst_ast), budget // len(src_ast)))
+            d, j = dst_ast.tree.query(src_ast.invariants, k=k, distance_upper_bound=radius)
+            d = np.asarray(d).reshape(len(src_ast), k).ravel()
+            j = np.asarray(j).reshape(len(src_ast), k).ravel()
+            i = np.repeat(np.arange(len(src_ast)), k)
+            ok = np.isfinite(d)
+            return _sorted_pairs(i[ok], j[ok], d[ok], max_matches)
     sdm = src_ast.tree.sparse_distance_matrix(dst_ast.tree, radius, output_type="ndarray")
-    i, j, d = sdm["i"].astype(int), sdm["j"].astype(int), sdm["v"]
+    return _sorted_pairs(sdm["i"].astype(int), sdm["j"].astype(int), sdm["v"], max_matches)
+
+
+def _sorted_pairs(i, j, d, max_matches):
     # lexsort keeps equal distances in a fixed order: bit-identical results.
     order = np.lexsort((j, i, d))
     if max_matches is not None:
         order = order[:max_matches]
-    return np.column_stack([i[order], j[order]]), d[order]
+    return np.column_stack([i[order], j[order]]).astype(int), d[order]
 
 
 def hypothesis_matrices(src_ast, dst_ast, pairs):
@@ -167,13 +208,25 @@ def _frame_area_fraction(m, src_frame, dst_frame, n_grid=48):
     return frac, frac * (x1 - x0) * (y1 - y0)
 
 
+def _overlap_box(m, src_frame, dst_frame, n_grid=24):
+    """Bounding box (x0, x1, y0, y1) in the target of the source frame's footprint there."""
+    x0, x1, y0, y1 = dst_frame
+    xx, yy = np.meshgrid(np.linspace(x0, x1, n_grid), np.linspace(y0, y1, n_grid))
+    grid = np.column_stack([xx.ravel(), yy.ravel()])
+    inside = grid[_in_frame(_apply(np.linalg.inv(m), grid), src_frame)]
+    if len(inside) == 0:
+        return dst_frame
+    (ox0, oy0), (ox1, oy1) = inside.min(axis=0), inside.max(axis=0)
+    return (ox0, ox1, oy0, oy1)
+
+
 def _in_frame(pts, frame):
     x0, x1, y0, y1 = frame
     return (pts[:, 0] >= x0) & (pts[:, 0] <= x1) & (pts[:, 1] >= y0) & (pts[:, 1] <= y1)
 
 
 def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame,
-                       n_trials, tri_rms, tri_size, inv_radius):
+                       n_trials, tri_rms, tri_size, inv_radius, n_dof=4):
     """
     log10 probability that ``n_matched`` stars agree by chance.
 
@@ -201,9 +254,12 @@ def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame
     else:
         log_tail = 0.0
     # Chance that a random triangle pair within the invariant radius fits
-    # its own three vertices as well as this one does (2 spare dof).
+    # its own three vertices as well as this one does: the 6 coordinates of
+    # the 3 vertex pairs less the model's free parameters (2 spare for a
+    # similarity; none for an affine model, which fits any 3 pairs exactly).
+    spare = max(0, 6 - max(n_dof, 4))
     spread = max(inv_radius * tri_size, 1e-9)
-    log_tri = 2.0 * np.log10(min(1.0, max(tri_rms, 1e-3) / spread))
+    log_tri = spare * np.log10(min(1.0, max(tri_rms, 1e-3) / spread))
     # Below 1e-300 the number means "certain"; keep it finite (FITS headers
     # cannot hold -inf).
     return float(max(np.log10(max(n_trials, 1)) + log_tail + log_tri, -300.0))
@@ -258,14 +314,29 @@ def _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol):
     dist = np.hypot(*(src_pts - center).T)
     r_max = dist.max()
     radius = max(radius, 1.0)
-    while True:
+    need = max(cls.min_points, 4)
+    for _ in range(128):  # radius grows by 1.5 up to r_max (< 1.5**128 px)
         inside = np.flatnonzero(dist <= radius)
-        si, dj = _mutual_matches(_apply(m, src_pts[inside]), dst_pts, dst_tree, tol)
-        if len(si) >= max(cls.min_points, 4):
-            m, _, _ = cls._linear_fit(src_pts[inside[si]], dst_pts[dj], np.ones(len(si)), 1)
+        for _ in range(3):
+            # Match, fit, drop the pairs far off the fit (chance pairs pull a
+            # local fit away from the field), refit; repeat with the new model.
+            si, dj = _mutual_matches(_apply(m, src_pts[inside]), dst_pts, dst_tree, tol)
+            if len(si) < need:
+                break
+            s_in, d_in = src_pts[inside[si]], dst_pts[dj]
+            m_new, _, _ = cls._linear_fit(s_in, d_in, np.ones(len(si)), 1)
+            r = np.hypot(*(_apply(m_new, s_in) - d_in).T)
+            good = r <= max(3.0 * np.median(r), 0.1 * tol)
+            if need <= good.sum() < len(si):
+                m_new, _, _ = cls._linear_fit(s_in[good], d_in[good], np.ones(good.sum()), 1)
+            converged = np.max(np.abs(m_new - m)) < 1e-9
+            m = m_new
+            if converged:
+                break
         if radius >= r_max:
-            return m
-        radius *= 2.0
+            break
+        radius *= 1.5
+    return m
 
 
 def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol,
@@ -331,9 +402,12 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
         r = _apply(aff, src_pts[si]) - dst_pts[dj]
         if 4.0 * np.sqrt(np.median(np.einsum("ij,ij->i", r, r)) / 1.386) > tol:
             return None
-    model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls,
-                                      parity=fit_parity if cls.n_dof in (3, 4) else None,
-                                      weights=1.0 / total)
+    try:
+        model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls,
+                                          parity=fit_parity if cls.n_dof in (3, 4) else None,
+                                          weights=1.0 / total)
+    except ValueError:  # collinear or coincident stars: no transform to trust
+        return None
     return model, si, dj, resid, cov, used_tol
 
 
@@ -400,11 +474,30 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
         If either list has fewer than 3 points.
     TransformNotFoundError
         If no hypothesis passes the false-alarm test.
+    ValueError, TypeError
+        If an option is outside its range (one message per option, from
+        ``astroalign_nd._validate.OPTIONS``), the positions are not finite
+        pixel coordinates, or the triangles would exceed the memory budget.
+
+    Notes
+    -----
+    Memory is bounded: at most ``MAX_TRIANGLES`` triangles per list and
+    ``4 * max_hypotheses`` candidate triangle pairs (the closest) are held.
     """
-    src_pts = np.asarray(src_pts, float)
-    dst_pts = np.asarray(dst_pts, float)
+    src_pts = check_points(src_pts, "source")
+    dst_pts = check_points(dst_pts, "target")
     transform_type = transform_class(transform_type).__name__.replace(
         "Transform", "").lower()
+    opts = check_options(dict(
+        tolerance=tolerance, min_tolerance=min_tolerance, invariant_radius=invariant_radius,
+        n_neighbors=n_neighbors, allow_mirror=allow_mirror, scale_range=scale_range,
+        max_false_alarm=max_false_alarm, accept_matches=accept_matches, batch_size=batch_size,
+        max_hypotheses=max_hypotheses))
+    tolerance, min_tolerance = opts["tolerance"], opts["min_tolerance"]
+    invariant_radius, n_neighbors = opts["invariant_radius"], opts["n_neighbors"]
+    scale_range, max_false_alarm = opts["scale_range"], opts["max_false_alarm"]
+    accept_matches, batch_size = opts["accept_matches"], opts["batch_size"]
+    max_hypotheses = opts["max_hypotheses"]
     for name, pts in (("source", src_pts), ("target", dst_pts)):
         if len(pts) < 3:
             raise TooFewSourcesError(
@@ -458,6 +551,15 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     n_scored = 0
 
     log_limit = np.log10(max_false_alarm)
+    # An affine fit extrapolates its shear and anisotropic scale from the
+    # matched stars: when they fix it only to a 3-sigma position error above
+    # the matching radius somewhere in the overlap of the frames (stars
+    # clustered in a corner), it is refused.  Rotation-like models keep the
+    # PoorFitWarning: a few widely spread stars (3 are enough) fix them.
+    max_predicted = tolerance / 3.0 if transform_class(transform_type).n_dof > 4 else np.inf
+    # Free parameters of the fitted model: an affine fit bends to chance
+    # agreements that a similarity cannot, so its matches are worth less.
+    n_dof = transform_class(transform_type).n_dof
 
     def promising(h):
         """
@@ -486,8 +588,15 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
         model, si, dj, resid, cov, tol = res
         lfa = _log10_false_alarm(model.matrix, src_pts, dst_pts, len(si), tol, src_frame,
                                  dst_frame, n_scored + prior_trials, tri_rms[h], tri_size[h],
-                                 invariant_radius)
-        return dict(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h)
+                                 invariant_radius, n_dof)
+        # Where the registered image has data: the overlap of the two frames.
+        pred = _predicted_error(model, cov, _overlap_box(model.matrix, src_frame, dst_frame))
+        return dict(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h,
+                    pred=pred, ok=bool(lfa <= log_limit and pred <= max_predicted))
+
+    def rank(c):
+        # A trustworthy candidate beats any other; then the less likely chance.
+        return (not c["ok"], c["lfa"])
 
     for start in range(0, len(mats), batch_size):
         stop = min(start + batch_size, len(mats))
@@ -509,26 +618,33 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
             refined_max = max(refined_max, int(counts[h]))
             if cand is None:
                 continue
-            if best is None or cand["lfa"] < best["lfa"]:
+            if best is None or rank(cand) < rank(best):
                 best = cand
-            if cand["lfa"] <= log_limit and counts[h] >= accept_at:
-                return _result(cand, stats, n_scored, src_pts, dst_pts, source_errors,
+            if cand["ok"] and counts[h] >= accept_at:
+                # The best so far: an earlier candidate may have matched more
+                # stars without reaching accept_at control-point inliers.
+                return _result(best, stats, n_scored, src_pts, dst_pts, source_errors,
                                target_errors, dst_frame)
     # No early acceptance: refine the overall best few hypotheses.
     for h in np.argsort(-counts, kind="stable")[:10]:
         if int(h) in tried_refine or counts[h] < 3:
             continue
         cand = evaluate(h)
-        if cand is not None and (best is None or cand["lfa"] < best["lfa"]):
+        if cand is not None and (best is None or rank(cand) < rank(best)):
             best = cand
-    if best is not None and best["lfa"] <= np.log10(max_false_alarm):
+    if best is not None and best["ok"]:
         return _result(best, stats, n_scored, src_pts, dst_pts, source_errors,
                        target_errors, dst_frame)
     best_count = int(counts.max()) if len(counts) else 0
     detail = ""
-    if best is not None:
+    if best is not None and best["lfa"] > log_limit:
         detail = (f"; the best candidate matched {len(best['si'])} stars but its "
                   f"false-alarm probability is 10^{best['lfa']:.1f} (limit {max_false_alarm:g})")
+    elif best is not None:
+        detail = (f"; the best candidate matched {len(best['si'])} stars, but they fix the "
+                  f"transform only to {best['pred']:.1f} px (1 sigma) somewhere in the frame "
+                  f"(limit tolerance / 3 = {max_predicted:.2f} px): they cover too small a "
+                  "part of it for an affine model; try transform_type='similarity'")
     raise _not_found(n_scored, (
         f"no trustworthy transform found: the source gave {len(src_pts)} sources and the "
         f"target {len(dst_pts)}; {n_tri} triangle matches gave {n_scored} hypotheses, the best "

@@ -21,7 +21,9 @@ from astropy import log
 from ._input import parse_input
 from .detection import find_sources
 from .exceptions import TooFewSourcesError, TransformNotFoundError
-from .asterisms import build_asterisms
+from ._kernels import num_threads
+from ._validate import check_count, check_option, check_options, check_points
+from .asterisms import build_asterisms, check_triangle_budget
 from .matching import match_points
 from .transforms import transform_class
 
@@ -32,6 +34,9 @@ if TYPE_CHECKING:
     from .transforms import LinearTransform2D
 
 __all__ = ["find_transform", "find_match", "register", "Reference"]
+
+#: Points of a catalog used (brightest first) when ``2 * n_sources`` is fewer.
+CATALOG_POINTS = 1000
 
 #: Keyword arguments of `find_transform` forwarded to `find_sources`.
 _DETECT_KEYS = ("fwhm", "nsigma", "sharpness_range", "roundness_range", "peak_max",
@@ -77,6 +82,7 @@ class Reference:
             raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}; Reference "
                             f"accepts the detection options {list(_DETECT_KEYS)} and hdu."
                             f"{_astroalign_advice(unknown)}")
+        detect_options = check_options(detect_options)
         self.parsed = parse_input(image, "reference", hdu=hdu)
         self.detect_options = detect_options
         self._stars = {}
@@ -106,7 +112,10 @@ class Reference:
         if n_sources not in self._stars:
             p = self.parsed
             if p.is_catalog:
-                self._stars[n_sources] = (p.points, None, None)
+                # Brightest first: the method needs the brightest stars only, and
+                # a cap keeps a million-point catalog from costing a million.
+                cap = max(2 * n_sources, CATALOG_POINTS)
+                self._stars[n_sources] = (p.points[:cap], None, None)
             else:
                 opts = dict(self.detect_options)
                 user_nsigma = opts.pop("nsigma", None)
@@ -208,6 +217,7 @@ def _split_options(options):
             f"{list(_DETECT_KEYS)} and matching accepts {list(_MATCH_KEYS)}."
             f"{_astroalign_advice(unknown)}"
         )
+    options = check_options(options)
     det = {k: v for k, v in options.items() if k in _DETECT_KEYS}
     mat = {k: v for k, v in options.items() if k in _MATCH_KEYS}
     return det, mat
@@ -226,9 +236,12 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
     logger (``astropy.log.setLevel("DEBUG")`` shows them).
     """
     transform_class(transform_type)  # validate early, with a clear message
-    n_sources = _positive_int(n_sources, "n_sources")
-    max_sources = max(_positive_int(max_sources, "max_sources"), n_sources)
+    n_sources = check_option("n_sources", n_sources)
+    max_sources = max(check_option("max_sources", max_sources), n_sources)
     det, mat = _split_options(options)
+    num_threads()  # a bad ASTROALIGN_ND_NUM_THREADS is reported before any work
+    # Memory is bounded before any work: the largest attempt's triangles.
+    check_triangle_budget(max_sources, mat.get("n_neighbors", 4))
     src = _as_reference(source, "source", det, hdu)
     dst = _as_reference(target, "target", det, hdu)
 
@@ -252,6 +265,7 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
         k += 1
         src_pts, src_err, src_frame = src.stars(ns)
         dst_pts, dst_err, dst_frame = dst.stars(nd)
+        src_pts, dst_pts = check_points(src_pts, "source"), check_points(dst_pts, "target")
         # An image with fewer stars than asked for makes steps repeat.
         key = (min(ns, len(src_pts)), min(nd, len(dst_pts)), len(src_pts), len(dst_pts), nn)
         if key not in tried:
@@ -322,7 +336,8 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
         JPEG/PNG/TIFF too), ``(array, header)`` or ``(array, WCS)`` tuples
         (as reproject takes them), or catalogs: an `~astropy.table.Table`
         with ``x``/``y`` columns (masked entries are left out) or an
-        (N, 2) array of positions, brightest first.
+        (N, 2) array of positions, brightest first (a catalog contributes
+        its first ``max(2 * n_sources, 1000)`` positions).
     transform_type : {'similarity', 'euclidean', 'translation', 'affine'}, optional
         The model to fit (default 'similarity': scale, rotation, shift,
         mirrored or not).
@@ -359,6 +374,10 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
         If an image gave fewer than 3 sources.
     TransformNotFoundError
         If no transform could be found or trusted.
+    ValueError, TypeError
+        If an option is outside its accepted range (the message names it
+        and the range), or ``max_sources`` with ``n_neighbors`` would build
+        more triangles than the memory budget allows.
 
     Examples
     --------
@@ -391,11 +410,8 @@ def quality_dict(result: MatchResult) -> dict:
 
 
 def _positive_int(value, name):
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be a positive integer; got {value!r}.")
-    if value < 3:
-        raise ValueError(f"{name} must be at least 3 (a triangle); got {value}.")
-    return int(value)
+    # Kept for astroalign_nd.compat (max_control_points): one check, one message.
+    return check_count(value, name)
 
 
 def register(source: Any, target: Any, *, transform_type: str | type = "similarity",

@@ -188,7 +188,9 @@ class LinearTransform2D(Model):
     @property
     def inverse(self):
         """The analytic inverse, a model of the same class (target -> source)."""
-        return type(self).from_matrix(np.linalg.inv(self.matrix))
+        m = self.matrix
+        _check_invertible(m, type(self).__name__)
+        return type(self).from_matrix(np.linalg.inv(m))
 
     # -- construction ----------------------------------------------------------
     @classmethod
@@ -300,6 +302,8 @@ class LinearTransform2D(Model):
             if best is None or sse < best[0] - 1e-12 * max(1.0, best[0]):
                 best = (sse, matrix, design, resid)
         sse, matrix, design, resid = best
+        _check_spread(cls, src[w > 0], "src")
+        _check_invertible(matrix, cls.__name__, fitted=True)
         return cls._from_matrix(matrix), design, resid
 
     _parities = (1,)
@@ -307,6 +311,41 @@ class LinearTransform2D(Model):
 
 def _apply(matrix, pts):
     return pts @ matrix[:2, :2].T + matrix[:2, 2]
+
+
+def _check_spread(cls, pts, name):
+    """
+    Refuse point sets that do not determine the model.
+
+    Two coincident points fix no rotation or scale; collinear points fix
+    no affine transform across their line.
+    """
+    if cls.n_dof <= 2 or len(pts) == 0:
+        return
+    centred = pts - pts.mean(axis=0)
+    sv = np.linalg.svd(centred, compute_uv=False)
+    size = max(float(np.max(np.abs(pts))), 1.0)
+    if sv[0] <= 1e-12 * size:
+        raise ValueError(
+            f"the {name} points all coincide; a {cls.__name__} needs at least 2 distinct "
+            "points (3 not on one line for an AffineTransform).")
+    if cls.n_dof >= 6 and (len(sv) < 2 or sv[1] <= 1e-9 * sv[0]):
+        raise ValueError(
+            f"the {name} points are collinear; an {cls.__name__} is undetermined across "
+            "their line. Give points that span an area, or fit a SimilarityTransform.")
+
+
+def _check_invertible(matrix, name, fitted=False):
+    """Refuse a singular linear part (zero scale, or points squashed onto a line)."""
+    lin = np.asarray(matrix, float)[:2, :2]
+    with np.errstate(over="ignore", invalid="ignore"):
+        det = float(np.linalg.det(lin))
+        norm2 = float(np.sum(lin**2))
+    if not (np.isfinite(det) and np.isfinite(norm2)) or abs(det) <= 1e-12 * max(norm2, 1e-300):
+        why = ("the dst points are collinear or coincide, so the fit squashes the plane "
+               "onto a line" if fitted else "its scale is zero or its matrix singular")
+        raise ValueError(f"the {name} is singular ({why}); it has no inverse and cannot "
+                         "register an image.")
 
 
 def _weighted_lstsq(a, b, w):

@@ -59,7 +59,7 @@ from ..transforms import (
 )
 
 __all__ = ["transform_to_header", "transform_from_header", "add_provenance",
-           "QUALITY_KEYWORDS"]
+           "QUALITY_KEYWORDS", "header_from_meta", "fits_text", "check_quality"]
 
 #: The fit-quality keywords of a registered frame: suffix (after the prefix),
 #: the ``transform.meta['quality']`` entry, decimals kept, and comment.
@@ -74,6 +74,7 @@ _HUMAN_SUFFIXES = ("SCALE", "SCALX", "SCALY", "ROT", "SHEAR", "TX", "TY", "PAR")
 # Every suffix must fit the 8-character FITS keyword with the prefix.
 _MAX_PREFIX = 8 - max(len(s) for s in (*_HUMAN_SUFFIXES, "TYPE", "M00S"))
 _PREFIX_RE = re.compile(r"^[A-Z0-9_-]+$")
+_FITS_KEY = re.compile(r"^[A-Z0-9_-]{1,8}$")
 # The float cards round to >= 13 significant digits; the exact strings must agree.
 _CONSISTENCY_RTOL = 1e-12
 
@@ -288,6 +289,137 @@ def _read_matrix(header, prefix):
     return matrix
 
 
+def fits_text(text):
+    """
+    ``text`` with every character a FITS header cannot hold escaped.
+
+    FITS cards hold printable ASCII only; other characters (a non-ASCII
+    file name, a newline) become Python escapes such as ``\\xe9``.
+    """
+    text = str(text)
+    return "".join(c if 32 <= ord(c) < 127 else ascii(c)[1:-1] for c in text)
+
+
+def header_from_meta(meta):
+    """
+    A FITS header holding what a FITS header can of ``meta``.
+
+    A `~astropy.io.fits.Header` is copied as it is.  From another mapping
+    (e.g. ``NDData.meta``), keys that are not standard FITS keywords become
+    HIERARCH cards (a string too long for one is shortened), ``(value,
+    comment)`` tuples become commented cards; entries whose key is not
+    printable ASCII or whose value a card cannot hold (NaN, infinity,
+    nested containers, objects) are skipped, and strings with non-ASCII
+    characters are escaped (`fits_text`), with one warning that lists them:
+    a registration is never lost at the end for a header card.
+
+    Returns
+    -------
+    header : `~astropy.io.fits.Header`
+    """
+    if isinstance(meta, fits.Header):
+        return meta.copy()
+    out = fits.Header()
+    skipped, escaped = [], []
+    try:
+        items = list(dict(meta or {}).items())
+    except (TypeError, ValueError):
+        warn(f"meta of type {type(meta).__name__} is not a mapping; the output header "
+             "starts empty.")
+        return out
+    for key, value in items:
+        if not isinstance(key, str) or not key or fits_text(key) != key or "=" in key:
+            skipped.append(key)
+            continue
+        # Keys that are not standard FITS keywords (ccdproc's ``subtract_bias``,
+        # long or lower-case names) become HIERARCH cards rather than being lost.
+        card_key = key if _FITS_KEY.match(key.upper()) else f"HIERARCH {key}"
+        comment = None
+        if isinstance(value, tuple) and len(value) == 2 and isinstance(value[1], str):
+            # astropy's (value, comment) convention, as ccdproc stores its steps.
+            value, comment = value[0], fits_text(value[1])
+        if isinstance(value, (np.generic,)):
+            value = value.item()
+        if isinstance(value, str):
+            safe = fits_text(value)
+            if safe != value:
+                escaped.append(key)
+            value = safe
+        elif isinstance(value, float) and not np.isfinite(value):
+            skipped.append(key)
+            continue
+        elif not isinstance(value, (bool, int, float)):
+            skipped.append(key)
+            continue
+        try:
+            out[card_key] = value if comment is None else (value, comment)
+            continue
+        except (ValueError, TypeError, KeyError):
+            pass
+        if isinstance(value, str) and card_key.startswith("HIERARCH"):
+            # A HIERARCH card cannot continue: a long value (ccdproc's
+            # ``subtract_bias`` history) is shortened to fit one card.
+            room = 80 - len(card_key) - 6
+            if room >= 8:
+                try:
+                    out[card_key] = value[:room - 3] + "..."
+                    continue
+                except (ValueError, TypeError, KeyError):
+                    pass
+        skipped.append(key)
+    if skipped or escaped:
+        parts = []
+        if skipped:
+            parts.append(f"skipped {skipped} (not FITS keywords, or values such as NaN, "
+                         "infinity or containers that a card cannot hold)")
+        if escaped:
+            parts.append(f"escaped the non-ASCII characters of {escaped}")
+        warn("writing meta into the FITS header: " + "; ".join(parts) + ".")
+    return out
+
+
+#: The fit figures `check_quality` requires, and their types.
+QUALITY_KEYS = ("n_matches", "rms", "log10_false_alarm")
+
+
+def check_quality(quality):
+    """
+    Check a ``quality`` dict (as ``transform.meta['quality']`` holds it).
+
+    Returns
+    -------
+    quality : dict or None
+        With ``n_matches`` an int and ``rms``, ``log10_false_alarm`` floats.
+
+    Raises
+    ------
+    TypeError, ValueError
+        If it is not a dict or lacks one of `QUALITY_KEYS`.
+    """
+    if quality is None:
+        return None
+    if not isinstance(quality, dict):
+        raise TypeError(f"quality must be a dict (transform.meta['quality']) or None; got "
+                        f"{type(quality).__name__}.")
+    missing = [k for k in QUALITY_KEYS if k not in quality]
+    if missing:
+        raise ValueError(
+            f"quality lacks {missing}; it needs {list(QUALITY_KEYS)} (as find_transform "
+            "puts in transform.meta['quality']), or pass quality=None.")
+    out = dict(quality)
+    try:
+        out["n_matches"] = int(quality["n_matches"])
+        out["rms"] = float(quality["rms"])
+        out["log10_false_alarm"] = float(quality["log10_false_alarm"])
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"quality's {list(QUALITY_KEYS)} must be numbers; got "
+            f"{[quality[k] for k in QUALITY_KEYS]!r}.") from None
+    if not all(np.isfinite(out[k]) for k in QUALITY_KEYS[1:]):
+        raise ValueError("quality's rms and log10_false_alarm must be finite numbers.")
+    return out
+
+
 def transform_from_header(header: fits.Header | Mapping, *,
                           prefix: str = "AAT") -> LinearTransform2D:
     """
@@ -315,12 +447,21 @@ def transform_from_header(header: fits.Header | Mapping, *,
     prefix = _check_prefix(prefix)
     if not isinstance(header, fits.Header):
         try:
-            header = fits.Header(header)
+            items = dict(header).items()
         except (TypeError, ValueError, AttributeError, KeyError) as exc:
             raise TypeError(
                 "header must be an astropy.io.fits.Header or a dict-like of keywords; got "
                 f"{type(header).__name__} ({exc})."
             ) from None
+        # Only this transform's keywords: another key may hold a value a FITS
+        # header cannot (NaN, a nested dict), which is no concern here.
+        header = fits.Header()
+        for key, value in items:
+            if isinstance(key, str) and key.upper().startswith(prefix):
+                try:
+                    header[key] = value
+                except (ValueError, TypeError, KeyError):
+                    continue
     type_key = prefix + "TYPE"
     if type_key not in header:
         raise ValueError(
@@ -380,11 +521,14 @@ def add_provenance(header: fits.Header, model: LinearTransform2D, *,
     """
     from .. import __version__
 
+    quality = check_quality(quality)
     out = transform_to_header(model, header, prefix=prefix)
     m = as_matrix(model)
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
-    _add_history(out, f"astroalign_nd {__version__} {now} UTC: registered {source_name} "
-                      f"onto the pixel grid of {target_name}")
+    # File names may hold characters a FITS card cannot (escaped, not fatal).
+    _add_history(out, f"astroalign_nd {__version__} {now} UTC: registered "
+                      f"{fits_text(source_name)} onto the pixel grid of "
+                      f"{fits_text(target_name)}")
     det = np.linalg.det(m[:2, :2])
     desc = (f"{type(model).__name__} scale={np.sqrt(abs(det)):.6f}"
             f" rot={np.degrees(np.arctan2(m[1, 0], m[0, 0])):.5f}deg"

@@ -41,6 +41,48 @@ def _scalar(model, name):
     return float(array.ravel()[0])
 
 
+def _read_number(value, tag, name):
+    """
+    A parameter read from a file: one finite real number.
+
+    asdf does not validate files against their schemas on reading by
+    default, so a file may hold anything; it is checked here.
+    """
+    if isinstance(value, (bool, np.bool_)):
+        value = None
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        array = None
+    if array is None or array.shape != () or not np.isfinite(array):
+        raise ValueError(
+            f"the {tag} node's {name} must be one finite number; got {value!r}. The file "
+            "is damaged or was not written by astroalign_nd.")
+    return float(array)
+
+
+def _check_values(cls, values, tag):
+    """Parameter values that give a valid, invertible transform of ``cls``."""
+    if "parity" in values and values["parity"] not in (1.0, -1.0):
+        raise ValueError(
+            f"the {tag} node's parity must be +1 (proper) or -1 (mirrored); got "
+            f"{values['parity']!r}. The file is damaged or was not written by astroalign_nd.")
+    if "scale" in values and not values["scale"] > 0:
+        raise ValueError(
+            f"the {tag} node's scale must be > 0; got {values['scale']!r}. The file is "
+            "damaged or was not written by astroalign_nd.")
+    if "a11" in values:
+        lin = np.array([[values["a11"], values["a12"]], [values["a21"], values["a22"]]])
+        with np.errstate(over="ignore", invalid="ignore"):
+            det = float(np.linalg.det(lin))
+            norm2 = float(np.sum(lin**2))
+        if not (np.isfinite(det) and np.isfinite(norm2) and abs(det) > 1e-12 * norm2):
+            raise ValueError(
+                f"the {tag} node holds a singular or overflowing matrix (a11 a22 - a12 a21 "
+                f"= {det:g}); it cannot map an image. The file is damaged or was not "
+                "written by astroalign_nd.")
+
+
 class LinearTransformConverterBase(TransformConverterBase):
     """
     Shared converter of the astroalign_nd transforms.
@@ -104,7 +146,9 @@ class LinearTransformConverterBase(TransformConverterBase):
                 f"the {tag} node has no {', '.join(missing)}; every parameter of "
                 f"{cls.__name__} ({', '.join(cls.param_names)}) is required."
             )
-        return cls(**{name: node[name] for name in cls.param_names})
+        values = {name: _read_number(node[name], tag, name) for name in cls.param_names}
+        _check_values(cls, values, tag)
+        return cls(**values)
 
 
 class TranslationTransformConverter(LinearTransformConverterBase):
