@@ -12,6 +12,7 @@ The high-level API, top to bottom as the method goes:
 
 from __future__ import annotations
 
+import inspect
 import warnings
 from typing import TYPE_CHECKING, Any
 
@@ -38,13 +39,21 @@ __all__ = ["find_transform", "find_match", "register", "Reference"]
 #: Points of a catalog used (brightest first) when ``2 * n_sources`` is fewer.
 CATALOG_POINTS = 1000
 
-#: Keyword arguments of `find_transform` forwarded to `find_sources`.
-_DETECT_KEYS = ("fwhm", "nsigma", "sharpness_range", "roundness_range", "peak_max",
-                "bin_factor")
-#: Keyword arguments forwarded to `~astroalign_nd.matching.match_points`.
-_MATCH_KEYS = ("tolerance", "min_tolerance", "invariant_radius", "n_neighbors",
-               "allow_mirror", "scale_range", "max_false_alarm", "accept_matches",
-               "batch_size", "max_hypotheses")
+
+def _keyword_options(func, set_by_caller):
+    """The keyword-only parameters of ``func``, less those its caller sets itself."""
+    return tuple(name for name, p in inspect.signature(func).parameters.items()
+                 if p.kind is p.KEYWORD_ONLY and name not in set_by_caller)
+
+
+#: Keyword arguments of `find_transform` forwarded to `find_sources` (read
+#: from its signature, so that a new detection option is routed with no edit here).
+_DETECT_KEYS = _keyword_options(find_sources, {"mask", "n_sources"})
+#: Keyword arguments forwarded to `~astroalign_nd.matching.match_points`: its
+#: settings, less those `find_match` derives from the images.
+_MATCH_KEYS = _keyword_options(match_points, {
+    "transform_type", "source_frame", "target_frame", "source_errors", "target_errors",
+    "n_control", "source_asterisms", "target_asterisms", "prior_trials"})
 
 
 class Reference:
@@ -63,6 +72,8 @@ class Reference:
     hdu : int or str, optional
         The HDU of a FITS path or HDUList (index or extension name); by
         default the first one with image data.
+    unit : `~astropy.units.Unit` or str, optional
+        The unit of an image that has none (no ``BUNIT``, a bare array).
     **detect_options
         Options of `~astroalign_nd.find_sources` (``fwhm``, ``nsigma``...).
 
@@ -75,15 +86,17 @@ class Reference:
     >>> t, _ = find_transform(pair.source, ref)
     """
 
-    def __init__(self, image: Any, *, hdu: int | str | None = None,
-                 **detect_options: Any) -> None:
+    def __init__(self, image: Any, *, hdu: int | str | None = None, unit: Any = None,
+                 _role: str = "reference", **detect_options: Any) -> None:
         unknown = set(detect_options) - set(_DETECT_KEYS)
         if unknown:
             raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}; Reference "
                             f"accepts the detection options {list(_DETECT_KEYS)} and hdu."
                             f"{_astroalign_advice(unknown)}")
         detect_options = check_options(detect_options)
-        self.parsed = parse_input(image, "reference", hdu=hdu)
+        # The role ('source', 'target') names the input in error messages.
+        self.role = _role
+        self.parsed = parse_input(image, _role, hdu=hdu, unit=unit)
         self.detect_options = detect_options
         self._stars = {}
         self._asterisms = {}
@@ -134,7 +147,7 @@ class Reference:
                         table = strong
                 if len(table) < 3:
                     raise TooFewSourcesError(_too_few_advice(
-                        getattr(self, "role", "reference"), len(table), table.meta,
+                        self.role, len(table), table.meta,
                         user_nsigma or 3.0, "fwhm" in opts))
                 ny, nx = p.shape
                 pts = np.column_stack([np.asarray(table["x"], float),
@@ -177,13 +190,7 @@ def _too_few_advice(role, n, meta, nsigma, user_fwhm):
 def _as_reference(obj, name, detect_options, hdu=None, unit=None):
     if isinstance(obj, Reference):
         return obj
-    ref = Reference.__new__(Reference)
-    ref.role = name
-    ref.parsed = parse_input(obj, name, hdu=hdu, unit=unit)
-    ref.detect_options = detect_options
-    ref._stars, ref._asterisms = {}, {}
-    ref.fwhm = None
-    return ref
+    return Reference(obj, hdu=hdu, unit=unit, _role=name, **detect_options)
 
 
 #: astroalign's keywords -> what to use here (see docs/migration.rst).
@@ -352,7 +359,8 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
         one with image data.
     **options
         Detection options (``fwhm``, ``nsigma``, ``sharpness_range``,
-        ``roundness_range``, ``peak_max``, ``bin_factor``; see
+        ``roundness_range``, ``peak_max``, ``bin_factor``,
+        ``refine_centroids``; see
         `~astroalign_nd.find_sources`) and matching options
         (``tolerance``, ``min_tolerance``, ``invariant_radius``,
         ``n_neighbors``, ``allow_mirror``, ``scale_range``,

@@ -388,6 +388,29 @@ def test_unknown_keyword():
         find_match(TRIANGLE, _map(TRUTH, TRIANGLE), foo=1)
 
 
+def test_every_detection_and_matching_option_is_routed_and_checked():
+    """The routed options follow the signatures, and each has a range check."""
+    import inspect
+
+    from astroalign_nd import registration
+    from astroalign_nd._validate import OPTIONS
+    from astroalign_nd.detection import find_sources
+
+    det = set(inspect.signature(find_sources).parameters) - {"image", "mask", "n_sources"}
+    assert set(registration._DETECT_KEYS) == det
+    assert {"tolerance", "n_neighbors", "max_hypotheses"} <= set(registration._MATCH_KEYS)
+    assert set(registration._DETECT_KEYS + registration._MATCH_KEYS) <= set(OPTIONS)
+
+
+def test_refine_centroids_reaches_detection(small_pair):
+    t, _ = find_transform(small_pair.source, small_pair.target, refine_centroids=False)
+    assert frame_error(t, small_pair.truth_matrix, small_pair.target.shape) < 0.5
+    ref = astroalign_nd.Reference(small_pair.target, refine_centroids=False)
+    assert ref.detect_options == {"refine_centroids": False}
+    with pytest.raises(TypeError, match="refine_centroids must be True or False"):
+        find_transform(small_pair.source, small_pair.target, refine_centroids="no")
+
+
 @pytest.mark.parametrize("kwargs, exc", [
     (dict(n_sources=2), ValueError),
     (dict(n_sources=10.5), TypeError),
