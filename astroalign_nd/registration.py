@@ -25,7 +25,7 @@ from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads
 from ._validate import check_count, check_option, check_options, check_points
 from .asterisms import build_asterisms, check_triangle_budget
-from .matching import match_points
+from .matching import _match_points, match_points
 from .transforms import transform_class
 
 if TYPE_CHECKING:
@@ -52,8 +52,7 @@ _DETECT_KEYS = _keyword_options(find_sources, {"mask", "n_sources"})
 #: Keyword arguments forwarded to `~astroalign_nd.matching.match_points`: its
 #: settings, less those `find_match` derives from the images.
 _MATCH_KEYS = _keyword_options(match_points, {
-    "transform_type", "source_frame", "target_frame", "source_errors", "target_errors",
-    "n_control", "source_asterisms", "target_asterisms", "prior_trials"})
+    "transform_type", "source_frame", "target_frame", "source_errors", "target_errors"})
 
 
 class Reference:
@@ -238,7 +237,7 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
 
     Same arguments as `find_transform`; returns the full
     `~astroalign_nd.matching.MatchResult`, whose ``source_points`` and
-    ``target_points`` (added to ``extra``) hold the matched positions.
+    ``target_points`` hold the matched positions.
     Each attempt of the search is logged at debug level to astropy's
     logger (``astropy.log.setLevel("DEBUG")`` shows them).
     """
@@ -283,13 +282,13 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
             log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "
                       f"{key[1]} of {key[3]} target stars, {nn} neighbours per star")
             try:
-                result = match_points(src_pts, dst_pts, transform_type=transform_type,
-                                      source_frame=src_frame, target_frame=dst_frame,
-                                      source_errors=src_err, target_errors=dst_err,
-                                      n_control=(ns, nd), n_neighbors=nn,
-                                      source_asterisms=src.asterisms(ns, nn),
-                                      target_asterisms=dst.asterisms(nd, nn),
-                                      prior_trials=trials, **mat)
+                result = _match_points(src_pts, dst_pts, transform_type=transform_type,
+                                       source_frame=src_frame, target_frame=dst_frame,
+                                       source_errors=src_err, target_errors=dst_err,
+                                       n_control=(ns, nd), n_neighbors=nn,
+                                       source_asterisms=src.asterisms(ns, nn),
+                                       target_asterisms=dst.asterisms(nd, nn),
+                                       prior_trials=trials, **mat)
                 break
             except TransformNotFoundError as exc:
                 # Earlier attempts count in the trials factor of later ones.
@@ -303,12 +302,7 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
         raise last_exc
     log.debug(f"astroalign_nd: match found at attempt {len(tried)}: {result.n_matches} "
               f"stars, RMS {result.rms:.3f} px")
-    n = max(ns, nd)
-    result.extra.update(
-        source_points=src_pts[result.source_index],
-        target_points=dst_pts[result.target_index],
-        n_sources_used=n,
-    )
+    result.n_sources_used = max(ns, nd)
     return result
 
 
@@ -400,7 +394,7 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
                         max_sources=max_sources, hdu=hdu, **options)
     model = result.transform
     model.meta["quality"] = quality_dict(result)
-    return model, (result.extra["source_points"], result.extra["target_points"])
+    return model, (result.source_points, result.target_points)
 
 
 def quality_dict(result: MatchResult) -> dict:

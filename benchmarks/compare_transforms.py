@@ -1,9 +1,10 @@
 """
 Bit-for-bit check of a refactor: the transforms found on a fixed set of inputs.
 
-Runs ``find_match`` on a fixed set of inputs and writes, per input, the
-returned matrix and quality figures (float64, exact) or the exception's
-type and message to a JSON file.  Run it on the commit before a change and
+Runs ``find_match`` (also ``match_points`` and ``compat.find_transform``)
+on a fixed set of inputs and writes, per input, the returned matrix and
+quality figures (float64, exact) or the exception's type and message to a
+JSON file.  Run it on the commit before a change and
 on the commit after; ``--compare`` reports every difference (exact
 equality, floats compared through their hex representation).
 
@@ -16,7 +17,9 @@ Inputs:
 * the hard cases of ``bench_hard_cases`` (seeds 1 and 2), except the
   30000-star crowded field (``--crowded`` adds it: slow);
 * a few catalogs (noisy, partial overlap, unrelated, too few points) with
-  non-default matching options.
+  non-default matching options;
+* ``matching.match_points`` on catalogs, and ``compat.find_transform`` on
+  catalogs and on every 8th grid pair.
 
 Usage::
 
@@ -50,16 +53,33 @@ def _exact(x):
     return {"shape": list(a.shape), "hex": [float(v).hex() for v in a.ravel()]}
 
 
-def _run(source, target, **kw):
+def _call(source, target, kw):
+    """Call the function named by ``kw['_call']``; (result, warnings) or the exception."""
     import astroalign_nd
+    from astroalign_nd import compat
+    from astroalign_nd.matching import match_points
     from astroalign_nd.registration import find_match
 
+    kw = dict(kw)
+    func = {"find_match": find_match, "match_points": match_points,
+            "compat": compat.find_transform}[kw.pop("_call", "find_match")]
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            r = find_match(source, target, **kw)
+            r = func(source, target, **kw)
     except Exception as exc:  # noqa: BLE001 - the exception is the recorded outcome
-        return {"error": f"{type(exc).__name__}: {exc}"}
+        return None, {"error": f"{type(exc).__name__}: {exc}"}
+    return r, sorted(f"{w.category.__name__}: {w.message}" for w in caught
+                     if issubclass(w.category, astroalign_nd.AstroalignWarning))
+
+
+def _run(source, target, **kw):
+    r, caught = _call(source, target, kw)
+    if r is None:
+        return caught
+    if isinstance(r, tuple):  # compat.find_transform: (skimage transform, (src, dst))
+        return {"matrix": _exact(r[0].params), "source_points": _exact(r[1][0]),
+                "target_points": _exact(r[1][1]), "warnings": caught}
     extra = r.extra
     return {
         "matrix": _exact(r.transform.matrix),
@@ -70,11 +90,12 @@ def _run(source, target, **kw):
         "source_index": np.asarray(r.source_index).tolist(),
         "target_index": np.asarray(r.target_index).tolist(),
         "counts": [int(r.n_source), int(r.n_target), int(r.n_triangle_matches),
-                   int(r.n_hypotheses), int(extra["n_sources_used"])],
-        "source_points": _exact(extra["source_points"]),
-        "target_points": _exact(extra["target_points"]),
-        "warnings": sorted(f"{w.category.__name__}: {w.message}" for w in caught
-                           if issubclass(w.category, astroalign_nd.AstroalignWarning)),
+                   int(r.n_hypotheses), int(extra.get("n_sources_used", -1))],
+        # match_points' results hold the points only since issue 17: indices suffice.
+        "source_points": _exact(extra["source_points"]) if "n_sources_used" in extra else 0,
+        "target_points": _exact(extra["target_points"]) if "n_sources_used" in extra else 0,
+        "extra": {k: _exact(extra[k]) for k in ("model_misfit", "predicted_error")},
+        "warnings": caught,
     }
 
 
@@ -90,6 +111,14 @@ def _catalog_inputs():
     yield "catalog unrelated", src[:20], rng.uniform(0, 500, (20, 2)), {}
     yield "catalog too few", src[:2], dst[:2], {}
     yield "catalog no mirror", src[:40], dst[:40] * [-1, 1], dict(allow_mirror=False)
+    err = rng.uniform(0.02, 0.1, len(src))
+    yield "match_points errors", src, dst, dict(_call="match_points", source_errors=err,
+                                                target_errors=err, source_frame=(0, 500, 0, 500))
+    yield "match_points affine", src, part, dict(_call="match_points", transform_type="affine")
+    yield "match_points unrelated", src[:20], part[60:80], dict(_call="match_points")
+    yield "compat catalogs", src, dst, dict(_call="compat")
+    yield "compat few stars", src[:5], dst[:5], dict(_call="compat")
+    yield "compat unrelated", src[:20], part[60:80], dict(_call="compat")
 
 
 def inputs(crowded=False):
@@ -103,6 +132,8 @@ def inputs(crowded=False):
             pair, _ = draw_pair(size, stars, bg, i, 0, FWHM_RANGE)
             name = f"grid {size} {stars} {bg} #{i}"
             yield name, pair.source, pair.target, {}
+            if k % 8 == 0:
+                yield f"{name} compat", pair.source, pair.target, dict(_call="compat")
             if k % 4 == 0:
                 for tt in ("affine", "euclidean", "translation"):
                     yield f"{name} {tt}", pair.source, pair.target, dict(transform_type=tt)

@@ -474,8 +474,26 @@ def test_find_match_returns_match_result(small_pair, small_result):
     assert r.residuals.shape == (r.n_matches, 2)
     assert r.n_source >= r.n_matches and r.n_target >= r.n_matches
     assert r.n_triangle_matches >= 1 and r.n_hypotheses >= 1
+    np.testing.assert_array_equal(r.source_points, small_result[1][0])
+    np.testing.assert_array_equal(r.target_points, small_result[1][1])
+    assert r.n_sources_used == 50 and r.model_misfit >= 0 and r.predicted_error > 0
+    # The dict of earlier versions still reads and writes the same fields.
     np.testing.assert_array_equal(r.extra["source_points"], small_result[1][0])
-    np.testing.assert_array_equal(r.extra["target_points"], small_result[1][1])
+    assert r.extra["n_sources_used"] == 50
+    r.extra.update(n_sources_used=7, note="kept")
+    assert r.n_sources_used == 7 and r.extra["note"] == "kept" and "note" in dict(r.extra)
+
+
+def test_match_points_public_settings_only():
+    """The escalation's internals go through the private entry point."""
+    from astroalign_nd.matching import match_points
+
+    src = np.random.default_rng(3).uniform(0, 500, (40, 2))
+    r = match_points(src, _map(TRUTH, src))
+    assert r.n_sources_used is None and r.source_points.shape == (r.n_matches, 2)
+    np.testing.assert_array_equal(r.target_points, _map(TRUTH, src)[r.target_index])
+    with pytest.raises(TypeError):
+        match_points(src, _map(TRUTH, src), n_control=10)
 
 
 # -- (i) transform types -------------------------------------------------------------------
