@@ -313,9 +313,10 @@ def find_transform(source: Any, target: Any, max_control_points: int = 50,
     >>> round(float(T.rotation * 180 / 3.141592653589793), 1)
     30.0
     """
-    from .registration import Reference, _positive_int, find_match
+    from ._validate import check_count
+    from .registration import Reference, find_match
 
-    n = _positive_int(max_control_points, "max_control_points")
+    n = check_count(max_control_points, "max_control_points")
     opts = _engine_options(detection_sigma)
     det = {"nsigma": opts.pop("nsigma")} if "nsigma" in opts else {}
     inputs = (_control_input(source, "source"), _control_input(target, "target"))
@@ -344,7 +345,8 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
 
     Raises `MaxIterError` (or the engine's `TooFewSourcesError`) otherwise.
     """
-    from .matching import _apply, _bbox, _in_frame, _match_points
+    from .matching import _bbox, _in_frame, _match_points
+    from .transforms import _apply
 
     lists = []
     for inp, ref in zip(inputs, refs):

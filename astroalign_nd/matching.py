@@ -31,7 +31,7 @@ from ._kernels import PointGrid, count_inliers
 from ._validate import OPTIONS, check_options, check_points
 from .asterisms import build_asterisms
 from .exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
-from .transforms import AffineTransform, fit_transform, transform_class
+from .transforms import AffineTransform, _apply, fit_transform, transform_class
 
 __all__ = ["MatchResult", "match_points", "match_triangles", "hypothesis_matrices"]
 
@@ -239,10 +239,6 @@ def hypothesis_matrices(src_ast, dst_ast, pairs):
     pred = np.einsum("kij,knj->kni", m[:, :2, :2], s) + m[:, None, :2, 2]
     rms = np.sqrt(np.mean(np.sum((pred - d) ** 2, axis=2), axis=1))
     return m, rms, parity
-
-
-def _apply(m, pts):
-    return pts @ m[:2, :2].T + m[:2, 2]
 
 
 def _mutual_matches(pred, dst_pts, dst_tree, tol):

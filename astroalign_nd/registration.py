@@ -23,7 +23,7 @@ from ._input import parse_input
 from .detection import find_sources
 from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads
-from ._validate import check_count, check_option, check_options, check_points
+from ._validate import check_option, check_options, check_points
 from .asterisms import build_asterisms, check_triangle_budget
 from .matching import _match_points, match_points
 from .transforms import transform_class
@@ -409,11 +409,6 @@ def quality_dict(result: MatchResult) -> dict:
         n_triangle_matches=int(result.n_triangle_matches),
         n_hypotheses=int(result.n_hypotheses),
     )
-
-
-def _positive_int(value, name):
-    # Kept for astroalign_nd.compat (max_control_points): one check, one message.
-    return check_count(value, name)
 
 
 def register(source: Any, target: Any, *, transform_type: str | type = "similarity",
