@@ -66,7 +66,7 @@ class Asterisms:
 
 def check_triangle_budget(n_points, n_neighbors):
     """
-    Refuse, before allocating, more triangles than `MAX_TRIANGLES`.
+    Refuse, before allocating, more triangles than ``MAX_TRIANGLES``.
 
     Each of ``n_points`` stars gives at most ``C(n_neighbors + 1, 3)``
     triangles.

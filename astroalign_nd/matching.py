@@ -155,7 +155,7 @@ def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
     Pairs of triangles whose invariants are within ``radius``, best first.
 
     Memory is bounded: when more than ``4 * max_matches`` pairs (at most
-    `MAX_PAIRS`) would lie within ``radius``, the radius shrinks until
+    ``MAX_PAIRS``) would lie within ``radius``, the radius shrinks until
     about half that many do (the pairs kept are the best ones anyway), and
     if even near-identical invariants are too many (a regular lattice of
     points), each source triangle keeps only its nearest target triangles.
