@@ -27,7 +27,7 @@ from ._input import batch_frames, parse_input
 from .exceptions import warn
 from .io.write import FITS_EXTENSIONS, check_writable_dir, write_ccddata
 from .registration import (Reference, _as_reference, _split_options, find_match,
-                           quality_dict)
+                           _quality_dict)
 
 __all__ = ["FrameResult", "BatchResult", "register_batch", "plan_outputs", "union_canvas"]
 
@@ -465,7 +465,7 @@ def _run(job, cfg):
         # Read (parsed) once, here on the worker, for both stages.
         src = _as_reference(job.source, "source", det, cfg.hdu, cfg.unit)
         result = find_match(src, cfg.reference, **cfg.options)
-        quality = quality_dict(result)
+        quality = _quality_dict(result)
         if job.stage == "find":
             return FrameResult(name=job.name, status="registered", transform=result.transform,
                                quality=quality, source=src_path, output=job.output,

@@ -345,7 +345,7 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
 
     Raises `MaxIterError` (or the engine's `TooFewSourcesError`) otherwise.
     """
-    from .matching import _bbox, _in_frame, _match_points
+    from .matching import _bbox, _in_frame, _match_points, _search_tolerance
     from .transforms import _apply
 
     lists = []
@@ -368,7 +368,8 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
                   target_frame=dst_frame, n_control=(n, n),
                   prior_trials=getattr(exc, "n_hypotheses", 0))
     try:
-        return _match_points(src_pts, dst_pts, tolerance=opts.get("tolerance", 3.0), **common)
+        return _match_points(src_pts, dst_pts,
+                             tolerance=opts.get("tolerance", _search_tolerance()), **common)
     except TransformNotFoundError:
         pass
     # The candidate's warnings (an uncertain fit) are shown only if the rule accepts it.

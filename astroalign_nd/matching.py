@@ -547,6 +547,15 @@ _SETTINGS = {name: p.default for name, p in inspect.signature(match_points).para
              if p.kind is p.KEYWORD_ONLY}
 
 
+def _search_tolerance(fwhm=None):
+    """
+    The search's matching radius (pixels) for stars ``fwhm`` pixels wide:
+    `match_points`' default, or half the FWHM where that is wider (defocus,
+    digitised plates: wide stars have wide position errors).
+    """
+    return max(_SETTINGS["tolerance"], 0.5 * (fwhm or 0.0))
+
+
 def _match_points(src_pts, dst_pts, *, n_control=None, source_asterisms=None,
                   target_asterisms=None, prior_trials=0, **settings):
     """

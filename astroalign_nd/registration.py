@@ -25,7 +25,7 @@ from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads
 from ._validate import check_option, check_options, check_points
 from .asterisms import build_asterisms, check_triangle_budget
-from .matching import _match_points, match_points
+from .matching import _match_points, _search_tolerance, match_points
 from .transforms import transform_class
 
 if TYPE_CHECKING:
@@ -251,20 +251,8 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
     src = _as_reference(source, "source", det, hdu)
     dst = _as_reference(target, "target", det, hdu)
 
-    # Escalation: more control points help crowded fields, small overlaps
-    # and pairs whose brightest stars differ; more neighbours per star help
-    # sparse, noisy lists where many stars are missing from one image.
     user_nn = "n_neighbors" in mat
-    nn = mat.pop("n_neighbors", 4)
-    n_top = n_sources
-    while 2 * n_top <= max_sources:
-        n_top *= 2
-    plan = [(n_sources, n_sources, nn)]
-    if n_top > n_sources:
-        # Depth-matched attempts: when the pixel scales differ a lot, the
-        # brightest stars of the narrow field are found among many more of
-        # the wide field's; then many stars on both sides.
-        plan += [(n_sources, n_top, nn), (n_top, n_sources, nn), (n_top, n_top, nn)]
+    plan = _attempt_plan(n_sources, max_sources, mat.pop("n_neighbors", 4))
     trials, tried, k, last_exc, result = 0, set(), 0, None, None
     while k < len(plan):
         ns, nd, nn = plan[k]
@@ -277,8 +265,7 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
         if key not in tried:
             tried.add(key)
             if "tolerance" not in options:
-                # Wide stars (defocus, digitised plates) have wide position errors.
-                mat["tolerance"] = max(3.0, 0.5 * (dst.fwhm or 0.0))
+                mat["tolerance"] = _search_tolerance(dst.fwhm)
             log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "
                       f"{key[1]} of {key[3]} target stars, {nn} neighbours per star")
             try:
@@ -304,6 +291,26 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
               f"stars, RMS {result.rms:.3f} px")
     result.n_sources_used = max(ns, nd)
     return result
+
+
+def _attempt_plan(n_sources, max_sources, nn):
+    """
+    The attempts of the escalation: (source stars, target stars, neighbours).
+
+    More control points help crowded fields, small overlaps and pairs whose
+    brightest stars differ (`_widen` adds more neighbours per star for
+    sparse, noisy lists where many stars are missing from one image).
+    """
+    n_top = n_sources
+    while 2 * n_top <= max_sources:
+        n_top *= 2
+    plan = [(n_sources, n_sources, nn)]
+    if n_top > n_sources:
+        # Depth-matched attempts: when the pixel scales differ a lot, the
+        # brightest stars of the narrow field are found among many more of
+        # the wide field's; then many stars on both sides.
+        plan += [(n_sources, n_top, nn), (n_top, n_sources, nn), (n_top, n_top, nn)]
+    return plan
 
 
 def _widen(plan, src_pts, dst_pts, user_nn):
@@ -393,11 +400,11 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
     result = find_match(source, target, transform_type=transform_type, n_sources=n_sources,
                         max_sources=max_sources, hdu=hdu, **options)
     model = result.transform
-    model.meta["quality"] = quality_dict(result)
+    model.meta["quality"] = _quality_dict(result)
     return model, (result.source_points, result.target_points)
 
 
-def quality_dict(result: MatchResult) -> dict:
+def _quality_dict(result: MatchResult) -> dict:
     """The quality figures of a `~astroalign_nd.matching.MatchResult` as a dict."""
     return dict(
         n_matches=int(result.n_matches),
@@ -463,5 +470,5 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
                         max_sources=max_sources, **options)
     return apply_transform(result.transform, src.parsed, dst.parsed, order=order,
                            conserve_flux=conserve_flux, fill_value=fill_value, method=method,
-                           unit=unit, parallel=parallel, quality=quality_dict(result),
+                           unit=unit, parallel=parallel, quality=_quality_dict(result),
                            add_keyword=add_keyword)
