@@ -25,8 +25,11 @@ except ImportError:  # pragma: no cover - an unbuilt source tree
     _ckernels = None
     HAVE_COMPILED = False
 
-__all__ = ["bin_despike", "peak_candidates", "has_nonfinite", "PointGrid", "count_inliers",
-           "num_threads", "run_split"]
+__all__ = ["bin_despike", "peak_candidates", "PointGrid", "count_inliers", "num_threads",
+           "run_split", "GAUSS_SIGMA_TO_FWHM"]
+
+#: FWHM of a Gaussian in units of its sigma (detection and simulation share it).
+GAUSS_SIGMA_TO_FWHM = 2.0 * np.sqrt(2.0 * np.log(2.0))
 
 # -- threads -----------------------------------------------------------------------
 
@@ -258,14 +261,3 @@ def count_inliers(mats, src, grid):
     pred = np.einsum("kij,nj->kni", mats[:, :2, :2], src) + mats[:, None, :2, 2]
     d, _ = tree.query(pred.reshape(-1, 2), distance_upper_bound=grid.radius)
     return np.isfinite(d).reshape(len(mats), -1).sum(axis=1)
-
-
-def has_nonfinite(arr):
-    """True if a float array has a NaN or infinite value (one pass, no temporaries)."""
-    if arr.dtype.kind != "f":
-        return False
-    if HAVE_COMPILED and arr.flags.c_contiguous and arr.dtype in (np.float32, np.float64):
-        flat = arr.reshape(-1)
-        return sum(run_split(_ckernels.count_nonfinite, flat.size, (flat,),
-                             min_per_thread=1 << 20)) > 0
-    return not np.isfinite(arr).all()

@@ -147,6 +147,7 @@ OPTIONS = {
     # Sharpness has no lower limit by default (saturated stars): -inf is allowed.
     "sharpness_range": _Pair(_Real(infinite=True), none=True),
     "roundness_range": _Pair(_Real(infinite=True), none=True),
+    "refine_centroids": _Bool(),
     # counts of stars
     "n_sources": _Int(3, 1_000_000),
     "max_sources": _Int(3, 1_000_000),

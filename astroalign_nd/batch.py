@@ -27,7 +27,7 @@ from ._input import batch_frames, parse_input
 from .exceptions import warn
 from .io.write import FITS_EXTENSIONS, check_writable_dir, write_ccddata
 from .registration import (Reference, _as_reference, _split_options, find_match,
-                           quality_dict)
+                           _quality_dict)
 
 __all__ = ["FrameResult", "BatchResult", "register_batch", "plan_outputs", "union_canvas"]
 
@@ -437,7 +437,7 @@ def _run(job, cfg):
     src_path = os.fspath(job.source) if _is_path(job.source) else None
     try:
         if job.stage == "apply":
-            return _apply(job, cfg, t0, src_path)
+            return _apply_stage(job, cfg, t0, src_path)
         done = _skip_or_refuse(job, cfg)
         if done is not None and not cfg.union and (
                 tuple(done["offset"]) != (0, 0) or tuple(done["shape"]) != cfg.reference.shape):
@@ -465,7 +465,7 @@ def _run(job, cfg):
         # Read (parsed) once, here on the worker, for both stages.
         src = _as_reference(job.source, "source", det, cfg.hdu, cfg.unit)
         result = find_match(src, cfg.reference, **cfg.options)
-        quality = quality_dict(result)
+        quality = _quality_dict(result)
         if job.stage == "find":
             return FrameResult(name=job.name, status="registered", transform=result.transform,
                                quality=quality, source=src_path, output=job.output,
@@ -473,12 +473,12 @@ def _run(job, cfg):
         # A copy: the caller's job list must not keep the frame's pixels alive.
         job = replace(job, source=src, transform=result.transform, quality=quality,
                       canvas=None, source_shape=src.shape)
-        return _apply(job, cfg, t0, src_path)
+        return _apply_stage(job, cfg, t0, src_path)
     except Exception as exc:  # noqa: BLE001 - report every failure, keep going
         return _failed(job, exc, t0, src_path)
 
 
-def _apply(job, cfg, t0, src_path=None):
+def _apply_stage(job, cfg, t0, src_path=None):
     from .ccddata import apply_transform
 
     # Already parsed in the 'full' stage (a Reference); read here in 'apply'.
@@ -532,11 +532,16 @@ def _type_of(transform):
     return None
 
 
-#: How far inside the frame's edge pixel centres the resampling is valid, per
-#: interpolation (see `~astroalign_nd.resample.resample`): a frame's pixels
-#: count from ``margin`` to ``n - 1 - margin``.
-_VALID_MARGIN = {"nearest-neighbor": -0.5, 0: -0.5, "bilinear": 0.0, 1: 0.0,
-                 "biquadratic": 0.5, 2: 0.5, "bicubic": 1.0, 3: 1.0}
+def _valid_margin(order):
+    """
+    How far inside the frame's edge pixel centres the resampling is valid
+    (see `~astroalign_nd.resample.resample`): a frame's pixels count from
+    ``margin`` to ``n - 1 - margin``; -0.5 for nearest-neighbour, 0 for
+    bilinear, 0.5 for biquadratic and 1 for bicubic interpolation.
+    """
+    from .resample import _parse_order
+
+    return (_parse_order(order) - 1) / 2.0
 
 
 def union_canvas(transforms, shapes, reference_shape, margin=0.0):
@@ -954,7 +959,7 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
                 bar.update(1)
         if found:
             order_ = sorted(found)
-            margin = -0.5 if method == "exact" else _VALID_MARGIN.get(order, 0.0)
+            margin = -0.5 if method == "exact" else _valid_margin(order)
             shape, offset = union_canvas([found[i].transform for i in order_],
                                          [found[i].shape for i in order_], ref.shape,
                                          margin=margin)

@@ -26,17 +26,15 @@ The output carries:
 
 from __future__ import annotations
 
-import warnings
 from typing import Any
 
 import numpy as np
 from astropy import units as u
 from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUncertainty,
                             VarianceUncertainty)
-from astropy.wcs import FITSFixedWarning
 
 from ._input import parse_input
-from .io.header import add_provenance, check_quality, header_from_meta
+from .io.header import add_provenance, check_quality, header_from_meta, header_without_wcs
 from .resample import ORDERS, resample, resample_exact
 from .transforms import LinearTransform2D, as_matrix, from_matrix
 
@@ -109,45 +107,6 @@ def _carry_wcs(wcs, matrix, shape_out):
         w.wcs.ctype = [c.replace("-SIP", "") for c in w.wcs.ctype]
     w.pixel_shape = (shape_out[1], shape_out[0])
     return w
-
-
-# Keywords that start a celestial WCS description.
-_WCS_PREFIXES = ("CTYPE", "CRPIX", "CRVAL", "CDELT", "CUNIT", "CROTA", "CD1_", "CD2_", "PC1_",
-                 "PC2_", "WCSAXES", "A_", "B_", "AP_", "BP_", "LONPOLE", "LATPOLE", "RADESYS",
-                 "EQUINOX", "PV1_", "PV2_", "PS1_", "PS2_")
-
-
-def _strip_wcs(header):
-    """Header without celestial WCS cards (they describe the old pixel grid)."""
-    from astropy.wcs import WCS
-
-    h = header.copy()
-    if not any(k.startswith(_WCS_PREFIXES) for k in h.keys()):
-        return h  # nothing to strip (and parsing a WCS costs ~1.5 ms)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", FITSFixedWarning)
-            wcs_cards = WCS(h).to_header(relax=True)
-    except (ValueError, KeyError, TypeError, MemoryError):
-        # An unparsable WCS (astropy.wcs raises WcsError, a ValueError):
-        # its cards describe the old grid all the same; remove them by name.
-        wcs_cards = [k for k in h.keys() if k.startswith(_WCS_PREFIXES)]
-    for key in wcs_cards:
-        h.remove(key, ignore_missing=True, remove_all=True)
-    for key in ("CD1_1", "CD1_2", "CD2_1", "CD2_2", "A_ORDER", "B_ORDER"):
-        h.remove(key, ignore_missing=True, remove_all=True)
-    return h
-
-
-def _as_header(meta):
-    """
-    The meta as a FITS header (`~astroalign_nd.io.header.header_from_meta`).
-
-    Keys that are not standard FITS keywords (ccdproc's ``subtract_bias``,
-    long or lower-case names) become HIERARCH cards rather than being
-    lost; values that FITS cannot hold are left out, with a warning.
-    """
-    return header_from_meta(meta)
 
 
 def _resample_flags(flags, matrix, shape_out):
@@ -303,7 +262,8 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     if var_out is not None:
         uncertainty = _uncertainty_like(src.uncertainty, var_out, out_unit)
 
-    header = _strip_wcs(_as_header(src.meta))
+    # Non-FITS keys become HIERARCH cards; the WCS cards describe the old grid.
+    header = header_without_wcs(header_from_meta(src.meta))
     if add_keyword:
         model = transform if isinstance(transform, LinearTransform2D) else from_matrix(m)
         header = add_provenance(header, model, quality=quality, source_name=src.name,

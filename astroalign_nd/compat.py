@@ -313,9 +313,10 @@ def find_transform(source: Any, target: Any, max_control_points: int = 50,
     >>> round(float(T.rotation * 180 / 3.141592653589793), 1)
     30.0
     """
-    from .registration import Reference, _positive_int, find_match
+    from ._validate import check_count
+    from .registration import Reference, find_match
 
-    n = _positive_int(max_control_points, "max_control_points")
+    n = check_count(max_control_points, "max_control_points")
     opts = _engine_options(detection_sigma)
     det = {"nsigma": opts.pop("nsigma")} if "nsigma" in opts else {}
     inputs = (_control_input(source, "source"), _control_input(target, "target"))
@@ -326,7 +327,7 @@ def find_transform(source: Any, target: Any, max_control_points: int = 50,
     except (TransformNotFoundError, TooFewSourcesError) as exc:
         result = _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc)
     return (_skimage_transform(result.transform.matrix),
-            (result.extra["source_points"], result.extra["target_points"]))
+            (result.source_points, result.target_points))
 
 
 def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
@@ -344,7 +345,8 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
 
     Raises `MaxIterError` (or the engine's `TooFewSourcesError`) otherwise.
     """
-    from .matching import _apply, _bbox, _in_frame, match_points
+    from .matching import _bbox, _in_frame, _match_points, _search_tolerance
+    from .transforms import _apply
 
     lists = []
     for inp, ref in zip(inputs, refs):
@@ -366,17 +368,16 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
                   target_frame=dst_frame, n_control=(n, n),
                   prior_trials=getattr(exc, "n_hypotheses", 0))
     try:
-        return _with_points(match_points(src_pts, dst_pts,
-                                         tolerance=opts.get("tolerance", 3.0), **common),
-                            src_pts, dst_pts)
+        return _match_points(src_pts, dst_pts,
+                             tolerance=opts.get("tolerance", _search_tolerance()), **common)
     except TransformNotFoundError:
         pass
     # The candidate's warnings (an uncertain fit) are shown only if the rule accepts it.
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            result = match_points(src_pts, dst_pts, tolerance=float(PIXEL_TOL),
-                                  max_false_alarm=1.0, **common)
+            result = _match_points(src_pts, dst_pts, tolerance=float(PIXEL_TOL),
+                                   max_false_alarm=1.0, **common)
         except TransformNotFoundError:
             raise MaxIterError(str(exc)) from exc
     m = result.transform.matrix
@@ -391,12 +392,6 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
             f"PIXEL_TOL={PIXEL_TOL} px).") from exc
     for w in caught:
         warn(str(w.message), w.category)
-    return _with_points(result, src_pts, dst_pts)
-
-
-def _with_points(result, src_pts, dst_pts):
-    result.extra.update(source_points=src_pts[result.source_index],
-                        target_points=dst_pts[result.target_index])
     return result
 
 

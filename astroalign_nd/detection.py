@@ -33,11 +33,10 @@ from astropy.table import Table
 from astropy.utils.exceptions import AstropyWarning
 
 from ._input import image_and_mask
+from ._kernels import GAUSS_SIGMA_TO_FWHM as _GAUSS_SIGMA_TO_FWHM
 from ._kernels import bin_despike, peak_candidates
 
 __all__ = ["find_sources", "estimate_noise", "estimate_fwhm"]
-
-_GAUSS_SIGMA_TO_FWHM = 2.0 * np.sqrt(2.0 * np.log(2.0))
 
 
 def _median(a, axis=None):

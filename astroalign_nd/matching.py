@@ -19,6 +19,8 @@ Stage 3 of the method: match triangles, verify, refine.
    every hypothesis tried, in the spirit of astrometry.net's odds test).
 """
 
+import inspect
+from collections.abc import MutableMapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,10 +28,10 @@ from scipy.spatial import cKDTree
 from scipy.special import betainc
 
 from ._kernels import PointGrid, count_inliers
-from ._validate import check_options, check_points
+from ._validate import OPTIONS, check_options, check_points
 from .asterisms import build_asterisms
 from .exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
-from .transforms import AffineTransform, fit_transform, transform_class
+from .transforms import AffineTransform, _apply, fit_transform, transform_class
 
 __all__ = ["MatchResult", "match_points", "match_triangles", "hypothesis_matrices"]
 
@@ -60,6 +62,22 @@ class MatchResult:
         Candidate triangle matches found in invariant space.
     n_hypotheses : int
         Hypotheses scored before the answer was accepted.
+    model_misfit : float
+        Largest difference (pixels) over the target frame between the
+        transform and an affine fit of the same stars, when the affine fit
+        is significantly better (0 otherwise).
+    predicted_error : float
+        Largest 1-sigma position error (pixels) over the target frame,
+        propagated from the covariance.
+    source_points, target_points : (K, 2) ndarray
+        The matched positions (``source_index`` and ``target_index`` rows
+        of the point lists).
+    n_sources_used : int or None
+        The control points of the successful attempt of
+        `~astroalign_nd.find_match` (None from ``match_points``).
+    extra : dict-like
+        The five attributes above, by name (read and write), for code
+        written when they were keys of a dict.
     """
 
     transform: object
@@ -73,12 +91,59 @@ class MatchResult:
     n_target: int
     n_triangle_matches: int
     n_hypotheses: int
-    extra: dict = field(default_factory=dict)
+    model_misfit: float = 0.0
+    predicted_error: float = 0.0
+    source_points: np.ndarray = None
+    target_points: np.ndarray = None
+    n_sources_used: int = None
+    _other: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def n_matches(self):
         """Number of matched stars used in the final fit."""
         return len(self.source_index)
+
+    @property
+    def extra(self):
+        """The attributes that used to be the keys of a dict ``extra`` (a live view)."""
+        return _ExtraView(self)
+
+
+class _ExtraView(MutableMapping):
+    """``MatchResult.extra``: its fields by name; other keys are kept aside."""
+
+    _FIELDS = ("model_misfit", "predicted_error", "source_points", "target_points",
+               "n_sources_used")
+
+    def __init__(self, result):
+        self._result = result
+
+    def _keys(self):
+        return [k for k in self._FIELDS if getattr(self._result, k) is not None] + list(
+            self._result._other)
+
+    def __getitem__(self, key):
+        if key in self._FIELDS and getattr(self._result, key) is not None:
+            return getattr(self._result, key)
+        return self._result._other[key]
+
+    def __setitem__(self, key, value):
+        if key in self._FIELDS:
+            setattr(self._result, key, value)
+        else:
+            self._result._other[key] = value
+
+    def __delitem__(self, key):
+        if key in self._FIELDS:
+            setattr(self._result, key, None)
+        else:
+            del self._result._other[key]
+
+    def __iter__(self):
+        return iter(self._keys())
+
+    def __len__(self):
+        return len(self._keys())
 
 
 #: Most candidate triangle pairs held in memory at once (about 24 bytes each).
@@ -174,10 +239,6 @@ def hypothesis_matrices(src_ast, dst_ast, pairs):
     pred = np.einsum("kij,knj->kni", m[:, :2, :2], s) + m[:, None, :2, 2]
     rms = np.sqrt(np.mean(np.sum((pred - d) ** 2, axis=2), axis=1))
     return m, rms, parity
-
-
-def _apply(m, pts):
-    return pts @ m[:2, :2].T + m[:2, 2]
 
 
 def _mutual_matches(pred, dst_pts, dst_tree, tol):
@@ -416,8 +477,7 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
                  allow_mirror=True, scale_range=None, max_false_alarm=1e-6,
                  accept_matches=10, batch_size=512, max_hypotheses=20_000,
                  source_frame=None, target_frame=None, source_errors=None,
-                 target_errors=None, n_control=None, source_asterisms=None,
-                 target_asterisms=None, prior_trials=0):
+                 target_errors=None):
     """
     Find the transform that maps ``src_pts`` onto ``dst_pts``.
 
@@ -453,17 +513,6 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     source_errors, target_errors : (N,) ndarray, optional
         Expected position error of each point (pixels); used to weight the
         final fit.
-    n_control : int or (int, int), optional
-        Only the first ``n_control`` points (the brightest) form triangles
-        and score hypotheses; all points are used to refine and verify.  A
-        pair gives different numbers for the source and the target.
-    source_asterisms, target_asterisms : `~astroalign_nd.asterisms.Asterisms`, optional
-        Triangles of the first ``n_control`` points, when already built
-        (a reference frame used for many registrations builds them once).
-    prior_trials : int, optional
-        Hypotheses already tried on this pair by earlier attempts; they
-        count in the trials factor of the false-alarm probability.
-
     Returns
     -------
     result : `MatchResult`
@@ -484,172 +533,323 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     Memory is bounded: at most ``MAX_TRIANGLES`` triangles per list and
     ``4 * max_hypotheses`` candidate triangle pairs (the closest) are held.
     """
+    return _match_points(
+        src_pts, dst_pts, transform_type=transform_type, tolerance=tolerance,
+        min_tolerance=min_tolerance, invariant_radius=invariant_radius,
+        n_neighbors=n_neighbors, allow_mirror=allow_mirror, scale_range=scale_range,
+        max_false_alarm=max_false_alarm, accept_matches=accept_matches,
+        batch_size=batch_size, max_hypotheses=max_hypotheses, source_frame=source_frame,
+        target_frame=target_frame, source_errors=source_errors, target_errors=target_errors)
+
+
+#: The settings of `match_points` and their defaults (its signature is their one home).
+_SETTINGS = {name: p.default for name, p in inspect.signature(match_points).parameters.items()
+             if p.kind is p.KEYWORD_ONLY}
+
+
+def _search_tolerance(fwhm=None):
+    """
+    The search's matching radius (pixels) for stars ``fwhm`` pixels wide:
+    `match_points`' default, or half the FWHM where that is wider (defocus,
+    digitised plates: wide stars have wide position errors).
+    """
+    return max(_SETTINGS["tolerance"], 0.5 * (fwhm or 0.0))
+
+
+def _match_points(src_pts, dst_pts, *, n_control=None, source_asterisms=None,
+                  target_asterisms=None, prior_trials=0, **settings):
+    """
+    `match_points`, with what `~astroalign_nd.find_match` knows beyond it.
+
+    Parameters
+    ----------
+    src_pts, dst_pts : (N, 2) ndarray
+        As in `match_points`.
+    n_control : int or (int, int), optional
+        Only the first ``n_control`` points (the brightest) form triangles
+        and score hypotheses; all points are used to refine and verify.  A
+        pair gives different numbers for the source and the target.
+    source_asterisms, target_asterisms : `~astroalign_nd.asterisms.Asterisms`, optional
+        Triangles of the first ``n_control`` points, when already built
+        (a reference frame used for many registrations builds them once).
+    prior_trials : int, optional
+        Hypotheses already tried on this pair by earlier attempts; they
+        count in the trials factor of the false-alarm probability.
+
+    **settings
+        The keyword arguments of `match_points` (its defaults otherwise).
+
+    The stages: `_prepare` (checks, frames, control points), triangles and
+    `_filter_hypotheses`, `_score_batches` (early acceptance), `_final_pass`
+    and `_failure_message`.
+    """
+    unknown = set(settings) - set(_SETTINGS)
+    if unknown:
+        raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}; match_points "
+                        f"accepts {list(_SETTINGS)}.")
+    s = _prepare(src_pts, dst_pts, {**_SETTINGS, **settings}, n_control, prior_trials)
+    src_ast = source_asterisms or build_asterisms(s.src_ctl, n_neighbors=s.n_neighbors)
+    dst_ast = target_asterisms or build_asterisms(s.dst_ctl, n_neighbors=s.n_neighbors)
+    pairs, _ = match_triangles(src_ast, dst_ast, s.invariant_radius,
+                               max_matches=s.max_hypotheses)
+    n_tri = len(pairs)
+    if n_tri == 0:
+        raise _not_found(0, (
+            f"no transform found: the source gave {len(s.src_pts)} sources and the target "
+            f"{len(s.dst_pts)}, but no triangle matched between them (best inlier count 0). "
+            "The images may not overlap, or too few stars are in common; try more sources "
+            "(n_sources) or a larger invariant_radius."))
+    hyp = _filter_hypotheses(src_ast, dst_ast, pairs, s)
+    s.dst_tree, s.grid = cKDTree(s.dst_pts), PointGrid(s.dst_pts, s.tolerance)
+    progress = _score_batches(s, hyp)
+    if not progress.accepted:
+        _final_pass(s, hyp, progress)
+    if progress.best is not None and progress.best.ok:
+        return _result(progress.best, s, n_tri, progress.n_scored)
+    raise _not_found(progress.n_scored, _failure_message(s, progress, n_tri))
+
+
+@dataclass
+class _Search:
+    """What every stage of one search reads: the points, their frames, the settings."""
+
+    src_pts: np.ndarray
+    dst_pts: np.ndarray
+    src_ctl: np.ndarray  # control points: they form triangles and score hypotheses
+    dst_ctl: np.ndarray
+    src_frame: tuple
+    dst_frame: tuple
+    src_err: object
+    dst_err: object
+    transform_type: str
+    n_dof: int
+    tolerance: float
+    min_tolerance: float
+    invariant_radius: float
+    n_neighbors: int
+    allow_mirror: bool
+    scale_range: object
+    max_false_alarm: float
+    accept_at: int
+    n_possible: int
+    batch_size: int
+    max_hypotheses: int
+    prior_trials: int
+    max_predicted: float
+    dst_tree: object = None  # the target points' k-d tree and grid, built once
+    grid: object = None
+
+    @property
+    def log_limit(self):
+        return np.log10(self.max_false_alarm)
+
+
+def _prepare(src_pts, dst_pts, settings, n_control, prior_trials):
+    """Check the inputs and settings; the frames and control points of a search."""
     src_pts = check_points(src_pts, "source")
     dst_pts = check_points(dst_pts, "target")
-    transform_type = transform_class(transform_type).__name__.replace(
-        "Transform", "").lower()
-    opts = check_options(dict(
-        tolerance=tolerance, min_tolerance=min_tolerance, invariant_radius=invariant_radius,
-        n_neighbors=n_neighbors, allow_mirror=allow_mirror, scale_range=scale_range,
-        max_false_alarm=max_false_alarm, accept_matches=accept_matches, batch_size=batch_size,
-        max_hypotheses=max_hypotheses))
-    tolerance, min_tolerance = opts["tolerance"], opts["min_tolerance"]
-    invariant_radius, n_neighbors = opts["invariant_radius"], opts["n_neighbors"]
-    scale_range, max_false_alarm = opts["scale_range"], opts["max_false_alarm"]
-    accept_matches, batch_size = opts["accept_matches"], opts["batch_size"]
-    max_hypotheses = opts["max_hypotheses"]
+    cls = transform_class(settings["transform_type"])
+    transform_type = cls.__name__.replace("Transform", "").lower()
+    opts = check_options({k: v for k, v in settings.items() if k in OPTIONS})
     for name, pts in (("source", src_pts), ("target", dst_pts)):
         if len(pts) < 3:
             raise TooFewSourcesError(
                 f"the {name} has {len(pts)} usable source(s); at least 3 are needed to find "
                 "a transform. Lower nsigma, give fwhm, or pass a catalog of positions."
             )
-    src_frame = source_frame or _bbox(src_pts)
-    dst_frame = target_frame or _bbox(dst_pts)
+    scale_range = opts["scale_range"]
     if scale_range is None and transform_type in ("translation", "euclidean"):
         scale_range = (0.9, 1.1)
-
     if n_control is None:
         ns, nd = len(src_pts), len(dst_pts)
     else:
         ns, nd = (n_control, n_control) if np.isscalar(n_control) else n_control
     src_ctl, dst_ctl = src_pts[:int(ns)], dst_pts[:int(nd)]
-    src_ast = source_asterisms or build_asterisms(src_ctl, n_neighbors=n_neighbors)
-    dst_ast = target_asterisms or build_asterisms(dst_ctl, n_neighbors=n_neighbors)
-    pairs, _ = match_triangles(src_ast, dst_ast, invariant_radius, max_matches=max_hypotheses)
-    n_tri = len(pairs)
-    stats = dict(n_source=len(src_pts), n_target=len(dst_pts), n_triangle_matches=n_tri)
-    if n_tri == 0:
-        raise _not_found(0, (
-            f"no transform found: the source gave {len(src_pts)} sources and the target "
-            f"{len(dst_pts)}, but no triangle matched between them (best inlier count 0). "
-            "The images may not overlap, or too few stars are in common; try more sources "
-            "(n_sources) or a larger invariant_radius."))
+    n_possible = min(len(src_ctl), len(dst_ctl))
+    tolerance = opts["tolerance"]
+    return _Search(
+        src_pts=src_pts, dst_pts=dst_pts, src_ctl=src_ctl, dst_ctl=dst_ctl,
+        src_frame=settings["source_frame"] or _bbox(src_pts),
+        dst_frame=settings["target_frame"] or _bbox(dst_pts),
+        src_err=settings["source_errors"], dst_err=settings["target_errors"],
+        transform_type=transform_type,
+        # Free parameters of the fitted model: an affine fit bends to chance
+        # agreements that a similarity cannot, so its matches are worth less.
+        n_dof=cls.n_dof, tolerance=tolerance, min_tolerance=opts["min_tolerance"],
+        invariant_radius=opts["invariant_radius"], n_neighbors=opts["n_neighbors"],
+        allow_mirror=opts["allow_mirror"], scale_range=scale_range,
+        max_false_alarm=opts["max_false_alarm"],
+        accept_at=min(opts["accept_matches"], n_possible), n_possible=n_possible,
+        batch_size=opts["batch_size"], max_hypotheses=opts["max_hypotheses"],
+        prior_trials=prior_trials,
+        # An affine fit extrapolates its shear and anisotropic scale from the
+        # matched stars: when they fix it only to a 3-sigma position error above
+        # the matching radius somewhere in the overlap of the frames (stars
+        # clustered in a corner), it is refused.  Rotation-like models keep the
+        # PoorFitWarning: a few widely spread stars (3 are enough) fix them.
+        max_predicted=tolerance / 3.0 if cls.n_dof > 4 else np.inf)
 
+
+@dataclass
+class _Hypotheses:
+    """The triangle-pair hypotheses that pass the filters, best invariant match first."""
+
+    mats: np.ndarray      # (H, 3, 3) source -> target
+    tri_rms: np.ndarray   # how well each fits its own triangle's vertices
+    parity: np.ndarray    # -1 for mirrored
+    pairs: np.ndarray     # (H, 2) source and target triangle indices
+    tri_size: np.ndarray  # the target triangle's size
+    src_ast: object       # the source triangles (for the refinement's seed)
+
+
+def _filter_hypotheses(src_ast, dst_ast, pairs, s):
+    """Hypotheses of the triangle pairs, less those the settings exclude."""
     mats, tri_rms, parity = hypothesis_matrices(src_ast, dst_ast, pairs)
     ok = np.ones(len(mats), bool)
-    if not allow_mirror:
+    if not s.allow_mirror:
         ok &= parity > 0
-    if scale_range is not None:
+    if s.scale_range is not None:
         scale = np.sqrt(np.abs(np.linalg.det(mats[:, :2, :2])))
-        ok &= (scale >= scale_range[0]) & (scale <= scale_range[1])
-    if transform_type == "translation":
+        ok &= (scale >= s.scale_range[0]) & (scale <= s.scale_range[1])
+    if s.transform_type == "translation":
         rot = np.arctan2(mats[:, 1, 0], mats[:, 0, 0])
         ok &= (np.abs(rot) < 0.1) & (parity > 0)
     sel = np.flatnonzero(ok)
     mats, tri_rms, parity, pairs = mats[sel], tri_rms[sel], parity[sel], pairs[sel]
     tri_size = dst_ast.size[pairs[:, 1]] if len(pairs) else np.empty(0)
+    return _Hypotheses(mats, tri_rms, parity, pairs, tri_size, src_ast)
 
-    dst_tree = cKDTree(dst_pts)
-    grid = PointGrid(dst_pts, tolerance)
-    n_possible = min(len(src_ctl), len(dst_ctl))
-    accept_at = min(accept_matches, n_possible)
-    counts = np.zeros(len(mats), int)
-    best = None
-    tried_refine = set()
-    refined_max = 0
-    n_scored = 0
 
-    log_limit = np.log10(max_false_alarm)
-    # An affine fit extrapolates its shear and anisotropic scale from the
-    # matched stars: when they fix it only to a 3-sigma position error above
-    # the matching radius somewhere in the overlap of the frames (stars
-    # clustered in a corner), it is refused.  Rotation-like models keep the
-    # PoorFitWarning: a few widely spread stars (3 are enough) fix them.
-    max_predicted = tolerance / 3.0 if transform_class(transform_type).n_dof > 4 else np.inf
-    # Free parameters of the fitted model: an affine fit bends to chance
-    # agreements that a similarity cannot, so its matches are worth less.
-    n_dof = transform_class(transform_type).n_dof
+@dataclass
+class _Candidate:
+    """A refined hypothesis: its model, matched stars and trust figures."""
 
-    def promising(h):
-        """
-        Could hypothesis h pass the false-alarm test, even optimistically?
+    model: object
+    si: np.ndarray        # matched source indices
+    dj: np.ndarray        # matched target indices
+    resid: np.ndarray
+    cov: np.ndarray
+    lfa: float            # log10 false-alarm probability
+    h: int                # the hypothesis it came from
+    pred: float           # largest predicted 1-sigma position error in the overlap
+    ok: bool              # passes the false-alarm and predicted-error tests
 
-        Its matches at the search radius, counted over all stars, are
-        judged at the smallest radius the refinement may reach.  Chance
-        hypotheses fail this cheaply and are not refined.
-        """
-        k_all = int(count_inliers(mats[h:h + 1], src_pts, grid)[0])
-        lfa = _log10_false_alarm(mats[h], src_pts, dst_pts, k_all, min_tolerance, src_frame,
-                                 dst_frame, n_scored + prior_trials, tri_rms[h], tri_size[h],
-                                 invariant_radius)
-        return lfa <= log_limit
-
-    def evaluate(h):
-        """Refine hypothesis h and compute its false-alarm probability."""
-        if not promising(h):
-            return None
-        tri = src_ast.points[src_ast.triangles[pairs[h, 0]]]
-        seed = (tri.mean(axis=0), 2.0 * src_ast.size[pairs[h, 0]])
-        res = _refine(mats[h], parity[h], src_pts, dst_pts, dst_tree, transform_type,
-                      tolerance, min_tolerance, source_errors, target_errors, seed=seed)
-        if res is None:
-            return None
-        model, si, dj, resid, cov, tol = res
-        lfa = _log10_false_alarm(model.matrix, src_pts, dst_pts, len(si), tol, src_frame,
-                                 dst_frame, n_scored + prior_trials, tri_rms[h], tri_size[h],
-                                 invariant_radius, n_dof)
-        # Where the registered image has data: the overlap of the two frames.
-        pred = _predicted_error(model, cov, _overlap_box(model.matrix, src_frame, dst_frame))
-        return dict(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h,
-                    pred=pred, ok=bool(lfa <= log_limit and pred <= max_predicted))
-
-    def rank(c):
+    def rank(self):
         # A trustworthy candidate beats any other; then the less likely chance.
-        return (not c["ok"], c["lfa"])
+        return (not self.ok, self.lfa)
 
-    for start in range(0, len(mats), batch_size):
-        stop = min(start + batch_size, len(mats))
+
+def _promising(s, hyp, h, n_scored):
+    """
+    Could hypothesis h pass the false-alarm test, even optimistically?
+
+    Its matches at the search radius, counted over all stars, are judged
+    at the smallest radius the refinement may reach.  Chance hypotheses
+    fail this cheaply and are not refined.
+    """
+    k_all = int(count_inliers(hyp.mats[h:h + 1], s.src_pts, s.grid)[0])
+    lfa = _log10_false_alarm(hyp.mats[h], s.src_pts, s.dst_pts, k_all, s.min_tolerance,
+                             s.src_frame, s.dst_frame, n_scored + s.prior_trials,
+                             hyp.tri_rms[h], hyp.tri_size[h], s.invariant_radius)
+    return lfa <= s.log_limit
+
+
+def _evaluate(s, hyp, h, n_scored):
+    """Refine hypothesis h and compute its false-alarm probability (None if hopeless)."""
+    if not _promising(s, hyp, h, n_scored):
+        return None
+    ast = hyp.src_ast
+    tri = ast.points[ast.triangles[hyp.pairs[h, 0]]]
+    seed = (tri.mean(axis=0), 2.0 * ast.size[hyp.pairs[h, 0]])
+    res = _refine(hyp.mats[h], hyp.parity[h], s.src_pts, s.dst_pts, s.dst_tree,
+                  s.transform_type, s.tolerance, s.min_tolerance, s.src_err, s.dst_err,
+                  seed=seed)
+    if res is None:
+        return None
+    model, si, dj, resid, cov, tol = res
+    lfa = _log10_false_alarm(model.matrix, s.src_pts, s.dst_pts, len(si), tol, s.src_frame,
+                             s.dst_frame, n_scored + s.prior_trials, hyp.tri_rms[h],
+                             hyp.tri_size[h], s.invariant_radius, s.n_dof)
+    # Where the registered image has data: the overlap of the two frames.
+    pred = _predicted_error(model, cov, _overlap_box(model.matrix, s.src_frame, s.dst_frame))
+    return _Candidate(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h,
+                      pred=pred, ok=bool(lfa <= s.log_limit and pred <= s.max_predicted))
+
+
+@dataclass
+class _Progress:
+    """Where the search stands after scoring."""
+
+    counts: np.ndarray                          # control-point inliers per hypothesis
+    best: _Candidate = None
+    n_scored: int = 0
+    refined: set = field(default_factory=set)   # hypotheses refined so far
+    accepted: bool = False                      # early acceptance
+
+
+def _score_batches(s, hyp):
+    """Score the hypotheses batch by batch, refining the best few of each."""
+    progress = _Progress(counts=np.zeros(len(hyp.mats), int))
+    counts, refined_max = progress.counts, 0
+    for start in range(0, len(hyp.mats), s.batch_size):
+        stop = min(start + s.batch_size, len(hyp.mats))
         # Control points of the source against every target star: a true
         # match also counts stars that are not among the target's brightest.
-        counts[start:stop] = count_inliers(mats[start:stop], src_ctl, grid)
-        n_scored = stop
+        counts[start:stop] = count_inliers(hyp.mats[start:stop], s.src_ctl, s.grid)
+        progress.n_scored = stop
         # Try the best few of this batch (ties broken by invariant distance).
         order = start + np.argsort(-counts[start:stop], kind="stable")[:3]
         for h in order:
-            if counts[h] < min(accept_at, 4) and n_possible > 3:
+            if counts[h] < min(s.accept_at, 4) and s.n_possible > 3:
                 break
             # Refinement budget: after 10 refinements, only a hypothesis
             # that beats every one refined so far is worth another.
-            if len(tried_refine) >= 10 and counts[h] <= refined_max:
+            if len(progress.refined) >= 10 and counts[h] <= refined_max:
                 break
-            cand = evaluate(h)
-            tried_refine.add(int(h))
+            cand = _evaluate(s, hyp, h, progress.n_scored)
+            progress.refined.add(int(h))
             refined_max = max(refined_max, int(counts[h]))
             if cand is None:
                 continue
-            if best is None or rank(cand) < rank(best):
-                best = cand
-            if cand["ok"] and counts[h] >= accept_at:
-                # The best so far: an earlier candidate may have matched more
-                # stars without reaching accept_at control-point inliers.
-                return _result(best, stats, n_scored, src_pts, dst_pts, source_errors,
-                               target_errors, dst_frame)
-    # No early acceptance: refine the overall best few hypotheses.
+            if progress.best is None or cand.rank() < progress.best.rank():
+                progress.best = cand
+            if cand.ok and counts[h] >= s.accept_at:
+                # The best so far is returned: an earlier candidate may have
+                # matched more stars without reaching accept_at inliers.
+                progress.accepted = True
+                return progress
+    return progress
+
+
+def _final_pass(s, hyp, progress):
+    """No early acceptance: refine the overall best few hypotheses not refined yet."""
+    counts = progress.counts
     for h in np.argsort(-counts, kind="stable")[:10]:
-        if int(h) in tried_refine or counts[h] < 3:
+        if int(h) in progress.refined or counts[h] < 3:
             continue
-        cand = evaluate(h)
-        if cand is not None and (best is None or rank(cand) < rank(best)):
-            best = cand
-    if best is not None and best["ok"]:
-        return _result(best, stats, n_scored, src_pts, dst_pts, source_errors,
-                       target_errors, dst_frame)
+        cand = _evaluate(s, hyp, h, progress.n_scored)
+        if cand is not None and (progress.best is None or cand.rank() < progress.best.rank()):
+            progress.best = cand
+
+
+def _failure_message(s, progress, n_tri):
+    """Why no transform is trusted, and what to try."""
+    counts, best = progress.counts, progress.best
     best_count = int(counts.max()) if len(counts) else 0
     detail = ""
-    if best is not None and best["lfa"] > log_limit:
-        detail = (f"; the best candidate matched {len(best['si'])} stars but its "
-                  f"false-alarm probability is 10^{best['lfa']:.1f} (limit {max_false_alarm:g})")
+    if best is not None and best.lfa > s.log_limit:
+        detail = (f"; the best candidate matched {len(best.si)} stars but its false-alarm "
+                  f"probability is 10^{best.lfa:.1f} (limit {s.max_false_alarm:g})")
     elif best is not None:
-        detail = (f"; the best candidate matched {len(best['si'])} stars, but they fix the "
-                  f"transform only to {best['pred']:.1f} px (1 sigma) somewhere in the frame "
-                  f"(limit tolerance / 3 = {max_predicted:.2f} px): they cover too small a "
+        detail = (f"; the best candidate matched {len(best.si)} stars, but they fix the "
+                  f"transform only to {best.pred:.1f} px (1 sigma) somewhere in the frame "
+                  f"(limit tolerance / 3 = {s.max_predicted:.2f} px): they cover too small a "
                   "part of it for an affine model; try transform_type='similarity'")
-    raise _not_found(n_scored, (
-        f"no trustworthy transform found: the source gave {len(src_pts)} sources and the "
-        f"target {len(dst_pts)}; {n_tri} triangle matches gave {n_scored} hypotheses, the best "
-        f"with {best_count} inliers{detail}. The images may not overlap; otherwise try more "
-        "sources (n_sources), a larger tolerance, or catalogs of positions."))
+    return (
+        f"no trustworthy transform found: the source gave {len(s.src_pts)} sources and the "
+        f"target {len(s.dst_pts)}; {n_tri} triangle matches gave {progress.n_scored} "
+        f"hypotheses, the best with {best_count} inliers{detail}. The images may not overlap; "
+        "otherwise try more sources (n_sources), a larger tolerance, or catalogs of positions.")
 
 
 def _not_found(n_hypotheses, message):
@@ -736,29 +936,33 @@ def _predicted_error(model, cov, frame):
     return float(np.sqrt(np.max(var.sum(axis=1))))
 
 
-def _result(c, stats, n_scored, src_pts, dst_pts, src_err, dst_err, dst_frame):
-    resid = c["resid"]
+def _result(c, s, n_tri, n_scored):
+    """The `MatchResult` of an accepted candidate, with the warnings its fit calls for."""
+    src_pts, dst_pts, src_err, dst_err, dst_frame = (s.src_pts, s.dst_pts, s.src_err,
+                                                     s.dst_err, s.dst_frame)
+    resid = c.resid
     rms = float(np.sqrt(np.mean(np.sum(resid**2, axis=1)))) if len(resid) else float("nan")
-    si, dj = c["si"], c["dj"]
-    predicted = _predicted_error(c["model"], c["cov"], dst_frame or _bbox(dst_pts[dj]))
+    si, dj = c.si, c.dj
+    predicted = _predicted_error(c.model, c.cov, dst_frame or _bbox(dst_pts[dj]))
     if predicted > 0.3:  # 3 sigma above 1 px somewhere in the frame
         warn(
             f"the transform is uncertain: its parameter covariance gives a 1-sigma position "
             f"error of up to {predicted:.2f} px over the frame ({len(si)} matched stars, RMS "
             f"{rms:.2f} px). Check it, or give more or brighter stars (n_sources, nsigma).",
             PoorFitWarning)
-    misfit = _model_misfit(c["model"], src_pts[si], dst_pts[dj],
+    misfit = _model_misfit(c.model, src_pts[si], dst_pts[dj],
                            None if src_err is None else src_err[si],
                            None if dst_err is None else dst_err[dj], dst_frame)
     if misfit > 0.5:
-        name = type(c["model"]).__name__
+        name = type(c.model).__name__
         warn(
             f"the {name} leaves systematic residuals: an affine fit of the same "
             f"{len(si)} stars differs from it by up to {misfit:.2f} px over the frame. The "
             "images have shear, anisotropic scale or distortion; use transform_type='affine'.",
             PoorFitWarning)
     return MatchResult(
-        transform=c["model"], source_index=si, target_index=dj, residuals=resid,
-        rms=rms, covariance=c["cov"], log10_false_alarm=c["lfa"], n_hypotheses=n_scored,
-        extra={"model_misfit": misfit, "predicted_error": predicted}, **stats,
-    )
+        transform=c.model, source_index=si, target_index=dj, residuals=resid,
+        rms=rms, covariance=c.cov, log10_false_alarm=c.lfa, n_source=len(src_pts),
+        n_target=len(dst_pts), n_triangle_matches=n_tri, n_hypotheses=n_scored,
+        model_misfit=misfit, predicted_error=predicted, source_points=src_pts[si],
+        target_points=dst_pts[dj])

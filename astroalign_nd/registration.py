@@ -12,6 +12,7 @@ The high-level API, top to bottom as the method goes:
 
 from __future__ import annotations
 
+import inspect
 import warnings
 from typing import TYPE_CHECKING, Any
 
@@ -22,9 +23,9 @@ from ._input import parse_input
 from .detection import find_sources
 from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads
-from ._validate import check_count, check_option, check_options, check_points
+from ._validate import check_option, check_options, check_points
 from .asterisms import build_asterisms, check_triangle_budget
-from .matching import match_points
+from .matching import _match_points, _search_tolerance, match_points
 from .transforms import transform_class
 
 if TYPE_CHECKING:
@@ -38,13 +39,20 @@ __all__ = ["find_transform", "find_match", "register", "Reference"]
 #: Points of a catalog used (brightest first) when ``2 * n_sources`` is fewer.
 CATALOG_POINTS = 1000
 
-#: Keyword arguments of `find_transform` forwarded to `find_sources`.
-_DETECT_KEYS = ("fwhm", "nsigma", "sharpness_range", "roundness_range", "peak_max",
-                "bin_factor")
-#: Keyword arguments forwarded to `~astroalign_nd.matching.match_points`.
-_MATCH_KEYS = ("tolerance", "min_tolerance", "invariant_radius", "n_neighbors",
-               "allow_mirror", "scale_range", "max_false_alarm", "accept_matches",
-               "batch_size", "max_hypotheses")
+
+def _keyword_options(func, set_by_caller):
+    """The keyword-only parameters of ``func``, less those its caller sets itself."""
+    return tuple(name for name, p in inspect.signature(func).parameters.items()
+                 if p.kind is p.KEYWORD_ONLY and name not in set_by_caller)
+
+
+#: Keyword arguments of `find_transform` forwarded to `find_sources` (read
+#: from its signature, so that a new detection option is routed with no edit here).
+_DETECT_KEYS = _keyword_options(find_sources, {"mask", "n_sources"})
+#: Keyword arguments forwarded to `~astroalign_nd.matching.match_points`: its
+#: settings, less those `find_match` derives from the images.
+_MATCH_KEYS = _keyword_options(match_points, {
+    "transform_type", "source_frame", "target_frame", "source_errors", "target_errors"})
 
 
 class Reference:
@@ -63,6 +71,8 @@ class Reference:
     hdu : int or str, optional
         The HDU of a FITS path or HDUList (index or extension name); by
         default the first one with image data.
+    unit : `~astropy.units.Unit` or str, optional
+        The unit of an image that has none (no ``BUNIT``, a bare array).
     **detect_options
         Options of `~astroalign_nd.find_sources` (``fwhm``, ``nsigma``...).
 
@@ -75,15 +85,17 @@ class Reference:
     >>> t, _ = find_transform(pair.source, ref)
     """
 
-    def __init__(self, image: Any, *, hdu: int | str | None = None,
-                 **detect_options: Any) -> None:
+    def __init__(self, image: Any, *, hdu: int | str | None = None, unit: Any = None,
+                 _role: str = "reference", **detect_options: Any) -> None:
         unknown = set(detect_options) - set(_DETECT_KEYS)
         if unknown:
             raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}; Reference "
                             f"accepts the detection options {list(_DETECT_KEYS)} and hdu."
                             f"{_astroalign_advice(unknown)}")
         detect_options = check_options(detect_options)
-        self.parsed = parse_input(image, "reference", hdu=hdu)
+        # The role ('source', 'target') names the input in error messages.
+        self.role = _role
+        self.parsed = parse_input(image, _role, hdu=hdu, unit=unit)
         self.detect_options = detect_options
         self._stars = {}
         self._asterisms = {}
@@ -134,7 +146,7 @@ class Reference:
                         table = strong
                 if len(table) < 3:
                     raise TooFewSourcesError(_too_few_advice(
-                        getattr(self, "role", "reference"), len(table), table.meta,
+                        self.role, len(table), table.meta,
                         user_nsigma or 3.0, "fwhm" in opts))
                 ny, nx = p.shape
                 pts = np.column_stack([np.asarray(table["x"], float),
@@ -177,13 +189,7 @@ def _too_few_advice(role, n, meta, nsigma, user_fwhm):
 def _as_reference(obj, name, detect_options, hdu=None, unit=None):
     if isinstance(obj, Reference):
         return obj
-    ref = Reference.__new__(Reference)
-    ref.role = name
-    ref.parsed = parse_input(obj, name, hdu=hdu, unit=unit)
-    ref.detect_options = detect_options
-    ref._stars, ref._asterisms = {}, {}
-    ref.fwhm = None
-    return ref
+    return Reference(obj, hdu=hdu, unit=unit, _role=name, **detect_options)
 
 
 #: astroalign's keywords -> what to use here (see docs/migration.rst).
@@ -231,7 +237,7 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
 
     Same arguments as `find_transform`; returns the full
     `~astroalign_nd.matching.MatchResult`, whose ``source_points`` and
-    ``target_points`` (added to ``extra``) hold the matched positions.
+    ``target_points`` hold the matched positions.
     Each attempt of the search is logged at debug level to astropy's
     logger (``astropy.log.setLevel("DEBUG")`` shows them).
     """
@@ -245,20 +251,8 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
     src = _as_reference(source, "source", det, hdu)
     dst = _as_reference(target, "target", det, hdu)
 
-    # Escalation: more control points help crowded fields, small overlaps
-    # and pairs whose brightest stars differ; more neighbours per star help
-    # sparse, noisy lists where many stars are missing from one image.
     user_nn = "n_neighbors" in mat
-    nn = mat.pop("n_neighbors", 4)
-    n_top = n_sources
-    while 2 * n_top <= max_sources:
-        n_top *= 2
-    plan = [(n_sources, n_sources, nn)]
-    if n_top > n_sources:
-        # Depth-matched attempts: when the pixel scales differ a lot, the
-        # brightest stars of the narrow field are found among many more of
-        # the wide field's; then many stars on both sides.
-        plan += [(n_sources, n_top, nn), (n_top, n_sources, nn), (n_top, n_top, nn)]
+    plan = _attempt_plan(n_sources, max_sources, mat.pop("n_neighbors", 4))
     trials, tried, k, last_exc, result = 0, set(), 0, None, None
     while k < len(plan):
         ns, nd, nn = plan[k]
@@ -271,18 +265,17 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
         if key not in tried:
             tried.add(key)
             if "tolerance" not in options:
-                # Wide stars (defocus, digitised plates) have wide position errors.
-                mat["tolerance"] = max(3.0, 0.5 * (dst.fwhm or 0.0))
+                mat["tolerance"] = _search_tolerance(dst.fwhm)
             log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "
                       f"{key[1]} of {key[3]} target stars, {nn} neighbours per star")
             try:
-                result = match_points(src_pts, dst_pts, transform_type=transform_type,
-                                      source_frame=src_frame, target_frame=dst_frame,
-                                      source_errors=src_err, target_errors=dst_err,
-                                      n_control=(ns, nd), n_neighbors=nn,
-                                      source_asterisms=src.asterisms(ns, nn),
-                                      target_asterisms=dst.asterisms(nd, nn),
-                                      prior_trials=trials, **mat)
+                result = _match_points(src_pts, dst_pts, transform_type=transform_type,
+                                       source_frame=src_frame, target_frame=dst_frame,
+                                       source_errors=src_err, target_errors=dst_err,
+                                       n_control=(ns, nd), n_neighbors=nn,
+                                       source_asterisms=src.asterisms(ns, nn),
+                                       target_asterisms=dst.asterisms(nd, nn),
+                                       prior_trials=trials, **mat)
                 break
             except TransformNotFoundError as exc:
                 # Earlier attempts count in the trials factor of later ones.
@@ -296,13 +289,28 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
         raise last_exc
     log.debug(f"astroalign_nd: match found at attempt {len(tried)}: {result.n_matches} "
               f"stars, RMS {result.rms:.3f} px")
-    n = max(ns, nd)
-    result.extra.update(
-        source_points=src_pts[result.source_index],
-        target_points=dst_pts[result.target_index],
-        n_sources_used=n,
-    )
+    result.n_sources_used = max(ns, nd)
     return result
+
+
+def _attempt_plan(n_sources, max_sources, nn):
+    """
+    The attempts of the escalation: (source stars, target stars, neighbours).
+
+    More control points help crowded fields, small overlaps and pairs whose
+    brightest stars differ (`_widen` adds more neighbours per star for
+    sparse, noisy lists where many stars are missing from one image).
+    """
+    n_top = n_sources
+    while 2 * n_top <= max_sources:
+        n_top *= 2
+    plan = [(n_sources, n_sources, nn)]
+    if n_top > n_sources:
+        # Depth-matched attempts: when the pixel scales differ a lot, the
+        # brightest stars of the narrow field are found among many more of
+        # the wide field's; then many stars on both sides.
+        plan += [(n_sources, n_top, nn), (n_top, n_sources, nn), (n_top, n_top, nn)]
+    return plan
 
 
 def _widen(plan, src_pts, dst_pts, user_nn):
@@ -352,7 +360,8 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
         one with image data.
     **options
         Detection options (``fwhm``, ``nsigma``, ``sharpness_range``,
-        ``roundness_range``, ``peak_max``, ``bin_factor``; see
+        ``roundness_range``, ``peak_max``, ``bin_factor``,
+        ``refine_centroids``; see
         `~astroalign_nd.find_sources`) and matching options
         (``tolerance``, ``min_tolerance``, ``invariant_radius``,
         ``n_neighbors``, ``allow_mirror``, ``scale_range``,
@@ -391,11 +400,11 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
     result = find_match(source, target, transform_type=transform_type, n_sources=n_sources,
                         max_sources=max_sources, hdu=hdu, **options)
     model = result.transform
-    model.meta["quality"] = quality_dict(result)
-    return model, (result.extra["source_points"], result.extra["target_points"])
+    model.meta["quality"] = _quality_dict(result)
+    return model, (result.source_points, result.target_points)
 
 
-def quality_dict(result: MatchResult) -> dict:
+def _quality_dict(result: MatchResult) -> dict:
     """The quality figures of a `~astroalign_nd.matching.MatchResult` as a dict."""
     return dict(
         n_matches=int(result.n_matches),
@@ -407,11 +416,6 @@ def quality_dict(result: MatchResult) -> dict:
         n_triangle_matches=int(result.n_triangle_matches),
         n_hypotheses=int(result.n_hypotheses),
     )
-
-
-def _positive_int(value, name):
-    # Kept for astroalign_nd.compat (max_control_points): one check, one message.
-    return check_count(value, name)
 
 
 def register(source: Any, target: Any, *, transform_type: str | type = "similarity",
@@ -466,5 +470,5 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
                         max_sources=max_sources, **options)
     return apply_transform(result.transform, src.parsed, dst.parsed, order=order,
                            conserve_flux=conserve_flux, fill_value=fill_value, method=method,
-                           unit=unit, parallel=parallel, quality=quality_dict(result),
+                           unit=unit, parallel=parallel, quality=_quality_dict(result),
                            add_keyword=add_keyword)

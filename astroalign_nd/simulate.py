@@ -36,6 +36,7 @@ import numpy as np
 from astropy.table import Table
 from scipy.special import erf
 
+from astroalign_nd._kernels import GAUSS_SIGMA_TO_FWHM
 from astroalign_nd.transforms import (
     LinearTransform2D,
     SimilarityTransform,
@@ -67,7 +68,7 @@ _MOFFAT_OVERSAMPLE = 5
 _MAX_STARS = 10_000_000
 _PSF_NAMES = ("gaussian", "moffat")
 _SQRT2 = np.sqrt(2.0)
-_FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+_FWHM_TO_SIGMA = 1.0 / GAUSS_SIGMA_TO_FWHM
 
 
 # -- argument checking ----------------------------------------------------------
@@ -856,7 +857,7 @@ def _build_transform(rng, shape, target_shape, rotation, scale, translation, mir
     return model, info
 
 
-def _apply(m, x, y):
+def _map_xy(m, x, y):
     return m[0, 0] * x + m[0, 1] * y + m[0, 2], m[1, 0] * x + m[1, 1] * y + m[1, 2]
 
 
@@ -1028,7 +1029,7 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     pad_t = _stamp_half_size(target_fwhm) + 1.0
     cx = np.array([-0.5 - pad_t, ntx - 0.5 + pad_t, ntx - 0.5 + pad_t, -0.5 - pad_t])
     cy = np.array([-0.5 - pad_t, -0.5 - pad_t, nty - 0.5 + pad_t, nty - 0.5 + pad_t])
-    fx, fy = _apply(m_inv, cx, cy)  # padded target footprint in source coordinates
+    fx, fy = _map_xy(m_inv, cx, cy)  # padded target footprint in source coordinates
     x0 = min(fx.min(), -0.5 - pad_s)
     x1 = max(fx.max(), nx - 0.5 + pad_s)
     y0 = min(fy.min(), -0.5 - pad_s)
@@ -1046,7 +1047,7 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     n_out = int(rng_stars.poisson(expected)) if n_stars else 0
     x_out = rng_stars.uniform(x0, x1, n_out)
     y_out = rng_stars.uniform(y0, y1, n_out)
-    xt_out, yt_out = _apply(m, x_out, y_out)
+    xt_out, yt_out = _map_xy(m, x_out, y_out)
     keep = ~_inside(x_out, y_out, shape) & (
         _inside(x_out, y_out, shape, pad_s) | _inside(xt_out, yt_out, target_shape, pad_t)
     )
@@ -1058,7 +1059,7 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     ids[np.lexsort((np.arange(n_total), -flux))] = np.arange(n_total)  # 0 = brightest
     present_src = rng_stars.random(n_total) >= missing_fraction
     present_tgt = rng_stars.random(n_total) >= missing_fraction
-    xt, yt = _apply(m, xs, ys)
+    xt, yt = _map_xy(m, xs, ys)
 
     # -- transients, in target coordinates --
     tr_x = rng_trans.uniform(-0.5, ntx - 0.5, n_transients)

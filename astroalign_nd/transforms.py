@@ -406,6 +406,19 @@ def _rotation_matrix(angle, parity):
     return np.array([[c, -s * parity], [s, c * parity]])
 
 
+def _rotation_parameters(m, det, scale, message):
+    """
+    Rotation (degrees), shift and parity of a matrix whose linear part is
+    ``scale`` times a rotation, mirrored if ``det < 0``; else ValueError(message).
+    """
+    parity = 1.0 if det >= 0 else -1.0
+    r = m[:2, :2] @ np.diag([1.0, parity])
+    if not np.allclose(r.T @ r, scale**2 * np.eye(2), rtol=0.0, atol=1e-9 * scale**2):
+        raise ValueError(message)
+    return dict(rotation=np.degrees(np.arctan2(r[1, 0], r[0, 0])), translation_x=m[0, 2],
+                translation_y=m[1, 2], parity=parity)
+
+
 def _check_parity(parity):
     if parity not in (1, -1, 1.0, -1.0):
         raise ValueError(f"parity must be +1 (proper) or -1 (mirrored); got {parity!r}.")
@@ -458,21 +471,10 @@ class EuclideanTransform(LinearTransform2D):
 
     @classmethod
     def _from_matrix(cls, m):
-        lin = m[:2, :2]
-        det = np.linalg.det(lin)
-        parity = 1.0 if det >= 0 else -1.0
-        r = lin @ np.diag([1.0, parity])
-        if not np.allclose(r.T @ r, np.eye(2), rtol=0.0, atol=1e-9):
-            raise ValueError(
-                "matrix has a scale or shear part; use SimilarityTransform or "
-                "AffineTransform instead of EuclideanTransform."
-            )
-        return cls(
-            rotation=np.degrees(np.arctan2(r[1, 0], r[0, 0])),
-            translation_x=m[0, 2],
-            translation_y=m[1, 2],
-            parity=parity,
-        )
+        det = np.linalg.det(m[:2, :2])
+        return cls(**_rotation_parameters(
+            m, det, 1.0, "matrix has a scale or shear part; use SimilarityTransform or "
+            "AffineTransform instead of EuclideanTransform."))
 
     @classmethod
     def _linear_fit(cls, src, dst, w, parity):
@@ -556,21 +558,10 @@ class SimilarityTransform(LinearTransform2D):
         det = np.linalg.det(lin)
         if det == 0:
             raise ValueError("matrix is singular; it cannot be a similarity transform.")
-        parity = 1.0 if det > 0 else -1.0
-        r = lin @ np.diag([1.0, parity])
         scale = np.sqrt(abs(det))
-        if not np.allclose(r.T @ r, scale**2 * np.eye(2), rtol=0.0, atol=1e-9 * scale**2):
-            raise ValueError(
-                "matrix has a shear or anisotropic scale; use AffineTransform instead of "
-                "SimilarityTransform."
-            )
-        return cls(
-            scale=scale,
-            rotation=np.degrees(np.arctan2(r[1, 0], r[0, 0])),
-            translation_x=m[0, 2],
-            translation_y=m[1, 2],
-            parity=parity,
-        )
+        return cls(scale=scale, **_rotation_parameters(
+            m, det, scale, "matrix has a shear or anisotropic scale; use AffineTransform "
+            "instead of SimilarityTransform."))
 
     @classmethod
     def _linear_fit(cls, src, dst, w, parity):

@@ -183,7 +183,7 @@ def stage_breakdown(size, n_stars, repeats):
     import astroalign_nd
     from astroalign_nd._input import parse_input
     from astroalign_nd.ccddata import apply_transform
-    from astroalign_nd.matching import match_points
+    from astroalign_nd.matching import _match_points, _search_tolerance
     from astroalign_nd.registration import Reference
     from astroalign_nd.resample import resample
 
@@ -199,9 +199,9 @@ def stage_breakdown(size, n_stars, repeats):
         rows["detect source"].append(t)
         t, (dp, de, df) = timed(rt.stars, 50)
         rows["detect target"].append(t)
-        t, res = timed(match_points, sp, dp, source_frame=sf, target_frame=df,
+        t, res = timed(_match_points, sp, dp, source_frame=sf, target_frame=df,
                        source_errors=se, target_errors=de, n_control=50,
-                       tolerance=max(3.0, 0.5 * rt.fwhm))
+                       tolerance=_search_tolerance(rt.fwhm))
         rows["match"].append(t)
         t, _ = timed(resample, pair.source, res.transform.matrix, pair.target.shape,
                      order="bilinear")

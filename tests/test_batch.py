@@ -564,3 +564,13 @@ def test_add_keyword_false_in_a_batch(tmp_path, night):
     with pytest.raises(ValueError, match="add_keyword=False"):
         register_batch(paths[:1], ref, output_dir=tmp_path, add_keyword=False,
                        skip_existing=True)
+
+
+def test_valid_margin_follows_the_resampler_order_names():
+    """One parser: any case, names or integers, as apply_transform accepts them."""
+    from astroalign_nd.batch import _valid_margin
+
+    assert [_valid_margin(o) for o in ("nearest-neighbor", 1, "BiQuadratic", "Bicubic")] == [
+        -0.5, 0.0, 0.5, 1.0]
+    with pytest.raises(ValueError, match="order must be one of"):
+        _valid_margin("spline")

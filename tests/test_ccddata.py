@@ -740,59 +740,6 @@ def test_bad_inputs(pair):
         apply_transform([[1.0, 2.0], [3.0]], pair.source, pair.target)
 
 
-# -- command line ----------------------------------------------------------------------------
-
-
-def test_cli_demo_and_overwrite(tmp_path, capsys):
-    from astroalign_nd.cli import main
-
-    assert main(["demo", "--output-dir", str(tmp_path)]) == 0
-    aligned = tmp_path / "aligned.fits"
-    assert aligned.is_file()
-    ccd = CCDData.read(aligned)
-    assert ccd.shape == (512, 512)
-    assert ccd.mask is not None
-    assert "AATTYPE" in ccd.meta
-    first = capsys.readouterr()
-    assert "max position error" in first.out
-
-    mtime = aligned.stat().st_mtime_ns
-    code = main(["demo", "--output-dir", str(tmp_path)])
-    second = capsys.readouterr()
-    assert code != 0
-    assert "already exists" in second.err and "--overwrite" in second.err
-    assert "Traceback" not in second.err + second.out
-    assert aligned.stat().st_mtime_ns == mtime
-
-    assert main(["demo", "--output-dir", str(tmp_path), "--overwrite"]) == 0
-    assert CCDData.read(aligned).shape == (512, 512)
-
-
-def test_cli_register_fits(pair, tmp_path, capsys):
-    from astroalign_nd.cli import main
-
-    src, tgt, out = tmp_path / "src.fits", tmp_path / "tgt.fits", tmp_path / "out.fits"
-    fits.PrimaryHDU(pair.source, header=fits.Header({"OBJECT": "cli"})).writeto(src)  # no BUNIT
-    fits.PrimaryHDU(pair.target).writeto(tgt)
-    assert main(["register", str(src), str(tgt), "-o", str(out)]) == 0
-    ccd = CCDData.read(out)
-    assert ccd.shape == pair.target.shape
-    assert ccd.unit == u.adu
-    assert ccd.meta["OBJECT"] == "cli"
-    t = transform_from_header(ccd.meta)
-    ms = pair.matched_stars()
-    xt, yt = t(ms["x_source"], ms["y_source"])
-    assert np.max(np.hypot(xt - ms["x_target"], yt - ms["y_target"])) < 0.1
-    capsys.readouterr()
-    # again without --overwrite: a clean error
-    assert main(["register", str(src), str(tgt), "-o", str(out)]) != 0
-    err = capsys.readouterr().err
-    assert "already exists" in err and "Traceback" not in err
-    assert main(["register", str(src), str(tgt), "-o", str(out), "--overwrite",
-                 "--unit", "electron", "--conserve-flux"]) == 0
-    assert CCDData.read(out).unit == u.electron
-
-
 def test_zz_print_flux_report():
     """Print the flux-conservation numbers (visible with ``pytest -s``)."""
     for case, rows in FLUX_REPORT.items():

@@ -7,11 +7,13 @@ import sys
 
 import numpy as np
 import pytest
+from astropy import units as u
 from astropy.io import fits
 from astropy.nddata import CCDData
 from astropy.table import Table
 
 import astroalign_nd
+from astroalign_nd import transform_from_header
 from astroalign_nd.cli import main
 from astroalign_nd.simulate import simulate_pair
 
@@ -226,3 +228,54 @@ def test_batch_on_a_dask_scheduler(files, tmp_path, capsys):
     assert code == 0, text
     assert "3 of 3 frames registered" in text
     assert len({CCDData.read(tmp_path / f"s{k}_aligned.fits").shape for k in range(3)}) == 1
+
+
+# -- register and demo (moved from test_ccddata.py) -----------------------------------------
+
+def test_cli_demo_and_overwrite(tmp_path, capsys):
+    assert main(["demo", "--output-dir", str(tmp_path)]) == 0
+    aligned = tmp_path / "aligned.fits"
+    assert aligned.is_file()
+    ccd = CCDData.read(aligned)
+    assert ccd.shape == (512, 512)
+    assert ccd.mask is not None
+    assert "AATTYPE" in ccd.meta
+    first = capsys.readouterr()
+    assert "max position error" in first.out
+
+    mtime = aligned.stat().st_mtime_ns
+    code = main(["demo", "--output-dir", str(tmp_path)])
+    second = capsys.readouterr()
+    assert code != 0
+    assert "already exists" in second.err and "--overwrite" in second.err
+    assert "Traceback" not in second.err + second.out
+    assert aligned.stat().st_mtime_ns == mtime
+
+    assert main(["demo", "--output-dir", str(tmp_path), "--overwrite"]) == 0
+    assert CCDData.read(aligned).shape == (512, 512)
+
+
+def test_cli_register_fits(tmp_path, capsys):
+    # A small pair with a generic similarity transform (rotation, shift, scale).
+    pair = simulate_pair((160, 160), n_stars=80, rotation=17.0, scale=1.05,
+                         translation=(3.3, -2.1), flux_range=(2e3, 2e5), seed=11)
+    src, tgt, out = tmp_path / "src.fits", tmp_path / "tgt.fits", tmp_path / "out.fits"
+    fits.PrimaryHDU(pair.source, header=fits.Header({"OBJECT": "cli"})).writeto(src)  # no BUNIT
+    fits.PrimaryHDU(pair.target).writeto(tgt)
+    assert main(["register", str(src), str(tgt), "-o", str(out)]) == 0
+    ccd = CCDData.read(out)
+    assert ccd.shape == pair.target.shape
+    assert ccd.unit == u.adu
+    assert ccd.meta["OBJECT"] == "cli"
+    t = transform_from_header(ccd.meta)
+    ms = pair.matched_stars()
+    xt, yt = t(ms["x_source"], ms["y_source"])
+    assert np.max(np.hypot(xt - ms["x_target"], yt - ms["y_target"])) < 0.1
+    capsys.readouterr()
+    # again without --overwrite: a clean error
+    assert main(["register", str(src), str(tgt), "-o", str(out)]) != 0
+    err = capsys.readouterr().err
+    assert "already exists" in err and "Traceback" not in err
+    assert main(["register", str(src), str(tgt), "-o", str(out), "--overwrite",
+                 "--unit", "electron", "--conserve-flux"]) == 0
+    assert CCDData.read(out).unit == u.electron

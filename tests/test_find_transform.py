@@ -388,6 +388,29 @@ def test_unknown_keyword():
         find_match(TRIANGLE, _map(TRUTH, TRIANGLE), foo=1)
 
 
+def test_every_detection_and_matching_option_is_routed_and_checked():
+    """The routed options follow the signatures, and each has a range check."""
+    import inspect
+
+    from astroalign_nd import registration
+    from astroalign_nd._validate import OPTIONS
+    from astroalign_nd.detection import find_sources
+
+    det = set(inspect.signature(find_sources).parameters) - {"image", "mask", "n_sources"}
+    assert set(registration._DETECT_KEYS) == det
+    assert {"tolerance", "n_neighbors", "max_hypotheses"} <= set(registration._MATCH_KEYS)
+    assert set(registration._DETECT_KEYS + registration._MATCH_KEYS) <= set(OPTIONS)
+
+
+def test_refine_centroids_reaches_detection(small_pair):
+    t, _ = find_transform(small_pair.source, small_pair.target, refine_centroids=False)
+    assert frame_error(t, small_pair.truth_matrix, small_pair.target.shape) < 0.5
+    ref = astroalign_nd.Reference(small_pair.target, refine_centroids=False)
+    assert ref.detect_options == {"refine_centroids": False}
+    with pytest.raises(TypeError, match="refine_centroids must be True or False"):
+        find_transform(small_pair.source, small_pair.target, refine_centroids="no")
+
+
 @pytest.mark.parametrize("kwargs, exc", [
     (dict(n_sources=2), ValueError),
     (dict(n_sources=10.5), TypeError),
@@ -451,8 +474,26 @@ def test_find_match_returns_match_result(small_pair, small_result):
     assert r.residuals.shape == (r.n_matches, 2)
     assert r.n_source >= r.n_matches and r.n_target >= r.n_matches
     assert r.n_triangle_matches >= 1 and r.n_hypotheses >= 1
+    np.testing.assert_array_equal(r.source_points, small_result[1][0])
+    np.testing.assert_array_equal(r.target_points, small_result[1][1])
+    assert r.n_sources_used == 50 and r.model_misfit >= 0 and r.predicted_error > 0
+    # The dict of earlier versions still reads and writes the same fields.
     np.testing.assert_array_equal(r.extra["source_points"], small_result[1][0])
-    np.testing.assert_array_equal(r.extra["target_points"], small_result[1][1])
+    assert r.extra["n_sources_used"] == 50
+    r.extra.update(n_sources_used=7, note="kept")
+    assert r.n_sources_used == 7 and r.extra["note"] == "kept" and "note" in dict(r.extra)
+
+
+def test_match_points_public_settings_only():
+    """The escalation's internals go through the private entry point."""
+    from astroalign_nd.matching import match_points
+
+    src = np.random.default_rng(3).uniform(0, 500, (40, 2))
+    r = match_points(src, _map(TRUTH, src))
+    assert r.n_sources_used is None and r.source_points.shape == (r.n_matches, 2)
+    np.testing.assert_array_equal(r.target_points, _map(TRUTH, src)[r.target_index])
+    with pytest.raises(TypeError):
+        match_points(src, _map(TRUTH, src), n_control=10)
 
 
 # -- (i) transform types -------------------------------------------------------------------

@@ -322,3 +322,18 @@ def test_bad_header_argument():
         transform_to_header(TRANSFORMS["affine"], header=42)
     with pytest.raises(TypeError, match="header must be"):
         transform_from_header(42)
+
+
+def test_header_without_wcs_keeps_the_rest_and_the_input():
+    from astroalign_nd.io.header import header_without_wcs
+
+    h = fits.Header({"OBJECT": "M31", "CTYPE1": "RA---TAN", "CTYPE2": "DEC--TAN",
+                     "CRPIX1": 10.0, "CRPIX2": 12.0, "CRVAL1": 10.7, "CRVAL2": 41.3,
+                     "CD1_1": -1e-4, "CD1_2": 0.0, "CD2_1": 0.0, "CD2_2": 1e-4,
+                     "EXPTIME": 30.0})
+    out = header_without_wcs(h)
+    assert list(out.keys()) == ["OBJECT", "EXPTIME"]
+    assert "CTYPE1" in h and len(h) == 12  # the caller's header is untouched
+    # An unparsable WCS is removed by name.
+    bad = fits.Header({"CTYPE1": "NOT-A-PROJ", "CRPIX1": "x", "FILTER": "R"})
+    assert list(header_without_wcs(bad).keys()) == ["FILTER"]

@@ -79,18 +79,6 @@ def test_peak_candidates_match_numpy(numpy_only):
     assert np.all(fast[0] >= 2) and np.all(fast[0] < 118)
 
 
-def test_has_nonfinite(threads):
-    a = np.zeros((300, 4000), np.float32)
-    assert not k.has_nonfinite(a)
-    a[299, 3999] = np.nan
-    assert k.has_nonfinite(a)
-    b = np.zeros(5_000_000)
-    b[0] = -np.inf
-    assert k.has_nonfinite(b)
-    assert not k.has_nonfinite(np.arange(10))  # integers are always finite
-    assert k.has_nonfinite(np.asfortranarray(np.full((3, 3), np.nan)))
-
-
 def test_count_inliers_matches_kdtree(numpy_only, threads):
     rng = np.random.default_rng(3)
     pts = rng.uniform(0, 1000, (400, 2))

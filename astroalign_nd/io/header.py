@@ -43,6 +43,7 @@ import datetime
 import re
 from collections.abc import Mapping
 import textwrap
+import warnings
 
 import numpy as np
 from astropy.io import fits
@@ -59,7 +60,8 @@ from ..transforms import (
 )
 
 __all__ = ["transform_to_header", "transform_from_header", "add_provenance",
-           "QUALITY_KEYWORDS", "header_from_meta", "fits_text", "check_quality"]
+           "QUALITY_KEYWORDS", "header_from_meta", "header_without_wcs", "fits_text",
+           "check_quality"]
 
 #: The fit-quality keywords of a registered frame: suffix (after the prefix),
 #: the ``transform.meta['quality']`` entry, decimals kept, and comment.
@@ -379,6 +381,48 @@ def header_from_meta(meta):
 
 
 #: The fit figures `check_quality` requires, and their types.
+# Keywords that start a celestial WCS description.
+_WCS_PREFIXES = ("CTYPE", "CRPIX", "CRVAL", "CDELT", "CUNIT", "CROTA", "CD1_", "CD2_", "PC1_",
+                 "PC2_", "WCSAXES", "A_", "B_", "AP_", "BP_", "LONPOLE", "LATPOLE", "RADESYS",
+                 "EQUINOX", "PV1_", "PV2_", "PS1_", "PS2_")
+
+
+def header_without_wcs(header: fits.Header) -> fits.Header:
+    """
+    A copy of ``header`` without its celestial WCS cards.
+
+    A resampled frame's WCS is the target's (or the source's, carried
+    through the transform): the source's cards describe the old pixel grid.
+
+    Parameters
+    ----------
+    header : `~astropy.io.fits.Header`
+
+    Returns
+    -------
+    header : `~astropy.io.fits.Header`
+        A new header; ``header`` is not modified.
+    """
+    from astropy.wcs import WCS, FITSFixedWarning
+
+    h = header.copy()
+    if not any(k.startswith(_WCS_PREFIXES) for k in h.keys()):
+        return h  # nothing to strip (and parsing a WCS costs ~1.5 ms)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FITSFixedWarning)
+            wcs_cards = WCS(h).to_header(relax=True)
+    except (ValueError, KeyError, TypeError, MemoryError):
+        # An unparsable WCS (astropy.wcs raises WcsError, a ValueError):
+        # its cards describe the old grid all the same; remove them by name.
+        wcs_cards = [k for k in h.keys() if k.startswith(_WCS_PREFIXES)]
+    for key in wcs_cards:
+        h.remove(key, ignore_missing=True, remove_all=True)
+    for key in ("CD1_1", "CD1_2", "CD2_1", "CD2_2", "A_ORDER", "B_ORDER"):
+        h.remove(key, ignore_missing=True, remove_all=True)
+    return h
+
+
 QUALITY_KEYS = ("n_matches", "rms", "log10_false_alarm")
 
 
