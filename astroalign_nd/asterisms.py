@@ -45,6 +45,22 @@ class Asterisms:
         +1 or -1, the sign of the canonical triangle's signed area.
     size : (M,) ndarray
         Longest side ``L2`` in pixels.
+
+    Examples
+    --------
+    The four right isosceles triangles of a square: sides ``a, a,
+    a*sqrt(2)``, so the invariants are ``(log(sqrt(2)), log(1))``.
+
+    >>> import numpy as np
+    >>> from astroalign_nd.asterisms import build_asterisms
+    >>> square = [[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]]
+    >>> ast = build_asterisms(square)
+    >>> len(ast), ast.triangles.shape, ast.invariants.shape
+    (4, (4, 3), (4, 2))
+    >>> bool(np.allclose(ast.invariants, [np.log(np.sqrt(2)), 0.0]))
+    True
+    >>> bool(np.allclose(ast.size, 10 * np.sqrt(2)))
+    True
     """
 
     points: np.ndarray
@@ -75,6 +91,15 @@ def check_triangle_budget(n_points, n_neighbors):
     ------
     ValueError
         Naming both numbers and what to lower.
+
+    Examples
+    --------
+    >>> from astroalign_nd.asterisms import check_triangle_budget
+    >>> check_triangle_budget(200, 4)  # 200 stars, 10 triangles each: fine
+    >>> check_triangle_budget(1_000_000, 4)
+    Traceback (most recent call last):
+    ...
+    ValueError: 1000000 control points with n_neighbors=4 would build up to 10,000,000 ...
     """
     per_star = comb(min(n_neighbors + 1, max(n_points, 3)), 3)
     n_tri = n_points * per_star
@@ -103,6 +128,26 @@ def build_asterisms(points, *, n_neighbors=4, min_side=1.0):
     Returns
     -------
     asterisms : `Asterisms`
+
+    Examples
+    --------
+    A 3-4-5 triangle: the vertex opposite the shortest side comes first,
+    and the invariants are ``(log(5/4), log(4/3))``.
+
+    >>> import numpy as np
+    >>> from astroalign_nd.asterisms import build_asterisms
+    >>> ast = build_asterisms([[0.0, 0.0], [3.0, 0.0], [0.0, 4.0]])
+    >>> ast.triangles
+    array([[2, 1, 0]])
+    >>> bool(np.allclose(ast.invariants, [[np.log(5 / 4), np.log(4 / 3)]]))
+    True
+    >>> float(ast.size[0])
+    5.0
+
+    Triangles with a side shorter than ``min_side`` are dropped:
+
+    >>> len(build_asterisms([[0.0, 0.0], [3.0, 0.0], [0.0, 4.0]], min_side=3.5))
+    0
     """
     pts = check_points(points, "star")
     n_neighbors = check_option("n_neighbors", n_neighbors)

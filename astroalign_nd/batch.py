@@ -78,6 +78,17 @@ class FrameResult:
         The input path as given, None for in-memory inputs.
     shape : tuple or None
         The source frame's ``(ny, nx)``, where it was needed (``canvas='union'``).
+
+    Examples
+    --------
+    >>> from astroalign_nd.batch import register_batch
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> frame = register_batch([pair.source], pair.target).frames[0]
+    >>> frame.name, frame.status, frame.ok
+    ('frame0', 'registered', True)
+    >>> bool(frame.quality["rms"] < 1.0), frame.ccd.shape
+    (True, (256, 256))
     """
 
     name: str
@@ -111,6 +122,23 @@ class BatchResult:
     canvas_offset : tuple or None
         ``(x0, y0)``: reference pixel coordinates of the output grid's pixel
         ``(0, 0)``; ``(0, 0)`` for ``canvas='reference'``.
+
+    Examples
+    --------
+    A batch of one good frame and one without stars:
+
+    >>> import numpy as np
+    >>> from astroalign_nd.batch import register_batch
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> result = register_batch([pair.source, np.zeros((64, 64))], pair.target)
+    >>> print(result.summary())
+    1 of 2 frames registered, 1 failed
+      FAILED frame1: TooFewSourcesError: ...
+    >>> [f.name for f in result.succeeded], [f.name for f in result.failed]
+    (['frame0'], ['frame1'])
+    >>> result.to_table()["status"].tolist(), result.canvas_shape
+    (['registered', 'failed'], (256, 256))
     """
 
     frames: list
@@ -252,6 +280,19 @@ def plan_outputs(sources, output_dir, suffix="_aligned", protected=()):
         One output path per frame.
     renamed : list of (int, str, str)
         ``(index, natural name, name used)`` for each frame renamed.
+
+    Examples
+    --------
+    Two inputs named ``m31.fits`` in different folders:
+
+    >>> import os
+    >>> from astroalign_nd.batch import plan_outputs
+    >>> paths, renamed = plan_outputs(
+    ...     ["night1/m31.fits", "night2/m31.fits", "m33.fit"], "out")
+    >>> [os.path.basename(p) for p in paths]
+    ['m31_aligned.fits', 'm31_2_aligned.fits', 'm33_aligned.fits']
+    >>> renamed
+    [(1, 'm31_aligned.fits', 'm31_2_aligned.fits')]
     """
     items, _ = batch_frames(sources)
     return _plan_outputs(list(items), output_dir, suffix, protected)
@@ -572,6 +613,17 @@ def union_canvas(transforms, shapes, reference_shape, margin=0.0):
     offset : (x0, y0)
         Reference pixel coordinates of canvas pixel ``(0, 0)`` (integers,
         so that the reference's pixels fall exactly on canvas pixels).
+
+    Examples
+    --------
+    A 100 x 100 frame shifted by 50.5 pixels in x and -20 in y from a
+    100 x 100 reference:
+
+    >>> import numpy as np
+    >>> from astroalign_nd.batch import union_canvas
+    >>> shift = np.array([[1.0, 0.0, 50.5], [0.0, 1.0, -20.0], [0.0, 0.0, 1.0]])
+    >>> union_canvas([shift], [(100, 100)], (100, 100))
+    ((120, 150), (0, -20))
     """
     from .transforms import as_matrix
 
@@ -859,6 +911,29 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
         Per-frame results in input order; ``result.failed`` lists the
         frames that could not be registered and why, ``result.to_table()``
         tabulates them all.
+
+    Examples
+    --------
+    Register two frames onto a reference and write them to a folder (a
+    temporary one here); the frame without stars fails and the batch goes
+    on:
+
+    >>> import os
+    >>> import tempfile
+    >>> import numpy as np
+    >>> from astroalign_nd.batch import register_batch
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     result = register_batch([pair.source, np.zeros((64, 64))], pair.target,
+    ...                             output_dir=tmp)
+    ...     written = sorted(os.listdir(tmp))
+    >>> written
+    ['frame0_aligned.fits']
+    >>> [f.status for f in result.frames]
+    ['registered', 'failed']
+    >>> bool(abs(result.frames[0].transform.rotation_deg - 30.0) < 0.1)
+    True
     """
     from .transforms import transform_class
 

@@ -80,6 +80,18 @@ def estimate_noise(data, mask=None, *, max_samples=50_000):
     Returns
     -------
     sigma : float
+
+    Examples
+    --------
+    The sky of this simulated frame is 100 counts with a read noise of 5
+    counts, so the noise is ``sqrt(100 + 5**2)``, about 11.2 counts:
+
+    >>> from astroalign_nd.detection import estimate_noise
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> sigma = estimate_noise(pair.source)
+    >>> bool(abs(sigma - 125**0.5) < 1.0)
+    True
     """
     ny, nx = data.shape
     step = max(1, (ny * nx) // max_samples)
@@ -241,6 +253,15 @@ def estimate_fwhm(data, *, mask=None, n_stars=30):
     Returns
     -------
     fwhm : float
+
+    Examples
+    --------
+    >>> from astroalign_nd.detection import estimate_fwhm
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, fwhm=3.0, seed=1)
+    >>> fwhm = estimate_fwhm(pair.source)
+    >>> bool(abs(fwhm - 3.0) < 0.3)
+    True
     """
     data, mask = _as_image(data, mask)
     noise = estimate_noise(data, mask)
@@ -409,6 +430,26 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
         ``bin_factor`` and ``fwhm_source`` (``'user'``, ``'estimate'`` or
         ``'scale search'``).  It may have fewer rows than ``n_sources``
         (or none).
+
+    Examples
+    --------
+    The 30 brightest stars of a simulated frame, each within a fraction of
+    a pixel of a true star:
+
+    >>> import numpy as np
+    >>> from scipy.spatial import cKDTree
+    >>> from astroalign_nd.detection import find_sources
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> sources = find_sources(pair.source, n_sources=30)
+    >>> len(sources), sources.colnames[:3]
+    (30, ['x', 'y', 'flux'])
+    >>> sources.meta["fwhm_source"]
+    'estimate'
+    >>> truth = np.column_stack([pair.source_stars["x"], pair.source_stars["y"]])
+    >>> dist, _ = cKDTree(truth).query(np.column_stack([sources["x"], sources["y"]]))
+    >>> bool(np.median(dist) < 0.2)
+    True
     """
     n_sources = _check_positive_int(n_sources, "n_sources")
     if fwhm is not None and not (np.isfinite(fwhm) and fwhm > 0):

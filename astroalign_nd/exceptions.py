@@ -19,11 +19,41 @@ __all__ = [
 
 
 class AstroalignError(Exception):
-    """Base class of every registration failure raised by astroalign_nd."""
+    """
+    Base class of every registration failure raised by astroalign_nd.
+
+    Examples
+    --------
+    One ``except`` clause catches every way a registration can fail:
+
+    >>> import numpy as np
+    >>> from astroalign_nd import find_transform
+    >>> from astroalign_nd.exceptions import AstroalignError
+    >>> blank = np.zeros((64, 64))
+    >>> try:
+    ...     find_transform(blank, blank)
+    ... except AstroalignError as exc:
+    ...     print(type(exc).__name__)
+    TooFewSourcesError
+    """
 
 
 class TooFewSourcesError(AstroalignError, ValueError):
-    """An image or catalog gave fewer sources than a transform needs."""
+    """
+    An image or catalog gave fewer sources than a transform needs.
+
+    It is also a `ValueError`.
+
+    Examples
+    --------
+    >>> from astroalign_nd.exceptions import TooFewSourcesError
+    >>> from astroalign_nd.matching import match_points
+    >>> try:
+    ...     match_points([[0.0, 0.0], [5.0, 5.0]], [[1.0, 1.0], [6.0, 6.0]])
+    ... except TooFewSourcesError as exc:
+    ...     print(isinstance(exc, ValueError), "at least 3 are needed" in str(exc))
+    True True
+    """
 
 
 class TransformNotFoundError(AstroalignError):
@@ -32,15 +62,64 @@ class TransformNotFoundError(AstroalignError):
     The message reports how many sources each image gave, how many
     triangle matches were tried and the best inlier count, so that the user
     can tell a sparse field from an unrelated pair.
+
+    Examples
+    --------
+    Two unrelated star lists:
+
+    >>> import numpy as np
+    >>> from astroalign_nd.exceptions import TransformNotFoundError
+    >>> from astroalign_nd.matching import match_points
+    >>> rng = np.random.default_rng(0)
+    >>> try:
+    ...     match_points(rng.uniform(0, 200, (30, 2)), rng.uniform(0, 200, (30, 2)))
+    ... except TransformNotFoundError as exc:
+    ...     print("the source gave 30 sources and the target 30" in str(exc))
+    True
     """
 
 
 class AstroalignWarning(AstropyUserWarning):
-    """Base class of astroalign_nd's warnings (an astropy user warning)."""
+    """
+    Base class of astroalign_nd's warnings (an astropy user warning).
+
+    Examples
+    --------
+    A pipeline that must not go on after a doubtful result can turn the
+    package's warnings into errors:
+
+    >>> import warnings
+    >>> from astropy.utils.exceptions import AstropyUserWarning
+    >>> from astroalign_nd.exceptions import AstroalignWarning, PoorFitWarning
+    >>> issubclass(AstroalignWarning, AstropyUserWarning)
+    True
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("error", AstroalignWarning)
+    ...     try:
+    ...         warnings.warn("residuals too large", PoorFitWarning)
+    ...     except AstroalignWarning as exc:
+    ...         print(type(exc).__name__, exc)
+    PoorFitWarning residuals too large
+    """
 
 
 class PoorFitWarning(AstroalignWarning):
-    """The fitted transform leaves residuals larger than the centroid noise."""
+    """
+    The fitted transform leaves residuals larger than the centroid noise.
+
+    Examples
+    --------
+    Record the warnings of a call to inspect them afterwards (here one
+    issued by hand):
+
+    >>> import warnings
+    >>> from astroalign_nd.exceptions import PoorFitWarning
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     warnings.warn("RMS 2.1 px for a centroid noise of 0.3 px", PoorFitWarning)
+    >>> [w.category.__name__ for w in caught]
+    ['PoorFitWarning']
+    """
 
 
 _PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep

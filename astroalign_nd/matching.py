@@ -78,6 +78,22 @@ class MatchResult:
     extra : dict-like
         The five attributes above, by name (read and write), for code
         written when they were keys of a dict.
+
+    Examples
+    --------
+    `match_points` (and `~astroalign_nd.find_match`) return one:
+
+    >>> import numpy as np
+    >>> from astroalign_nd.matching import match_points
+    >>> rng = np.random.default_rng(0)
+    >>> src = rng.uniform(0, 200, (40, 2))
+    >>> result = match_points(src, src + [10.0, -5.0])
+    >>> result.n_matches, result.source_points.shape
+    (40, (40, 2))
+    >>> bool(result.rms < 1e-6), bool(result.log10_false_alarm < -6)
+    (True, True)
+    >>> sorted(result.extra)[:2]
+    ['model_misfit', 'predicted_error']
     """
 
     transform: object
@@ -166,6 +182,23 @@ def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
         Indices into ``src_ast.triangles`` and ``dst_ast.triangles``.
     dist : (K,) ndarray
         Distance in invariant space.
+
+    Examples
+    --------
+    The same stars listed in reverse order and twice as far apart: the
+    closest pair of triangles is one triangle of stars in both lists.
+
+    >>> import numpy as np
+    >>> from astroalign_nd.asterisms import build_asterisms
+    >>> from astroalign_nd.matching import match_triangles
+    >>> src = np.random.default_rng(0).uniform(0, 200, (40, 2))
+    >>> a, b = build_asterisms(src), build_asterisms(2.0 * src[::-1])
+    >>> pairs, dist = match_triangles(a, b, 0.01)
+    >>> pairs.shape[1], bool(dist[0] < 1e-9)
+    (2, True)
+    >>> i, j = pairs[0]
+    >>> bool(np.all(a.triangles[i] == 39 - b.triangles[j]))
+    True
     """
     if len(src_ast) == 0 or len(dst_ast) == 0:
         return np.empty((0, 2), int), np.empty(0)
@@ -219,6 +252,26 @@ def hypothesis_matrices(src_ast, dst_ast, pairs):
         RMS residual of each triangle's own three vertices.
     parity : (K,) ndarray
         -1 for mirrored hypotheses.
+
+    Examples
+    --------
+    A rotation by 20 degrees and a shift, recovered from the best triangle
+    match:
+
+    >>> import numpy as np
+    >>> from astroalign_nd.asterisms import build_asterisms
+    >>> from astroalign_nd.matching import hypothesis_matrices, match_triangles
+    >>> src = np.random.default_rng(0).uniform(0, 200, (40, 2))
+    >>> c, s = np.cos(np.deg2rad(20.0)), np.sin(np.deg2rad(20.0))
+    >>> truth = np.array([[c, -s, 10.0], [s, c, -5.0], [0.0, 0.0, 1.0]])
+    >>> dst = src @ truth[:2, :2].T + truth[:2, 2]
+    >>> a, b = build_asterisms(src), build_asterisms(dst)
+    >>> pairs, _ = match_triangles(a, b, 0.01)
+    >>> matrices, rms, parity = hypothesis_matrices(a, b, pairs[:1])
+    >>> matrices.shape
+    (1, 3, 3)
+    >>> bool(np.allclose(matrices[0], truth)), bool(rms[0] < 1e-9), float(parity[0])
+    (True, True, 1.0)
     """
     s = src_ast.points[src_ast.triangles[pairs[:, 0]]]  # (K, 3, 2)
     d = dst_ast.points[dst_ast.triangles[pairs[:, 1]]]
@@ -532,6 +585,23 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     -----
     Memory is bounded: at most ``MAX_TRIANGLES`` triangles per list and
     ``4 * max_hypotheses`` candidate triangle pairs (the closest) are held.
+
+    Examples
+    --------
+    Two star lists related by a rotation of 20 degrees and a shift:
+
+    >>> import numpy as np
+    >>> from astroalign_nd.matching import match_points
+    >>> src = np.random.default_rng(0).uniform(0, 200, (40, 2))
+    >>> c, s = np.cos(np.deg2rad(20.0)), np.sin(np.deg2rad(20.0))
+    >>> dst = src @ np.array([[c, -s], [s, c]]).T + [10.0, -5.0]
+    >>> result = match_points(src, dst)
+    >>> result.n_matches
+    40
+    >>> bool(abs(result.transform.rotation_deg - 20.0) < 1e-6)
+    True
+    >>> bool(np.allclose(result.transform(*src.T), dst.T))
+    True
     """
     return _match_points(
         src_pts, dst_pts, transform_type=transform_type, tolerance=tolerance,

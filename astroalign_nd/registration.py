@@ -240,6 +240,21 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
     ``target_points`` hold the matched positions.
     Each attempt of the search is logged at debug level to astropy's
     logger (``astropy.log.setLevel("DEBUG")`` shows them).
+
+    Examples
+    --------
+    A simulated pair of frames rotated by 30 degrees:
+
+    >>> from astroalign_nd import find_match
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> result = find_match(pair.source, pair.target)
+    >>> bool(abs(result.transform.rotation_deg - 30.0) < 0.1)
+    True
+    >>> bool(result.n_matches >= 20), bool(result.rms < 1.0)
+    (True, True)
+    >>> result.source_points.shape == (result.n_matches, 2)
+    True
     """
     transform_class(transform_type)  # validate early, with a clear message
     n_sources = check_option("n_sources", n_sources)
