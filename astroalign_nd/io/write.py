@@ -176,7 +176,7 @@ def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):
     overwrite : bool, optional
         Accept an existing file (default False).
     extensions : sequence of str, optional
-        Accepted name endings (default `FITS_EXTENSIONS`); empty or None
+        Accepted name endings (default ``FITS_EXTENSIONS``); empty or None
         accepts any name.
 
     Raises
