@@ -228,6 +228,10 @@ def _parse_matrix(matrix):
         )
     if not np.all(np.isfinite(m)):
         raise ValueError("matrix contains NaN or infinite values.")
+    # cos(90 deg) is 6e-17, not 0: snap such round-off to the integer, or an exact
+    # quarter turn maps edge pixels a hair outside the source and masks them.
+    near = np.abs(m - np.round(m)) < 1e-12
+    m[near] = np.round(m[near])
     if not np.allclose(m[2], [0.0, 0.0, 1.0]):
         raise ValueError(
             "matrix is projective (last row is not [0, 0, 1]); only affine transforms "

@@ -483,3 +483,16 @@ def test_banded_working_planes_match_whole_frame(monkeypatch, order, dtype):
     out, _, mask = resample(data, m, (100, 95), order=order, mask=bad)
     assert_array_equal(mask, ref[2])
     assert_allclose(out[~mask], ref[0][~mask], rtol=rtol)
+
+
+def test_exact_quarter_turn_masks_nothing():
+    """cos(90 deg) = 6e-17 must not push edge pixels outside the source."""
+    from astroalign_nd import apply_transform
+    from astroalign_nd.transforms import SimilarityTransform
+
+    img = np.arange(64, dtype=np.float32).reshape(8, 8)
+    t = SimilarityTransform(scale=1.0, rotation=90.0, translation_x=7.0, translation_y=0.0)
+    out = apply_transform(t, img, img)
+    assert out.mask is None or not out.mask.any()
+    # Source (x, y) lands on (7 - y, x): in numpy's (row, column) view, a clockwise turn.
+    np.testing.assert_array_equal(np.asarray(out.data), np.rot90(img, k=-1))
