@@ -137,7 +137,8 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
                     order: str | int = "bilinear", conserve_flux: bool = False,
                     fill_value: float = np.nan, method: str = "interpolate", unit: Any = None,
                     parallel: bool = True, quality: dict | None = None,
-                    hdu: int | str | None = None, add_keyword: bool = True) -> CCDData:
+                    hdu: int | str | None = None, add_keyword: bool = True,
+                    **unexpected: Any) -> CCDData:
     """
     Resample ``source`` onto the pixel grid of ``target``.
 
@@ -217,6 +218,13 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     >>> bool(abs(x - 3 + ix - star["x_target"]) <= 1 and abs(y - 3 + iy - star["y_target"]) <= 1)
     True
     """
+    if unexpected:
+        from .registration import _astroalign_advice
+
+        raise TypeError(
+            f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
+            "accepts order, conserve_flux, fill_value, method, unit, parallel, quality, hdu "
+            f"and add_keyword.{_astroalign_advice(unexpected)}")
     m = as_matrix(transform)
     if not np.all(np.isfinite(m)) or abs(np.linalg.det(m[:2, :2])) < 1e-12:
         raise ValueError("transform is singular or not finite; it cannot be applied.")

@@ -95,18 +95,51 @@ class MaxIterError(TransformNotFoundError, RuntimeError):
 
     Also a `~astroalign_nd.TransformNotFoundError`, whose message says how
     many sources each image gave and how many matches were tried.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd import compat as aa
+    >>> rng = np.random.default_rng(0)
+    >>> a, b = rng.uniform(0, 500, (20, 2)), rng.uniform(0, 500, (20, 2))
+    >>> try:
+    ...     aa.find_transform(a, b)  # two unrelated star lists
+    ... except aa.MaxIterError:
+    ...     print("refused")
+    refused
     """
 
 
 def estimate_transform(*args: Any, **kwargs: Any) -> Any:
-    """`skimage.transform.estimate_transform`, imported on first use."""
+    """
+    `skimage.transform.estimate_transform`, imported on first use.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd import compat as aa
+    >>> src = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+    >>> t = aa.estimate_transform("similarity", src, src + [5.0, -2.0])
+    >>> np.round(t.translation, 6).tolist()
+    [5.0, -2.0]
+    """
     from skimage.transform import estimate_transform as _estimate
 
     return _estimate(*args, **kwargs)
 
 
 def matrix_transform(*args: Any, **kwargs: Any) -> Any:
-    """`skimage.transform.matrix_transform`, imported on first use."""
+    """
+    `skimage.transform.matrix_transform`, imported on first use.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd import compat as aa
+    >>> shift = np.array([[1.0, 0.0, 3.0], [0.0, 1.0, 4.0], [0.0, 0.0, 1.0]])
+    >>> aa.matrix_transform(np.array([[1.0, 1.0]]), shift).tolist()
+    [[4.0, 5.0]]
+    """
     from skimage.transform import matrix_transform as _matrix
 
     return _matrix(*args, **kwargs)

@@ -366,3 +366,13 @@ def test_unknown_keyword_without_astroalign_advice(pair):
     with pytest.raises(TypeError) as info:
         astroalign_nd.find_transform(pair.source, pair.target, not_a_keyword=1)
     assert "not_a_keyword" in str(info.value) and "astroalign" not in str(info.value)
+
+
+def test_apply_transform_names_astroalign_keyword():
+    """The main API's apply_transform says what to use instead of propagate_mask."""
+    from astroalign_nd import apply_transform
+    from astroalign_nd.transforms import SimilarityTransform
+
+    img = np.ones((16, 16), np.float32)
+    with pytest.raises(TypeError, match="propagate_mask.*mask always holds"):
+        apply_transform(SimilarityTransform(), img, img, propagate_mask=True)
