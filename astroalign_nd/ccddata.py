@@ -193,6 +193,30 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     -------
     registered : `~astropy.nddata.CCDData`
         A new object; the inputs are not modified.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy.nddata import CCDData
+    >>> from astroalign_nd.ccddata import apply_transform
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=20.0,
+    ...                      translation=(4.0, -3.0), seed=1)
+    >>> source = CCDData(pair.source, unit="adu")
+    >>> registered = apply_transform(pair.transform, source, pair.target.shape)
+    >>> registered.shape, registered.unit, registered.header["AATTYPE"]
+    ((256, 256), Unit("adu"), 'similarity')
+    >>> bool(registered.mask.any())  # target pixels the source does not cover
+    True
+
+    The brightest star now peaks where it is in the target frame:
+
+    >>> star = pair.matched_stars()[0]
+    >>> x, y = int(round(star["x_target"])), int(round(star["y_target"]))
+    >>> box = registered.data[y - 3:y + 4, x - 3:x + 4]
+    >>> iy, ix = np.unravel_index(np.argmax(box), box.shape)
+    >>> bool(abs(x - 3 + ix - star["x_target"]) <= 1 and abs(y - 3 + iy - star["y_target"]) <= 1)
+    True
     """
     if unexpected:
         from .registration import _astroalign_advice

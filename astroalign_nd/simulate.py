@@ -603,6 +603,20 @@ def draw_fluxes(n, *, flux_range=(300.0, 3e5), flux_index=1.5, seed=None):
     Returns
     -------
     flux : (n,) ndarray of float64
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.simulate import draw_fluxes
+    >>> flux = draw_fluxes(1000, flux_range=(300.0, 3e5), seed=1)
+    >>> flux.shape, flux.dtype
+    ((1000,), dtype('float64'))
+    >>> bool(flux.min() >= 300.0 and flux.max() <= 3e5)
+    True
+    >>> bool(np.median(flux) < 600.0)  # many faint stars, few bright ones
+    True
+    >>> bool(np.array_equal(flux, draw_fluxes(1000, seed=1)))  # same seed, same fluxes
+    True
     """
     n = _check_count(n, "n")
     (lo, hi), alpha = _check_flux_range(flux_range, flux_index)
@@ -734,6 +748,25 @@ class SimulatedPair:
         The simulation settings actually used (rotation in degrees, scale,
         centre shift, mirror, per-frame fwhm and background, number of stars,
         seed...).
+
+    Examples
+    --------
+    `simulate_pair` makes one; the truth maps every matched source star onto
+    its target position:
+
+    >>> import numpy as np
+    >>> from astroalign_nd.simulate import SimulatedPair, simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> isinstance(pair, SimulatedPair), pair.source.shape, pair.source.dtype
+    (True, (256, 256), dtype('float32'))
+    >>> len(pair.source_stars), pair.source_stars.colnames
+    (100, ['x', 'y', 'flux', 'id'])
+    >>> m = pair.matched_stars()
+    >>> xt, yt = pair.transform(m["x_source"], m["y_source"])
+    >>> bool(np.allclose(xt, m["x_target"]) and np.allclose(yt, m["y_target"]))
+    True
+    >>> bool(np.allclose(pair.transform.matrix, pair.truth_matrix))
+    True
     """
 
     source: np.ndarray
@@ -1136,6 +1169,18 @@ def add_nebulosity(image, *, amplitude, scale=40.0, n_knots=25, knot_fwhm=(6.0, 
     Returns
     -------
     image : 2-D ndarray
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.simulate import add_nebulosity, simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> nebular = add_nebulosity(pair.source, amplitude=200.0, seed=1)
+    >>> nebular.shape, nebular.dtype
+    ((256, 256), dtype('float32'))
+    >>> extra = nebular - pair.source
+    >>> bool(extra.min() >= 0.0 and extra.max() > 200.0)  # knots peak above amplitude
+    True
     """
     from scipy.ndimage import gaussian_filter
 
@@ -1182,6 +1227,17 @@ def add_overscan(image, *, width=16, level=0.0, read_noise=5.0, edges=("left", "
     Returns
     -------
     image : 2-D ndarray
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.simulate import add_overscan, simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> raw = add_overscan(pair.source, width=16, level=10.0, seed=1)
+    >>> bool(abs(raw[:, :16].mean() - 10.0) < 0.5)  # left strip: bias and read noise
+    True
+    >>> bool(np.array_equal(raw[:-16, 16:-16], pair.source[:-16, 16:-16]))  # rest kept
+    True
     """
     img = np.array(image, dtype=np.float32 if np.asarray(image).dtype.kind != "f"
                    else np.asarray(image).dtype)
@@ -1224,6 +1280,16 @@ def to_8bit(image, *, gamma=0.45, black=None, white=None, bloat=2.0, jpeg_qualit
     Returns
     -------
     image : 2-D uint8 ndarray
+
+    Examples
+    --------
+    >>> from astroalign_nd.simulate import simulate_pair, to_8bit
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> photo = to_8bit(pair.source)
+    >>> photo.shape, photo.dtype, int(photo.min()), int(photo.max())
+    ((256, 256), dtype('uint8'), 0, 255)
+    >>> bool((photo == 255).sum() > 50)  # bright stars become flat plateaus
+    True
     """
     from scipy.ndimage import gaussian_filter
 
@@ -1267,6 +1333,19 @@ def bayer_bin(pair, *, gains=(0.55, 1.0, 1.0, 0.75)):
     -------
     pair : `SimulatedPair`
         Binned images, star tables and truth in binned pixel coordinates.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.simulate import bayer_bin, simulate_pair
+    >>> full = simulate_pair((256, 256), n_stars=100, fwhm=2.6, seed=1)
+    >>> binned = bayer_bin(full)
+    >>> binned.source.shape, binned.source.dtype
+    ((128, 128), dtype('float32'))
+    >>> m = binned.matched_stars()
+    >>> xt, yt = binned.transform(m["x_source"], m["y_source"])
+    >>> bool(np.allclose(xt, m["x_target"]) and np.allclose(yt, m["y_target"]))
+    True
     """
     g = np.asarray(gains, float).reshape(2, 2)
 

@@ -98,6 +98,19 @@ class LinearTransform2D(Model):
     Subclasses define their parameters, ``evaluate`` and the two class
     methods ``_from_matrix`` and ``_linear_fit``; everything else (``matrix``,
     ``inverse``, ``from_points``, skimage-style attributes) is shared.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms import LinearTransform2D, EuclideanTransform
+    >>> t = EuclideanTransform(rotation=90.0, translation_x=2.0, translation_y=0.0)
+    >>> isinstance(t, LinearTransform2D)
+    True
+    >>> t.matrix.round(12)
+    array([[ 0., -1.,  2.],
+           [ 1.,  0.,  0.],
+           [ 0.,  0.,  1.]])
+    >>> t.translation, t.mirrored
+    (array([2., 0.]), False)
     """
 
     n_inputs = 2
@@ -362,6 +375,17 @@ class TranslationTransform(LinearTransform2D):
     ----------
     translation_x, translation_y : float
         The shift in target pixels.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms import TranslationTransform
+    >>> t = TranslationTransform(translation_x=3.0, translation_y=-1.5)
+    >>> t(10.0, 20.0)
+    (13.0, 18.5)
+    >>> t.inverse(13.0, 18.5)
+    (10.0, 20.0)
+    >>> t.scale, t.rotation
+    (1.0, 0.0)
     """
 
     translation_x = Parameter(default=0.0, description="Shift along x (pixels)")
@@ -447,6 +471,17 @@ class EuclideanTransform(LinearTransform2D):
     parity : {1, -1}
         -1 for a mirrored transform (the y axis is flipped before rotating).
         Fixed, never fitted as a continuous parameter.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import EuclideanTransform
+    >>> t = EuclideanTransform(rotation=90.0, translation_x=1.0, translation_y=2.0)
+    >>> np.round(t(1.0, 0.0), 12)
+    array([1., 3.])
+    >>> m = EuclideanTransform(rotation=0.0, parity=-1)  # mirrored: y -> -y
+    >>> np.round(m(1.0, 5.0), 12), m.mirrored
+    (array([ 1., -5.]), True)
     """
 
     rotation = Parameter(default=0.0, description="Rotation (degrees, counter-clockwise)")
@@ -587,6 +622,21 @@ class AffineTransform(LinearTransform2D):
         The elements of the 2x2 linear part ``A``.
     translation_x, translation_y : float
         Shift in target pixels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import AffineTransform
+    >>> t = AffineTransform(a11=2.0, a12=0.5, a21=0.0, a22=1.0,
+    ...                     translation_x=1.0, translation_y=-1.0)
+    >>> t(1.0, 2.0)
+    (4.0, 1.0)
+    >>> np.allclose(t.inverse(*t(3.0, 4.0)), (3.0, 4.0))
+    True
+    >>> src = np.random.default_rng(0).uniform(0, 100, (10, 2))
+    >>> fit = AffineTransform.from_points(src, np.column_stack(t(*src.T)))
+    >>> bool(np.allclose(fit.matrix, t.matrix))
+    True
     """
 
     a11 = Parameter(default=1.0)
@@ -662,6 +712,24 @@ def transform_class(transform_type: str | type) -> type[LinearTransform2D]:
     transform_type : str or type
         One of ``'translation'``, ``'euclidean'``, ``'similarity'``,
         ``'affine'``, or one of the classes themselves.
+
+    Returns
+    -------
+    cls : type
+        A subclass of `LinearTransform2D`.
+
+    Raises
+    ------
+    ValueError
+        For any other name or class.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms import transform_class, AffineTransform
+    >>> transform_class("Similarity").__name__
+    'SimilarityTransform'
+    >>> transform_class(AffineTransform) is AffineTransform
+    True
     """
     if isinstance(transform_type, type) and issubclass(transform_type, LinearTransform2D):
         return transform_type
@@ -701,6 +769,22 @@ def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "
         no spare degrees of freedom.
     residuals : (N, 2) ndarray
         ``transform(src) - dst`` in target pixels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import EuclideanTransform, fit_transform
+    >>> truth = EuclideanTransform(rotation=12.0, translation_x=4.0, translation_y=-7.0)
+    >>> rng = np.random.default_rng(1)
+    >>> src = rng.uniform(0, 256, (50, 2))
+    >>> dst = np.column_stack(truth(*src.T)) + rng.normal(0, 0.1, (50, 2))
+    >>> t, cov, resid = fit_transform(src, dst, "euclidean")
+    >>> bool(abs(t.rotation_deg - 12.0) < 0.01)
+    True
+    >>> cov.shape, resid.shape  # rotation, translation_x, translation_y
+    ((3, 3), (50, 2))
+    >>> bool(np.sqrt(cov[1, 1]) < 0.1)  # 1-sigma error of translation_x, pixels
+    True
     """
     cls = transform_class(transform_type)
     model, design, resid = cls._fit(src, dst, weights=weights, parity=parity)
@@ -755,6 +839,19 @@ def as_matrix(transform: Any) -> np.ndarray:
     Accepts the package's models, a 3x3 or 2x3 array, a scikit-image
     geometric transform (anything with a ``params`` matrix) or an astropy
     `~astropy.modeling.projections.AffineTransformation2D`.
+
+    Examples
+    --------
+    >>> from astropy.modeling.models import Shift
+    >>> from astroalign_nd.transforms import SimilarityTransform, as_matrix
+    >>> as_matrix(SimilarityTransform(scale=2.0, translation_x=5.0)).round(12)
+    array([[2., 0., 5.],
+           [0., 2., 0.],
+           [0., 0., 1.]])
+    >>> as_matrix(Shift(1.0) & Shift(-2.0))  # any affine astropy model
+    array([[ 1.,  0.,  1.],
+           [ 0.,  1., -2.],
+           [ 0.,  0.,  1.]])
     """
     from astropy.modeling.projections import AffineTransformation2D
 
@@ -806,6 +903,19 @@ def from_matrix(matrix: Any, transform_type: str | type | None = None) -> Linear
 
     With ``transform_type=None`` the simplest class that represents the
     matrix exactly is chosen (translation, then euclidean, similarity, affine).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import from_matrix
+    >>> t = from_matrix([[1.0, 0.0, 3.0], [0.0, 1.0, 4.0], [0.0, 0.0, 1.0]])
+    >>> type(t).__name__, t.translation.tolist()
+    ('TranslationTransform', [3.0, 4.0])
+    >>> s = from_matrix(np.array([[0.0, -2.0, 0.0], [2.0, 0.0, 0.0]]))  # 2x3 is fine
+    >>> type(s).__name__, round(float(s.scale.value), 12), round(s.rotation_deg, 12)
+    ('SimilarityTransform', 2.0, 90.0)
+    >>> type(from_matrix(np.eye(3), "affine")).__name__
+    'AffineTransform'
     """
     m = as_matrix(matrix)
     if transform_type is not None:
@@ -819,7 +929,24 @@ def from_matrix(matrix: Any, transform_type: str | type | None = None) -> Linear
 
 
 def to_skimage(transform: Any) -> Any:
-    """Convert to the matching `skimage.transform` geometric transform."""
+    """
+    Convert to the matching `skimage.transform` geometric transform.
+
+    A mirrored transform becomes a `skimage.transform.AffineTransform`
+    (scikit-image's similarity and euclidean classes cannot hold a
+    reflection).  scikit-image angles are in radians.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import SimilarityTransform, to_skimage
+    >>> t = SimilarityTransform(scale=1.5, rotation=90.0, translation_x=2.0)
+    >>> sk = to_skimage(t)
+    >>> type(sk).__name__, bool(np.isclose(sk.rotation, np.pi / 2))
+    ('SimilarityTransform', True)
+    >>> bool(np.allclose(sk([[1.0, 0.0]]), np.column_stack(t(1.0, 0.0))))
+    True
+    """
     from skimage import transform as sktf
 
     m = as_matrix(transform)
@@ -833,12 +960,35 @@ def to_skimage(transform: Any) -> Any:
 
 def from_skimage(sk_transform: Any,
                  transform_type: str | type | None = None) -> LinearTransform2D:
-    """Convert a scikit-image geometric transform (anything with ``params``)."""
+    """
+    Convert a scikit-image geometric transform (anything with ``params``).
+
+    ``transform_type`` is as in `from_matrix` (default: the simplest class
+    that represents the matrix).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from skimage.transform import EuclideanTransform as SkEuclidean
+    >>> from astroalign_nd.transforms import from_skimage
+    >>> t = from_skimage(SkEuclidean(rotation=np.pi / 6, translation=(1.0, 2.0)))
+    >>> type(t).__name__, round(t.rotation_deg, 9)
+    ('EuclideanTransform', 30.0)
+    """
     return from_matrix(np.asarray(sk_transform.params, dtype=float), transform_type)
 
 
 def to_astropy_affine(transform: Any) -> Model:
-    """Convert to `astropy.modeling.projections.AffineTransformation2D`."""
+    """
+    Convert to `astropy.modeling.projections.AffineTransformation2D`.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms import TranslationTransform, to_astropy_affine
+    >>> a = to_astropy_affine(TranslationTransform(translation_x=2.0, translation_y=3.0))
+    >>> type(a).__name__, a(1.0, 1.0)
+    ('AffineTransformation2D', (3.0, 4.0))
+    """
     from astropy.modeling.projections import AffineTransformation2D
 
     m = as_matrix(transform)
@@ -847,5 +997,19 @@ def to_astropy_affine(transform: Any) -> Model:
 
 def from_astropy_affine(model: Model,
                         transform_type: str | type | None = None) -> LinearTransform2D:
-    """Convert an `~astropy.modeling.projections.AffineTransformation2D`."""
+    """
+    Convert an `~astropy.modeling.projections.AffineTransformation2D`.
+
+    ``transform_type`` is as in `from_matrix` (default: the simplest class
+    that represents the matrix).
+
+    Examples
+    --------
+    >>> from astropy.modeling.projections import AffineTransformation2D
+    >>> from astroalign_nd.transforms import from_astropy_affine
+    >>> a = AffineTransformation2D(matrix=[[2.0, 0.0], [0.0, 2.0]], translation=[1.0, 0.0])
+    >>> t = from_astropy_affine(a)
+    >>> type(t).__name__, float(t.scale.value)
+    ('SimilarityTransform', 2.0)
+    """
     return from_matrix(as_matrix(model), transform_type)

@@ -297,6 +297,14 @@ def fits_text(text):
 
     FITS cards hold printable ASCII only; other characters (a non-ASCII
     file name, a newline) become Python escapes such as ``\\xe9``.
+
+    Examples
+    --------
+    >>> from astroalign_nd.io.header import fits_text
+    >>> print(fits_text("caf\\u00e9\\nnoir"))
+    caf\\xe9\\nnoir
+    >>> fits_text("M 31")
+    'M 31'
     """
     text = str(text)
     return "".join(c if 32 <= ord(c) < 127 else ascii(c)[1:-1] for c in text)
@@ -318,6 +326,15 @@ def header_from_meta(meta):
     Returns
     -------
     header : `~astropy.io.fits.Header`
+
+    Examples
+    --------
+    >>> from astroalign_nd.io.header import header_from_meta
+    >>> hdr = header_from_meta({"OBJECT": "M31", "exposure_time": (60.0, "seconds")})
+    >>> hdr["OBJECT"], hdr["exposure_time"], hdr.comments["exposure_time"]
+    ('M31', 60.0, 'seconds')
+    >>> list(hdr.keys())
+    ['OBJECT', 'exposure_time']
     """
     if isinstance(meta, fits.Header):
         return meta.copy()
@@ -402,6 +419,18 @@ def header_without_wcs(header: fits.Header) -> fits.Header:
     -------
     header : `~astropy.io.fits.Header`
         A new header; ``header`` is not modified.
+
+    Examples
+    --------
+    >>> from astropy.io import fits
+    >>> from astroalign_nd.io.header import header_without_wcs
+    >>> hdr = fits.Header({"OBJECT": "M31", "CTYPE1": "RA---TAN", "CTYPE2": "DEC--TAN",
+    ...                    "CRVAL1": 10.7, "CRVAL2": 41.3, "CRPIX1": 128.0, "CRPIX2": 128.0,
+    ...                    "CDELT1": -3e-4, "CDELT2": 3e-4})
+    >>> list(header_without_wcs(hdr).keys())
+    ['OBJECT']
+    >>> len(hdr)  # the original keeps its WCS
+    9
     """
     from astropy.wcs import WCS, FITSFixedWarning
 
@@ -439,6 +468,18 @@ def check_quality(quality):
     ------
     TypeError, ValueError
         If it is not a dict or lacks one of `QUALITY_KEYS`.
+
+    Examples
+    --------
+    >>> from astroalign_nd.io.header import check_quality
+    >>> check_quality({"n_matches": "42", "rms": 0.05, "log10_false_alarm": -80})
+    {'n_matches': 42, 'rms': 0.05, 'log10_false_alarm': -80.0}
+    >>> check_quality(None) is None
+    True
+    >>> check_quality({"rms": 0.05})  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: quality lacks ['n_matches', 'log10_false_alarm']; it needs ...
     """
     if quality is None:
         return None
@@ -487,6 +528,21 @@ def transform_from_header(header: fits.Header | Mapping, *,
     ValueError
         If the header has no transform keywords, or they are incomplete or
         inconsistent.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.io import transform_from_header, transform_to_header
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> hdr = transform_to_header(pair.transform)
+    >>> t = transform_from_header(hdr)
+    >>> type(t) is type(pair.transform), bool(np.allclose(t.matrix, pair.truth_matrix))
+    (True, True)
+    >>> transform_from_header({"OBJECT": "M31"})  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: header has no astroalign_nd transform keywords (AATTYPE, ...
     """
     prefix = _check_prefix(prefix)
     if not isinstance(header, fits.Header):
@@ -562,6 +618,23 @@ def add_provenance(header: fits.Header, model: LinearTransform2D, *,
     -------
     header : `~astropy.io.fits.Header`
         A new header.
+
+    Examples
+    --------
+    >>> from astropy.io import fits
+    >>> from astroalign_nd.io import add_provenance
+    >>> from astroalign_nd.transforms import SimilarityTransform
+    >>> t = SimilarityTransform(scale=1.5, rotation=30.0, translation_x=3.0,
+    ...                         translation_y=-2.0)
+    >>> hdr = fits.Header({"OBJECT": "M31"})
+    >>> out = add_provenance(hdr, t, source_name="a.fits", target_name="b.fits",
+    ...                      quality={"n_matches": 42, "rms": 0.05, "log10_false_alarm": -80.0})
+    >>> out["AATTYPE"], out["AATSCALE"], out["AATNMAT"], out["AATRMS"]
+    ('similarity', 1.5, 42, 0.05)
+    >>> print(str(out["HISTORY"][2]).strip())
+    astroalign_nd transform: SimilarityTransform scale=1.500000
+    >>> "AATTYPE" in hdr  # the given header is not modified
+    False
     """
     from .. import __version__
 

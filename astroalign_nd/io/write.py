@@ -98,12 +98,14 @@ def atomic_write(path, overwrite=False):
     --------
     >>> import os, tempfile
     >>> from astroalign_nd.io.write import atomic_write
-    >>> path = os.path.join(tempfile.mkdtemp(), "notes.txt")
-    >>> with atomic_write(path) as tmp:
-    ...     with open(tmp, "w") as f:
-    ...         _ = f.write("complete")
-    >>> open(path).read()
-    'complete'
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = os.path.join(folder, "notes.txt")
+    ...     with atomic_write(path) as tmp:
+    ...         with open(tmp, "w") as f:
+    ...             _ = f.write("complete")
+    ...     with open(path) as f:
+    ...         print(f.read(), os.listdir(folder))
+    complete ['notes.txt']
     """
     path = os.fspath(path)
     if not overwrite and os.path.lexists(path):
@@ -136,6 +138,28 @@ def write_ccddata(ccd, path, *, overwrite=False, **kwargs):
         Replace an existing file (default False: `FileExistsError`).
     **kwargs
         Passed to `~astropy.nddata.CCDData.write` (e.g. ``hdu_mask``).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from astropy.nddata import CCDData
+    >>> from astroalign_nd.io import write_ccddata
+    >>> ccd = CCDData(np.ones((4, 5), dtype=np.float32), unit="adu")
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = os.path.join(folder, "frame.fits")
+    ...     write_ccddata(ccd, path)
+    ...     back = CCDData.read(path)
+    ...     try:
+    ...         write_ccddata(ccd, path)  # never replaced without overwrite=True
+    ...     except FileExistsError:
+    ...         print("exists")
+    ...     write_ccddata(ccd, path, overwrite=True)
+    ...     print(os.listdir(folder))
+    exists
+    ['frame.fits']
+    >>> back.shape, back.unit, back.data.dtype
+    ((4, 5), Unit("adu"), dtype('>f4'))
     """
     with atomic_write(path, overwrite=overwrite) as tmp:
         ccd.write(tmp, overwrite=True, format="fits", **kwargs)
@@ -145,6 +169,16 @@ def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):
     """
     Check, before any work, that a file can be written at ``path``.
 
+    Parameters
+    ----------
+    path : str or path-like
+        The output file name.
+    overwrite : bool, optional
+        Accept an existing file (default False).
+    extensions : sequence of str, optional
+        Accepted name endings (default ``FITS_EXTENSIONS``); empty or None
+        accepts any name.
+
     Raises
     ------
     ValueError
@@ -153,6 +187,20 @@ def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):
         If the file exists and ``overwrite`` is False.
     OSError
         If the folder does not exist or cannot be written to.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.io.write import check_output_path
+    >>> with tempfile.TemporaryDirectory() as folder:  # doctest: +ELLIPSIS
+    ...     check_output_path(os.path.join(folder, "aligned.fits"))  # fine: returns None
+    ...     try:
+    ...         check_output_path(os.path.join(folder, "aligned.png"))
+    ...     except ValueError as exc:
+    ...         print(exc)
+    ...     print(os.listdir(folder))  # the check leaves nothing behind
+    output file '...aligned.png' must end in one of .fits, .fit, ... (e.g. '...aligned.png.fits').
+    []
     """
     path = os.fspath(path)
     if os.path.isdir(path):
