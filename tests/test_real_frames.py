@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from _helpers import frame_error
 from astroalign_nd import find_sources, find_transform
 from astroalign_nd.simulate import (add_nebulosity, add_overscan, bayer_bin, simulate_pair,
                                     to_8bit)
@@ -24,23 +25,9 @@ needs_data = pytest.mark.skipif(not (DATA / "real").is_dir() or not (DATA / "fie
                                 reason=f"real frames not available (expected {DATA})")
 
 
-def overlap_error(m_est, m_true, src_shape, dst_shape, step=8):
-    """max |T_est(q) - T_true(q)| (pixels) over source points landing in the target."""
-    ny, nx = dst_shape
-    yy, xx = np.mgrid[0:ny:step, 0:nx:step]
-    p = np.column_stack([xx.ravel(), yy.ravel()]).astype(float)
-    inv = np.linalg.inv(m_true)
-    q = p @ inv[:2, :2].T + inv[:2, 2]
-    sy, sx = src_shape
-    inside = (q[:, 0] >= 0) & (q[:, 0] <= sx - 1) & (q[:, 1] >= 0) & (q[:, 1] <= sy - 1)
-    p, q = p[inside], q[inside]
-    r = q @ np.asarray(m_est)[:2, :2].T + np.asarray(m_est)[:2, 2]
-    return float(np.max(np.hypot(*(r - p).T)))
-
-
 def registers(source, target, truth, tol=0.5, **kw):
     t, _ = find_transform(source, target, **kw)
-    err = overlap_error(t.matrix, truth, np.shape(source)[:2], np.shape(target)[:2])
+    err = frame_error(t, truth, np.shape(target)[:2])
     assert err < tol, f"transform off by {err:.3f} px"
     return t
 
