@@ -1144,6 +1144,31 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
 # strips, 8-bit stretches with bloated stars, and undersampled colour sensors.
 # These functions put that into simulated frames, so that the tests catch it.
 
+def _check_frame(image, name="image"):
+    """A frame given to the effects below: 2-D, numeric, some finite pixels."""
+    arr = np.asarray(image)
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(f"{name} must be a numeric 2-D image; got dtype {arr.dtype}.")
+    if arr.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D image; got shape {arr.shape}.")
+    if min(arr.shape) < 4:
+        raise ValueError(f"{name} is too small (shape {arr.shape}); pass at least 4x4 pixels.")
+    if not np.isfinite(arr).any():
+        raise ValueError(f"{name} has no finite pixel.")
+    return arr
+
+
+def _check_range(pair, name):
+    """Two positive numbers, low then high."""
+    try:
+        lo, hi = (float(v) for v in pair)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be two numbers (low, high); got {pair!r}.") from None
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo <= hi):
+        raise ValueError(f"{name} must be two finite numbers with 0 < low <= high; got {pair!r}.")
+    return lo, hi
+
+
 def add_nebulosity(image, *, amplitude, scale=40.0, n_knots=25, knot_fwhm=(6.0, 25.0),
                    seed=None):
     """
@@ -1184,12 +1209,19 @@ def add_nebulosity(image, *, amplitude, scale=40.0, n_knots=25, knot_fwhm=(6.0, 
     """
     from scipy.ndimage import gaussian_filter
 
-    img = np.array(image, dtype=np.float64)
+    src = _check_frame(image)
     amplitude = _check_real(amplitude, "amplitude", minimum=0.0)
+    scale = _check_real(scale, "scale", minimum=0.0, strict=True)
+    n_knots = _check_count(n_knots, "n_knots")
+    knot_fwhm = _check_range(knot_fwhm, "knot_fwhm")
+    img = np.array(src, dtype=np.float64)
     rng = np.random.default_rng(seed)
     ny, nx = img.shape
     field_ = gaussian_filter(rng.standard_normal((ny, nx)), scale, mode="wrap")
-    field_ = np.exp(2.5 * field_ / max(field_.std(), 1e-12))  # filaments and voids
+    field_ -= field_.mean()
+    sd = field_.std()
+    # Filaments and voids; a field smoother than the frame (scale >> size) stays flat.
+    field_ = np.exp(2.5 * field_ / sd) if sd > 0 else np.ones_like(field_)
     img += amplitude * field_ / field_.max()
     if n_knots:
         x = rng.uniform(0, nx, n_knots)
@@ -1200,8 +1232,7 @@ def add_nebulosity(image, *, amplitude, scale=40.0, n_knots=25, knot_fwhm=(6.0, 
         knots = np.zeros((ny, nx), np.float64)
         render_stars((ny, nx), x, y, flux, fwhm=fw, out=knots)
         img += knots
-    return img.astype(np.asarray(image).dtype if np.asarray(image).dtype.kind == "f"
-                      else np.float32)
+    return img.astype(src.dtype if src.dtype.kind == "f" else np.float32)
 
 
 def add_overscan(image, *, width=16, level=0.0, read_noise=5.0, edges=("left", "right", "top"),
@@ -1239,8 +1270,17 @@ def add_overscan(image, *, width=16, level=0.0, read_noise=5.0, edges=("left", "
     >>> bool(np.array_equal(raw[:-16, 16:-16], pair.source[:-16, 16:-16]))  # rest kept
     True
     """
-    img = np.array(image, dtype=np.float32 if np.asarray(image).dtype.kind != "f"
-                   else np.asarray(image).dtype)
+    src = _check_frame(image)
+    if isinstance(width, (bool, np.bool_)) or not isinstance(width, numbers.Integral):
+        raise TypeError(f"width must be a whole number of pixels; got {width!r}.")
+    if not 1 <= width <= min(src.shape) // 2:
+        raise ValueError(f"width must be 1 to {min(src.shape) // 2} pixels (half the short side) "
+                         f"for an image of shape {src.shape}; got {width}.")
+    level = _check_real(level, "level")
+    read_noise = _check_real(read_noise, "read_noise", minimum=0.0)
+    if isinstance(edges, str):
+        edges = (edges,)
+    img = np.array(src, dtype=np.float32 if src.dtype.kind != "f" else src.dtype)
     rng = np.random.default_rng(seed)
     w = int(width)
     sl = {"left": np.s_[:, :w], "right": np.s_[:, -w:], "top": np.s_[-w:, :],
@@ -1293,9 +1333,18 @@ def to_8bit(image, *, gamma=0.45, black=None, white=None, bloat=2.0, jpeg_qualit
     """
     from scipy.ndimage import gaussian_filter
 
-    img = np.asarray(image, dtype=np.float64)
-    lo = np.percentile(img, 10) if black is None else float(black)
-    hi = np.percentile(img, 99.7) if white is None else float(white)
+    img = np.asarray(_check_frame(image), dtype=np.float64)
+    gamma = _check_real(gamma, "gamma", minimum=0.0, strict=True)
+    bloat = _check_real(bloat, "bloat", minimum=0.0)
+    if jpeg_quality is not None and (
+            isinstance(jpeg_quality, (bool, np.bool_))
+            or not isinstance(jpeg_quality, numbers.Integral) or not 1 <= jpeg_quality <= 95):
+        raise ValueError(f"jpeg_quality must be an integer from 1 to 95, or None; "
+                         f"got {jpeg_quality!r}.")
+    finite = img[np.isfinite(img)]
+    lo = np.percentile(finite, 10) if black is None else _check_real(black, "black")
+    hi = np.percentile(finite, 99.7) if white is None else _check_real(white, "white")
+    img = np.where(np.isfinite(img), img, lo)  # blank pixels render black
     if bloat:
         excess = np.clip(img - hi, 0, None)
         img = img + gaussian_filter(excess, 2.0 * bloat) * 0.5
@@ -1347,7 +1396,15 @@ def bayer_bin(pair, *, gains=(0.55, 1.0, 1.0, 0.75)):
     >>> bool(np.allclose(xt, m["x_target"]) and np.allclose(yt, m["y_target"]))
     True
     """
-    g = np.asarray(gains, float).reshape(2, 2)
+    if not isinstance(pair, SimulatedPair):
+        raise TypeError(f"bayer_bin takes a SimulatedPair (from simulate_pair, simulated at twice "
+                        f"the wanted size); got {type(pair).__name__}.")
+    try:
+        g = np.asarray(gains, dtype=float).reshape(2, 2)
+    except (TypeError, ValueError):
+        raise ValueError(f"gains must be 4 numbers (R, G, G, B); got {gains!r}.") from None
+    if not np.all(np.isfinite(g) & (g > 0)):
+        raise ValueError(f"gains must be 4 positive finite numbers; got {gains!r}.")
 
     def binned(img):
         a = np.asarray(img, np.float64)

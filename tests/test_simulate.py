@@ -358,3 +358,50 @@ def test_keyword_only():
         simulate_pair((64, 64), 10)
     with pytest.raises(TypeError):
         render_stars((10, 10), 1, 1, 1, 3.0)
+
+
+# -- the real-frame effects: bad input gets a clear error, the input is not modified ----------
+
+def _effects_bad_inputs():
+    from astroalign_nd.simulate import add_nebulosity, add_overscan, bayer_bin, to_8bit
+
+    img = np.full((64, 64), 100.0, np.float32)
+    return [
+        (lambda: add_nebulosity("x", amplitude=1), TypeError),
+        (lambda: add_nebulosity(img, amplitude=np.nan), ValueError),
+        (lambda: add_nebulosity(np.ones(10), amplitude=1), ValueError),
+        (lambda: add_nebulosity(np.ones((2, 2)), amplitude=1), ValueError),
+        (lambda: add_nebulosity(img, amplitude=1, knot_fwhm=(5,)), TypeError),
+        (lambda: add_nebulosity(img, amplitude=1, n_knots=-1), ValueError),
+        (lambda: add_overscan(img, width=1000), ValueError),
+        (lambda: add_overscan(img, width=0), ValueError),
+        (lambda: add_overscan(img, width="a"), TypeError),
+        (lambda: add_overscan(np.ones(10)), ValueError),
+        (lambda: add_overscan(img, edges=("middle",)), ValueError),
+        (lambda: to_8bit(np.full((8, 8), np.nan)), ValueError),
+        (lambda: to_8bit(np.ones((0, 0))), ValueError),
+        (lambda: to_8bit(img, jpeg_quality=200), ValueError),
+        (lambda: to_8bit(img, gamma=0), ValueError),
+        (lambda: bayer_bin(img), TypeError),
+    ]
+
+
+@pytest.mark.parametrize("case", range(16))
+def test_effects_reject_bad_input(case):
+    call, exc = _effects_bad_inputs()[case]
+    with pytest.raises(exc):
+        call()
+
+
+def test_effects_leave_input_alone():
+    from astroalign_nd.simulate import add_nebulosity, add_overscan, to_8bit
+
+    img = simulate_pair((64, 64), n_stars=20, seed=3).source
+    before = img.copy()
+    add_nebulosity(img, amplitude=50.0, seed=1)
+    strips = add_overscan(img, width=4, level=0.0, read_noise=0.0)
+    to_8bit(img, jpeg_quality=80)
+    np.testing.assert_array_equal(img, before)
+    # Only the strips change: the interior is the input's.
+    np.testing.assert_array_equal(strips[:-4, 4:-4], img[:-4, 4:-4])
+    assert np.all(strips[:, :4] == 0.0)
