@@ -472,7 +472,47 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
     """
     from .ccddata import apply_transform
 
-    det, _ = _split_options(options)
+    src, dst, transform, quality = _find_for_apply(
+        source, target, dict(options, transform_type=transform_type, n_sources=n_sources,
+                             max_sources=max_sources), hdu=hdu, unit=unit)
+    return apply_transform(transform, src.parsed, dst.parsed, order=order,
+                           conserve_flux=conserve_flux, fill_value=fill_value, method=method,
+                           unit=unit, parallel=parallel, quality=quality,
+                           add_keyword=add_keyword)
+
+
+#: `find_match`'s own keyword arguments: neither detection nor matching options.
+_FIND_KEYS = ("transform_type", "n_sources", "max_sources")
+
+
+def _detection_options(options):
+    """
+    The detection options among `find_match`'s keyword arguments ``options``.
+
+    Every option is checked (unknown names: TypeError; out of range:
+    ValueError), so that a caller can refuse bad options before any work.
+    """
+    det, _ = _split_options({k: v for k, v in options.items() if k not in _FIND_KEYS})
+    return det
+
+
+def _find_for_apply(source, target, options, *, hdu=None, unit=None):
+    """
+    The find step of `register` and `~astroalign_nd.register_batch`: one
+    policy for both.
+
+    Both inputs are read as images (a catalog cannot be resampled), the
+    transform is found with `find_match`'s keyword arguments ``options``
+    and its quality figures are returned as ``apply_transform``'s
+    ``quality`` takes them.
+
+    Returns
+    -------
+    source, target : `Reference`
+    transform : `~astroalign_nd.transforms.LinearTransform2D`
+    quality : dict
+    """
+    det = _detection_options(options)
     src = _as_reference(source, "source", det, hdu, unit)
     dst = _as_reference(target, "target", det, hdu)
     for name, p in (("source", src.parsed), ("target", dst.parsed)):
@@ -481,9 +521,26 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
                 f"register needs images; the {name} is a catalog. Use find_transform with "
                 "catalogs, then apply_transform on the source image."
             )
-    result = find_match(src, dst, transform_type=transform_type, n_sources=n_sources,
-                        max_sources=max_sources, **options)
-    return apply_transform(result.transform, src.parsed, dst.parsed, order=order,
-                           conserve_flux=conserve_flux, fill_value=fill_value, method=method,
-                           unit=unit, parallel=parallel, quality=_quality_dict(result),
-                           add_keyword=add_keyword)
+    result = find_match(src, dst, **options)
+    return src, dst, result.transform, _quality_dict(result)
+
+
+def _prepared_target(target, options, hdu=None):
+    """
+    The target of many finds (`~astroalign_nd.register_batch`), from
+    `find_match`'s keyword arguments ``options`` (all checked here).
+
+    An image `Reference` whose stars and triangles for the first attempt
+    are computed once, before it is shipped to workers.
+    """
+    det = _detection_options(options)
+    ref = _as_reference(target, "target", det, hdu)
+    if ref.parsed.is_catalog:
+        raise TypeError("the target of register_batch must be an image (it defines the "
+                        "output grid); it is a catalog.")
+    defaults = inspect.signature(find_match).parameters
+    n = options.get("n_sources", defaults["n_sources"].default)
+    ref.stars(n)
+    ref.asterisms(n, options.get("n_neighbors",
+                                 inspect.signature(match_points).parameters["n_neighbors"].default))
+    return ref
