@@ -20,7 +20,7 @@ import numpy as np
 from astropy import log
 
 from ._input import parse_input
-from .detection import find_sources
+from .detection import _control_sources, find_sources
 from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads
 from ._validate import check_option, check_options, check_points
@@ -129,25 +129,17 @@ class Reference:
                 cap = max(2 * n_sources, CATALOG_POINTS)
                 self._stars[n_sources] = (p.points[:cap], None, None)
             else:
-                opts = dict(self.detect_options)
-                user_nsigma = opts.pop("nsigma", None)
-                # One detection pass, deep enough for faint fields; the 5-sigma
-                # sources are kept when there are enough of them.
+                opts = self.detect_options
                 with warnings.catch_warnings():
                     # An empty image is reported by the caller (TooFewSourcesError),
                     # not by photutils' per-frame warning.
                     warnings.simplefilter("ignore", _no_detections_warning())
-                    table = find_sources(p.detection_image, mask=p.mask,
-                                         n_sources=2 * n_sources,
-                                         nsigma=user_nsigma or 3.0, **opts)
-                if user_nsigma is None:
-                    strong = table[table["snr"] >= 5.0]
-                    if len(strong) >= n_sources:
-                        table = strong
+                    table, nsigma = _control_sources(p.detection_image, mask=p.mask,
+                                                     n_sources=2 * n_sources,
+                                                     n_enough=n_sources, **opts)
                 if len(table) < 3:
                     raise TooFewSourcesError(_too_few_advice(
-                        self.role, len(table), table.meta,
-                        user_nsigma or 3.0, "fwhm" in opts))
+                        self.role, len(table), table.meta, nsigma, "fwhm" in opts))
                 ny, nx = p.shape
                 pts = np.column_stack([np.asarray(table["x"], float),
                                        np.asarray(table["y"], float)])
