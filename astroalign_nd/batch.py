@@ -662,8 +662,13 @@ _WORKER_CONFIG = None
 def _init_worker(cfg, threads):
     global _WORKER_CONFIG
     _WORKER_CONFIG = cfg
-    # Several processes share the cores: do not let each run every core's threads.
-    os.environ.setdefault("ASTROALIGN_ND_NUM_THREADS", str(threads))
+    # Several processes share the cores: do not let each run every core's
+    # threads, unless the user chose how many.
+    from . import _kernels
+    from ._config import conf
+
+    if not _kernels._threads_chosen():
+        conf.num_threads = threads
 
 
 def _run_in_worker(job):

@@ -252,7 +252,7 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
     n_sources = check_option("n_sources", n_sources)
     max_sources = max(check_option("max_sources", max_sources), n_sources)
     det, mat = _split_options(options)
-    num_threads()  # a bad ASTROALIGN_ND_NUM_THREADS is reported before any work
+    num_threads()  # a bad thread setting is reported before any work
     # Memory is bounded before any work: the largest attempt's triangles.
     check_triangle_budget(max_sources, mat.get("n_neighbors", 4))
     src = _as_reference(source, "source", det, hdu)
