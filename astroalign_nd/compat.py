@@ -123,26 +123,31 @@ def estimate_transform(*args: Any, **kwargs: Any) -> Any:
     >>> np.round(t.translation, 6).tolist()
     [5.0, -2.0]
     """
-    from skimage.transform import estimate_transform as _estimate
-
-    return _estimate(*args, **kwargs)
+    return _skimage("estimate_transform")(*args, **kwargs)
 
 
 def matrix_transform(*args: Any, **kwargs: Any) -> Any:
     """
-    `skimage.transform.matrix_transform`, imported on first use.
+    `skimage.transform.matrix_transform`, imported on first use: a 3x3
+    homogeneous matrix applied to (N, 2) points.
 
     Examples
     --------
-    >>> import numpy as np
+    A shift by (3, 4):
+
     >>> from astroalign_nd import compat as aa
-    >>> shift = np.array([[1.0, 0.0, 3.0], [0.0, 1.0, 4.0], [0.0, 0.0, 1.0]])
-    >>> aa.matrix_transform(np.array([[1.0, 1.0]]), shift).tolist()
+    >>> shift = [[1.0, 0.0, 3.0], [0.0, 1.0, 4.0], [0.0, 0.0, 1.0]]
+    >>> aa.matrix_transform([[1.0, 1.0]], shift).tolist()
     [[4.0, 5.0]]
     """
-    from skimage.transform import matrix_transform as _matrix
+    return _skimage("matrix_transform")(*args, **kwargs)
 
-    return _matrix(*args, **kwargs)
+
+def _skimage(name):
+    """A function of `skimage.transform`, imported on first use (a slow import)."""
+    import skimage.transform
+
+    return getattr(skimage.transform, name)
 
 
 # -- inputs, as astroalign reads them --------------------------------------------
