@@ -25,13 +25,13 @@ from astropy.table import Table
 
 from ._input import batch_frames, parse_input
 from .exceptions import warn
-from .io.write import FITS_EXTENSIONS, check_writable_dir, write_ccddata
+from .io.write import FITS_EXTENSIONS, _check_writable_dir, write_ccddata
 from .registration import Reference, _find_for_apply, _prepared_target
 
 __all__ = ["FrameResult", "BatchResult", "register_batch", "plan_outputs", "union_canvas"]
 
 #: Status of a frame in a `BatchResult`.
-STATUSES = ("registered", "skipped", "failed")
+_STATUSES = ("registered", "skipped", "failed")
 
 #: Header keywords recording where a "union" canvas lies in reference pixels.
 _CANVAS_KEYS = ("AACNVX0", "AACNVY0")
@@ -957,7 +957,7 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     if output_dir is not None:
         output_dir = os.fspath(output_dir)
         os.makedirs(output_dir, exist_ok=True)
-        check_writable_dir(output_dir)
+        _check_writable_dir(output_dir)
     jobs, outputs = _first_jobs(items, stream, union, output_dir, suffix, protected)
     apply_options = dict(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
                          method=method, unit=unit, add_keyword=add_keyword)
@@ -1063,7 +1063,7 @@ def _run_union(jobs, items, outputs, cfg, client, workers, report, margin):
             found[job.index] = res
             report.tick()
     shape, offset = _union_grid(found, cfg.reference.shape, margin)
-    wcs = _canvas_wcs(cfg.reference.parsed.wcs, offset, shape)
+    wcs = _canvas_wcs(cfg.reference._parsed.wcs, offset, shape)
     # Pass 2: resample onto the canvas.
     jobs2 = []
     for i in sorted(found):

@@ -358,8 +358,7 @@ def find_transform(source: Any, target: Any, max_control_points: int = 50,
     opts = _engine_options(detection_sigma)
     det = {"nsigma": opts.pop("nsigma")} if "nsigma" in opts else {}
     inputs = (_control_input(source, "source"), _control_input(target, "target"))
-    refs = tuple(Reference(x, **det) for x in inputs)
-    refs[0].role, refs[1].role = "source", "target"
+    refs = tuple(Reference(x, _role=role, **det) for x, role in zip(inputs, ("source", "target")))
     try:
         result = find_match(*refs, n_sources=n, max_sources=n, **opts)
     except (TransformNotFoundError, TooFewSourcesError) as exc:
@@ -388,7 +387,7 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
 
     lists = []
     for inp, ref in zip(inputs, refs):
-        if ref.parsed.is_catalog:
+        if ref._parsed.is_catalog:
             pts = ref.stars(n)[0]
             frame = _bbox(pts) if len(pts) else None
         else:

@@ -163,7 +163,7 @@ class _ExtraView(MutableMapping):
 
 
 #: Most candidate triangle pairs held in memory at once (about 24 bytes each).
-MAX_PAIRS = 2_000_000
+_MAX_PAIRS = 2_000_000
 
 
 def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
@@ -171,7 +171,7 @@ def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
     Pairs of triangles whose invariants are within ``radius``, best first.
 
     Memory is bounded: when more than ``4 * max_matches`` pairs (at most
-    ``MAX_PAIRS``) would lie within ``radius``, the radius shrinks until
+    2 million) would lie within ``radius``, the radius shrinks until
     about half that many do (the pairs kept are the best ones anyway), and
     if even near-identical invariants are too many (a regular lattice of
     points), each source triangle keeps only its nearest target triangles.
@@ -202,7 +202,7 @@ def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
     """
     if len(src_ast) == 0 or len(dst_ast) == 0:
         return np.empty((0, 2), int), np.empty(0)
-    budget = MAX_PAIRS if max_matches is None else min(MAX_PAIRS, max(4 * max_matches, 10_000))
+    budget = _MAX_PAIRS if max_matches is None else min(_MAX_PAIRS, max(4 * max_matches, 10_000))
     # The number of pairs, estimated from up to 1000 source triangles (exact
     # when there are fewer) before any pair is listed: counting them all
     # costs as much as listing them.

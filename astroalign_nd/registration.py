@@ -37,7 +37,7 @@ if TYPE_CHECKING:
 __all__ = ["find_transform", "find_match", "register", "Reference"]
 
 #: Points of a catalog used (brightest first) when ``2 * n_sources`` is fewer.
-CATALOG_POINTS = 1000
+_CATALOG_POINTS = 1000
 
 
 def _keyword_options(func, set_by_caller):
@@ -76,6 +76,14 @@ class Reference:
     **detect_options
         Options of `~astroalign_nd.find_sources` (``fwhm``, ``nsigma``...).
 
+    Attributes
+    ----------
+    detect_options : dict
+        The detection options, checked.
+    fwhm : float or None
+        The stars' FWHM (pixels) that detection used, once it has run; None
+        for a catalog.
+
     Examples
     --------
     >>> from astroalign_nd import Reference, find_transform
@@ -94,8 +102,8 @@ class Reference:
                             f"{_astroalign_advice(unknown)}")
         detect_options = check_options(detect_options)
         # The role ('source', 'target') names the input in error messages.
-        self.role = _role
-        self.parsed = parse_input(image, _role, hdu=hdu, unit=unit)
+        self._role = _role
+        self._parsed = parse_input(image, _role, hdu=hdu, unit=unit)
         self.detect_options = detect_options
         self._stars = {}
         self._asterisms = {}
@@ -104,7 +112,7 @@ class Reference:
     @property
     def shape(self) -> tuple[int, int] | None:
         """(ny, nx) of the image, None for a catalog."""
-        return self.parsed.shape
+        return self._parsed.shape
 
     def stars(self, n_sources: int) -> tuple[np.ndarray, np.ndarray | None, tuple | None]:
         """
@@ -122,11 +130,11 @@ class Reference:
             The image extent in pixels; None for catalogs.
         """
         if n_sources not in self._stars:
-            p = self.parsed
+            p = self._parsed
             if p.is_catalog:
                 # Brightest first: the method needs the brightest stars only, and
                 # a cap keeps a million-point catalog from costing a million.
-                cap = max(2 * n_sources, CATALOG_POINTS)
+                cap = max(2 * n_sources, _CATALOG_POINTS)
                 self._stars[n_sources] = (p.points[:cap], None, None)
             else:
                 opts = self.detect_options
@@ -139,7 +147,7 @@ class Reference:
                                                      n_enough=n_sources, **opts)
                 if len(table) < 3:
                     raise TooFewSourcesError(_too_few_advice(
-                        self.role, len(table), table.meta, nsigma, "fwhm" in opts))
+                        self._role, len(table), table.meta, nsigma, "fwhm" in opts))
                 ny, nx = p.shape
                 pts = np.column_stack([np.asarray(table["x"], float),
                                        np.asarray(table["y"], float)])
@@ -467,7 +475,7 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
     src, dst, transform, quality = _find_for_apply(
         source, target, dict(options, transform_type=transform_type, n_sources=n_sources,
                              max_sources=max_sources), hdu=hdu, unit=unit)
-    return apply_transform(transform, src.parsed, dst.parsed, order=order,
+    return apply_transform(transform, src._parsed, dst._parsed, order=order,
                            conserve_flux=conserve_flux, fill_value=fill_value, method=method,
                            unit=unit, parallel=parallel, quality=quality,
                            add_keyword=add_keyword)
@@ -507,7 +515,7 @@ def _find_for_apply(source, target, options, *, hdu=None, unit=None):
     det = _detection_options(options)
     src = _as_reference(source, "source", det, hdu, unit)
     dst = _as_reference(target, "target", det, hdu)
-    for name, p in (("source", src.parsed), ("target", dst.parsed)):
+    for name, p in (("source", src._parsed), ("target", dst._parsed)):
         if p.is_catalog:
             raise TypeError(
                 f"register needs images; the {name} is a catalog. Use find_transform with "
@@ -527,7 +535,7 @@ def _prepared_target(target, options, hdu=None):
     """
     det = _detection_options(options)
     ref = _as_reference(target, "target", det, hdu)
-    if ref.parsed.is_catalog:
+    if ref._parsed.is_catalog:
         raise TypeError("the target of register_batch must be an image (it defines the "
                         "output grid); it is a catalog.")
     defaults = inspect.signature(find_match).parameters
