@@ -100,7 +100,7 @@ class FrameResult:
     ccd: object = field(default=None, repr=False)
     source: str = None
     shape: tuple = field(default=None, repr=False)  # the source frame's (ny, nx)
-    grid: tuple = field(default=None, repr=False)  # internal: (shape, offset) of a kept output
+    _grid: tuple = field(default=None, repr=False)  # (shape, offset) of a kept output
 
     @property
     def ok(self):
@@ -504,7 +504,7 @@ def _run(job, cfg):
             return FrameResult(name=job.name, status="skipped", transform=transform,
                                quality=done["quality"], output=job.output, source=src_path,
                                seconds=time.perf_counter() - t0, shape=done["source_shape"],
-                               grid=(done["shape"], done["offset"]))
+                               _grid=(done["shape"], done["offset"]))
         # Read (parsed) once, here on the worker, for both stages.
         src, _, transform, quality = _find_for_apply(job.source, cfg.reference, cfg.options,
                                                      hdu=cfg.hdu, unit=cfg.unit)
@@ -1109,7 +1109,7 @@ def _kept_on_canvas(res, shape, offset, overwrite):
     A skipped frame's result if its output lies on this canvas, a failure
     if it lies on another and may not be replaced, or None to redo it.
     """
-    if tuple(res.grid[0]) == tuple(shape) and tuple(res.grid[1]) == tuple(offset):
+    if tuple(res._grid[0]) == tuple(shape) and tuple(res._grid[1]) == tuple(offset):
         res.transform = _shifted(res.transform, offset, sign=-1)
         return res
     if not overwrite:
