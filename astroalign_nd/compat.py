@@ -58,7 +58,7 @@ __all__ = [
 ]
 
 #: The version of astroalign whose API this module reproduces.
-ASTROALIGN_API_VERSION = "2.6.2"
+_ASTROALIGN_API_VERSION = "2.6.2"
 
 PIXEL_TOL = 2
 """The pixel distance tolerance to assume two points are the same.

@@ -11,6 +11,7 @@ from astropy.config import ConfigNamespace
 
 import astroalign_nd
 from astroalign_nd import _kernels, conf, find_transform
+from astroalign_nd._config import Conf
 from astroalign_nd.batch import _init_worker
 from astroalign_nd.simulate import simulate_pair
 
@@ -22,7 +23,7 @@ WORKTREE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 def test_conf_is_an_astropy_config_namespace():
     assert isinstance(astroalign_nd.conf, ConfigNamespace)
     assert "conf" in dir(astroalign_nd)
-    assert conf.num_threads == 0 and conf.use_compiled is True  # the defaults
+    assert Conf.num_threads.defaultvalue == 0 and Conf.use_compiled.defaultvalue is True
 
 
 def test_num_threads_from_conf(monkeypatch):
