@@ -481,8 +481,9 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
                            add_keyword=add_keyword)
 
 
-#: `find_match`'s own keyword arguments: neither detection nor matching options.
-_FIND_KEYS = ("transform_type", "n_sources", "max_sources")
+#: `find_match`'s own keyword arguments (from its signature): neither
+#: detection nor matching options.
+_FIND_KEYS = _keyword_options(find_match, {"hdu"})
 
 
 def _detection_options(options):
