@@ -43,6 +43,7 @@ _LAZY = {
     "AffineTransform": "transforms",
     "transform_to_header": "io",
     "transform_from_header": "io",
+    "conf": "_config",
 }
 
 __all__ = [

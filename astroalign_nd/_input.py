@@ -413,8 +413,8 @@ def parse_input(obj: Any, name: str = "input", *, hdu: int | str | tuple | None 
         raise TypeError(f"{name} is None; pass an image, NDData/CCDData, FITS path or catalog.")
     if isinstance(obj, ParsedInput):
         return obj
-    if isinstance(getattr(obj, "parsed", None), ParsedInput):  # a Reference
-        return obj.parsed
+    if isinstance(getattr(obj, "_parsed", None), ParsedInput):  # a Reference
+        return obj._parsed
     if isinstance(obj, (str, os.PathLike)):
         return _read_path(obj, name, hdu, unit)
     if isinstance(obj, fits.HDUList):

@@ -6,9 +6,10 @@ Only a few passes touch every pixel of a frame (binning, the candidate peak
 search, the finiteness check) or every (hypothesis, star) pair (inlier
 counting).  They are single loops compiled with Cython
 (`astroalign_nd._ckernels`); this module wraps them, splits large jobs over
-threads (`num_threads`), and holds NumPy versions of the same operations,
-which the tests use as references and which run if the compiled module is
-missing from a source checkout that was never built.
+threads (`num_threads`, set by ``astroalign_nd.conf.num_threads``), and
+holds NumPy versions of the same operations, which the tests use as
+references and which run if the compiled module is missing from a source
+checkout that was never built (or with ``conf.use_compiled = False``).
 """
 
 import os
@@ -16,6 +17,8 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+
+from ._config import _ENV_NUM_THREADS, NUM_THREADS_ENV, conf
 
 try:
     from . import _ckernels
@@ -42,25 +45,40 @@ def num_threads():
     """
     Threads used by the compiled loops.
 
-    ``ASTROALIGN_ND_NUM_THREADS`` in the environment if set (e.g. 1 when
-    several worker processes share a machine), otherwise the number of CPUs
-    this process may run on.
+    ``astroalign_nd.conf.num_threads`` if not 0; otherwise
+    ``ASTROALIGN_ND_NUM_THREADS`` if it was set in the environment (e.g. 1
+    when several worker processes share a machine); otherwise the number of
+    CPUs this process may run on.
     """
-    env = os.environ.get("ASTROALIGN_ND_NUM_THREADS", "").strip()
-    if env:
+    n = conf.num_threads
+    if n == 0 and _ENV_NUM_THREADS:
         try:
-            n = int(env)
+            n = int(_ENV_NUM_THREADS)
         except ValueError:
             n = 0
         if n < 1:
             raise ValueError(
-                f"ASTROALIGN_ND_NUM_THREADS must be a positive integer (1 or more; unset it "
-                f"to use every CPU); got {env!r}.")
+                f"{NUM_THREADS_ENV} must be a positive integer (1 or more; unset it "
+                f"to use every CPU); got {_ENV_NUM_THREADS!r}.")
+    if n < 0:
+        raise ValueError("astroalign_nd.conf.num_threads must be a positive integer, or 0 for "
+                         f"every CPU; got {n}.")
+    if n:
         return n
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):  # pragma: no cover - not Linux
         return max(1, os.cpu_count() or 1)
+
+
+def _threads_chosen():
+    """True when the user chose the thread count (configuration or environment)."""
+    return conf.num_threads != 0 or bool(_ENV_NUM_THREADS)
+
+
+def _compiled():
+    """Run the compiled loops: built, and not turned off by ``conf.use_compiled``."""
+    return HAVE_COMPILED and conf.use_compiled
 
 
 def _after_fork_in_child():
@@ -129,7 +147,7 @@ def bin_despike(data, b, mask=None, fill=0.0):
     """
     ny, nx = data.shape[0] // b, data.shape[1] // b
     out = np.empty((ny, nx), dtype=np.float32)
-    if HAVE_COMPILED and data.dtype in (np.float32, np.float64) and ny > 0 and nx > 0:
+    if _compiled() and data.dtype in (np.float32, np.float64) and ny > 0 and nx > 0:
         arr = np.ascontiguousarray(data)
         m = np.zeros((1, 1), np.uint8) if mask is None else np.ascontiguousarray(
             mask, dtype=bool).view(np.uint8)
@@ -160,7 +178,7 @@ def peak_candidates(img, threshold, n_max, border=0):
     score : ndarray
         Sum of the 3x3 neighbourhood (a flux proxy used for ranking).
     """
-    if HAVE_COMPILED:
+    if _compiled():
         y, x, s = _ckernels.peaks(np.ascontiguousarray(img, dtype=np.float32),
                                   float(threshold), int(border))
     else:  # same result without the compiled module (the tests compare them)
@@ -247,7 +265,7 @@ def count_inliers(mats, src, grid):
     """
     mats = np.ascontiguousarray(mats, dtype=np.float64)
     src = np.ascontiguousarray(src, dtype=np.float64)
-    if HAVE_COMPILED:
+    if _compiled():
         out = np.zeros(len(mats), dtype=np.intp)
         # ~2000 star lookups per hypothesis chunk before a thread is worth waking.
         run_split(_ckernels.count_inliers_range, len(mats),

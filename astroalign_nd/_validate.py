@@ -55,13 +55,22 @@ class _Real:
             return False
         return True
 
-    def convert(self, value):
+    #: The accepted type (bools are refused).
+    _kind = numbers.Real
+
+    def _is_none(self, value):
+        """True for an accepted None; TypeError for another None or a value of another type."""
         if value is None:
             if self.none:
-                return None
+                return True
             raise TypeError
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, self._kind):
             raise TypeError
+        return False
+
+    def convert(self, value):
+        if self._is_none(value):
+            return None
         v = float(value)
         if math.isnan(v) or (math.isinf(v) and not self.infinite) or not self._in_range(v):
             raise ValueError
@@ -76,13 +85,11 @@ class _Int(_Real):
         text = text.replace("a number", "an integer")
         return text
 
+    _kind = numbers.Integral
+
     def convert(self, value):
-        if value is None:
-            if self.none:
-                return None
-            raise TypeError
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-            raise TypeError
+        if self._is_none(value):
+            return None
         v = int(value)
         if not self._in_range(v):
             raise ValueError

@@ -25,14 +25,13 @@ from astropy.table import Table
 
 from ._input import batch_frames, parse_input
 from .exceptions import warn
-from .io.write import FITS_EXTENSIONS, check_writable_dir, write_ccddata
-from .registration import (Reference, _as_reference, _split_options, find_match,
-                           _quality_dict)
+from .io.write import FITS_EXTENSIONS, _check_writable_dir, write_ccddata
+from .registration import Reference, _find_for_apply, _prepared_target
 
 __all__ = ["FrameResult", "BatchResult", "register_batch", "plan_outputs", "union_canvas"]
 
 #: Status of a frame in a `BatchResult`.
-STATUSES = ("registered", "skipped", "failed")
+_STATUSES = ("registered", "skipped", "failed")
 
 #: Header keywords recording where a "union" canvas lies in reference pixels.
 _CANVAS_KEYS = ("AACNVX0", "AACNVY0")
@@ -101,7 +100,7 @@ class FrameResult:
     ccd: object = field(default=None, repr=False)
     source: str = None
     shape: tuple = field(default=None, repr=False)  # the source frame's (ny, nx)
-    grid: tuple = field(default=None, repr=False)  # internal: (shape, offset) of a kept output
+    _grid: tuple = field(default=None, repr=False)  # (shape, offset) of a kept output
 
     @property
     def ok(self):
@@ -460,7 +459,7 @@ def _skip_or_refuse(job, cfg):
     if cfg.skip_existing:
         done, why = _read_done(job.output)
         if done is not None:
-            return done
+            return _same_grid(done, job, cfg)
         if not cfg.overwrite:
             raise FileExistsError(f"{job.output} exists but {why}; pass overwrite=True (or "
                                   "--overwrite) to redo this frame.")
@@ -472,6 +471,24 @@ def _skip_or_refuse(job, cfg):
     return None
 
 
+def _same_grid(done, job, cfg):
+    """A kept output ``done`` if this run can keep it, None to redo it; raises if refused."""
+    if not cfg.union and (tuple(done["offset"]) != (0, 0)
+                          or tuple(done["shape"]) != cfg.reference.shape):
+        if not cfg.overwrite:
+            raise FileExistsError(f"{job.output} was registered onto another grid (a "
+                                  "'union' canvas); pass overwrite=True (or --overwrite) "
+                                  "to redo it.")
+        done = None
+    if done is not None and cfg.union and done["source_shape"] is None:
+        if not cfg.overwrite:
+            raise FileExistsError(f"{job.output} does not record its source's shape, "
+                                  "needed for a 'union' canvas; pass overwrite=True (or "
+                                  "--overwrite) to redo it.")
+        done = None
+    return done
+
+
 def _run(job, cfg):
     """Process one frame; never raises (a batch must go on)."""
     t0 = time.perf_counter()
@@ -480,19 +497,6 @@ def _run(job, cfg):
         if job.stage == "apply":
             return _apply_stage(job, cfg, t0, src_path)
         done = _skip_or_refuse(job, cfg)
-        if done is not None and not cfg.union and (
-                tuple(done["offset"]) != (0, 0) or tuple(done["shape"]) != cfg.reference.shape):
-            if not cfg.overwrite:
-                raise FileExistsError(f"{job.output} was registered onto another grid (a "
-                                      "'union' canvas); pass overwrite=True (or --overwrite) "
-                                      "to redo it.")
-            done = None
-        if done is not None and cfg.union and done["source_shape"] is None:
-            if not cfg.overwrite:
-                raise FileExistsError(f"{job.output} does not record its source's shape, "
-                                      "needed for a 'union' canvas; pass overwrite=True (or "
-                                      "--overwrite) to redo it.")
-            done = None
         if done is not None:
             transform = done["transform"]
             if cfg.union:  # back to reference pixels, for the canvas computation
@@ -500,19 +504,16 @@ def _run(job, cfg):
             return FrameResult(name=job.name, status="skipped", transform=transform,
                                quality=done["quality"], output=job.output, source=src_path,
                                seconds=time.perf_counter() - t0, shape=done["source_shape"],
-                               grid=(done["shape"], done["offset"]))
-        det, _ = _split_options({k: v for k, v in cfg.options.items()
-                                 if k not in ("transform_type", "n_sources", "max_sources")})
+                               _grid=(done["shape"], done["offset"]))
         # Read (parsed) once, here on the worker, for both stages.
-        src = _as_reference(job.source, "source", det, cfg.hdu, cfg.unit)
-        result = find_match(src, cfg.reference, **cfg.options)
-        quality = _quality_dict(result)
+        src, _, transform, quality = _find_for_apply(job.source, cfg.reference, cfg.options,
+                                                     hdu=cfg.hdu, unit=cfg.unit)
         if job.stage == "find":
-            return FrameResult(name=job.name, status="registered", transform=result.transform,
+            return FrameResult(name=job.name, status="registered", transform=transform,
                                quality=quality, source=src_path, output=job.output,
                                shape=src.shape, seconds=time.perf_counter() - t0)
         # A copy: the caller's job list must not keep the frame's pixels alive.
-        job = replace(job, source=src, transform=result.transform, quality=quality,
+        job = replace(job, source=src, transform=transform, quality=quality,
                       canvas=None, source_shape=src.shape)
         return _apply_stage(job, cfg, t0, src_path)
     except Exception as exc:  # noqa: BLE001 - report every failure, keep going
@@ -661,8 +662,13 @@ _WORKER_CONFIG = None
 def _init_worker(cfg, threads):
     global _WORKER_CONFIG
     _WORKER_CONFIG = cfg
-    # Several processes share the cores: do not let each run every core's threads.
-    os.environ.setdefault("ASTROALIGN_ND_NUM_THREADS", str(threads))
+    # Several processes share the cores: do not let each run every core's
+    # threads, unless the user chose how many.
+    from . import _kernels
+    from ._config import conf
+
+    if not _kernels._threads_chosen():
+        conf.num_threads = threads
 
 
 def _run_in_worker(job):
@@ -800,11 +806,6 @@ def _verified(results):
     return results
 
 
-def _in_order(results):
-    """The results (a dict by input index) as a list in input order."""
-    return [results[i] for i in range(len(results))]
-
-
 def _stream_jobs(items, namer):
     """Jobs of a generator's frames, named as they arrive; nothing of earlier frames kept."""
     for i, (frame, label) in enumerate(items):
@@ -937,6 +938,46 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     """
     from .transforms import transform_class
 
+    _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, suffix, client,
+                     workers)
+    transform_class(options.get("transform_type", "similarity"))
+    # Every option checked, and the reference's stars and triangles computed
+    # once, before it is shipped to the workers.
+    ref = _prepared_target(target, options, hdu)
+    union = canvas == "union"
+    # A list of (frame, label); or, for a generator, an iterator of them.
+    items, frames_hdu = batch_frames(sources, hdu)
+    stream = not isinstance(items, list)
+    if stream and union:
+        items, stream = list(items), False  # pass 2 needs every frame again
+    if isinstance(target, Reference):
+        # The reference's detection options are the batch's, unless overridden here.
+        options = {**target.detect_options, **options}
+    protected = [os.fspath(target)] if _is_path(target) else []
+    if output_dir is not None:
+        output_dir = os.fspath(output_dir)
+        os.makedirs(output_dir, exist_ok=True)
+        _check_writable_dir(output_dir)
+    jobs, outputs = _first_jobs(items, stream, union, output_dir, suffix, protected)
+    apply_options = dict(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
+                         method=method, unit=unit, add_keyword=add_keyword)
+    cfg = _Config(reference=ref, options=options, apply_options=apply_options,
+                  overwrite=overwrite, skip_existing=skip_existing, union=union,
+                  hdu=frames_hdu, unit=unit, add_keyword=add_keyword)
+    total = None if stream else len(items) * (2 if union else 1)
+    with _Report(callback, progress, total) as report:
+        if union:
+            margin = -0.5 if method == "exact" else _valid_margin(order)
+            return _run_union(jobs, items, outputs, cfg, client, workers, report, margin)
+        for job, res in _execute(jobs, cfg, client, workers, stream=stream):
+            report.done(job.index, res)
+        return BatchResult(_verified(report.in_order()), canvas_shape=ref.shape,
+                           canvas_offset=(0, 0))
+
+
+def _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, suffix, client,
+                     workers):
+    """Refuse `register_batch`'s bad arguments before any work."""
     if _is_path(sources):
         raise TypeError("sources must be a list of frames or paths, not a single path; "
                         f"pass [{os.fspath(sources)!r}], or an ImageFileCollection for a "
@@ -956,132 +997,125 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 0):
         raise ValueError(f"workers must be a non-negative integer; got {workers!r}.")
-    transform_class(options.get("transform_type", "similarity"))
-    det, _ = _split_options({k: v for k, v in options.items()
-                             if k not in ("transform_type", "n_sources", "max_sources")})
-    union = canvas == "union"
-    # A list of (frame, label); or, for a generator, an iterator of them.
-    items, frames_hdu = batch_frames(sources, hdu)
-    stream = not isinstance(items, list)
-    if stream and union:
-        items, stream = list(items), False  # pass 2 needs every frame again
-    if isinstance(target, Reference):
-        # The reference's detection options are the batch's, unless overridden here.
-        options = {**target.detect_options, **options}
-    protected = [os.fspath(target)] if _is_path(target) else []
-    if output_dir is not None:
-        output_dir = os.fspath(output_dir)
-        os.makedirs(output_dir, exist_ok=True)
-        check_writable_dir(output_dir)
-    if not stream:
-        names = _display_names(items)
-        if output_dir is not None:
-            outputs, renamed = _plan_outputs(items, output_dir, suffix, protected)
-            if renamed:
-                warn("output names collide; renamed: " + "; ".join(
-                    f"{names[i]} -> {new} ({old} is taken)" for i, old, new in renamed))
-        else:
-            outputs = [None] * len(items)
-    ref = _as_reference(target, "target", det, hdu)
-    if ref.parsed.is_catalog:
-        raise TypeError("the target of register_batch must be an image (it defines the "
-                        "output grid); it is a catalog.")
-    # Compute the reference's stars and triangles once, before shipping it.
-    n = options.get("n_sources", 50)
-    ref.stars(n)
-    ref.asterisms(n, options.get("n_neighbors", 4))
-    apply_options = dict(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
-                         method=method, unit=unit, add_keyword=add_keyword)
-    cfg = _Config(reference=ref, options=options, apply_options=apply_options,
-                  overwrite=overwrite, skip_existing=skip_existing, union=union,
-                  hdu=frames_hdu, unit=unit, add_keyword=add_keyword)
+
+
+def _first_jobs(items, stream, union, output_dir, suffix, protected):
+    """
+    The jobs of the first pass and the output paths (None for a generator,
+    whose frames are named as they arrive).
+    """
     if stream:
-        jobs = _stream_jobs(items, _StreamNamer(output_dir, suffix, protected))
-    else:
-        jobs = [_Job(i, frame, names[i], outputs[i], stage="find" if union else "full")
-                for i, (frame, _) in enumerate(items)]
+        return _stream_jobs(items, _StreamNamer(output_dir, suffix, protected)), None
+    names = _display_names(items)
+    outputs = [None] * len(items)
+    if output_dir is not None:
+        outputs, renamed = _plan_outputs(items, output_dir, suffix, protected)
+        if renamed:
+            warn("output names collide; renamed: " + "; ".join(
+                f"{names[i]} -> {new} ({old} is taken)" for i, old, new in renamed))
+    jobs = [_Job(i, frame, names[i], outputs[i], stage="find" if union else "full")
+            for i, (frame, _) in enumerate(items)]
+    return jobs, outputs
 
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
 
-        bar = tqdm(total=None if stream else len(items) * (2 if union else 1), unit="frame")
+class _Report:
+    """The results by input index; each one to the callback and the progress bar."""
 
-    results = {}
+    def __init__(self, callback, progress, total):
+        self.results, self.callback, self.bar = {}, callback, None
+        if progress:
+            from tqdm.auto import tqdm
 
-    def finish(i, res):
-        results[i] = res
-        if callback is not None:
-            callback(res)
+            self.bar = tqdm(total=total, unit="frame")
 
-    try:
-        if not union:
-            for job, res in _execute(jobs, cfg, client, workers, stream=stream):
-                finish(job.index, res)
-                if bar is not None:
-                    bar.update(1)
-            return BatchResult(_verified(_in_order(results)), canvas_shape=ref.shape,
-                               canvas_offset=(0, 0))
+    def __enter__(self):
+        return self
 
-        # Pass 1: every transform (nothing of the frames is kept).
-        found = {}
-        for job, res in _execute(jobs, cfg, client, workers):
-            if res.status == "failed":
-                finish(job.index, res)
-            else:
-                found[job.index] = res
-            if bar is not None:
-                bar.update(1)
-        if found:
-            order_ = sorted(found)
-            margin = -0.5 if method == "exact" else _valid_margin(order)
-            shape, offset = union_canvas([found[i].transform for i in order_],
-                                         [found[i].shape for i in order_], ref.shape,
-                                         margin=margin)
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.close()
+
+    def done(self, i, res):
+        """Frame ``i`` is finished with ``res``."""
+        self.results[i] = res
+        if self.callback is not None:
+            self.callback(res)
+        self.tick()
+
+    def tick(self):
+        """One step of work done (a frame's first pass)."""
+        if self.bar is not None:
+            self.bar.update(1)
+
+    def in_order(self):
+        """The results as a list in input order."""
+        return [self.results[i] for i in range(len(self.results))]
+
+
+def _run_union(jobs, items, outputs, cfg, client, workers, report, margin):
+    """The two passes of ``canvas='union'``: every transform, then the resampling."""
+    # Pass 1: every transform (nothing of the frames is kept).
+    found = {}
+    for job, res in _execute(jobs, cfg, client, workers):
+        if res.status == "failed":
+            report.done(job.index, res)
         else:
-            shape, offset = tuple(ref.shape), (0, 0)
-        if shape[0] * shape[1] > _MAX_CANVAS_PIXELS:
-            area = {i: np.prod(union_canvas([found[i].transform], [found[i].shape],
-                                            ref.shape, margin=margin)[0]) for i in found}
-            worst = max(area, key=area.get)
-            raise ValueError(
-                f"the union canvas would be {shape[1]}x{shape[0]} pixels, more than "
-                f"{_MAX_CANVAS_PIXELS}: some frames land very far from the reference (the "
-                f"farthest is {found[worst].name}, transform {found[worst].transform!r}). "
-                "Leave such frames out, or use canvas='reference'.")
-        wcs = _canvas_wcs(ref.parsed.wcs, offset, shape)
-        # Pass 2: resample onto the canvas.
-        jobs2 = []
-        for i in sorted(found):
-            res = found[i]
-            if res.status == "skipped":
-                if tuple(res.grid[0]) == tuple(shape) and tuple(res.grid[1]) == tuple(offset):
-                    res.transform = _shifted(res.transform, offset, sign=-1)
-                    finish(i, res)
-                    if bar is not None:
-                        bar.update(1)
-                    continue
-                if not overwrite:
-                    finish(i, FrameResult(
-                        name=res.name, status="failed", source=res.source,
-                        error=f"FileExistsError: {res.output} was registered onto another "
-                        "canvas (the set of frames changed); pass overwrite=True (or "
-                        "--overwrite) to redo it."))
-                    if bar is not None:
-                        bar.update(1)
-                    continue
-            jobs2.append(_Job(i, items[i][0], res.name, outputs[i], stage="apply",
-                              transform=_shifted(res.transform, offset, sign=-1),
-                              quality=res.quality, canvas=(shape, offset, wcs),
-                              source_shape=res.shape))
-        seconds = {i: found[i].seconds for i in found}
-        for job, res in _execute(jobs2, cfg, client, workers):
-            res.seconds += seconds[job.index]
-            finish(job.index, res)
-            if bar is not None:
-                bar.update(1)
-        return BatchResult(_verified(_in_order(results)), canvas_shape=shape,
-                           canvas_offset=offset)
-    finally:
-        if bar is not None:
-            bar.close()
+            found[job.index] = res
+            report.tick()
+    shape, offset = _union_grid(found, cfg.reference.shape, margin)
+    wcs = _canvas_wcs(cfg.reference._parsed.wcs, offset, shape)
+    # Pass 2: resample onto the canvas.
+    jobs2 = []
+    for i in sorted(found):
+        res = found[i]
+        if res.status == "skipped":
+            kept = _kept_on_canvas(res, shape, offset, cfg.overwrite)
+            if kept is not None:
+                report.done(i, kept)
+                continue
+        jobs2.append(_Job(i, items[i][0], res.name, outputs[i], stage="apply",
+                          transform=_shifted(res.transform, offset, sign=-1),
+                          quality=res.quality, canvas=(shape, offset, wcs),
+                          source_shape=res.shape))
+    seconds = {i: found[i].seconds for i in found}
+    for job, res in _execute(jobs2, cfg, client, workers):
+        res.seconds += seconds[job.index]
+        report.done(job.index, res)
+    return BatchResult(_verified(report.in_order()), canvas_shape=shape, canvas_offset=offset)
+
+
+def _union_grid(found, reference_shape, margin):
+    """The union canvas of the frames found (`union_canvas`), refused if too large."""
+    if not found:
+        return tuple(reference_shape), (0, 0)
+    order_ = sorted(found)
+    shape, offset = union_canvas([found[i].transform for i in order_],
+                                 [found[i].shape for i in order_], reference_shape,
+                                 margin=margin)
+    if shape[0] * shape[1] > _MAX_CANVAS_PIXELS:
+        area = {i: np.prod(union_canvas([found[i].transform], [found[i].shape],
+                                        reference_shape, margin=margin)[0]) for i in found}
+        worst = max(area, key=area.get)
+        raise ValueError(
+            f"the union canvas would be {shape[1]}x{shape[0]} pixels, more than "
+            f"{_MAX_CANVAS_PIXELS}: some frames land very far from the reference (the "
+            f"farthest is {found[worst].name}, transform {found[worst].transform!r}). "
+            "Leave such frames out, or use canvas='reference'.")
+    return shape, offset
+
+
+def _kept_on_canvas(res, shape, offset, overwrite):
+    """
+    A skipped frame's result if its output lies on this canvas, a failure
+    if it lies on another and may not be replaced, or None to redo it.
+    """
+    if tuple(res._grid[0]) == tuple(shape) and tuple(res._grid[1]) == tuple(offset):
+        res.transform = _shifted(res.transform, offset, sign=-1)
+        return res
+    if not overwrite:
+        return FrameResult(
+            name=res.name, status="failed", source=res.source,
+            error=f"FileExistsError: {res.output} was registered onto another "
+            "canvas (the set of frames changed); pass overwrite=True (or "
+            "--overwrite) to redo it.")
+    return None

@@ -253,7 +253,7 @@ def _check_writable(path, overwrite):
 
 
 def _check_output_dir(path):
-    from astroalign_nd.io.write import check_writable_dir
+    from astroalign_nd.io.write import _check_writable_dir
 
     if os.path.exists(path) and not os.path.isdir(path):
         raise CLIError(f"--output-dir {path!r} is a file, not a folder.")
@@ -261,7 +261,7 @@ def _check_output_dir(path):
         os.makedirs(path, exist_ok=True)
     except OSError as exc:
         raise CLIError(f"cannot create output folder {path!r}: {exc.strerror or exc}.") from None
-    check_writable_dir(path)
+    _check_writable_dir(path)
 
 
 def _check_input(path):

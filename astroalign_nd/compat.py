@@ -58,7 +58,7 @@ __all__ = [
 ]
 
 #: The version of astroalign whose API this module reproduces.
-ASTROALIGN_API_VERSION = "2.6.2"
+_ASTROALIGN_API_VERSION = "2.6.2"
 
 PIXEL_TOL = 2
 """The pixel distance tolerance to assume two points are the same.
@@ -123,26 +123,31 @@ def estimate_transform(*args: Any, **kwargs: Any) -> Any:
     >>> np.round(t.translation, 6).tolist()
     [5.0, -2.0]
     """
-    from skimage.transform import estimate_transform as _estimate
-
-    return _estimate(*args, **kwargs)
+    return _skimage("estimate_transform")(*args, **kwargs)
 
 
 def matrix_transform(*args: Any, **kwargs: Any) -> Any:
     """
-    `skimage.transform.matrix_transform`, imported on first use.
+    `skimage.transform.matrix_transform`, imported on first use: a 3x3
+    homogeneous matrix applied to (N, 2) points.
 
     Examples
     --------
-    >>> import numpy as np
+    A shift by (3, 4):
+
     >>> from astroalign_nd import compat as aa
-    >>> shift = np.array([[1.0, 0.0, 3.0], [0.0, 1.0, 4.0], [0.0, 0.0, 1.0]])
-    >>> aa.matrix_transform(np.array([[1.0, 1.0]]), shift).tolist()
+    >>> shift = [[1.0, 0.0, 3.0], [0.0, 1.0, 4.0], [0.0, 0.0, 1.0]]
+    >>> aa.matrix_transform([[1.0, 1.0]], shift).tolist()
     [[4.0, 5.0]]
     """
-    from skimage.transform import matrix_transform as _matrix
+    return _skimage("matrix_transform")(*args, **kwargs)
 
-    return _matrix(*args, **kwargs)
+
+def _skimage(name):
+    """A function of `skimage.transform`, imported on first use (a slow import)."""
+    import skimage.transform
+
+    return getattr(skimage.transform, name)
 
 
 # -- inputs, as astroalign reads them --------------------------------------------
@@ -353,8 +358,7 @@ def find_transform(source: Any, target: Any, max_control_points: int = 50,
     opts = _engine_options(detection_sigma)
     det = {"nsigma": opts.pop("nsigma")} if "nsigma" in opts else {}
     inputs = (_control_input(source, "source"), _control_input(target, "target"))
-    refs = tuple(Reference(x, **det) for x in inputs)
-    refs[0].role, refs[1].role = "source", "target"
+    refs = tuple(Reference(x, _role=role, **det) for x, role in zip(inputs, ("source", "target")))
     try:
         result = find_match(*refs, n_sources=n, max_sources=n, **opts)
     except (TransformNotFoundError, TooFewSourcesError) as exc:
@@ -383,7 +387,7 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
 
     lists = []
     for inp, ref in zip(inputs, refs):
-        if ref.parsed.is_catalog:
+        if ref._parsed.is_catalog:
             pts = ref.stars(n)[0]
             frame = _bbox(pts) if len(pts) else None
         else:

@@ -979,3 +979,28 @@ def _check_positive_int(value, name):
     if value < 1:
         raise ValueError(f"{name} must be a positive integer; got {value}.")
     return int(value)
+
+
+#: The deep threshold (noise units) of registration's one detection pass, for
+#: faint or sparse fields.
+_DEEP_NSIGMA = 3.0
+#: The confident threshold kept when enough sources pass it: `find_sources`' default.
+_CONFIDENT_NSIGMA = find_sources.__kwdefaults__["nsigma"]
+
+
+def _control_sources(image, *, mask, n_sources, n_enough, nsigma=None, **options):
+    """
+    The sources registration uses: the detection thresholds' one home.
+
+    With ``nsigma`` given, one `find_sources` pass at it; without, one
+    pass at ``_DEEP_NSIGMA``, of which only the sources at ``_CONFIDENT_NSIGMA``
+    are kept when there are ``n_enough`` of them.
+    Returns the table and the threshold of the pass (for messages).
+    """
+    threshold = _DEEP_NSIGMA if nsigma is None else nsigma
+    table = find_sources(image, mask=mask, n_sources=n_sources, nsigma=threshold, **options)
+    if nsigma is None:
+        strong = table[table["snr"] >= _CONFIDENT_NSIGMA]
+        if len(strong) >= n_enough:
+            table = strong
+    return table, threshold

@@ -163,7 +163,7 @@ class _ExtraView(MutableMapping):
 
 
 #: Most candidate triangle pairs held in memory at once (about 24 bytes each).
-MAX_PAIRS = 2_000_000
+_MAX_PAIRS = 2_000_000
 
 
 def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
@@ -171,7 +171,7 @@ def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
     Pairs of triangles whose invariants are within ``radius``, best first.
 
     Memory is bounded: when more than ``4 * max_matches`` pairs (at most
-    ``MAX_PAIRS``) would lie within ``radius``, the radius shrinks until
+    2 million) would lie within ``radius``, the radius shrinks until
     about half that many do (the pairs kept are the best ones anyway), and
     if even near-identical invariants are too many (a regular lattice of
     points), each source triangle keeps only its nearest target triangles.
@@ -202,7 +202,7 @@ def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
     """
     if len(src_ast) == 0 or len(dst_ast) == 0:
         return np.empty((0, 2), int), np.empty(0)
-    budget = MAX_PAIRS if max_matches is None else min(MAX_PAIRS, max(4 * max_matches, 10_000))
+    budget = _MAX_PAIRS if max_matches is None else min(_MAX_PAIRS, max(4 * max_matches, 10_000))
     # The number of pairs, estimated from up to 1000 source triangles (exact
     # when there are fewer) before any pair is listed: counting them all
     # costs as much as listing them.
@@ -407,8 +407,8 @@ def _inflation(r2, var):
 
 def _prediction_variance(cls, fit_src, fit_w, parity, pts):
     """Per-axis variance of the fitted model's prediction at ``pts``."""
-    _, d_fit, _ = cls._linear_fit(fit_src, fit_src, fit_w, parity)
-    _, d_all, _ = cls._linear_fit(pts, pts, np.ones(len(pts)), parity)
+    _, d_fit = cls.fit_matrix(fit_src, fit_src, fit_w, parity)
+    _, d_all = cls.fit_matrix(pts, pts, np.ones(len(pts)), parity)
     cov = np.linalg.pinv(d_fit.T @ (d_fit * np.repeat(fit_w, 2)[:, None]))
     rows = d_all.reshape(len(pts), 2, -1)
     return np.einsum("nij,jk,nik->n", rows, cov, rows) / 2.0
@@ -438,11 +438,11 @@ def _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol):
             if len(si) < need:
                 break
             s_in, d_in = src_pts[inside[si]], dst_pts[dj]
-            m_new, _, _ = cls._linear_fit(s_in, d_in, np.ones(len(si)), 1)
+            m_new, _ = cls.fit_matrix(s_in, d_in, np.ones(len(si)), 1)
             r = np.hypot(*(_apply(m_new, s_in) - d_in).T)
             good = r <= max(3.0 * np.median(r), 0.1 * tol)
             if need <= good.sum() < len(si):
-                m_new, _, _ = cls._linear_fit(s_in[good], d_in[good], np.ones(good.sum()), 1)
+                m_new, _ = cls.fit_matrix(s_in[good], d_in[good], np.ones(good.sum()), 1)
             converged = np.max(np.abs(m_new - m)) < 1e-9
             m = m_new
             if converged:
@@ -458,44 +458,75 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
     """
     Iterative cross-match and weighted least-squares fit from a matrix.
 
-    Each pair is weighted by the inverse of its expected position variance
-    in target pixels, ``f (s^2 e_src^2 + e_dst^2)`` (``s`` the scale, ``e``
-    the detection's centroid errors), where the factor ``f >= 1`` makes the
-    median normalised residual that of a Gaussian: it absorbs what the
-    centroid errors do not predict (undersampling, blends) while outliers
-    cannot inflate it.  Pairs whose chi-square, counting the current
-    model's own prediction variance, is above 16 are rejected, and the
-    matching radius shrinks to 5 sigma.
+    Stages: grow a local solution over the field (`_grow_region`, for the
+    models with shear), iterate match, weigh, cut and fit
+    (`_iterate_fit`), refuse a random set of pairs (`_random_pairs`), and
+    fit the model with its covariance (`_final_fit`).  Returns ``(model,
+    si, dj, resid, cov, tolerance used)``, or None.
     """
     cls = transform_class(transform_type)
     fit_parity = parity if transform_type in ("similarity", "euclidean") else 1
     m = m0
     if seed is not None and cls.n_dof > 4:
         m = _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol)
+    last = _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol,
+                        src_err, dst_err, n_iter)
+    if last is None or _random_pairs(last, src_pts, dst_pts, tol):
+        return None
+    return _final_fit(last, cls, fit_parity, src_pts, dst_pts)
+
+
+def _pair_variances(m, src, dst, src_err, dst_err):
+    """
+    Squared residuals of matched pairs under ``m`` and their expected values.
+
+    Each pair's expected squared residual is ``f (s^2 e_src^2 + e_dst^2)``
+    (``s`` the scale, ``e`` the detection's centroid errors; 0.01 px^2
+    without errors), where the factor ``f >= 1`` (`_inflation`) makes the
+    median normalised residual that of a Gaussian: it absorbs what the
+    centroid errors do not predict (undersampling, blends) while outliers
+    cannot inflate it.
+    """
+    scale2 = abs(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0])
+    if src_err is not None and dst_err is not None:
+        var = scale2 * src_err ** 2 + dst_err ** 2
+    else:
+        var = np.full(len(src), 0.01)
+    resid = _apply(m, src) - dst
+    r2 = np.einsum("ij,ij->i", resid, resid)
+    return r2, var * _inflation(r2, var)
+
+
+def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, src_err,
+                 dst_err, n_iter):
+    """
+    Match, weigh, cut and fit until the matrix and the radius settle.
+
+    Pairs whose chi-square, counting the current model's own prediction
+    variance, is above 16 are rejected, and the matching radius shrinks to
+    5 sigma.  Returns the last fit's ``(si, dj, total variance, radius)``,
+    or None when too few pairs matched.
+    """
+    need = max(cls.min_points, 3)
     cur_tol = tol
     last = prev = None
     for _ in range(n_iter):
         si, dj = _mutual_matches(_apply(m, src_pts), dst_pts, dst_tree, cur_tol)
-        if len(si) < max(cls.min_points, 3):
+        if len(si) < need:
             break
-        scale2 = abs(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0])
-        if src_err is not None and dst_err is not None:
-            var = scale2 * src_err[si] ** 2 + dst_err[dj] ** 2
-        else:
-            var = np.full(len(si), 0.01)
-        resid = _apply(m, src_pts[si]) - dst_pts[dj]
-        r2 = np.einsum("ij,ij->i", resid, resid)
-        total = var * _inflation(r2, var)
+        r2, total = _pair_variances(m, src_pts[si], dst_pts[dj],
+                                    None if src_err is None else src_err[si],
+                                    None if dst_err is None else dst_err[dj])
         # The current model is itself uncertain (early on it rests on the
         # faint majority): its prediction variance enters the cut, so that
         # the brightest stars are not rejected for the model's error.
         pv = _prediction_variance(cls, *prev, fit_parity, src_pts[si]) if prev else 0.0
         # chi2 with 2 dof above 16 happens with probability 3e-4.
         keep = r2 / (total + pv) <= 16.0 if len(si) > cls.n_dof else np.ones(len(si), bool)
-        if keep.sum() >= max(cls.min_points, 3):
+        if keep.sum() >= need:
             si, dj, total = si[keep], dj[keep], total[keep]
         # Matrix-level fit: building astropy models here would dominate.
-        m_new, _, _ = cls._linear_fit(src_pts[si], dst_pts[dj], 1.0 / total, fit_parity)
+        m_new, _ = cls.fit_matrix(src_pts[si], dst_pts[dj], 1.0 / total, fit_parity)
         prev = (src_pts[si], 1.0 / total)
         last = (si, dj, total, cur_tol)
         new_tol = float(np.clip(5.0 * np.sqrt(np.median(total)), min_tol, tol))
@@ -503,19 +534,28 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
         m, cur_tol = m_new, new_tol
         if converged:
             break
-    if last is None:
-        return None
-    si, dj, total, used_tol = last
-    # Pairs whose scatter fills the capture radius even under the most
-    # flexible model are a random set, however many (a wrong local
-    # optimum): do not return them.  If only the requested model leaves a
-    # large scatter, the pairs are real and the model inadequate, which
-    # the caller reports (PoorFitWarning).
+    return last
+
+
+def _random_pairs(last, src_pts, dst_pts, tol):
+    """
+    True when the pairs' scatter fills the capture radius even under the
+    most flexible model: a random set, however many (a wrong local
+    optimum), not to be returned.  If only the requested model leaves a
+    large scatter, the pairs are real and the model inadequate, which the
+    caller reports (PoorFitWarning).
+    """
+    si, dj, total, _ = last
     if 4.0 * np.sqrt(np.median(total)) > tol and len(si) >= 4:
-        aff, _, _ = AffineTransform._linear_fit(src_pts[si], dst_pts[dj], 1.0 / total, 1)
+        aff, _ = AffineTransform.fit_matrix(src_pts[si], dst_pts[dj], 1.0 / total, 1)
         r = _apply(aff, src_pts[si]) - dst_pts[dj]
-        if 4.0 * np.sqrt(np.median(np.einsum("ij,ij->i", r, r)) / 1.386) > tol:
-            return None
+        return bool(4.0 * np.sqrt(np.median(np.einsum("ij,ij->i", r, r)) / 1.386) > tol)
+    return False
+
+
+def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
+    """The model, with its covariance and residuals, on the last fit's pairs; or None."""
+    si, dj, total, used_tol = last
     try:
         model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls,
                                           parity=fit_parity if cls.n_dof in (3, 4) else None,
@@ -954,7 +994,7 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame):
         var = s2 * src_err**2 + dst_err**2
     else:
         var = np.full(n, 0.01)
-    aff, _, _ = AffineTransform._linear_fit(src, dst, 1.0 / var, 1)
+    aff, _ = AffineTransform.fit_matrix(src, dst, 1.0 / var, 1)
     r_aff = _apply(aff, src) - dst
     r2_aff = np.einsum("ij,ij->i", r_aff, r_aff)
     # Weights from the better (affine) model, with its own jitter.

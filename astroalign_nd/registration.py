@@ -20,7 +20,7 @@ import numpy as np
 from astropy import log
 
 from ._input import parse_input
-from .detection import find_sources
+from .detection import _control_sources, find_sources
 from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads
 from ._validate import check_option, check_options, check_points
@@ -37,7 +37,7 @@ if TYPE_CHECKING:
 __all__ = ["find_transform", "find_match", "register", "Reference"]
 
 #: Points of a catalog used (brightest first) when ``2 * n_sources`` is fewer.
-CATALOG_POINTS = 1000
+_CATALOG_POINTS = 1000
 
 
 def _keyword_options(func, set_by_caller):
@@ -76,6 +76,14 @@ class Reference:
     **detect_options
         Options of `~astroalign_nd.find_sources` (``fwhm``, ``nsigma``...).
 
+    Attributes
+    ----------
+    detect_options : dict
+        The detection options, checked.
+    fwhm : float or None
+        The stars' FWHM (pixels) that detection used, once it has run; None
+        for a catalog.
+
     Examples
     --------
     >>> from astroalign_nd import Reference, find_transform
@@ -94,8 +102,8 @@ class Reference:
                             f"{_astroalign_advice(unknown)}")
         detect_options = check_options(detect_options)
         # The role ('source', 'target') names the input in error messages.
-        self.role = _role
-        self.parsed = parse_input(image, _role, hdu=hdu, unit=unit)
+        self._role = _role
+        self._parsed = parse_input(image, _role, hdu=hdu, unit=unit)
         self.detect_options = detect_options
         self._stars = {}
         self._asterisms = {}
@@ -104,7 +112,7 @@ class Reference:
     @property
     def shape(self) -> tuple[int, int] | None:
         """(ny, nx) of the image, None for a catalog."""
-        return self.parsed.shape
+        return self._parsed.shape
 
     def stars(self, n_sources: int) -> tuple[np.ndarray, np.ndarray | None, tuple | None]:
         """
@@ -122,32 +130,24 @@ class Reference:
             The image extent in pixels; None for catalogs.
         """
         if n_sources not in self._stars:
-            p = self.parsed
+            p = self._parsed
             if p.is_catalog:
                 # Brightest first: the method needs the brightest stars only, and
                 # a cap keeps a million-point catalog from costing a million.
-                cap = max(2 * n_sources, CATALOG_POINTS)
+                cap = max(2 * n_sources, _CATALOG_POINTS)
                 self._stars[n_sources] = (p.points[:cap], None, None)
             else:
-                opts = dict(self.detect_options)
-                user_nsigma = opts.pop("nsigma", None)
-                # One detection pass, deep enough for faint fields; the 5-sigma
-                # sources are kept when there are enough of them.
+                opts = self.detect_options
                 with warnings.catch_warnings():
                     # An empty image is reported by the caller (TooFewSourcesError),
                     # not by photutils' per-frame warning.
                     warnings.simplefilter("ignore", _no_detections_warning())
-                    table = find_sources(p.detection_image, mask=p.mask,
-                                         n_sources=2 * n_sources,
-                                         nsigma=user_nsigma or 3.0, **opts)
-                if user_nsigma is None:
-                    strong = table[table["snr"] >= 5.0]
-                    if len(strong) >= n_sources:
-                        table = strong
+                    table, nsigma = _control_sources(p.detection_image, mask=p.mask,
+                                                     n_sources=2 * n_sources,
+                                                     n_enough=n_sources, **opts)
                 if len(table) < 3:
                     raise TooFewSourcesError(_too_few_advice(
-                        self.role, len(table), table.meta,
-                        user_nsigma or 3.0, "fwhm" in opts))
+                        self._role, len(table), table.meta, nsigma, "fwhm" in opts))
                 ny, nx = p.shape
                 pts = np.column_stack([np.asarray(table["x"], float),
                                        np.asarray(table["y"], float)])
@@ -260,7 +260,7 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
     n_sources = check_option("n_sources", n_sources)
     max_sources = max(check_option("max_sources", max_sources), n_sources)
     det, mat = _split_options(options)
-    num_threads()  # a bad ASTROALIGN_ND_NUM_THREADS is reported before any work
+    num_threads()  # a bad thread setting is reported before any work
     # Memory is bounded before any work: the largest attempt's triangles.
     check_triangle_budget(max_sources, mat.get("n_neighbors", 4))
     src = _as_reference(source, "source", det, hdu)
@@ -472,18 +472,76 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
     """
     from .ccddata import apply_transform
 
-    det, _ = _split_options(options)
+    src, dst, transform, quality = _find_for_apply(
+        source, target, dict(options, transform_type=transform_type, n_sources=n_sources,
+                             max_sources=max_sources), hdu=hdu, unit=unit)
+    return apply_transform(transform, src._parsed, dst._parsed, order=order,
+                           conserve_flux=conserve_flux, fill_value=fill_value, method=method,
+                           unit=unit, parallel=parallel, quality=quality,
+                           add_keyword=add_keyword)
+
+
+#: `find_match`'s own keyword arguments (from its signature): neither
+#: detection nor matching options.
+_FIND_KEYS = _keyword_options(find_match, {"hdu"})
+
+
+def _detection_options(options):
+    """
+    The detection options among `find_match`'s keyword arguments ``options``.
+
+    Every option is checked (unknown names: TypeError; out of range:
+    ValueError), so that a caller can refuse bad options before any work.
+    """
+    det, _ = _split_options({k: v for k, v in options.items() if k not in _FIND_KEYS})
+    return det
+
+
+def _find_for_apply(source, target, options, *, hdu=None, unit=None):
+    """
+    The find step of `register` and `~astroalign_nd.register_batch`: one
+    policy for both.
+
+    Both inputs are read as images (a catalog cannot be resampled), the
+    transform is found with `find_match`'s keyword arguments ``options``
+    and its quality figures are returned as ``apply_transform``'s
+    ``quality`` takes them.
+
+    Returns
+    -------
+    source, target : `Reference`
+    transform : `~astroalign_nd.transforms.LinearTransform2D`
+    quality : dict
+    """
+    det = _detection_options(options)
     src = _as_reference(source, "source", det, hdu, unit)
     dst = _as_reference(target, "target", det, hdu)
-    for name, p in (("source", src.parsed), ("target", dst.parsed)):
+    for name, p in (("source", src._parsed), ("target", dst._parsed)):
         if p.is_catalog:
             raise TypeError(
                 f"register needs images; the {name} is a catalog. Use find_transform with "
                 "catalogs, then apply_transform on the source image."
             )
-    result = find_match(src, dst, transform_type=transform_type, n_sources=n_sources,
-                        max_sources=max_sources, **options)
-    return apply_transform(result.transform, src.parsed, dst.parsed, order=order,
-                           conserve_flux=conserve_flux, fill_value=fill_value, method=method,
-                           unit=unit, parallel=parallel, quality=_quality_dict(result),
-                           add_keyword=add_keyword)
+    result = find_match(src, dst, **options)
+    return src, dst, result.transform, _quality_dict(result)
+
+
+def _prepared_target(target, options, hdu=None):
+    """
+    The target of many finds (`~astroalign_nd.register_batch`), from
+    `find_match`'s keyword arguments ``options`` (all checked here).
+
+    An image `Reference` whose stars and triangles for the first attempt
+    are computed once, before it is shipped to workers.
+    """
+    det = _detection_options(options)
+    ref = _as_reference(target, "target", det, hdu)
+    if ref._parsed.is_catalog:
+        raise TypeError("the target of register_batch must be an image (it defines the "
+                        "output grid); it is a catalog.")
+    defaults = inspect.signature(find_match).parameters
+    n = options.get("n_sources", defaults["n_sources"].default)
+    ref.stars(n)
+    ref.asterisms(n, options.get("n_neighbors",
+                                 inspect.signature(match_points).parameters["n_neighbors"].default))
+    return ref

@@ -1258,16 +1258,19 @@ def add_overscan(image, *, width=16, level=0.0, read_noise=5.0, edges=("left", "
     Returns
     -------
     image : 2-D ndarray
+        A copy of ``image`` with the strips replaced.
 
     Examples
     --------
+    Overscan on three edges of a simulated frame:
+
     >>> import numpy as np
     >>> from astroalign_nd.simulate import add_overscan, simulate_pair
-    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
-    >>> raw = add_overscan(pair.source, width=16, level=10.0, seed=1)
+    >>> frame = simulate_pair((256, 256), n_stars=100, seed=1).source
+    >>> raw = add_overscan(frame, width=16, level=10.0, seed=1)
     >>> bool(abs(raw[:, :16].mean() - 10.0) < 0.5)  # left strip: bias and read noise
     True
-    >>> bool(np.array_equal(raw[:-16, 16:-16], pair.source[:-16, 16:-16]))  # rest kept
+    >>> bool(np.array_equal(raw[:-16, 16:-16], frame[:-16, 16:-16]))  # rest kept
     True
     """
     src = _check_frame(image)

@@ -280,6 +280,46 @@ class LinearTransform2D(Model):
         return model
 
     @classmethod
+    def fit_matrix(cls, src, dst, weights, parity=1):
+        """
+        Weighted least-squares fit as a matrix, without checks (the fast path).
+
+        What `from_points` does after its checks, for one parity, without
+        building a model: for loops that fit thousands of times (the
+        matching's refinement).  Inputs are not validated: give finite
+        ``(N, 2)`` float arrays and ``N`` non-negative weights, with enough
+        points for the model (``cls.min_points``).
+
+        Parameters
+        ----------
+        src, dst : (N, 2) ndarray
+            Matched positions.
+        weights : (N,) ndarray
+            Per-pair weights (inverse variances).
+        parity : {1, -1}, optional
+            Mirrored (-1) or not; used by the models with a parity.
+
+        Returns
+        -------
+        matrix : (3, 3) ndarray
+            The fitted homogeneous matrix (source to target).
+        design : (2N, k) ndarray
+            The fit's design matrix (rows x, y per pair) in the model's
+            ``k`` linear parameters, for their covariance.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from astroalign_nd.transforms import TranslationTransform
+        >>> src = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+        >>> m, _ = TranslationTransform.fit_matrix(src, src + [2.0, -1.0], np.ones(3))
+        >>> m[:2, 2]
+        array([ 2., -1.])
+        """
+        matrix, design, _ = cls._linear_fit(src, dst, weights, parity)
+        return matrix, design
+
+    @classmethod
     def _fit(cls, src, dst, *, weights=None, parity=None):
         """Fit and also return the linear parameter covariance and residuals."""
         src = _as_points(src, "src")

@@ -203,10 +203,15 @@ def plot_matches(source, target, points, *, axes=None, marker_size=80.0, show_im
         if data is not None:
             ax.set_xlim(-0.5, data.shape[1] - 0.5)
             ax.set_ylim(-0.5, data.shape[0] - 0.5)
-        ax.set_title(f"{name}: {len(pts)} matched stars")
-        ax.set_xlabel("x [px]")
-        ax.set_ylabel("y [px]")
+        _label(ax, f"{name}: {len(pts)} matched stars")
     return ax_src, ax_dst
+
+
+def _label(ax, title, frame=""):
+    """Title and pixel axis labels (``frame``: which frame's pixels, if not obvious)."""
+    ax.set_title(title)
+    ax.set_xlabel(f"x [px]{frame}")
+    ax.set_ylabel(f"y [px]{frame}")
 
 
 def _invariant_ratios(points, n_neighbors):
@@ -316,12 +321,17 @@ def plot_residuals(transform, points, *, ax=None, scale=None, shape=None):
 
     Examples
     --------
-    >>> from astroalign_nd import find_transform
-    >>> from astroalign_nd.simulate import simulate_pair
+    Matched positions 0.1 px off a known transform:
+
+    >>> import numpy as np
+    >>> from astroalign_nd import SimilarityTransform
     >>> from astroalign_nd.visualization import plot_residuals
-    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
-    >>> transform, points = find_transform(pair.source, pair.target)
-    >>> ax = plot_residuals(transform, points, shape=pair.target.shape)
+    >>> t = SimilarityTransform(rotation=10.0, translation_x=3.0, translation_y=-2.0)
+    >>> src = np.random.default_rng(2).uniform(0, 256, (30, 2))
+    >>> dst = np.column_stack(t(src[:, 0], src[:, 1])) + 0.1
+    >>> ax = plot_residuals(t, (src, dst), shape=(256, 256))
+    >>> len(ax.collections[0].U)  # one arrow per pair
+    30
     """
     src, dst = _points_pair(points)
     if not callable(transform):
@@ -350,9 +360,7 @@ def plot_residuals(transform, points, *, ax=None, scale=None, shape=None):
     if shape is not None:
         ax.set_xlim(-0.5, shape[1] - 0.5)
         ax.set_ylim(-0.5, shape[0] - 0.5)
-    ax.set_title(f"residuals x{scale:.3g}: RMS {rms:.3f} px")
-    ax.set_xlabel("x [px] (target)")
-    ax.set_ylabel("y [px] (target)")
+    _label(ax, f"residuals x{scale:.3g}: RMS {rms:.3f} px", " (target)")
     key = max(rms, 1e-3) if np.isfinite(rms) else 1.0
     ax.quiverkey(q, 0.75, 0.05, scale * key, f"{key:.2g} px", labelpos="E",
                  coordinates="axes")
@@ -388,12 +396,13 @@ def plot_difference(aligned, target, *, ax=None, colorbar=True):
 
     Examples
     --------
-    >>> from astroalign_nd import register
+    >>> import astroalign_nd
     >>> from astroalign_nd.simulate import simulate_pair
-    >>> from astroalign_nd.visualization import plot_difference
     >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
-    >>> aligned = register(pair.source, pair.target)
-    >>> ax = plot_difference(aligned, pair.target)
+    >>> aligned = astroalign_nd.register(pair.source, pair.target)
+    >>> ax = astroalign_nd.visualization.plot_difference(aligned, pair.target)
+    >>> ax.get_title()
+    'aligned - target'
     """
     a = _image(aligned, "aligned")
     t = _image(target, "target")
@@ -406,9 +415,7 @@ def plot_difference(aligned, target, *, ax=None, colorbar=True):
     im = _show(ax, a - t)
     if colorbar:
         ax.figure.colorbar(im, ax=ax, shrink=0.8, label="aligned - target")
-    ax.set_title("aligned - target")
-    ax.set_xlabel("x [px]")
-    ax.set_ylabel("y [px]")
+    _label(ax, "aligned - target")
     return ax
 
 

@@ -276,16 +276,16 @@ def test_callback_streams_and_table(tmp_path, night):
 
 def test_reference_detection_options_reach_the_frames(night, monkeypatch):
     ref, paths, shifts = night
-    import astroalign_nd.registration as registration
+    import astroalign_nd.detection as detection
 
     calls = []
-    real = registration.find_sources
+    real = detection.find_sources
 
     def spy(image, **kwargs):
         calls.append(kwargs.get("fwhm"))
         return real(image, **kwargs)
 
-    monkeypatch.setattr(registration, "find_sources", spy)
+    monkeypatch.setattr(detection, "find_sources", spy)
     result = register_batch(paths, Reference(ref, fwhm=3.2))
     assert not result.failed
     assert len(calls) >= 4 and all(c == 3.2 for c in calls)  # reference and every frame

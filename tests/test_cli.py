@@ -120,17 +120,17 @@ def test_batch_union_canvas_and_workers(files, tmp_path, capsys):
 
 
 def test_detection_options_are_forwarded(files, tmp_path, monkeypatch, capsys):
-    import astroalign_nd.registration as registration
+    import astroalign_nd.detection as detection
 
     ref, srcs, _ = files
     calls = []
-    real = registration.find_sources
+    real = detection.find_sources
 
     def spy(image, **kwargs):
         calls.append(kwargs)
         return real(image, **kwargs)
 
-    monkeypatch.setattr(registration, "find_sources", spy)
+    monkeypatch.setattr(detection, "find_sources", spy)
     assert main(["register", srcs[0], ref, "-o", str(tmp_path / "a.fits"), "--fwhm", "3.1",
                  "--nsigma", "4", "--max-sources", "100", "--roundness-range", "-1", "1"]) == 0
     assert calls and all(c["fwhm"] == 3.1 and c["nsigma"] == 4.0 for c in calls)

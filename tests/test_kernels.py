@@ -6,19 +6,20 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from astroalign_nd import _kernels as k
+from astroalign_nd import conf
 
 
 @pytest.fixture
 def numpy_only(monkeypatch):
     """Run the body with the NumPy versions of the kernels."""
     def use_numpy():
-        monkeypatch.setattr(k, "HAVE_COMPILED", False)
+        monkeypatch.setattr(conf, "use_compiled", False)
     return use_numpy
 
 
 @pytest.fixture(params=[1, 3])
 def threads(request, monkeypatch):
-    monkeypatch.setenv("ASTROALIGN_ND_NUM_THREADS", str(request.param))
+    monkeypatch.setattr(conf, "num_threads", request.param)
     return request.param
 
 

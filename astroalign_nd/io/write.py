@@ -212,10 +212,10 @@ def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):
     if os.path.lexists(path) and not overwrite:
         raise FileExistsError(f"output file {path!r} already exists; pass --overwrite "
                               "(overwrite=True) to replace it.")
-    check_writable_dir(os.path.dirname(os.path.abspath(path)))
+    _check_writable_dir(os.path.dirname(os.path.abspath(path)))
 
 
-def check_writable_dir(folder):
+def _check_writable_dir(folder):
     """Raise `OSError` with a clear message unless files can be created in ``folder``."""
     if not os.path.isdir(folder):
         what = "is not a folder" if os.path.exists(folder) else "does not exist"
