@@ -25,6 +25,10 @@ the rotation.  Any other value of ``parity`` is refused.
 To refit a transform on matched positions of your own (astropy's fitters
 do not fit models with two outputs), use ``from_points`` with optional
 weights, or `fit_transform` for the parameter covariance too.
+
+The non-linear models, `ProjectiveTransform` (a homography) and
+`PolynomialTransform` (SIP-style distortion), are defined in
+`astroalign_nd.nonlinear` and importable from here too.
 """
 
 from __future__ import annotations
@@ -42,7 +46,10 @@ __all__ = [
     "EuclideanTransform",
     "SimilarityTransform",
     "AffineTransform",
+    "ProjectiveTransform",
+    "PolynomialTransform",
     "TRANSFORM_TYPES",
+    "LINEAR_TYPES",
     "transform_class",
     "fit_transform",
     "as_matrix",
@@ -734,16 +741,24 @@ class AffineTransform(LinearTransform2D):
         return m, design, np.array([a11, a12, a21, a22, tx, ty])
 
 
+# The non-linear models need the helpers above; they import them when called.
+from .nonlinear import PolynomialTransform, ProjectiveTransform  # noqa: E402
+
 #: The ``transform_type`` names accepted by `~astroalign_nd.find_transform`.
 TRANSFORM_TYPES = {
     "translation": TranslationTransform,
     "euclidean": EuclideanTransform,
     "similarity": SimilarityTransform,
     "affine": AffineTransform,
+    "projective": ProjectiveTransform,
+    "polynomial": PolynomialTransform,
 }
 
+#: The linear ones among `TRANSFORM_TYPES` (subclasses of `LinearTransform2D`).
+LINEAR_TYPES = ("translation", "euclidean", "similarity", "affine")
 
-def transform_class(transform_type: str | type) -> type[LinearTransform2D]:
+
+def transform_class(transform_type: str | type) -> type[Model]:
     """
     Return the model class for a ``transform_type`` name or class.
 
@@ -751,12 +766,14 @@ def transform_class(transform_type: str | type) -> type[LinearTransform2D]:
     ----------
     transform_type : str or type
         One of ``'translation'``, ``'euclidean'``, ``'similarity'``,
-        ``'affine'``, or one of the classes themselves.
+        ``'affine'``, ``'projective'``, ``'polynomial'``, or one of the
+        classes themselves.
 
     Returns
     -------
     cls : type
-        A subclass of `LinearTransform2D`.
+        A subclass of `LinearTransform2D`, or `ProjectiveTransform` or
+        `PolynomialTransform`.
 
     Raises
     ------
@@ -771,7 +788,8 @@ def transform_class(transform_type: str | type) -> type[LinearTransform2D]:
     >>> transform_class(AffineTransform) is AffineTransform
     True
     """
-    if isinstance(transform_type, type) and issubclass(transform_type, LinearTransform2D):
+    if isinstance(transform_type, type) and issubclass(
+            transform_type, (LinearTransform2D, ProjectiveTransform, PolynomialTransform)):
         return transform_type
     if isinstance(transform_type, str) and transform_type.lower() in TRANSFORM_TYPES:
         return TRANSFORM_TYPES[transform_type.lower()]
@@ -782,8 +800,9 @@ def transform_class(transform_type: str | type) -> type[LinearTransform2D]:
 
 
 def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "similarity", *,
-                  weights: ArrayLike | None = None, parity: int | None = None
-                  ) -> tuple[LinearTransform2D, np.ndarray, np.ndarray]:
+                  weights: ArrayLike | None = None, parity: int | None = None,
+                  degree: int | None = None, crpix: ArrayLike | None = None,
+                  domain: ArrayLike | None = None) -> tuple[Model, np.ndarray, np.ndarray]:
     """
     Least-squares fit of a transform, with its parameter covariance.
 
@@ -798,15 +817,23 @@ def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "
         see `LinearTransform2D.from_points`.
     parity : {None, 1, -1}, optional
         Force a proper or mirrored solution for rotation-like models.
+        The projective and polynomial models take a reflection from the
+        data and ignore it.
+    degree : int, optional
+        Degree of a ``'polynomial'`` model, 2 to 5 (default 3); only for
+        that type.
+    crpix, domain : optional
+        The reference pixel and the inverse's domain of a ``'polynomial'``
+        model; see `PolynomialTransform.from_points`.
 
     Returns
     -------
-    transform : `LinearTransform2D`
+    transform : `LinearTransform2D`, `ProjectiveTransform` or `PolynomialTransform`
     covariance : ndarray
         Covariance matrix of the model's free parameters (in the order of
-        ``transform.param_names``, without the fixed ``parity``; a rotation
-        in degrees), scaled by the residual variance.  NaN where there are
-        no spare degrees of freedom.
+        ``transform.param_names``, without the fixed ``parity``, ``crpix1``
+        and ``crpix2``; a rotation in degrees), scaled by the residual
+        variance.  NaN where there are no spare degrees of freedom.
     residuals : (N, 2) ndarray
         ``transform(src) - dst`` in target pixels.
 
@@ -825,9 +852,32 @@ def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "
     ((3, 3), (50, 2))
     >>> bool(np.sqrt(cov[1, 1]) < 0.1)  # 1-sigma error of translation_x, pixels
     True
+
+    A polynomial model (the covariance of its 6 linear and 2 x 3 distortion terms):
+
+    >>> from astroalign_nd.transforms import PolynomialTransform
+    >>> truth = PolynomialTransform(degree=2, crpix=(128.0, 128.0), A_2_0=1e-4)
+    >>> dst = np.column_stack(truth(*src.T)) + rng.normal(0, 0.05, (50, 2))
+    >>> t, cov, resid = fit_transform(src, dst, "polynomial", degree=2)
+    >>> t.degree, cov.shape
+    (2, (12, 12))
+    >>> bool(abs(t.A_2_0.value - 1e-4) < 5 * np.sqrt(cov[6, 6]))
+    True
     """
     cls = transform_class(transform_type)
-    model, design, resid = cls._fit(src, dst, weights=weights, parity=parity)
+    if parity is not None:
+        _check_parity(parity)
+    if cls is PolynomialTransform:
+        model, design, resid = cls._fit(src, dst, weights=weights, crpix=crpix, domain=domain,
+                                        degree=3 if degree is None else degree)
+    else:
+        given = [k for k, v in (("degree", degree), ("crpix", crpix), ("domain", domain))
+                 if v is not None]
+        if given:
+            raise ValueError(
+                f"{', '.join(given)} are for transform_type='polynomial' only; got them with "
+                f"{cls.__name__}.")
+        model, design, resid = cls._fit(src, dst, weights=weights, parity=parity)
     return model, _covariance(model, design, resid, weights), resid
 
 

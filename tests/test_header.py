@@ -290,7 +290,7 @@ def test_header_without_keywords():
 
 def test_bad_type_keyword():
     header = transform_to_header(TRANSFORMS["affine"])
-    header["AATTYPE"] = "projective"
+    header["AATTYPE"] = "homography"
     with pytest.raises(ValueError, match="AATTYPE must be one of"):
         transform_from_header(header)
 
