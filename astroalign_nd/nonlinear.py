@@ -158,13 +158,9 @@ class ProjectiveTransform(Model):
         >>> t.matrix.tolist()
         [[1.0, 0.0, 2.0], [0.0, 1.0, 0.0], [0.0, 0.001, 1.0]]
         """
-        m = np.asarray(matrix, dtype=float)
-        if m.shape == (2, 3):
-            m = np.vstack([m, [0.0, 0.0, 1.0]])
-        if m.shape != (3, 3):
-            raise ValueError(f"matrix must have shape (3, 3) or (2, 3); got {m.shape}.")
-        if not np.all(np.isfinite(m)):
-            raise ValueError("matrix contains NaN or infinite values.")
+        from .transforms import _as_3x3
+
+        m = _as_3x3(matrix)
         scale = np.max(np.abs(m))
         if scale == 0 or abs(m[2, 2]) <= 1e-14 * scale:
             raise ValueError(

@@ -224,13 +224,7 @@ class LinearTransform2D(Model):
             If the matrix cannot be represented by this class (for example a
             sheared matrix given to `SimilarityTransform`).
         """
-        m = np.asarray(matrix, dtype=float)
-        if m.shape == (2, 3):
-            m = np.vstack([m, [0.0, 0.0, 1.0]])
-        if m.shape != (3, 3):
-            raise ValueError(f"matrix must have shape (3, 3) or (2, 3); got {m.shape}.")
-        if not np.all(np.isfinite(m)):
-            raise ValueError("matrix contains NaN or infinite values.")
+        m = _as_3x3(matrix)
         if not np.allclose(m[2], [0.0, 0.0, 1.0]):
             raise ValueError(
                 "matrix is projective (last row is not [0, 0, 1]); only affine-family "
@@ -367,6 +361,18 @@ class LinearTransform2D(Model):
         return cls._from_matrix(matrix), design, resid
 
     _parities = (1,)
+
+
+def _as_3x3(matrix):
+    """A finite 3x3 float matrix from a 3x3 or 2x3 (affine) array-like."""
+    m = np.asarray(matrix, dtype=float)
+    if m.shape == (2, 3):
+        m = np.vstack([m, [0.0, 0.0, 1.0]])
+    if m.shape != (3, 3):
+        raise ValueError(f"matrix must have shape (3, 3) or (2, 3); got {m.shape}.")
+    if not np.all(np.isfinite(m)):
+        raise ValueError("matrix contains NaN or infinite values.")
+    return m
 
 
 def _apply(matrix, pts):
