@@ -998,7 +998,9 @@ def from_matrix(matrix: Any, transform_type: str | type | None = None) -> Linear
     Build a package transform from a 3x3 (or 2x3) matrix.
 
     With ``transform_type=None`` the simplest class that represents the
-    matrix exactly is chosen (translation, then euclidean, similarity, affine).
+    matrix exactly is chosen (translation, then euclidean, similarity, affine);
+    a projective matrix (last row not ``[0, 0, 1]``) needs
+    ``transform_type='projective'``.
 
     Examples
     --------
@@ -1013,9 +1015,16 @@ def from_matrix(matrix: Any, transform_type: str | type | None = None) -> Linear
     >>> type(from_matrix(np.eye(3), "affine")).__name__
     'AffineTransform'
     """
-    m = as_matrix(matrix)
     if transform_type is not None:
-        return transform_class(transform_type).from_matrix(m)
+        cls = transform_class(transform_type)
+        if cls is PolynomialTransform:
+            raise ValueError(
+                "a matrix does not define a PolynomialTransform (its distortion terms); build "
+                "one with PolynomialTransform(...) or PolynomialTransform.from_points.")
+        if isinstance(matrix, ProjectiveTransform):
+            return cls.from_matrix(matrix.matrix)  # as_matrix refuses non-affine models
+        return cls.from_matrix(as_matrix(matrix))
+    m = as_matrix(matrix)
     for cls in (TranslationTransform, EuclideanTransform, SimilarityTransform):
         try:
             return cls.from_matrix(m)
