@@ -199,11 +199,12 @@ class TransformConverter(Converter):
         """
         Build the model from a node.
 
-        A node that is not a valid transform raises a ValueError here (not
-        inside a generator, where asdf would turn it into a warning and leave
-        the node unconverted).  A model with a user-assigned inverse is
-        returned through a generator, so that an inverse referring back to
-        the model resolves.
+        A node that is not a valid transform raises a ValueError that says
+        what is wrong (asdf reports it as an ``AsdfConversionWarning`` and
+        leaves the node unconverted, unless its ``warn_on_failed_conversion``
+        setting is off).  A model with a user-assigned inverse is returned
+        through a generator, so that an inverse referring back to the model
+        resolves.
 
         Parameters
         ----------
