@@ -92,37 +92,35 @@ def test_header_replaces_a_previous_transform():
     assert type(transform_from_header(header)) is PolynomialTransform
 
 
-def test_damaged_polynomial_header():
-    header = transform_to_header(MODELS["polynomial-3"])
-    bad = header.copy()
-    bad["AATDEG"] = 7
-    with pytest.raises(ValueError, match="AATDEG"):
-        transform_from_header(bad)
-    bad = header.copy()
-    bad["AATDEG"] = 2
-    with pytest.raises(ValueError, match="beyond AATDEG"):
-        transform_from_header(bad)
-    bad = header.copy()
-    del bad["AATB03"], bad["AATB03S"]
-    with pytest.raises(ValueError, match="AATB03"):
-        transform_from_header(bad)
-    bad = header.copy()
-    del bad["AATDYMAX"]
-    with pytest.raises(ValueError, match="all four"):
-        transform_from_header(bad)
-    bad = header.copy()
-    bad["AATA30"] = 1.0
-    with pytest.raises(ValueError, match="AATA30.*disagree"):
-        transform_from_header(bad)
-    bad = header.copy()
-    for key in ("AATM00", "AATM01"):
-        bad[key], bad[key + "S"] = 0.0, "0.0"
-    with pytest.raises(ValueError, match="singular"):
-        transform_from_header(bad)
-    bad = transform_to_header(MODELS["projective"])
-    del bad["AATM21"], bad["AATM21S"]
-    with pytest.raises(ValueError, match="AATM21"):
-        transform_from_header(bad)
+def _set(**cards):
+    def change(header):
+        for key, value in cards.items():
+            header[key] = value
+    return change
+
+
+def _delete(*keys):
+    def change(header):
+        for key in keys:
+            del header[key]
+    return change
+
+
+@pytest.mark.parametrize("model_key, change, message", [
+    ("polynomial-3", _set(AATDEG=7), "AATDEG"),
+    ("polynomial-3", _set(AATDEG=2), "beyond AATDEG"),
+    ("polynomial-3", _delete("AATB03", "AATB03S"), "AATB03"),
+    ("polynomial-3", _delete("AATDYMAX"), "all four"),
+    ("polynomial-3", _set(AATA30=1.0), "AATA30.*disagree"),
+    ("polynomial-3", _set(AATM00=0.0, AATM00S="0.0", AATM01=0.0, AATM01S="0.0"), "singular"),
+    ("projective", _delete("AATM21", "AATM21S"), "AATM21"),
+    ("projective", _set(AATM20S="nan"), "finite"),
+])
+def test_damaged_header(model_key, change, message):
+    header = transform_to_header(MODELS[model_key])
+    change(header)
+    with pytest.raises(ValueError, match=message):
+        transform_from_header(header)
 
 
 def test_add_provenance_accepts_the_new_models():
