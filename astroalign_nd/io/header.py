@@ -897,6 +897,51 @@ def distorted_wcs(model: PolynomialTransform, target_wcs, shape, *,
     """
     from astropy.wcs import WCS
 
+    nx, ny, inverse_degree = _check_sip_inputs(model, target_wcs, shape, inverse_degree)
+    degree = model.degree
+    # The source pixel that lands on the target's reference pixel (0-based).
+    target_ref = np.array(target_wcs.wcs.crpix, dtype=float) - 1.0
+    lin_part = model.linear_part.matrix
+    ref = _solve(model, target_ref, np.linalg.solve(lin_part[:2, :2],
+                                                    target_ref - lin_part[:2, 2]))
+    # Re-expand model(ref + d) - target_ref = L (d + F(d)) about ref: exact on a grid of
+    # (degree + 1)^2 points or more; the inverse fit needs more than its terms.
+    n = max(4 * degree + 1, 3 * inverse_degree + 1)
+    gx, gy = np.meshgrid(np.linspace(0, nx - 1, n), np.linspace(0, ny - 1, n))
+    d = np.column_stack([gx.ravel(), gy.ravel()]) - ref
+    coef = _poly_fit(d, np.column_stack(model(gx.ravel(), gy.ravel())) - target_ref, degree)
+    lin = np.column_stack([coef[(1, 0)], coef[(0, 1)]])  # rows x', y'; columns d_x, d_y
+    lin_inv = np.linalg.inv(lin)
+    forward = {e: lin_inv @ c for e, c in coef.items() if sum(e) >= 2}
+    # Inverse terms: from U = d + F(d) back to d, fitted over the frame.
+    big_u = d + sum(np.outer(d[:, 0] ** p * d[:, 1] ** q, c) for (p, q), c in forward.items())
+    inverse = _poly_fit(big_u, d - big_u, inverse_degree)
+
+    hdr = target_wcs.to_header(relax=True)
+    for key in list(hdr.keys()):
+        if key.startswith(("PC", "CD", "CDELT", "CROTA")):
+            hdr.remove(key, ignore_missing=True, remove_all=True)
+    cd = target_wcs.pixel_scale_matrix @ lin
+    for i in range(2):
+        hdr[f"CRPIX{i + 1}"] = float(ref[i] + 1.0)
+        hdr[f"CTYPE{i + 1}"] = target_wcs.wcs.ctype[i] + "-SIP"
+        for j in range(2):
+            hdr[f"CD{i + 1}_{j + 1}"] = float(cd[i, j])
+    for x_name, y_name, order, terms in (("A", "B", degree, forward),
+                                         ("AP", "BP", inverse_degree, inverse)):
+        hdr[f"{x_name}_ORDER"] = hdr[f"{y_name}_ORDER"] = order
+        for (p, q), c in terms.items():
+            hdr[f"{x_name}_{p}_{q}"] = float(c[0])
+            hdr[f"{y_name}_{p}_{q}"] = float(c[1])
+    out = WCS(hdr)
+    out.pixel_shape = (nx, ny)
+    return out
+
+
+def _check_sip_inputs(model, target_wcs, shape, inverse_degree):
+    """``(nx, ny, inverse_degree)`` of `distorted_wcs`, or a clear error."""
+    from astropy.wcs import WCS
+
     if not isinstance(model, PolynomialTransform):
         raise TypeError(
             f"model must be an astroalign_nd PolynomialTransform; got {type(model).__name__}. "
@@ -908,10 +953,9 @@ def distorted_wcs(model: PolynomialTransform, target_wcs, shape, *,
     if target_wcs.naxis != 2 or not target_wcs.has_celestial:
         raise ValueError("target_wcs must be a 2-D celestial WCS (e.g. RA---TAN, DEC--TAN); "
                          f"got {target_wcs.naxis} axes {list(target_wcs.wcs.ctype)}.")
-    if target_wcs.sip is not None or target_wcs.cpdis1 is not None or \
-            target_wcs.cpdis2 is not None or target_wcs.det2im1 is not None or \
-            target_wcs.det2im2 is not None or any(c.endswith("-SIP") for c in
-                                                  target_wcs.wcs.ctype):
+    tables = (target_wcs.cpdis1, target_wcs.cpdis2, target_wcs.det2im1, target_wcs.det2im2)
+    if target_wcs.sip is not None or any(t is not None for t in tables) or any(
+            c.endswith("-SIP") for c in target_wcs.wcs.ctype):
         raise ValueError("target_wcs already has distortion terms (SIP or lookup tables); "
                          "their composition with the model is not a SIP polynomial. Fit a "
                          "WCS to matched stars instead (astropy.wcs.utils."
@@ -920,64 +964,13 @@ def distorted_wcs(model: PolynomialTransform, target_wcs, shape, *,
         ny, nx = (int(v) for v in shape)
     except (TypeError, ValueError):
         ny = nx = 0
-    if not (ny > 0 and nx > 0) or len(tuple(shape)) != 2:
+    if not (ny > 0 and nx > 0):
         raise ValueError(f"shape must be the source frame's (ny, nx), two positive integers; "
                          f"got {shape!r}.")
-    degree = model.degree
-    inverse_degree = min(2 * degree + 1, 9) if inverse_degree is None else inverse_degree
+    if inverse_degree is None:
+        inverse_degree = min(2 * model.degree + 1, 9)
     if isinstance(inverse_degree, bool) or not isinstance(inverse_degree, (int, np.integer)) \
             or not 1 <= inverse_degree <= 9:
         raise ValueError(f"inverse_degree must be an integer from 1 to 9 (SIP's limit); got "
                          f"{inverse_degree!r}.")
-
-    # The source pixel that lands on the target's reference pixel (0-based).
-    target_ref = np.array(target_wcs.wcs.crpix, dtype=float) - 1.0
-    start = np.linalg.solve(model.linear_part.matrix[:2, :2],
-                            target_ref - model.linear_part.matrix[:2, 2])
-    ref = _solve(model, target_ref, start)
-    # Re-expand model(ref + d) - target_ref = L (d + F(d)) about ref: exact on a grid of
-    # (degree + 1)^2 points or more; the inverse fit needs more than its terms.
-    n = max(4 * degree + 1, 3 * inverse_degree + 1)
-    gx, gy = np.meshgrid(np.linspace(0, nx - 1, n), np.linspace(0, ny - 1, n))
-    d = np.column_stack([gx.ravel(), gy.ravel()]) - ref
-    values = np.column_stack(model(gx.ravel(), gy.ravel())) - target_ref
-    coef = _poly_fit(d, values, degree)
-    lin = np.column_stack([coef[(1, 0)], coef[(0, 1)]])  # rows x', y'; columns d_x, d_y
-    lin_inv = np.linalg.inv(lin)
-    sip_a = np.zeros((degree + 1, degree + 1))
-    sip_b = np.zeros((degree + 1, degree + 1))
-    for (p, q), c in coef.items():
-        if p + q >= 2:
-            sip_a[p, q], sip_b[p, q] = lin_inv @ c
-
-    hdr = target_wcs.to_header(relax=True)
-    for key in list(hdr.keys()):
-        if key.startswith(("PC", "CD", "CDELT", "CROTA")):
-            hdr.remove(key, ignore_missing=True, remove_all=True)
-    cd = target_wcs.pixel_scale_matrix @ lin
-    for i in range(2):
-        hdr[f"CRPIX{i + 1}"] = float(ref[i] + 1.0)
-        for j in range(2):
-            hdr[f"CD{i + 1}_{j + 1}"] = float(cd[i, j])
-        ctype = target_wcs.wcs.ctype[i]
-        hdr[f"CTYPE{i + 1}"] = ctype + "-SIP"
-    hdr["A_ORDER"] = degree
-    hdr["B_ORDER"] = degree
-    for p in range(degree + 1):
-        for q in range(degree + 1 - p):
-            if p + q >= 2:
-                hdr[f"A_{p}_{q}"] = float(sip_a[p, q])
-                hdr[f"B_{p}_{q}"] = float(sip_b[p, q])
-    # Inverse terms: from U = d + F(d) back to d, fitted over the frame.
-    f_x = sum(sip_a[p, q] * d[:, 0] ** p * d[:, 1] ** q for (p, q) in _exponents(degree))
-    f_y = sum(sip_b[p, q] * d[:, 0] ** p * d[:, 1] ** q for (p, q) in _exponents(degree))
-    big_u = d + np.column_stack([f_x, f_y])
-    inv = _poly_fit(big_u, d - big_u, inverse_degree)
-    hdr["AP_ORDER"] = inverse_degree
-    hdr["BP_ORDER"] = inverse_degree
-    for (p, q), c in inv.items():
-        hdr[f"AP_{p}_{q}"] = float(c[0])
-        hdr[f"BP_{p}_{q}"] = float(c[1])
-    out = WCS(hdr)
-    out.pixel_shape = (nx, ny)
-    return out
+    return nx, ny, int(inverse_degree)
