@@ -22,9 +22,9 @@ Keyword         Content
 ``AATCRP2``     (0-based), with ``AATCRP1S``, ``AATCRP2S`` exact strings
 ``AATA20`` ...  'polynomial' only: the coefficients ``A_p_q``, ``B_p_q``
 ``AATB05``      (``AATApq``, ``AATBpq``), each with an exact ``...S`` string
-``AATDXMIN``,   'polynomial' only, when the model has a domain: ``(x_min,
-``AATDXMAX``,   x_max, y_min, y_max)``, the source pixels the inverse is
-``AATDYMIN``,   fitted over
+``AATDXMIN``,   'polynomial' only, when the model has a domain: the box
+``AATDXMAX``,   of source pixels (x min and max, y min and max) the
+``AATDYMIN``,   inverse is fitted over
 ``AATDYMAX``
 ``AATSCALE``    Scale (translation, euclidean, similarity), or
 ``AATSCALX``,   scale along x and y (affine)
