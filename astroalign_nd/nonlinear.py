@@ -373,12 +373,14 @@ def _check_domain(domain):
     return tuple(float(v) for v in d)
 
 
-class _MinPoints:
-    """``min_points`` of the class (default degree) and of an instance (its degree)."""
+class _PerDegree:
+    """A figure of the instance's degree, or of the default degree 3 on the class."""
+
+    def __init__(self, function):
+        self._function = function
 
     def __get__(self, obj, objtype=None):
-        degree = 3 if obj is None else obj.degree
-        return (degree + 1) * (degree + 2) // 2
+        return self._function(3 if obj is None else obj.degree)
 
 
 class _NoInverseDomain(ValueError, NotImplementedError):
@@ -627,12 +629,11 @@ class PolynomialTransform(Model):
 
     #: Point pairs that determine the model: `min_points_for` the instance's degree
     #: (on the class, for the default degree 3).
-    min_points = _MinPoints()
+    min_points = _PerDegree(lambda degree: (degree + 1) * (degree + 2) // 2)
 
-    @property
-    def n_dof(self):
-        """Degrees of freedom (free parameters): ``6 + 2 * (number of A_p_q terms)``."""
-        return 6 + 2 * len(self._exps)
+    #: Degrees of freedom (free parameters), ``6 + 2 * (number of A_p_q terms)``: of the
+    #: instance's degree (on the class, of the default degree 3).
+    n_dof = _PerDegree(lambda degree: 6 + 2 * len(_exponents(degree)))
 
     @classmethod
     def from_points(cls, src: ArrayLike, dst: ArrayLike, degree: int = 3, *,

@@ -64,6 +64,8 @@ def test_lookup_and_top_level():
     assert "PolynomialTransform" in astroalign_nd.__all__
     assert ProjectiveTransform.min_points == 4
     assert [PolynomialTransform(degree=d).min_points for d in (2, 3, 4, 5)] == [6, 10, 15, 21]
+    assert PolynomialTransform.min_points == 10 and PolynomialTransform.n_dof == 20
+    assert PolynomialTransform(degree=5).n_dof == 42 and ProjectiveTransform.n_dof == 8
 
 
 # -- projective --------------------------------------------------------------------------
