@@ -714,14 +714,13 @@ class PolynomialTransform(Model):
         full = [(p, n - p) for n in range(degree + 1) for p in range(n, -1, -1)]
         design = np.column_stack([(u[:, 0] / s) ** p * (u[:, 1] / s) ** q for p, q in full])
         sw = np.sqrt(w[keep])
-        dw = design * sw[:, None]
-        sv = np.linalg.svd(dw, compute_uv=False)
+        coef, _, _, sv = np.linalg.lstsq(design * sw[:, None], dst[keep] * sw[:, None],
+                                         rcond=None)
         if sv[-1] <= 1e-10 * sv[0]:
             raise ValueError(
                 f"the src points do not determine a degree-{degree} polynomial (they lie on "
                 "a line or a few lines, or cluster); give points spread over the frame, or "
                 "fit a lower degree or an AffineTransform.")
-        coef, *_ = np.linalg.lstsq(dw, dst[keep] * sw[:, None], rcond=None)
         coef = coef / np.array([s ** (p + q) for p, q in full])[:, None]
         t = coef[0]
         lin = np.array([[coef[1, 0], coef[2, 0]], [coef[1, 1], coef[2, 1]]])
