@@ -41,6 +41,8 @@ _LAZY = {
     "EuclideanTransform": "transforms",
     "SimilarityTransform": "transforms",
     "AffineTransform": "transforms",
+    "ProjectiveTransform": "transforms",
+    "PolynomialTransform": "transforms",
     "transform_to_header": "io",
     "transform_from_header": "io",
     "conf": "_config",

@@ -25,6 +25,10 @@ the rotation.  Any other value of ``parity`` is refused.
 To refit a transform on matched positions of your own (astropy's fitters
 do not fit models with two outputs), use ``from_points`` with optional
 weights, or `fit_transform` for the parameter covariance too.
+
+The non-linear models, `ProjectiveTransform` (a homography) and
+`PolynomialTransform` (SIP-style distortion), are defined in
+`astroalign_nd.nonlinear` and importable from here too.
 """
 
 from __future__ import annotations
@@ -42,7 +46,10 @@ __all__ = [
     "EuclideanTransform",
     "SimilarityTransform",
     "AffineTransform",
+    "ProjectiveTransform",
+    "PolynomialTransform",
     "TRANSFORM_TYPES",
+    "LINEAR_TYPES",
     "transform_class",
     "fit_transform",
     "as_matrix",
@@ -217,13 +224,7 @@ class LinearTransform2D(Model):
             If the matrix cannot be represented by this class (for example a
             sheared matrix given to `SimilarityTransform`).
         """
-        m = np.asarray(matrix, dtype=float)
-        if m.shape == (2, 3):
-            m = np.vstack([m, [0.0, 0.0, 1.0]])
-        if m.shape != (3, 3):
-            raise ValueError(f"matrix must have shape (3, 3) or (2, 3); got {m.shape}.")
-        if not np.all(np.isfinite(m)):
-            raise ValueError("matrix contains NaN or infinite values.")
+        m = _as_3x3(matrix)
         if not np.allclose(m[2], [0.0, 0.0, 1.0]):
             raise ValueError(
                 "matrix is projective (last row is not [0, 0, 1]); only affine-family "
@@ -360,6 +361,18 @@ class LinearTransform2D(Model):
         return cls._from_matrix(matrix), design, resid
 
     _parities = (1,)
+
+
+def _as_3x3(matrix):
+    """A finite 3x3 float matrix from a 3x3 or 2x3 (affine) array-like."""
+    m = np.asarray(matrix, dtype=float)
+    if m.shape == (2, 3):
+        m = np.vstack([m, [0.0, 0.0, 1.0]])
+    if m.shape != (3, 3):
+        raise ValueError(f"matrix must have shape (3, 3) or (2, 3); got {m.shape}.")
+    if not np.all(np.isfinite(m)):
+        raise ValueError("matrix contains NaN or infinite values.")
+    return m
 
 
 def _apply(matrix, pts):
@@ -734,16 +747,24 @@ class AffineTransform(LinearTransform2D):
         return m, design, np.array([a11, a12, a21, a22, tx, ty])
 
 
+# The non-linear models need the helpers above; they import them when called.
+from .nonlinear import PolynomialTransform, ProjectiveTransform  # noqa: E402
+
 #: The ``transform_type`` names accepted by `~astroalign_nd.find_transform`.
 TRANSFORM_TYPES = {
     "translation": TranslationTransform,
     "euclidean": EuclideanTransform,
     "similarity": SimilarityTransform,
     "affine": AffineTransform,
+    "projective": ProjectiveTransform,
+    "polynomial": PolynomialTransform,
 }
 
+#: The linear ones among `TRANSFORM_TYPES` (subclasses of `LinearTransform2D`).
+LINEAR_TYPES = ("translation", "euclidean", "similarity", "affine")
 
-def transform_class(transform_type: str | type) -> type[LinearTransform2D]:
+
+def transform_class(transform_type: str | type) -> type[Model]:
     """
     Return the model class for a ``transform_type`` name or class.
 
@@ -751,12 +772,14 @@ def transform_class(transform_type: str | type) -> type[LinearTransform2D]:
     ----------
     transform_type : str or type
         One of ``'translation'``, ``'euclidean'``, ``'similarity'``,
-        ``'affine'``, or one of the classes themselves.
+        ``'affine'``, ``'projective'``, ``'polynomial'``, or one of the
+        classes themselves.
 
     Returns
     -------
     cls : type
-        A subclass of `LinearTransform2D`.
+        A subclass of `LinearTransform2D`, or `ProjectiveTransform` or
+        `PolynomialTransform`.
 
     Raises
     ------
@@ -771,7 +794,8 @@ def transform_class(transform_type: str | type) -> type[LinearTransform2D]:
     >>> transform_class(AffineTransform) is AffineTransform
     True
     """
-    if isinstance(transform_type, type) and issubclass(transform_type, LinearTransform2D):
+    if isinstance(transform_type, type) and issubclass(
+            transform_type, (LinearTransform2D, ProjectiveTransform, PolynomialTransform)):
         return transform_type
     if isinstance(transform_type, str) and transform_type.lower() in TRANSFORM_TYPES:
         return TRANSFORM_TYPES[transform_type.lower()]
@@ -782,8 +806,9 @@ def transform_class(transform_type: str | type) -> type[LinearTransform2D]:
 
 
 def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "similarity", *,
-                  weights: ArrayLike | None = None, parity: int | None = None
-                  ) -> tuple[LinearTransform2D, np.ndarray, np.ndarray]:
+                  weights: ArrayLike | None = None, parity: int | None = None,
+                  degree: int | None = None, crpix: ArrayLike | None = None,
+                  domain: ArrayLike | None = None) -> tuple[Model, np.ndarray, np.ndarray]:
     """
     Least-squares fit of a transform, with its parameter covariance.
 
@@ -798,15 +823,23 @@ def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "
         see `LinearTransform2D.from_points`.
     parity : {None, 1, -1}, optional
         Force a proper or mirrored solution for rotation-like models.
+        The projective and polynomial models take a reflection from the
+        data and ignore it.
+    degree : int, optional
+        Degree of a ``'polynomial'`` model, 2 to 5 (default 3); only for
+        that type.
+    crpix, domain : optional
+        The reference pixel and the inverse's domain of a ``'polynomial'``
+        model; see `PolynomialTransform.from_points`.
 
     Returns
     -------
-    transform : `LinearTransform2D`
+    transform : `LinearTransform2D`, `ProjectiveTransform` or `PolynomialTransform`
     covariance : ndarray
         Covariance matrix of the model's free parameters (in the order of
-        ``transform.param_names``, without the fixed ``parity``; a rotation
-        in degrees), scaled by the residual variance.  NaN where there are
-        no spare degrees of freedom.
+        ``transform.param_names``, without the fixed ``parity``, ``crpix1``
+        and ``crpix2``; a rotation in degrees), scaled by the residual
+        variance.  NaN where there are no spare degrees of freedom.
     residuals : (N, 2) ndarray
         ``transform(src) - dst`` in target pixels.
 
@@ -825,9 +858,32 @@ def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "
     ((3, 3), (50, 2))
     >>> bool(np.sqrt(cov[1, 1]) < 0.1)  # 1-sigma error of translation_x, pixels
     True
+
+    A polynomial model (the covariance of its 6 linear and 2 x 3 distortion terms):
+
+    >>> from astroalign_nd.transforms import PolynomialTransform
+    >>> truth = PolynomialTransform(degree=2, crpix=(128.0, 128.0), A_2_0=1e-4)
+    >>> dst = np.column_stack(truth(*src.T)) + rng.normal(0, 0.05, (50, 2))
+    >>> t, cov, resid = fit_transform(src, dst, "polynomial", degree=2)
+    >>> t.degree, cov.shape
+    (2, (12, 12))
+    >>> bool(abs(t.A_2_0.value - 1e-4) < 5 * np.sqrt(cov[6, 6]))
+    True
     """
     cls = transform_class(transform_type)
-    model, design, resid = cls._fit(src, dst, weights=weights, parity=parity)
+    if parity is not None:
+        _check_parity(parity)
+    if cls is PolynomialTransform:
+        model, design, resid = cls._fit(src, dst, weights=weights, crpix=crpix, domain=domain,
+                                        degree=3 if degree is None else degree)
+    else:
+        given = [k for k, v in (("degree", degree), ("crpix", crpix), ("domain", domain))
+                 if v is not None]
+        if given:
+            raise ValueError(
+                f"{', '.join(given)} are for transform_type='polynomial' only; got them with "
+                f"{cls.__name__}.")
+        model, design, resid = cls._fit(src, dst, weights=weights, parity=parity)
     return model, _covariance(model, design, resid, weights), resid
 
 
@@ -942,7 +998,9 @@ def from_matrix(matrix: Any, transform_type: str | type | None = None) -> Linear
     Build a package transform from a 3x3 (or 2x3) matrix.
 
     With ``transform_type=None`` the simplest class that represents the
-    matrix exactly is chosen (translation, then euclidean, similarity, affine).
+    matrix exactly is chosen (translation, then euclidean, similarity, affine);
+    a projective matrix (last row not ``[0, 0, 1]``) needs
+    ``transform_type='projective'``.
 
     Examples
     --------
@@ -957,9 +1015,16 @@ def from_matrix(matrix: Any, transform_type: str | type | None = None) -> Linear
     >>> type(from_matrix(np.eye(3), "affine")).__name__
     'AffineTransform'
     """
-    m = as_matrix(matrix)
     if transform_type is not None:
-        return transform_class(transform_type).from_matrix(m)
+        cls = transform_class(transform_type)
+        if cls is PolynomialTransform:
+            raise ValueError(
+                "a matrix does not define a PolynomialTransform (its distortion terms); build "
+                "one with PolynomialTransform(...) or PolynomialTransform.from_points.")
+        if isinstance(matrix, ProjectiveTransform):
+            return cls.from_matrix(matrix.matrix)  # as_matrix refuses non-affine models
+        return cls.from_matrix(as_matrix(matrix))
+    m = as_matrix(matrix)
     for cls in (TranslationTransform, EuclideanTransform, SimilarityTransform):
         try:
             return cls.from_matrix(m)

@@ -13,6 +13,7 @@ needs the installed entry points.
 import importlib.metadata
 import json
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -33,17 +34,26 @@ from astroalign_nd.io.asdf import extension
 from astroalign_nd.transforms import (
     AffineTransform,
     EuclideanTransform,
+    PolynomialTransform,
+    ProjectiveTransform,
     SimilarityTransform,
     TranslationTransform,
 )
 
 URI_BASE = "asdf://astroalign-nd.org/astroalign_nd"
-EXTENSION_URI = f"{URI_BASE}/extensions/astroalign_nd-1.0.0"
-MANIFEST_URI = f"{URI_BASE}/manifests/astroalign_nd-1.0.0"
+EXTENSION_URI = f"{URI_BASE}/extensions/astroalign_nd-1.1.0"
+MANIFEST_URI = f"{URI_BASE}/manifests/astroalign_nd-1.1.0"
+# The first manifest, without the non-linear models: files written with it must still read.
+OLD_EXTENSION_URI = f"{URI_BASE}/extensions/astroalign_nd-1.0.0"
+OLD_MANIFEST_URI = f"{URI_BASE}/manifests/astroalign_nd-1.0.0"
 RESOURCES = Path(extension.__file__).parent / "resources"
-SCHEMA_NAMES = ["translation", "euclidean", "similarity", "affine"]
+DATA = Path(__file__).parent / "data"
+SCHEMA_NAMES = ["translation", "euclidean", "similarity", "affine", "projective", "polynomial"]
 SCHEMA_URIS = [f"{URI_BASE}/schemas/{name}_transform-1.0.0" for name in SCHEMA_NAMES]
 TAG_URIS = [f"{URI_BASE}/tags/{name}_transform-1.0.0" for name in SCHEMA_NAMES]
+CLASSES = {"translation": TranslationTransform, "euclidean": EuclideanTransform,
+           "similarity": SimilarityTransform, "affine": AffineTransform,
+           "projective": ProjectiveTransform, "polynomial": PolynomialTransform}
 
 # Points spanning a typical detector, with non-integer and negative values.
 XS = np.array([0.0, 1.0, -3.5, 123.456, 2047.0, 4095.75, -1000.0])
@@ -65,6 +75,15 @@ TRANSFORMS = {
                               translation_x=4.0, translation_y=-9.0 / 11.0),
     "affine-mirrored": AffineTransform(a11=0.9, a12=0.1, a21=0.2, a22=-1.1,
                                        translation_x=-3.0, translation_y=2.0),
+    "projective": ProjectiveTransform(h11=1.01, h12=0.02, h13=5.0 / 3.0, h21=-0.01, h22=0.99,
+                                      h23=-3.5, h31=2.0e-6, h32=-1.0e-6 / 3.0),
+    "polynomial": PolynomialTransform(degree=3, crpix=(2047.5, 1023.5), a11=1.001, a12=-0.02,
+                                      a21=0.02, a22=1.001, translation_x=2050.0 / 3.0,
+                                      translation_y=1020.25, A_2_0=3e-7, A_3_0=-1.8e-9,
+                                      A_1_2=-1.8e-9, B_2_1=-1.8e-9, B_0_3=-1.8e-9 / 7.0,
+                                      domain=(0.0, 4095.0, 0.0, 2047.0)),
+    "polynomial-5": PolynomialTransform(degree=5, crpix=(0.0, 0.0), A_5_0=1e-17, B_4_1=2e-17,
+                                        A_2_0=1e-6, domain=(-1000.0, 3000.0, -45.5, 3000.0)),
 }
 
 
@@ -109,21 +128,25 @@ def test_extension_registered():
     [ext] = [e for e in asdf.get_config().extensions if e.extension_uri == EXTENSION_URI]
     tag_uris = {tag.tag_uri for tag in ext.tags}
     assert tag_uris == set(TAG_URIS)
-    assert len(ext.converters) == 4
+    assert len(ext.converters) == 6
+    # The first extension is still there, for files written with it.
+    [old] = [e for e in asdf.get_config().extensions if e.extension_uri == OLD_EXTENSION_URI]
+    assert {tag.tag_uri for tag in old.tags} == set(TAG_URIS[:4])
 
 
 def test_converters_implement_interface():
     converters = extension.get_converters()
-    assert len(converters) == 4
+    assert len(converters) == 6
     types = set()
     for converter in converters:
         assert isinstance(converter, Converter)
         types.update(converter.types)
-    assert types == {
-        f"astroalign_nd.transforms.{name}"
-        for name in ("TranslationTransform", "EuclideanTransform", "SimilarityTransform",
-                     "AffineTransform")
-    }
+    assert types == {f"{cls.__module__}.{cls.__name__}" for cls in CLASSES.values()}
+    # One shared implementation on asdf's public API, nothing from asdf-astropy's internals.
+    assert {type(c) for c in converters} == {converters[0].__class__}
+    assert type(converters[0]).__mro__[1] is Converter
+    source = (Path(extension.__file__).parent / "converters.py").read_text()
+    assert "asdf_astropy" not in source
 
 
 def test_get_extensions_builds_new_objects():
@@ -138,7 +161,7 @@ def test_resource_mappings_cover_all_files():
     uris = set()
     for mapping in extension.get_resource_mappings():
         uris.update(mapping)
-    assert uris == {MANIFEST_URI, *SCHEMA_URIS}
+    assert uris == {MANIFEST_URI, OLD_MANIFEST_URI, *SCHEMA_URIS}
     manager = asdf.get_config().resource_manager
     for uri in uris:
         assert yaml.safe_load(manager[uri])["id"] == uri
@@ -159,7 +182,7 @@ def test_manifest_matches_converters_and_tag_table():
 
 
 @pytest.mark.parametrize("name", SCHEMA_NAMES)
-def test_schema_is_valid(name):
+def test_schema_is_valid(name):  # noqa: C901
     path = RESOURCES / "schemas" / f"{name}_transform-1.0.0.yaml"
     schema = yaml.safe_load(path.read_text())
     asdf.schema.check_schema(schema)
@@ -170,21 +193,33 @@ def test_schema_is_valid(name):
     base = schema["allOf"][0]["$ref"]
     assert base.startswith("http://stsci.edu/schemas/asdf/transform/transform-")
     asdf.schema.load_schema(base)
-    # Every model parameter is a required number.
-    cls = {"translation": TranslationTransform, "euclidean": EuclideanTransform,
-           "similarity": SimilarityTransform, "affine": AffineTransform}[name]
+    # Every model parameter is a required number (the polynomial's coefficients,
+    # whose names depend on the degree, match a pattern).
     body = schema["allOf"][1]
-    assert set(body["required"]) == set(cls.param_names)
-    for param in cls.param_names:
+    if name == "polynomial":
+        names = PolynomialTransform(degree=5).param_names
+        assert set(body["required"]) == {"degree", *names[:8]}
+        assert body["properties"]["degree"]["type"] == "integer"
+        for param in names[8:]:
+            [pattern] = body["patternProperties"]
+            assert re.match(pattern, param)
+            assert body["patternProperties"][pattern]["type"] == "number"
+        names = names[:8]
+    else:
+        names = CLASSES[name].param_names
+        assert set(body["required"]) == set(names)
+    for param in names:
         assert body["properties"][param]["type"] == "number"
 
 
 MANIFEST_SCHEMA_URI = "asdf://asdf-format.org/core/schemas/extension_manifest-1.0.0"
 
 
-def test_manifest_is_valid():
-    manifest = yaml.safe_load((RESOURCES / "manifests" / "astroalign_nd-1.0.0.yaml").read_text())
-    assert manifest["id"] == MANIFEST_URI
+@pytest.mark.parametrize("version", ["1.0.0", "1.1.0"])
+def test_manifest_is_valid(version):
+    manifest = yaml.safe_load(
+        (RESOURCES / "manifests" / f"astroalign_nd-{version}.yaml").read_text())
+    assert manifest["id"] == f"{URI_BASE}/manifests/astroalign_nd-{version}"
     asdf.schema.validate(manifest, schema=asdf.schema.load_schema(MANIFEST_SCHEMA_URI))
     for tag in manifest["tags"]:
         assert {"tag_uri", "schema_uri", "title", "description"} <= set(tag)
@@ -221,7 +256,15 @@ VALID_PARAMS = {
                    "parity": 1},
     "affine": {"a11": 1.0, "a12": 0.1, "a21": 0.2, "a22": 0.9, "translation_x": 1.0,
                "translation_y": 2.0},
+    "projective": {"h11": 1.0, "h12": 0.1, "h13": 3.0, "h21": 0.2, "h22": 0.9, "h23": -4.0,
+                   "h31": 0.001, "h32": -0.002},
+    "polynomial": {"degree": 2, "crpix1": 10.0, "crpix2": 20.0, "a11": 1.0, "a12": 0.1,
+                   "a21": 0.2, "a22": 0.9, "translation_x": 1.0, "translation_y": 2.0,
+                   "A_2_0": 0.0001, "A_1_1": 0.0, "A_0_2": 0.0002, "B_2_0": 0.0, "B_1_1": -0.0001,
+                   "B_0_2": 0.0},
 }
+# Required by the converter but not by the schema (names that depend on the degree).
+NOT_SCHEMA_REQUIRED = {"A_2_0", "A_1_1", "A_0_2", "B_2_0", "B_1_1", "B_0_2"}
 
 
 @pytest.mark.parametrize("name", SCHEMA_NAMES)
@@ -229,14 +272,16 @@ def test_valid_tree_reads(name):
     with asdf.open(yaml_to_asdf(_tagged_yaml(name, VALID_PARAMS[name]))) as af:
         model = af["model"]
     for key, value in VALID_PARAMS[name].items():
-        assert getattr(model, key).value == value
+        assert getattr(getattr(model, key), "value", getattr(model, key)) == value
 
 
 @pytest.mark.parametrize("name", SCHEMA_NAMES)
 def test_missing_parameter_fails_validation(name):
     for missing in VALID_PARAMS[name]:
         params = {k: v for k, v in VALID_PARAMS[name].items() if k != missing}
-        with pytest.raises(ValidationError, match=missing):
+        error = ValueError if missing in NOT_SCHEMA_REQUIRED else ValidationError
+        with asdf.config_context() as config, pytest.raises(error, match=missing):
+            config.warn_on_failed_conversion = False  # raise the converter's error
             with asdf.open(yaml_to_asdf(_tagged_yaml(name, params))):
                 pass
 
@@ -357,6 +402,90 @@ def test_model_set_is_rejected(tmp_path):
                                  n_models=2)
     with pytest.raises(ValueError, match="parameter sets"):
         asdf.AsdfFile({"obj": model}).write_to(tmp_path / "set.asdf")
+
+
+# -- the non-linear models and files of the first version -----------------------------
+
+
+def test_files_written_by_the_first_converters_still_read():
+    """tests/data/transforms_v1.asdf was written by the asdf-astropy based converters."""
+    expected = json.loads((DATA / "transforms_v1.json").read_text())
+    xs = np.array([0.0, 1.0, -3.5, 123.456, 2047.0])
+    ys = np.array([0.0, 2.0, 7.25, -45.5, 2047.0])
+    with asdf.open(DATA / "transforms_v1.asdf", lazy_load=False, memmap=False) as af:
+        used = [e["extension_uri"] for e in af["history"]["extensions"]]
+        tree = {k: af[k] for k in ("translation", "euclidean", "similarity", "affine",
+                                   "compound")}
+    assert [uri for uri in used if "astroalign" in uri] == [OLD_EXTENSION_URI]
+    for key, model in tree.items():
+        assert_allclose(np.array(model(xs, ys)), expected[key], rtol=0, atol=1e-12)
+    assert tree["euclidean"].name == "euclid" and tree["euclidean"].mirrored
+    assert tree["similarity"].bounding_box.bounding_box() == ((0.0, 99.0), (0.0, 199.0))
+    assert tree["affine"].has_user_inverse and tree["affine"].fixed["a12"]
+    assert_allclose(np.array(tree["affine"].inverse(xs, ys)), expected["affine_inverse"])
+
+
+def test_new_files_use_the_new_manifest(tmp_path):
+    path = tmp_path / "new.asdf"
+    asdf.AsdfFile({"t": TRANSFORMS["polynomial"]}).write_to(path)
+    with asdf.open(path) as af:
+        uris = [e["extension_uri"] for e in af["history"]["extensions"]]
+    assert EXTENSION_URI in uris and OLD_EXTENSION_URI not in uris
+
+
+@pytest.mark.parametrize("key", ["projective", "polynomial", "polynomial-5"])
+def test_nonlinear_roundtrip_over_the_frame(key, tmp_path):
+    model = TRANSFORMS[key]
+    model = (models.Shift(0.25) & models.Shift(-0.5)) | model
+    result = _roundtrip(model, tmp_path)
+    gx, gy = np.meshgrid(np.linspace(0, 3000, 65), np.linspace(0, 2047, 33))  # both domains
+    before = np.array(model(gx, gy))
+    after = np.array(result(gx, gy))
+    assert np.max(np.hypot(*(after - before))) < 1e-6  # pixels, the issue's figure
+    leaf = result[-1]
+    assert type(leaf) is type(TRANSFORMS[key])
+    if key.startswith("polynomial"):
+        assert leaf.degree == TRANSFORMS[key].degree and leaf.domain == TRANSFORMS[key].domain
+        assert leaf.fixed["crpix1"] and leaf.fixed["crpix2"]
+        assert leaf.inverse_error == TRANSFORMS[key].inverse_error
+    back = np.array(result.inverse(*after))
+    assert np.max(np.hypot(back[0] - gx, back[1] - gy)) < 0.01
+
+
+def test_polynomial_without_domain_and_with_constraints(tmp_path):
+    model = PolynomialTransform(degree=2, crpix=(5.0, 6.0), A_2_0=1e-4, name="lens")
+    model.A_1_1.fixed = True
+    model.a11.bounds = (0.5, 2.0)
+    model.inverse = models.Shift(-1.0) & models.Shift(-2.0)
+    result = _roundtrip(model, tmp_path)
+    assert result.domain is None and result.name == "lens"
+    assert result.fixed["A_1_1"] and result.bounds["a11"] == (0.5, 2.0)
+    _assert_same_evaluation(model, result)
+    _assert_same_evaluation(model.inverse, result.inverse)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"degree": 7}, "degree"),
+    ({"degree": 2.5}, "degree"),
+    ({"A_3_0": 0.1}, "beyond its degree"),
+    ({"domain": "[0.0, 1.0, 5.0, 2.0]"}, "domain"),
+    ({"a11": 0.0, "a12": 0.0}, "singular"),
+])
+def test_damaged_polynomial_node(change, message):
+    params = {**VALID_PARAMS["polynomial"], **change}
+    with asdf.config_context() as config, pytest.raises(ValueError, match=message):
+        config.validate_on_read = False  # the converter's own checks
+        config.warn_on_failed_conversion = False
+        with asdf.open(yaml_to_asdf(_tagged_yaml("polynomial", params))):
+            pass
+
+
+def test_singular_projective_node():
+    params = {**VALID_PARAMS["projective"], "h11": 0.0, "h12": 0.0, "h13": 0.0}
+    with asdf.config_context() as config, pytest.raises(ValueError, match="singular"):
+        config.warn_on_failed_conversion = False
+        with asdf.open(yaml_to_asdf(_tagged_yaml("projective", params))):
+            pass
 
 
 # -- fresh process, through the installed entry points -------------------------

@@ -17,7 +17,7 @@ import pytest
 #: 2.6's API, documented on the migration page rather than in the API
 #: reference: their examples are run, but not required of every name.
 MODULES = [
-    "detection", "asterisms", "matching", "transforms", "resample", "ccddata",
+    "detection", "asterisms", "matching", "transforms", "nonlinear", "resample", "ccddata",
     "registration", "batch", "simulate", "exceptions", "io.header", "io.write",
     "visualization", "compat",
 ]

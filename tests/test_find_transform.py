@@ -375,7 +375,7 @@ def test_exception_hierarchy():
     assert issubclass(TransformNotFoundError, AstroalignError)
 
 
-@pytest.mark.parametrize("bad", ["projective", "similarity2", 3, None])
+@pytest.mark.parametrize("bad", ["homography", "similarity2", 3, None])
 def test_bad_transform_type(bad):
     with pytest.raises(ValueError):
         find_transform(TRIANGLE, _map(TRUTH, TRIANGLE), transform_type=bad)

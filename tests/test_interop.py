@@ -200,7 +200,10 @@ def test_from_matrix_errors():
     with pytest.raises(ValueError, match="NaN"):
         AffineTransform.from_matrix(np.full((3, 3), np.nan))
     with pytest.raises(ValueError, match="transform_type"):
-        from_matrix(np.eye(3), "projective")
+        from_matrix(np.eye(3), "homography")
+    assert type(from_matrix(projective, "projective")).__name__ == "ProjectiveTransform"
+    with pytest.raises(ValueError, match="PolynomialTransform"):
+        from_matrix(np.eye(3), "polynomial")
 
 
 def test_as_matrix_of_astropy_models():

@@ -489,4 +489,4 @@ def test_from_matrix_errors():
 def test_fit_transform_bad_type():
     src = _points(5, seed=23)
     with pytest.raises(ValueError, match="transform_type"):
-        fit_transform(src, src, "projective")
+        fit_transform(src, src, "homography")

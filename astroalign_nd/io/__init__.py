@@ -3,8 +3,10 @@
 Storing transforms in files.
 
 * FITS headers: `transform_to_header` / `transform_from_header` write and
-  read a linear 2-D transform as ``AAT*`` keywords; `add_provenance` adds
-  the fit quality (`QUALITY_KEYWORDS`) and HISTORY of a registration.
+  read a transform (linear, projective or polynomial) as ``AAT*`` keywords;
+  `add_provenance` adds the fit quality (`QUALITY_KEYWORDS`) and HISTORY of
+  a registration; `distorted_wcs` gives the TAN-SIP WCS of the source frame
+  of a polynomial transform from the target frame's WCS.
 * Writing: `write_ccddata` / `atomic_write` write a file atomically, so an
   interrupted run never leaves half a file under the final name.
 * ASDF: any transform, alone or inside an astropy compound model, through
@@ -12,8 +14,9 @@ Storing transforms in files.
   points when the package is installed).
 """
 
-from .header import QUALITY_KEYWORDS, add_provenance, transform_from_header, transform_to_header
+from .header import (QUALITY_KEYWORDS, add_provenance, distorted_wcs, transform_from_header,
+                     transform_to_header)
 from .write import atomic_write, write_ccddata
 
-__all__ = ["transform_to_header", "transform_from_header", "add_provenance",
+__all__ = ["transform_to_header", "transform_from_header", "add_provenance", "distorted_wcs",
            "QUALITY_KEYWORDS", "atomic_write", "write_ccddata"]

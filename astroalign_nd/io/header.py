@@ -1,19 +1,31 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """
-Write a linear 2-D transform into a FITS header and read it back.
+Write a 2-D transform into a FITS header and read it back.
 
 The transform is stored as ``<prefix>*`` keywords (``AAT*`` by default):
 
 ==============  ===========================================================
 Keyword         Content
 ==============  ===========================================================
-``AATTYPE``     Transform class: 'translation', 'euclidean', 'similarity'
-                or 'affine'
+``AATTYPE``     Transform class: 'translation', 'euclidean', 'similarity',
+                'affine', 'projective' or 'polynomial'
 ``AATM00`` ...  The elements ``(i, j)`` of the 3x3 homogeneous matrix
-``AATM12``      ``[[M00, M01, M02], [M10, M11, M12], [0, 0, 1]]`` (floats)
+``AATM12``      ``[[M00, M01, M02], [M10, M11, M12], [0, 0, 1]]`` (floats);
+                for 'projective' also ``AATM20``, ``AATM21`` (the last
+                row is ``[M20, M21, 1]``); for 'polynomial' the linear part
+                ``[[a11, a12, translation_x], [a21, a22, translation_y]]``
 ``AATM00S`` ..  The same elements as strings with all 17 significant
 ``AATM12S``     digits (``repr``): a FITS float card holds 20 characters,
                 which astropy fills by rounding the mantissa
+``AATDEG``      'polynomial' only: the degree, 2 to 5
+``AATCRP1``,    'polynomial' only: the reference pixel ``crpix1, crpix2``
+``AATCRP2``     (0-based), with ``AATCRP1S``, ``AATCRP2S`` exact strings
+``AATA20`` ...  'polynomial' only: the coefficients ``A_p_q``, ``B_p_q``
+``AATB05``      (``AATApq``, ``AATBpq``), each with an exact ``...S`` string
+``AATDXMIN``,   'polynomial' only, when the model has a domain: the box
+``AATDXMAX``,   of source pixels (x min and max, y min and max) the
+``AATDYMIN``,   inverse is fitted over
+``AATDYMAX``
 ``AATSCALE``    Scale (translation, euclidean, similarity), or
 ``AATSCALX``,   scale along x and y (affine)
 ``AATSCALY``
@@ -32,9 +44,14 @@ writes; ``add_keyword=False`` (`~astroalign_nd.register`,
 ccdproc's ``add_keyword`` does.
 
 The transform is rebuilt from ``AATTYPE`` and the matrix (the strings when
-present, else the floats); the other keywords are for people reading the
-header.  The matrix maps 0-based source pixel coordinates ``(x, y)`` onto
-target pixel coordinates, like the models of `astroalign_nd.transforms`.
+present, else the floats), with the polynomial's keywords; the other
+keywords are for people reading the header.  The matrix maps 0-based source
+pixel coordinates ``(x, y)`` onto target pixel coordinates, like the models
+of `astroalign_nd.transforms`.
+
+`distorted_wcs` gives the celestial WCS of the *source* frame of a
+`~astroalign_nd.PolynomialTransform`, with the distortion as SIP terms,
+from the target frame's WCS.
 """
 
 from __future__ import annotations
@@ -51,17 +68,19 @@ from astropy.modeling import Model
 from astropy.utils.exceptions import AstropyUserWarning
 
 from ..exceptions import warn
+from ..nonlinear import DEGREES, PolynomialTransform, ProjectiveTransform, _exponents
 from ..transforms import (
     TRANSFORM_TYPES,
     AffineTransform,
     LinearTransform2D,
+    _check_invertible,
     as_matrix,
     transform_class,
 )
 
 __all__ = ["transform_to_header", "transform_from_header", "add_provenance",
            "QUALITY_KEYWORDS", "header_from_meta", "header_without_wcs", "fits_text",
-           "check_quality"]
+           "check_quality", "distorted_wcs"]
 
 #: The fit-quality keywords of a registered frame: suffix (after the prefix),
 #: the ``transform.meta['quality']`` entry, decimals kept, and comment.
@@ -72,9 +91,15 @@ QUALITY_KEYWORDS = (
 )
 
 _MATRIX_INDICES = ("00", "01", "02", "10", "11", "12")
+_PROJECTIVE_INDICES = ("20", "21")
 _HUMAN_SUFFIXES = ("SCALE", "SCALX", "SCALY", "ROT", "SHEAR", "TX", "TY", "PAR")
+# The polynomial's own keywords: degree, reference pixel, domain, coefficients.
+_DOMAIN_SUFFIXES = ("DXMIN", "DXMAX", "DYMIN", "DYMAX")
+_COEFF_SUFFIXES = tuple(f"{ab}{p}{q}" for ab in "AB" for p, q in _exponents(DEGREES[-1]))
+_POLY_SUFFIXES = ("DEG", "CRP1", "CRP1S", "CRP2", "CRP2S", *_DOMAIN_SUFFIXES,
+                  *_COEFF_SUFFIXES, *(c + "S" for c in _COEFF_SUFFIXES))
 # Every suffix must fit the 8-character FITS keyword with the prefix.
-_MAX_PREFIX = 8 - max(len(s) for s in (*_HUMAN_SUFFIXES, "TYPE", "M00S"))
+_MAX_PREFIX = 8 - max(len(s) for s in (*_HUMAN_SUFFIXES, *_POLY_SUFFIXES, "TYPE", "M00S"))
 _PREFIX_RE = re.compile(r"^[A-Z0-9_-]+$")
 _FITS_KEY = re.compile(r"^[A-Z0-9_-]{1,8}$")
 # The float cards round to >= 13 significant digits; the exact strings must agree.
@@ -96,8 +121,9 @@ def _check_prefix(prefix):
 
 def _keywords(prefix):
     """All the keywords this module may write, for a given prefix."""
-    names = ["TYPE", *(f"M{ij}" for ij in _MATRIX_INDICES),
-             *(f"M{ij}S" for ij in _MATRIX_INDICES), *_HUMAN_SUFFIXES]
+    indices = (*_MATRIX_INDICES, *_PROJECTIVE_INDICES)
+    names = ["TYPE", *(f"M{ij}" for ij in indices), *(f"M{ij}S" for ij in indices),
+             *_HUMAN_SUFFIXES, *_POLY_SUFFIXES]
     return [prefix + name for name in names]
 
 
@@ -120,21 +146,30 @@ def _model_matrix(model):
             f"model holds {len(model)} parameter sets; a FITS header stores a single "
             "transform."
         )
-    if isinstance(model, LinearTransform2D):
+    if isinstance(model, (LinearTransform2D, ProjectiveTransform)):
         matrix = model.matrix
+    elif isinstance(model, PolynomialTransform):
+        matrix = np.eye(3)  # the linear part, about crpix
+        matrix[:2, :2] = model.linear_matrix
+        matrix[:2, 2] = [model.translation_x.value, model.translation_y.value]
     else:
-        try:
-            matrix = as_matrix(model)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(
-                f"only linear 2-D transforms (2 inputs, 2 outputs, affine) can go into a "
-                f"FITS header; {type(model).__name__} is not one ({exc}). Save it to an "
-                "ASDF file instead: asdf.AsdfFile({'transform': model})"
-                ".write_to('transform.asdf')."
-            ) from None
+        matrix = _affine_matrix(model)
     if not np.all(np.isfinite(matrix)):
         raise ValueError("the transform's matrix contains NaN or infinite values.")
     return matrix
+
+
+def _affine_matrix(model):
+    """The matrix of any other astropy model, which must be affine."""
+    try:
+        return as_matrix(model)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"only the astroalign_nd transforms and linear 2-D astropy models (2 inputs, 2 "
+            f"outputs, affine) can go into a FITS header; {type(model).__name__} is not one "
+            f"({exc}). Save it to an ASDF file instead: asdf.AsdfFile({{'transform': model}})"
+            ".write_to('transform.asdf')."
+        ) from None
 
 
 def _degrees(angle):
@@ -146,6 +181,11 @@ def _degrees(angle):
 
 def _human_cards(type_name, model, matrix):
     """The readable ``(suffix, value, comment)`` cards of the transform."""
+    if type_name in ("projective", "polynomial"):
+        return [("TX", float(matrix[0, 2]), "[px] translation along x" + (
+            " of the reference pixel" if type_name == "polynomial" else "")),
+                ("TY", float(matrix[1, 2]), "[px] translation along y" + (
+                    " of the reference pixel" if type_name == "polynomial" else ""))]
     if type_name == "affine":
         affine = AffineTransform.from_matrix(matrix)
         sx, sy = affine.scale
@@ -174,14 +214,16 @@ def _human_cards(type_name, model, matrix):
 def transform_to_header(model: Model, header: fits.Header | Mapping | None = None, *,
                         prefix: str = "AAT") -> fits.Header:
     """
-    Store a linear 2-D transform in a FITS header.
+    Store a 2-D transform in a FITS header.
 
     Parameters
     ----------
-    model : `~astroalign_nd.transforms.LinearTransform2D` or `~astropy.modeling.Model`
-        The transform.  An astroalign_nd transform keeps its class; any
-        other astropy model with 2 inputs and 2 outputs that is affine
-        (e.g. ``Shift(1) & Shift(2) | Rotation2D(30)`` or
+    model : `~astropy.modeling.Model`
+        The transform.  An astroalign_nd transform keeps its class
+        (including `~astroalign_nd.ProjectiveTransform` and
+        `~astroalign_nd.PolynomialTransform`); any other astropy model with
+        2 inputs and 2 outputs that is affine (e.g. ``Shift(1) & Shift(2) |
+        Rotation2D(30)`` or
         `~astropy.modeling.projections.AffineTransformation2D`) is stored
         as ``'affine'``.
     header : `~astropy.io.fits.Header` or dict-like, optional
@@ -199,15 +241,17 @@ def transform_to_header(model: Model, header: fits.Header | Mapping | None = Non
     Raises
     ------
     ValueError
-        If the model is not a linear 2-D transform (use ASDF for those), or
-        the prefix is not valid.
+        If the model is neither an astroalign_nd transform nor an affine 2-D
+        astropy model (use ASDF for those), or the prefix is not valid.
     TypeError
         If ``model`` is not an astropy model.
 
     Notes
     -----
     Only the forward transform is stored: a user-assigned ``inverse`` is
-    dropped with a warning (the analytic inverse is rebuilt on reading).
+    dropped with a warning (the analytic inverse is rebuilt on reading; a
+    polynomial's inverse is fitted again over its stored domain, which
+    gives the same inverse).
 
     Examples
     --------
@@ -221,6 +265,17 @@ def transform_to_header(model: Model, header: fits.Header | Mapping | None = Non
     >>> t2 = transform_from_header(hdr)
     >>> type(t2).__name__
     'SimilarityTransform'
+
+    A polynomial model, with its distortion coefficients:
+
+    >>> from astroalign_nd import PolynomialTransform
+    >>> p = PolynomialTransform(degree=2, crpix=(511.5, 511.5), translation_x=500.0,
+    ...                         translation_y=520.0, A_2_0=1e-6, B_1_1=-3e-7)
+    >>> hdr = transform_to_header(p)
+    >>> hdr["AATTYPE"], hdr["AATDEG"], hdr["AATA20"], hdr["AATB11"]
+    ('polynomial', 2, 1e-06, -3e-07)
+    >>> transform_from_header(hdr)(100.0, 200.0) == p(100.0, 200.0)
+    True
     """
     prefix = _check_prefix(prefix)
     matrix = _model_matrix(model)
@@ -248,47 +303,75 @@ def transform_to_header(model: Model, header: fits.Header | Mapping | None = Non
         out.remove(key, ignore_missing=True, remove_all=True)
 
     out[prefix + "TYPE"] = (type_name, "astroalign_nd transform class")
-    for ij in _MATRIX_INDICES:
+    indices = _MATRIX_INDICES + (_PROJECTIVE_INDICES if type_name == "projective" else ())
+    what = "linear part (about AATCRP)" if type_name == "polynomial" else "transform matrix"
+    for ij in indices:
         value = float(matrix[int(ij[0]), int(ij[1])])
-        out[f"{prefix}M{ij}"] = (value, f"transform matrix element ({ij[0]},{ij[1]})")
-    for ij in _MATRIX_INDICES:
+        out[f"{prefix}M{ij}"] = (value, f"{what} element ({ij[0]},{ij[1]})")
+    for ij in indices:
         value = float(matrix[int(ij[0]), int(ij[1])])
         out[f"{prefix}M{ij}S"] = (repr(value), f"{prefix}M{ij}, all digits")
+    if type_name == "polynomial":
+        _polynomial_cards(out, model, prefix)
     for suffix, value, comment in _human_cards(type_name, model, matrix):
         out[prefix + suffix] = (value, comment)
     return out
 
 
-def _read_matrix(header, prefix):
+def _polynomial_cards(out, model, prefix):
+    """The degree, reference pixel, domain and coefficients of a PolynomialTransform."""
+    out[prefix + "DEG"] = (model.degree, "degree of the polynomial distortion")
+    for i, value in enumerate(model.crpix, start=1):
+        out[f"{prefix}CRP{i}"] = (value, f"[px] reference pixel {'xy'[i - 1]}, 0-based")
+        out[f"{prefix}CRP{i}S"] = (repr(value), f"{prefix}CRP{i}, all digits")
+    if model.domain is not None:
+        for suffix, value in zip(_DOMAIN_SUFFIXES, model.domain):
+            out[prefix + suffix] = (value, "[px] domain of the fitted inverse")
+    coef_a, coef_b = model.coefficients
+    for ab, coefs in (("A", coef_a), ("B", coef_b)):
+        for (p, q), value in coefs.items():
+            key = f"{prefix}{ab}{p}{q}"
+            out[key] = (value, f"distortion coefficient {ab}_{p}_{q}")
+            out[key + "S"] = (repr(value), f"{key}, all digits")
+
+
+def _read_matrix(header, prefix, indices=_MATRIX_INDICES):
     matrix = np.eye(3)
-    for ij in _MATRIX_INDICES:
-        key, skey = f"{prefix}M{ij}", f"{prefix}M{ij}S"
-        if key not in header and skey not in header:
-            raise ValueError(
-                f"header has {prefix}TYPE but no {key}: the transform matrix is incomplete."
-            )
-        exact = None
-        if skey in header:
-            try:
-                exact = float(header[skey])
-            except (TypeError, ValueError):
-                raise ValueError(
-                    f"header keyword {skey} must hold a number as a string; got "
-                    f"{header[skey]!r}."
-                ) from None
-        rounded = header.get(key)
-        if rounded is not None and (
-            isinstance(rounded, bool) or not isinstance(rounded, (int, float, np.number))
-        ):
-            raise ValueError(f"header keyword {key} must be a real number; got {rounded!r}.")
-        if exact is not None and rounded is not None:
-            if abs(float(rounded) - exact) > _CONSISTENCY_RTOL * max(abs(exact), 1e-300):
-                raise ValueError(
-                    f"header keywords {key} = {rounded!r} and {skey} = {header[skey]!r} "
-                    f"disagree; was one of them edited? Fix or remove {skey}."
-                )
-        matrix[int(ij[0]), int(ij[1])] = exact if exact is not None else float(rounded)
+    for ij in indices:
+        matrix[int(ij[0]), int(ij[1])] = _read_exact(header, f"{prefix}M{ij}",
+                                                     f"{prefix}TYPE", "the transform matrix")
     return matrix
+
+
+def _read_exact(header, key, type_key, what):
+    """A number stored as a float card ``key`` and (optionally) an exact string ``key + 'S'``."""
+    skey = key + "S"
+    if key not in header and skey not in header:
+        raise ValueError(f"header has {type_key} but no {key}: {what} is incomplete.")
+    exact = None
+    if skey in header:
+        try:
+            exact = float(header[skey])
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"header keyword {skey} must hold a number as a string; got "
+                f"{header[skey]!r}."
+            ) from None
+    rounded = header.get(key)
+    if rounded is not None and (
+        isinstance(rounded, bool) or not isinstance(rounded, (int, float, np.number))
+    ):
+        raise ValueError(f"header keyword {key} must be a real number; got {rounded!r}.")
+    if exact is not None and rounded is not None:
+        if abs(float(rounded) - exact) > _CONSISTENCY_RTOL * max(abs(exact), 1e-300):
+            raise ValueError(
+                f"header keywords {key} = {rounded!r} and {skey} = {header[skey]!r} "
+                f"disagree; was one of them edited? Fix or remove {skey}."
+            )
+    value = exact if exact is not None else float(rounded)
+    if not np.isfinite(value):
+        raise ValueError(f"header keyword {key} must be a finite number; got {value!r}.")
+    return value
 
 
 def fits_text(text):
@@ -506,7 +589,7 @@ def check_quality(quality):
 
 
 def transform_from_header(header: fits.Header | Mapping, *,
-                          prefix: str = "AAT") -> LinearTransform2D:
+                          prefix: str = "AAT") -> Model:
     """
     Rebuild a transform stored by `transform_to_header`.
 
@@ -519,9 +602,12 @@ def transform_from_header(header: fits.Header | Mapping, *,
 
     Returns
     -------
-    transform : `~astroalign_nd.transforms.LinearTransform2D`
-        An instance of the class named by ``<prefix>TYPE``, built from the
-        stored matrix.
+    transform : astropy model
+        An instance of the class named by ``<prefix>TYPE`` (a
+        `~astroalign_nd.transforms.LinearTransform2D`,
+        `~astroalign_nd.ProjectiveTransform` or
+        `~astroalign_nd.PolynomialTransform`), built from the stored
+        keywords.
 
     Raises
     ------
@@ -576,7 +662,10 @@ def transform_from_header(header: fits.Header | Mapping, *,
             f"{type_name!r}."
         )
     cls = transform_class(type_name.strip().lower())
-    matrix = _read_matrix(header, prefix)
+    if cls is PolynomialTransform:
+        return _read_polynomial(header, prefix)
+    indices = _MATRIX_INDICES + (_PROJECTIVE_INDICES if cls is ProjectiveTransform else ())
+    matrix = _read_matrix(header, prefix, indices)
     try:
         return cls.from_matrix(matrix)
     except ValueError as exc:
@@ -585,13 +674,52 @@ def transform_from_header(header: fits.Header | Mapping, *,
         ) from None
 
 
+def _read_polynomial(header, prefix):
+    type_key = prefix + "TYPE"
+    degree = header.get(prefix + "DEG")
+    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or (
+            degree not in DEGREES):
+        raise ValueError(f"header keyword {prefix}DEG must be the polynomial's degree, an "
+                         f"integer from 2 to 5; got {degree!r}.")
+    m = _read_matrix(header, prefix)
+    params = {"a11": m[0, 0], "a12": m[0, 1], "a21": m[1, 0], "a22": m[1, 1],
+              "translation_x": m[0, 2], "translation_y": m[1, 2]}
+    crpix = [_read_exact(header, f"{prefix}CRP{i}", type_key, "the reference pixel")
+             for i in (1, 2)]
+    for ab in "AB":
+        for p, q in _exponents(int(degree)):
+            params[f"{ab}_{p}_{q}"] = _read_exact(header, f"{prefix}{ab}{p}{q}", type_key,
+                                                  f"the degree-{degree} polynomial")
+    extra = [prefix + c for c in _COEFF_SUFFIXES
+             if prefix + c in header and int(c[1]) + int(c[2]) > degree]
+    if extra:
+        raise ValueError(f"header has {extra}, terms beyond {prefix}DEG = {degree}; was "
+                         f"{prefix}DEG edited?")
+    present = [prefix + k in header for k in _DOMAIN_SUFFIXES]
+    domain = None
+    if any(present):
+        if not all(present):
+            raise ValueError(f"header has only some of {[prefix + k for k in _DOMAIN_SUFFIXES]}"
+                             "; give all four (the inverse's domain) or none.")
+        domain = [header[prefix + k] for k in _DOMAIN_SUFFIXES]
+    try:
+        model = PolynomialTransform(degree=int(degree), crpix=crpix, domain=domain, **params)
+        m3 = np.eye(3)
+        m3[:2, :2] = model.linear_matrix
+        _check_invertible(m3, "PolynomialTransform's linear part")
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"the header's polynomial keywords are not a valid "
+                         f"PolynomialTransform ({exc}).") from None
+    return model
+
+
 def _add_history(header, text):
     """HISTORY cards wrapped at word boundaries (FITS cuts long ones mid-word)."""
     for line in textwrap.wrap(text, 70, subsequent_indent="  "):
         header.add_history(line)
 
 
-def add_provenance(header: fits.Header, model: LinearTransform2D, *,
+def add_provenance(header: fits.Header, model: Model, *,
                    quality: dict | None = None, source_name: str = "source",
                    target_name: str = "target", order: str | None = None,
                    conserve_flux: bool = False, prefix: str = "AAT") -> fits.Header:
@@ -602,8 +730,10 @@ def add_provenance(header: fits.Header, model: LinearTransform2D, *,
     ----------
     header : `~astropy.io.fits.Header`
         Copied, never modified.
-    model : `~astroalign_nd.transforms.LinearTransform2D`
-        The source-to-target transform (stored by `transform_to_header`).
+    model : astropy model
+        The source-to-target transform (stored by `transform_to_header`):
+        an astroalign_nd transform, linear or not, or an affine astropy
+        model.
     quality : dict, optional
         ``transform.meta['quality']``; adds the `QUALITY_KEYWORDS`.
     source_name, target_name : str, optional
@@ -640,7 +770,7 @@ def add_provenance(header: fits.Header, model: LinearTransform2D, *,
 
     quality = check_quality(quality)
     out = transform_to_header(model, header, prefix=prefix)
-    m = as_matrix(model)
+    m = _model_matrix(model)  # for a polynomial, its linear part about crpix
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
     # File names may hold characters a FITS card cannot (escaped, not fatal).
     _add_history(out, f"astroalign_nd {__version__} {now} UTC: registered "
@@ -650,6 +780,11 @@ def add_provenance(header: fits.Header, model: LinearTransform2D, *,
     desc = (f"{type(model).__name__} scale={np.sqrt(abs(det)):.6f}"
             f" rot={np.degrees(np.arctan2(m[1, 0], m[0, 0])):.5f}deg"
             f" shift=({m[0, 2]:.3f},{m[1, 2]:.3f})px{' mirrored' if det < 0 else ''}")
+    if isinstance(model, ProjectiveTransform):
+        desc += f" h31={m[2, 0]:.4g} h32={m[2, 1]:.4g}"
+    elif isinstance(model, PolynomialTransform):
+        desc += (f" (linear part about crpix=({model.crpix[0]:.2f},{model.crpix[1]:.2f}))"
+                 f" degree={model.degree} distortion")
     _add_history(out, f"astroalign_nd transform: {desc}")
     if order is not None:
         _add_history(out, f"astroalign_nd resampling: {order}, conserve_flux={conserve_flux}")
@@ -662,3 +797,180 @@ def add_provenance(header: fits.Header, model: LinearTransform2D, *,
             value = int(value) if decimals is None else round(float(value), decimals)
             out[_check_prefix(prefix) + suffix] = (value, comment)
     return out
+
+
+def _solve(model, target, start, iterations=30):
+    """The source pixel that ``model`` maps onto ``target`` (Newton, numerical Jacobian)."""
+    p = np.array(start, dtype=float)
+    h = 1e-2
+    for _ in range(iterations):
+        f = np.array(model(p[0], p[1]), dtype=float) - target
+        jac = np.column_stack([
+            (np.array(model(p[0] + h, p[1])) - np.array(model(p[0] - h, p[1]))) / (2 * h),
+            (np.array(model(p[0], p[1] + h)) - np.array(model(p[0], p[1] - h))) / (2 * h)])
+        step = np.linalg.solve(jac, -f)
+        p = p + step
+        if np.hypot(*step) < 1e-12 * max(1.0, np.hypot(*p)):
+            break
+    return p
+
+
+def _poly_fit(d, values, degree):
+    """Coefficients ``{(p, q): (cx, cy)}`` of a full polynomial of ``degree`` in ``d``."""
+    s = max(float(np.max(np.abs(d))), 1.0)
+    exps = [(p, n - p) for n in range(degree + 1) for p in range(n, -1, -1)]
+    design = np.column_stack([(d[:, 0] / s) ** p * (d[:, 1] / s) ** q for p, q in exps])
+    coef, *_ = np.linalg.lstsq(design, values, rcond=None)
+    return {e: coef[k] / s ** sum(e) for k, e in enumerate(exps)}
+
+
+def distorted_wcs(model: PolynomialTransform, target_wcs, shape, *,
+                  inverse_degree: int | None = None):
+    """
+    The source frame's celestial WCS: the target's, through a polynomial model, as TAN-SIP.
+
+    A `~astroalign_nd.PolynomialTransform` maps source pixels onto target
+    pixels; the target frame's WCS maps those onto the sky.  Their
+    composition is the source frame's WCS, which this function writes in
+    the FITS SIP convention (the ``-SIP`` suffix, ``A_p_q``/``B_p_q`` forward
+    and ``AP_p_q``/``BP_p_q`` inverse terms) that `astropy.wcs`, ds9 and
+    most astrometric software read.
+
+    The reference pixel ``CRPIX`` of the result is the source pixel that
+    the model maps onto the target's ``CRPIX``, and ``CD`` is the target's
+    times the model's local linear part there; the forward terms are the
+    model's polynomial re-expanded about that pixel, which is exact (a
+    polynomial composed with a linear map is a polynomial of the same
+    degree).  The inverse terms are fitted over the frame.
+
+    Parameters
+    ----------
+    model : `~astroalign_nd.PolynomialTransform`
+        Source-to-target transform.
+    target_wcs : `~astropy.wcs.WCS`
+        The target frame's WCS: 2-D, celestial, without distortion terms of
+        its own (SIP, lookup tables).
+    shape : (int, int)
+        The source frame's shape ``(ny, nx)``: where the inverse terms are
+        fitted, and the result's ``pixel_shape``.
+    inverse_degree : int, optional
+        Degree of the inverse (AP/BP) terms, up to 9; default ``2 *
+        model.degree + 1`` (at most 9), which inverts a few tens of pixels
+        of distortion to a few thousandths of a pixel.
+
+    Returns
+    -------
+    wcs : `~astropy.wcs.WCS`
+        The source frame's WCS.  ``wcs.pixel_to_world(x, y)`` equals
+        ``target_wcs.pixel_to_world(*model(x, y))``.
+
+    Raises
+    ------
+    TypeError
+        If ``model`` is not a `~astroalign_nd.PolynomialTransform` or
+        ``target_wcs`` not an astropy WCS.
+    ValueError
+        If the target WCS is not a 2-D celestial WCS, already has
+        distortion terms, or ``shape`` is not two positive integers.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy.wcs import WCS
+    >>> from astroalign_nd import PolynomialTransform
+    >>> from astroalign_nd.io.header import distorted_wcs
+    >>> target = WCS(naxis=2)
+    >>> target.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+    >>> target.wcs.crval = [150.0, 2.0]
+    >>> target.wcs.crpix = [512.5, 512.5]
+    >>> target.wcs.cdelt = [-2e-4, 2e-4]
+    >>> model = PolynomialTransform(degree=3, crpix=(511.5, 511.5), translation_x=515.0,
+    ...                             translation_y=505.0, A_3_0=-2e-9, B_0_3=-2e-9)
+    >>> source = distorted_wcs(model, target, (1024, 1024))
+    >>> source.wcs.ctype[0], source.sip.a_order
+    ('RA---TAN-SIP', 3)
+    >>> x, y = 10.0, 1000.0  # a corner, where the distortion is ~ 0.2 px
+    >>> sky = source.pixel_to_world(x, y)
+    >>> xt, yt = target.world_to_pixel(sky)
+    >>> bool(np.hypot(xt - model(x, y)[0], yt - model(x, y)[1]) < 1e-6)
+    True
+    """
+    from astropy.wcs import WCS
+
+    nx, ny, inverse_degree = _check_sip_inputs(model, target_wcs, shape, inverse_degree)
+    degree = model.degree
+    # The source pixel that lands on the target's reference pixel (0-based).
+    target_ref = np.array(target_wcs.wcs.crpix, dtype=float) - 1.0
+    lin_part = model.linear_part.matrix
+    ref = _solve(model, target_ref, np.linalg.solve(lin_part[:2, :2],
+                                                    target_ref - lin_part[:2, 2]))
+    # Re-expand model(ref + d) - target_ref = L (d + F(d)) about ref: exact on a grid of
+    # (degree + 1)^2 points or more; the inverse fit needs more than its terms.
+    n = max(4 * degree + 1, 3 * inverse_degree + 1)
+    gx, gy = np.meshgrid(np.linspace(0, nx - 1, n), np.linspace(0, ny - 1, n))
+    d = np.column_stack([gx.ravel(), gy.ravel()]) - ref
+    coef = _poly_fit(d, np.column_stack(model(gx.ravel(), gy.ravel())) - target_ref, degree)
+    lin = np.column_stack([coef[(1, 0)], coef[(0, 1)]])  # rows x', y'; columns d_x, d_y
+    lin_inv = np.linalg.inv(lin)
+    forward = {e: lin_inv @ c for e, c in coef.items() if sum(e) >= 2}
+    # Inverse terms: from U = d + F(d) back to d, fitted over the frame.
+    big_u = d + sum(np.outer(d[:, 0] ** p * d[:, 1] ** q, c) for (p, q), c in forward.items())
+    inverse = _poly_fit(big_u, d - big_u, inverse_degree)
+
+    hdr = target_wcs.to_header(relax=True)
+    for key in list(hdr.keys()):
+        if key.startswith(("PC", "CD", "CDELT", "CROTA")):
+            hdr.remove(key, ignore_missing=True, remove_all=True)
+    cd = target_wcs.pixel_scale_matrix @ lin
+    for i in range(2):
+        hdr[f"CRPIX{i + 1}"] = float(ref[i] + 1.0)
+        hdr[f"CTYPE{i + 1}"] = target_wcs.wcs.ctype[i] + "-SIP"
+        for j in range(2):
+            hdr[f"CD{i + 1}_{j + 1}"] = float(cd[i, j])
+    for x_name, y_name, order, terms in (("A", "B", degree, forward),
+                                         ("AP", "BP", inverse_degree, inverse)):
+        hdr[f"{x_name}_ORDER"] = hdr[f"{y_name}_ORDER"] = order
+        for (p, q), c in terms.items():
+            hdr[f"{x_name}_{p}_{q}"] = float(c[0])
+            hdr[f"{y_name}_{p}_{q}"] = float(c[1])
+    out = WCS(hdr)
+    out.pixel_shape = (nx, ny)
+    return out
+
+
+def _check_sip_inputs(model, target_wcs, shape, inverse_degree):
+    """``(nx, ny, inverse_degree)`` of `distorted_wcs`, or a clear error."""
+    from astropy.wcs import WCS
+
+    if not isinstance(model, PolynomialTransform):
+        raise TypeError(
+            f"model must be an astroalign_nd PolynomialTransform; got {type(model).__name__}. "
+            "For a linear transform, astropy's WCS of the source frame is "
+            "reproject-style: apply the transform's matrix to the target WCS's CRPIX and CD.")
+    if not isinstance(target_wcs, WCS):
+        raise TypeError(f"target_wcs must be an astropy.wcs.WCS; got "
+                        f"{type(target_wcs).__name__}.")
+    if target_wcs.naxis != 2 or not target_wcs.has_celestial:
+        raise ValueError("target_wcs must be a 2-D celestial WCS (e.g. RA---TAN, DEC--TAN); "
+                         f"got {target_wcs.naxis} axes {list(target_wcs.wcs.ctype)}.")
+    tables = (target_wcs.cpdis1, target_wcs.cpdis2, target_wcs.det2im1, target_wcs.det2im2)
+    if target_wcs.sip is not None or any(t is not None for t in tables) or any(
+            c.endswith("-SIP") for c in target_wcs.wcs.ctype):
+        raise ValueError("target_wcs already has distortion terms (SIP or lookup tables); "
+                         "their composition with the model is not a SIP polynomial. Fit a "
+                         "WCS to matched stars instead (astropy.wcs.utils."
+                         "fit_wcs_from_points).")
+    try:
+        ny, nx = (int(v) for v in shape)
+    except (TypeError, ValueError):
+        ny = nx = 0
+    if not (ny > 0 and nx > 0):
+        raise ValueError(f"shape must be the source frame's (ny, nx), two positive integers; "
+                         f"got {shape!r}.")
+    if inverse_degree is None:
+        inverse_degree = min(2 * model.degree + 1, 9)
+    if isinstance(inverse_degree, bool) or not isinstance(inverse_degree, (int, np.integer)) \
+            or not 1 <= inverse_degree <= 9:
+        raise ValueError(f"inverse_degree must be an integer from 1 to 9 (SIP's limit); got "
+                         f"{inverse_degree!r}.")
+    return nx, ny, int(inverse_degree)

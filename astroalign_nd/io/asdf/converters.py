@@ -1,28 +1,32 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """
-ASDF converters of the `astroalign_nd.transforms` models.
+ASDF converters of the astroalign_nd transform models.
 
-Each converter subclasses asdf-astropy's
-``asdf_astropy.converters.transform.core.TransformConverterBase``, which
-handles the properties common to every astropy model (``name``,
-``inputs``/``outputs``, a user-assigned ``inverse``, ``bounding_box``,
-``fixed`` and ``bounds``); the converters here only write and read the
-parameters.  asdf matches Python types exactly, so each class has its own
-converter and tag.
+One implementation, `TransformConverter`, on asdf's public
+``asdf.extension.Converter`` API, serves every model class; `CONVERTERS`
+is the table of what differs between them (class, tag, how its parameters
+are checked on reading).  asdf matches Python types exactly, so each class
+has its own converter instance and tag.
+
+A node holds every model parameter as a plain number (for
+`~astroalign_nd.PolynomialTransform` also its ``degree`` and ``domain``),
+and the properties common to astropy models that the transform schemas of
+asdf-transform-schemas define: ``name``, ``inputs``/``outputs``, a
+user-assigned ``inverse``, ``bounding_box``, ``fixed``, ``bounds`` and
+``input_units_equivalencies``.  The analytic (or fitted) inverse is not
+written: it is rebuilt on reading.
 """
 
-import numpy as np
-from asdf_astropy.converters.transform.core import TransformConverterBase
+import importlib
 
-__all__ = [
-    "LinearTransformConverterBase",
-    "TranslationTransformConverter",
-    "EuclideanTransformConverter",
-    "SimilarityTransformConverter",
-    "AffineTransformConverter",
-]
+import numpy as np
+from asdf.extension import Converter
+
+__all__ = ["TransformConverter", "CONVERTERS"]
 
 _TAG_BASE = "asdf://astroalign-nd.org/astroalign_nd/tags"
+
+_DAMAGED = "The file is damaged or was not written by astroalign_nd."
 
 
 def _scalar(model, name):
@@ -55,22 +59,22 @@ def _read_number(value, tag, name):
     except (TypeError, ValueError):
         array = None
     if array is None or array.shape != () or not np.isfinite(array):
-        raise ValueError(
-            f"the {tag} node's {name} must be one finite number; got {value!r}. The file "
-            "is damaged or was not written by astroalign_nd.")
+        raise ValueError(f"the {tag} node's {name} must be one finite number; got {value!r}. "
+                         + _DAMAGED)
     return float(array)
 
 
-def _check_values(cls, values, tag):
-    """Parameter values that give a valid, invertible transform of ``cls``."""
+# -- per-class checks of the values read (the table's last column) -----------------------
+
+def _check_linear(values, tag):
+    """Parameter values that give a valid, invertible linear transform."""
     if "parity" in values and values["parity"] not in (1.0, -1.0):
         raise ValueError(
             f"the {tag} node's parity must be +1 (proper) or -1 (mirrored); got "
-            f"{values['parity']!r}. The file is damaged or was not written by astroalign_nd.")
+            f"{values['parity']!r}. " + _DAMAGED)
     if "scale" in values and not values["scale"] > 0:
-        raise ValueError(
-            f"the {tag} node's scale must be > 0; got {values['scale']!r}. The file is "
-            "damaged or was not written by astroalign_nd.")
+        raise ValueError(f"the {tag} node's scale must be > 0; got {values['scale']!r}. "
+                         + _DAMAGED)
     if "a11" in values:
         lin = np.array([[values["a11"], values["a12"]], [values["a21"], values["a22"]]])
         with np.errstate(over="ignore", invalid="ignore"):
@@ -79,35 +83,82 @@ def _check_values(cls, values, tag):
         if not (np.isfinite(det) and np.isfinite(norm2) and abs(det) > 1e-12 * norm2):
             raise ValueError(
                 f"the {tag} node holds a singular or overflowing matrix (a11 a22 - a12 a21 "
-                f"= {det:g}); it cannot map an image. The file is damaged or was not "
-                "written by astroalign_nd.")
+                f"= {det:g}); it cannot map an image. " + _DAMAGED)
 
 
-class LinearTransformConverterBase(TransformConverterBase):
+def _check_projective(values, tag):
+    from astroalign_nd.nonlinear import _check_homography
+
+    h = [values[f"h{i}{j}"] for i in (1, 2, 3) for j in (1, 2, 3) if (i, j) != (3, 3)]
+    try:
+        _check_homography(np.array([h[0:3], h[3:6], [h[6], h[7], 1.0]]))
+    except ValueError as exc:
+        raise ValueError(f"the {tag} node holds a singular homography ({exc}). "
+                         + _DAMAGED) from None
+
+
+class TransformConverter(Converter):
     """
-    Shared converter of the astroalign_nd transforms.
+    ASDF converter of one astroalign_nd transform class.
 
-    Subclasses set ``tags``, ``types`` (the fully qualified class name, so
-    that the model module is imported only when a model is read or
-    written) and ``_class_name``.  Every parameter of the model is written
-    as a plain number and every one is required on reading.
+    Parameters
+    ----------
+    class_path : str
+        Fully qualified name of the model class, e.g.
+        ``'astroalign_nd.transforms.AffineTransform'``; the module is
+        imported only when a model is read or written.
+    tag_name : str
+        The tag's name, e.g. ``'affine_transform'`` (every ``1.*`` version
+        is read).
+    check : callable, optional
+        ``check(values, tag)`` raises a ValueError if the parameter values
+        read from a file do not make a usable transform.
+
+    Examples
+    --------
+    >>> from asdf.extension import Converter
+    >>> from astroalign_nd.io.asdf.converters import CONVERTERS
+    >>> [c.types[0].rsplit(".", 1)[1] for c in CONVERTERS]  # doctest: +NORMALIZE_WHITESPACE
+    ['TranslationTransform', 'EuclideanTransform', 'SimilarityTransform', 'AffineTransform',
+     'ProjectiveTransform', 'PolynomialTransform']
+    >>> CONVERTERS[3].tags[0]
+    'asdf://astroalign-nd.org/astroalign_nd/tags/affine_transform-1.*'
+    >>> all(isinstance(c, Converter) for c in CONVERTERS)
+    True
     """
 
-    _class_name = None
+    def __init__(self, class_path, tag_name, check=None):
+        self._class_path = class_path
+        self._tags = (f"{_TAG_BASE}/{tag_name}-1.*",)
+        self._check = check
+        self._class = None
 
     @property
-    def _model_class(self):
-        from astroalign_nd import transforms
+    def tags(self):
+        """Tag patterns read and written (every ``1.*`` version of the tag)."""
+        return self._tags
 
-        return getattr(transforms, self._class_name)
+    @property
+    def types(self):
+        """The model class, by fully qualified name."""
+        return (self._class_path,)
 
-    def to_yaml_tree_transform(self, model, tag, ctx):
+    @property
+    def model_class(self):
+        """The model class (imported on first use)."""
+        if self._class is None:
+            module, name = self._class_path.rsplit(".", 1)
+            self._class = getattr(importlib.import_module(module), name)
+        return self._class
+
+    # -- writing ---------------------------------------------------------------------------
+    def to_yaml_tree(self, obj, tag, ctx):
         """
-        Convert the model's parameters to a dictionary of numbers.
+        Convert a model to a node: its parameters and the common model properties.
 
         Parameters
         ----------
-        model : `~astroalign_nd.transforms.LinearTransform2D`
+        obj : astropy model
             The transform to write.
         tag : str
             The tag being written.
@@ -117,13 +168,43 @@ class LinearTransformConverterBase(TransformConverterBase):
         Returns
         -------
         node : dict
-            ``{parameter name: float}``.
         """
-        return {name: _scalar(model, name) for name in model.param_names}
+        node = {name: _scalar(obj, name) for name in obj.param_names}
+        if hasattr(obj, "degree"):  # PolynomialTransform: which parameters exist
+            node["degree"] = int(obj.degree)
+            if obj.domain is not None:
+                node["domain"] = [float(v) for v in obj.domain]
+        if obj.name is not None:
+            node["name"] = obj.name
+        node["inputs"] = list(obj.inputs)
+        node["outputs"] = list(obj.outputs)
+        if obj.has_user_inverse:
+            node["inverse"] = obj.inverse
+        try:
+            node["bounding_box"] = obj.bounding_box  # a user-assigned one: ours have no default
+        except NotImplementedError:
+            pass
+        fixed = {k: True for k, f in obj.fixed.items() if f}
+        if fixed:
+            node["fixed"] = fixed
+        bounds = {k: list(b) for k, b in obj.bounds.items() if any(v is not None for v in b)}
+        if bounds:
+            node["bounds"] = bounds
+        if obj.input_units_equivalencies:
+            node["input_units_equivalencies"] = obj.input_units_equivalencies
+        return node
 
-    def from_yaml_tree_transform(self, node, tag, ctx):
+    # -- reading ---------------------------------------------------------------------------
+    def from_yaml_tree(self, node, tag, ctx):
         """
-        Build the model from its parameters.
+        Build the model from a node.
+
+        A node that is not a valid transform raises a ValueError that says
+        what is wrong (asdf reports it as an ``AsdfConversionWarning`` and
+        leaves the node unconverted, unless its ``warn_on_failed_conversion``
+        setting is off).  A model with a user-assigned inverse is returned
+        through a generator, so that an inverse referring back to the model
+        resolves.
 
         Parameters
         ----------
@@ -136,48 +217,100 @@ class LinearTransformConverterBase(TransformConverterBase):
 
         Returns
         -------
-        model : `~astroalign_nd.transforms.LinearTransform2D`
+        model : astropy model, or a generator of it
             The transform.
         """
-        cls = self._model_class
-        missing = [name for name in cls.param_names if name not in node]
+        model = self._build(node, tag)
+        if "inverse" not in node:
+            return model
+        return self._with_inverse(model, node)
+
+    @staticmethod
+    def _with_inverse(model, node):
+        yield model
+        model.inverse = node["inverse"]
+
+    def _build(self, node, tag):
+        cls = self.model_class
+        kwargs = {}
+        if "degree" in node:
+            kwargs["degree"] = self._read_degree(node, tag)
+            if node.get("domain") is not None:
+                kwargs["domain"] = self._read_domain(node["domain"], tag)
+            names = cls(degree=kwargs["degree"]).param_names
+        else:
+            names = cls.param_names
+            if cls.__name__ == "PolynomialTransform":
+                raise ValueError(f"the {tag} node has no degree. " + _DAMAGED)
+        missing = [name for name in names if name not in node]
         if missing:
             raise ValueError(
                 f"the {tag} node has no {', '.join(missing)}; every parameter of "
-                f"{cls.__name__} ({', '.join(cls.param_names)}) is required."
-            )
-        values = {name: _read_number(node[name], tag, name) for name in cls.param_names}
-        _check_values(cls, values, tag)
-        return cls(**values)
+                f"{cls.__name__} ({', '.join(names)}) is required.")
+        extra = [k for k in node if k[:2] in ("A_", "B_") and k not in names]
+        if extra:
+            raise ValueError(f"the {tag} node has {extra}, terms beyond its degree "
+                             f"{kwargs.get('degree')}. " + _DAMAGED)
+        values = {name: _read_number(node[name], tag, name) for name in names}
+        if self._check is not None:
+            self._check(values, tag)
+        model = cls(**kwargs, **values)
+
+        if "name" in node:
+            model.name = node["name"]
+        if "inputs" in node:
+            model.inputs = tuple(node["inputs"])
+        if "outputs" in node:
+            model.outputs = tuple(node["outputs"])
+        if "bounding_box" in node:
+            bbox = node["bounding_box"]
+            # asdf-astropy reads a bounding box as a callable of the model; older
+            # files hold a plain list of intervals.
+            model.bounding_box = bbox(model) if callable(bbox) else bbox
+        for key in ("fixed", "bounds"):
+            unknown = [k for k in (node.get(key) or {}) if k not in names]
+            if unknown:
+                raise ValueError(f"the {tag} node's {key} names {unknown}, which are not "
+                                 f"parameters of {cls.__name__}. " + _DAMAGED)
+        for name, value in (node.get("fixed") or {}).items():
+            getattr(model, name).fixed = bool(value)
+        for name, value in (node.get("bounds") or {}).items():
+            getattr(model, name).bounds = tuple(value)
+        if node.get("input_units_equivalencies"):
+            model.input_units_equivalencies = node["input_units_equivalencies"]
+        return model
+
+    @staticmethod
+    def _read_degree(node, tag):
+        from astroalign_nd.nonlinear import DEGREES
+
+        degree = node["degree"]
+        if isinstance(degree, (bool, np.bool_)) or not isinstance(
+                degree, (int, np.integer)) or degree not in DEGREES:
+            raise ValueError(f"the {tag} node's degree must be an integer from 2 to 5; got "
+                             f"{degree!r}. " + _DAMAGED)
+        return int(degree)
+
+    @staticmethod
+    def _read_domain(domain, tag):
+        items = np.ravel(np.asarray(domain, dtype=object))
+        values = [_read_number(v, tag, "domain") for v in items]
+        if len(values) != 4 or not (values[1] > values[0] and values[3] > values[2]):
+            raise ValueError(f"the {tag} node's domain must be [x_min, x_max, y_min, y_max] "
+                             f"with x_max > x_min and y_max > y_min; got {domain!r}. "
+                             + _DAMAGED)
+        return tuple(values)
 
 
-class TranslationTransformConverter(LinearTransformConverterBase):
-    """ASDF converter of `~astroalign_nd.transforms.TranslationTransform`."""
+#: One converter per model class: (class, tag name, check of the values read).
+_TABLE = (
+    ("astroalign_nd.transforms.TranslationTransform", "translation_transform", _check_linear),
+    ("astroalign_nd.transforms.EuclideanTransform", "euclidean_transform", _check_linear),
+    ("astroalign_nd.transforms.SimilarityTransform", "similarity_transform", _check_linear),
+    ("astroalign_nd.transforms.AffineTransform", "affine_transform", _check_linear),
+    ("astroalign_nd.nonlinear.ProjectiveTransform", "projective_transform", _check_projective),
+    ("astroalign_nd.nonlinear.PolynomialTransform", "polynomial_transform", _check_linear),
+)
 
-    tags = (f"{_TAG_BASE}/translation_transform-1.*",)
-    types = ("astroalign_nd.transforms.TranslationTransform",)
-    _class_name = "TranslationTransform"
-
-
-class EuclideanTransformConverter(LinearTransformConverterBase):
-    """ASDF converter of `~astroalign_nd.transforms.EuclideanTransform`."""
-
-    tags = (f"{_TAG_BASE}/euclidean_transform-1.*",)
-    types = ("astroalign_nd.transforms.EuclideanTransform",)
-    _class_name = "EuclideanTransform"
-
-
-class SimilarityTransformConverter(LinearTransformConverterBase):
-    """ASDF converter of `~astroalign_nd.transforms.SimilarityTransform`."""
-
-    tags = (f"{_TAG_BASE}/similarity_transform-1.*",)
-    types = ("astroalign_nd.transforms.SimilarityTransform",)
-    _class_name = "SimilarityTransform"
-
-
-class AffineTransformConverter(LinearTransformConverterBase):
-    """ASDF converter of `~astroalign_nd.transforms.AffineTransform`."""
-
-    tags = (f"{_TAG_BASE}/affine_transform-1.*",)
-    types = ("astroalign_nd.transforms.AffineTransform",)
-    _class_name = "AffineTransform"
+#: The converters of the extension, built from the table above.
+CONVERTERS = tuple(TransformConverter(*row) for row in _TABLE)

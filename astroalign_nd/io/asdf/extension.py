@@ -20,8 +20,10 @@ __all__ = [
 
 _URI_BASE = "asdf://astroalign-nd.org/astroalign_nd"
 
-#: Manifests of the extension, newest first (asdf prefers earlier entries).
+#: Manifests of the extension, newest first (asdf writes with the first; files
+#: written with an older one, 1.0.0 without the non-linear models, still read).
 ASTROALIGN_ND_MANIFEST_URIS = [
+    f"{_URI_BASE}/manifests/astroalign_nd-1.1.0",
     f"{_URI_BASE}/manifests/astroalign_nd-1.0.0",
 ]
 
@@ -31,6 +33,8 @@ ASTROALIGN_ND_TAG_URIS = {
     "EuclideanTransform": f"{_URI_BASE}/tags/euclidean_transform-1.0.0",
     "SimilarityTransform": f"{_URI_BASE}/tags/similarity_transform-1.0.0",
     "AffineTransform": f"{_URI_BASE}/tags/affine_transform-1.0.0",
+    "ProjectiveTransform": f"{_URI_BASE}/tags/projective_transform-1.0.0",
+    "PolynomialTransform": f"{_URI_BASE}/tags/polynomial_transform-1.0.0",
 }
 
 
@@ -41,21 +45,12 @@ def get_converters():
     Returns
     -------
     converters : list of ``asdf.extension.Converter``
-        One converter per transform class.
+        One ``astroalign_nd.io.asdf.converters.TransformConverter`` per
+        transform class (the table ``converters._TABLE``).
     """
-    from .converters import (
-        AffineTransformConverter,
-        EuclideanTransformConverter,
-        SimilarityTransformConverter,
-        TranslationTransformConverter,
-    )
+    from .converters import _TABLE, TransformConverter
 
-    return [
-        TranslationTransformConverter(),
-        EuclideanTransformConverter(),
-        SimilarityTransformConverter(),
-        AffineTransformConverter(),
-    ]
+    return [TransformConverter(*row) for row in _TABLE]
 
 
 def get_extensions():
