@@ -25,7 +25,8 @@ polynomial-distortion model over all detected stars:
    of the match, affine, polynomial degrees 2 to 5) are fitted to the same
    pairs with the same weights; a more complex candidate replaces the
    current choice only if an F-test says its extra terms are significant
-   (p < ``significance``).  The BIC of every candidate is reported too.
+   (p < ``significance``) and its Bayesian information criterion (BIC) is
+   lower.
 4. **Trust.** The stars must cover the frame well enough for the model's
    terms: the occupancy of a grid of ``(degree + 1)**2`` cells and the
    number of stars per coefficient.  Too little coverage is refused
@@ -66,6 +67,10 @@ WARN_STARS_PER_TERM = 6.0
 WARN_PREDICTED = 0.3
 #: Grid (per axis) on which the predicted error is evaluated.
 ERROR_GRID = 33
+#: The linear search's matching radius is this many times the usual one when a
+#: distortion model follows: a tilted or distorted wide field is several
+#: pixels off any linear model away from the centre.
+SEARCH_TOLERANCE_FACTOR = 2.5
 
 
 def check_degree(transform_type, degree):
@@ -427,7 +432,8 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     transform_type : {'polynomial', 'projective'}, optional
     degree : int or 'auto', optional
         Polynomial degree, 2 to 5, or 'auto' to choose it (linear
-        included) by F-tests.
+        included): a candidate with more terms is chosen only if an F-test
+        (p < ``significance``) and the BIC both prefer it.
     seed_points : (K, 2) array-like, optional
         Source positions of the stars matched by the linear stage: the
         growth starts around them (by default around the stars the linear
@@ -625,12 +631,19 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
             raise PoorCoverageError(
                 f"the {len(fuv)} paired stars cannot constrain a polynomial model; use "
                 "transform_type='affine' or pass more stars.")
+        # The residual variance scale, from the most flexible candidate (as in
+        # the F-test): the BIC needs chi-squares in units of the actual scatter.
+        s2 = max(fits[-1][4] / max(n_eq - fits[-1][0].k, 1), 1e-300)
         best = 0
         for i, (c, d, label, fit, chi2) in enumerate(fits):
             p = 1.0 if i == 0 else _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq)
+            bic = float(chi2 / s2 + c.k * np.log(n_eq))
             candidates.append(dict(model=label, degree=d, n_parameters=c.k, chi2=chi2,
-                                   bic=chi2 + c.k * np.log(n_eq), p_value=p))
-            if i > 0 and p < significance:
+                                   bic=bic, p_value=p))
+            # Both tests must agree: the F-test guards small samples, BIC (whose
+            # penalty grows with the number of stars) large ones, where centroid
+            # errors that are not quite Gaussian make tiny p-values cheap.
+            if i > 0 and p < significance and bic < candidates[best]["bic"]:
                 best = i
         for i, entry in enumerate(candidates):
             entry["chosen"] = i == best
@@ -676,7 +689,7 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         kw = {"parity": 1 if np.linalg.det(m[:2, :2]) > 0 else -1} if kind == "similarity" else {}
         model, cov, resid = fit_transform(s_pts, d_pts, kind, weights=w, **kw)
     info = dict(model=name, degree=deg, requested_degree=degree if name != "projective" else None,
-                selection="F-test" if degree == "auto" else None, significance=significance,
+                selection="F-test and BIC" if degree == "auto" else None, significance=significance,
                 candidates=candidates, coverage=coverage, predicted_error_max=pred_max,
                 predicted_error_rms=pred_rms, n_pairs=int(len(si)),
                 n_clipped=int(n_paired - len(si)), pairing_tolerance=float(tol))

@@ -287,6 +287,8 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
             tried.add(key)
             if "tolerance" not in options:
                 mat["tolerance"] = _search_tolerance(dst.fwhm)
+                if nonlinear:  # a linear model is pixels off at the corners of a wide field
+                    mat["tolerance"] *= model_selection.SEARCH_TOLERANCE_FACTOR
             log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "
                       f"{key[1]} of {key[3]} target stars, {nn} neighbours per star")
             try:
