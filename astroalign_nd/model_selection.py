@@ -426,9 +426,11 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         Source and target star positions (pixels).  With ``pairs_given``,
         two arrays of the same length whose rows are candidate pairs (some
         may be wrong).
-    linear : (3, 3) array-like or linear model
+    linear : (3, 3) array-like, linear model or None
         The linear source-to-target transform to start from (the matched
-        similarity or affine transform).
+        similarity or affine transform).  None, with ``pairs_given``: the
+        affine transform that the most pairs agree with, to ``tolerance``
+        (a deterministic consensus over 1000 triples of pairs).
     transform_type : {'polynomial', 'projective'}, optional
     degree : int or 'auto', optional
         Polynomial degree, 2 to 5, or 'auto' to choose it (linear
@@ -499,6 +501,11 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     if pairs_given and len(src) != len(dst):
         raise ValueError(f"pairs_given needs as many source as target points; got {len(src)} "
                          f"and {len(dst)}.")
+    if linear is None:
+        if not pairs_given:
+            raise ValueError("linear=None needs pairs_given=True; pass the linear match's "
+                             "matrix or model to grow from.")
+        linear = _consensus_affine(src, dst, tolerance)
     m = _as_matrix(linear)
     if source_frame is None:
         x0, y0 = src.min(axis=0) - 0.5
@@ -694,6 +701,35 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
                 predicted_error_rms=pred_rms, n_pairs=int(len(si)),
                 n_clipped=int(n_paired - len(si)), pairing_tolerance=float(tol))
     return DistortionFit(model, cov, si, dj, resid, info)
+
+
+def _consensus_affine(src, dst, tolerance, n_trials=1000):
+    """
+    The affine transform of the triple of given pairs that the most pairs
+    agree with (within ``tolerance``), refitted to them: a start that wrong
+    pairs cannot pull away.  Deterministic (a fixed seed).
+    """
+    n = len(src)
+    if n < 3:
+        raise TooFewSourcesError(f"{n} pair(s) given; at least 3 are needed.")
+    rng = np.random.default_rng(0)
+    tri = np.array([rng.choice(n, 3, replace=False) for _ in range(n_trials)])
+    ones = np.ones((n_trials, 3, 1))
+    a = np.concatenate([src[tri], ones], axis=2)  # (T, 3, 3)
+    ok = np.abs(np.linalg.det(a)) > 1e-6 * np.ptp(src) ** 2
+    if not ok.any():
+        raise TooFewSourcesError("the given pairs are collinear; no affine start exists.")
+    coef = np.linalg.solve(a[ok], dst[tri[ok]])  # (T, 3, 2): x' = [x y 1] @ coef
+    full = np.concatenate([src, np.ones((n, 1))], axis=1)
+    pred = np.einsum("nk,tkj->tnj", full, coef)
+    votes = (np.hypot(*(pred - dst).transpose(2, 0, 1)) <= tolerance).sum(axis=1)
+    best = coef[np.argmax(votes)]
+    inl = np.hypot(*(full @ best - dst).T) <= tolerance
+    if inl.sum() >= 3:
+        best, *_ = np.linalg.lstsq(full[inl], dst[inl], rcond=None)
+    m = np.eye(3)
+    m[:2, :] = best.T
+    return m
 
 
 def _label(name, degree):

@@ -1605,13 +1605,11 @@ def bayer_bin(pair, *, gains=(0.55, 1.0, 1.0, 0.75)):
         t["y"] = (t["y"] - 0.5) / 2.0
         return t
 
-    mapping = None
-    if pair.mapping is not None:
-        full = pair.mapping
+    def binned_mapping(x, y):
+        xt, yt = pair.mapping(2.0 * np.asarray(x, float) + 0.5, 2.0 * np.asarray(y, float) + 0.5)
+        return (xt - 0.5) / 2.0, (yt - 0.5) / 2.0
 
-        def mapping(x, y):
-            xt, yt = full(2.0 * np.asarray(x, float) + 0.5, 2.0 * np.asarray(y, float) + 0.5)
-            return (xt - 0.5) / 2.0, (yt - 0.5) / 2.0
+    mapping = None if pair.mapping is None else binned_mapping
 
     meta = dict(pair.meta, bayer_binned=True)
     return SimulatedPair(source=binned(pair.source), target=binned(pair.target),
