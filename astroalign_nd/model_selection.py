@@ -102,7 +102,7 @@ def check_degree(transform_type, degree):
     >>> check_degree("similarity", None) is None
     True
     """
-    is_poly = isinstance(transform_type, str) and transform_type.lower() == "polynomial"
+    is_poly = nonlinear_name(transform_type) == "polynomial"
     if degree is None:
         return 3 if is_poly else None
     if not is_poly:
@@ -123,9 +123,24 @@ def check_degree(transform_type, degree):
     return int(degree)
 
 
+def nonlinear_name(transform_type):
+    """'projective' or 'polynomial' for this stage's types (names or classes), else None."""
+    if isinstance(transform_type, str):
+        name = transform_type.lower()
+        return name if name in NONLINEAR_TYPES else None
+    if isinstance(transform_type, type):
+        from .nonlinear import PolynomialTransform, ProjectiveTransform
+
+        if issubclass(transform_type, ProjectiveTransform):
+            return "projective"
+        if issubclass(transform_type, PolynomialTransform):
+            return "polynomial"
+    return None
+
+
 def is_nonlinear(transform_type):
     """True for the transform types of this stage ('projective', 'polynomial')."""
-    return isinstance(transform_type, str) and transform_type.lower() in NONLINEAR_TYPES
+    return nonlinear_name(transform_type) is not None
 
 
 # -- the candidate models, as design matrices ---------------------------------------
@@ -494,7 +509,7 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     if not is_nonlinear(transform_type):
         raise ValueError(f"transform_type must be one of {list(NONLINEAR_TYPES)}; got "
                          f"{transform_type!r}.")
-    transform_type = transform_type.lower()
+    transform_type = nonlinear_name(transform_type)
     degree = check_degree("polynomial", degree) if transform_type == "polynomial" else None
     src = np.asarray(src_pts, float).reshape(-1, 2)
     dst = np.asarray(dst_pts, float).reshape(-1, 2)

@@ -317,7 +317,8 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
               f"stars, RMS {result.rms:.3f} px")
     result.n_sources_used = max(ns, nd)
     if nonlinear:
-        result = model_selection.extend_match(result, src, dst, transform_type=transform_type,
+        kind = model_selection.nonlinear_name(transform_type)
+        result = model_selection.extend_match(result, src, dst, transform_type=kind,
                                               degree=degree, tolerance=mat["tolerance"])
         info = result.extra["model_selection"]
         log.debug(f"astroalign_nd: {info['model']} model (degree {info['degree']}) over "

@@ -169,6 +169,13 @@ def test_coverage_refused_on_masked_image():
         find_transform(src, pair.target, transform_type="polynomial", degree=5)
 
 
+def test_model_class_accepted():
+    pair = _wide_pair(4.0, seed=12)
+    t, _ = find_transform(pair.source, pair.target, transform_type=PolynomialTransform,
+                          degree=3)
+    assert isinstance(t, PolynomialTransform) and _frame_error(t, pair)[0] < 0.1
+
+
 def test_degree_checked():
     assert check_degree("polynomial", "3") == 3
     with pytest.raises(ValueError, match="transform_type='polynomial' only"):
