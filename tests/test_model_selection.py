@@ -221,7 +221,7 @@ def test_register_polynomial():
         np.column_stack([found["x"], found["y"]]))
     near = d < 2.0
     assert near.sum() > 200
-    assert np.median(d[near]) < 0.1  # stars land where the target has them
+    assert np.median(d[near]) < 0.15  # stars land where the target has them
 
 
 def test_cli_polynomial(tmp_path):
