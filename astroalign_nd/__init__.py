@@ -24,7 +24,7 @@ try:
 except ImportError:  # running from a source tree that was never built
     __version__ = "0.0.0"
 
-from .exceptions import (AstroalignError, AstroalignWarning, PoorFitWarning,
+from .exceptions import (AstroalignError, AstroalignWarning, PoorCoverageError, PoorFitWarning,
                          TooFewSourcesError, TransformNotFoundError)
 
 # name -> submodule that defines it
@@ -51,7 +51,7 @@ _LAZY = {
 __all__ = [
     "__version__",
     "AstroalignError", "AstroalignWarning", "PoorFitWarning", "TooFewSourcesError",
-    "TransformNotFoundError",
+    "TransformNotFoundError", "PoorCoverageError",
     *_LAZY,
 ]
 

@@ -56,8 +56,17 @@ def _registration_options():
         "--transform-type",
         default="similarity",
         metavar="TYPE",
-        help="model fitted between the images: translation, euclidean, similarity or affine "
+        help="model fitted between the images: translation, euclidean, similarity, affine, "
+        "or for wide fields with distortion projective or polynomial (see --degree) "
         "(default: %(default)s)",
+    )
+    group.add_argument(
+        "--degree",
+        default=None,
+        metavar="N",
+        help="degree of the polynomial distortion model, 2 to 5, or 'auto' to let an F-test "
+        "choose (linear when the images need no distortion); only with --transform-type "
+        "polynomial (default: 3)",
     )
     group.add_argument(
         "--order",
@@ -227,6 +236,8 @@ def _registration_kwargs(args):
         n_sources=args.n_sources,
         hdu=_hdu(args.hdu),
     )
+    if getattr(args, "degree", None) is not None:
+        kwargs["degree"] = args.degree
     for name in _FORWARDED:
         value = getattr(args, name, None)
         if value is not None:

@@ -13,6 +13,7 @@ __all__ = [
     "AstroalignError",
     "TooFewSourcesError",
     "TransformNotFoundError",
+    "PoorCoverageError",
     "AstroalignWarning",
     "PoorFitWarning",
 ]
@@ -76,6 +77,26 @@ class TransformNotFoundError(AstroalignError):
     ... except TransformNotFoundError as exc:
     ...     print("the source gave 30 sources and the target 30" in str(exc))
     True
+    """
+
+
+class PoorCoverageError(AstroalignError, ValueError):
+    """
+    The matched stars do not cover the frame well enough for the model asked for.
+
+    A polynomial distortion model is only constrained where there are
+    stars: `~astroalign_nd.find_transform` with
+    ``transform_type='polynomial'`` refuses a degree whose terms the stars
+    cannot pin down (too few of the cells of a grid over the frame hold a
+    star, or too few stars per term).  The message says which, and what to
+    pass instead (a lower degree, ``degree='auto'``, or more stars).  It is
+    also a `ValueError`.
+
+    Examples
+    --------
+    >>> from astroalign_nd.exceptions import AstroalignError, PoorCoverageError
+    >>> issubclass(PoorCoverageError, AstroalignError), issubclass(PoorCoverageError, ValueError)
+    (True, True)
     """
 
 

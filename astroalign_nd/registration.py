@@ -26,6 +26,8 @@ from ._kernels import num_threads
 from ._validate import check_option, check_options, check_points
 from .asterisms import build_asterisms, check_triangle_budget
 from .matching import _match_points, _search_tolerance, match_points
+from . import model_selection
+from .exceptions import PoorFitWarning
 from .transforms import transform_class
 
 if TYPE_CHECKING:
@@ -231,7 +233,7 @@ def _split_options(options):
 
 def find_match(source: Any, target: Any, *, transform_type: str | type = "similarity",
                n_sources: int = 50, max_sources: int = 200, hdu: int | str | None = None,
-               **options: Any) -> MatchResult:
+               degree: int | str | None = None, **options: Any) -> MatchResult:
     """
     Find the transform from ``source`` to ``target`` with its quality.
 
@@ -256,7 +258,11 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
     >>> result.source_points.shape == (result.n_matches, 2)
     True
     """
-    transform_class(transform_type)  # validate early, with a clear message
+    degree = model_selection.check_degree(transform_type, degree)
+    nonlinear = model_selection.is_nonlinear(transform_type)
+    # A distortion model grows from the linear (similarity) match of the brightest stars.
+    linear_type = "similarity" if nonlinear else transform_type
+    transform_class(linear_type)  # validate early, with a clear message
     n_sources = check_option("n_sources", n_sources)
     max_sources = max(check_option("max_sources", max_sources), n_sources)
     det, mat = _split_options(options)
@@ -281,16 +287,21 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
             tried.add(key)
             if "tolerance" not in options:
                 mat["tolerance"] = _search_tolerance(dst.fwhm)
+                if nonlinear:  # a linear model is pixels off at the corners of a wide field
+                    mat["tolerance"] *= model_selection.SEARCH_TOLERANCE_FACTOR
             log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "
                       f"{key[1]} of {key[3]} target stars, {nn} neighbours per star")
             try:
-                result = _match_points(src_pts, dst_pts, transform_type=transform_type,
-                                       source_frame=src_frame, target_frame=dst_frame,
-                                       source_errors=src_err, target_errors=dst_err,
-                                       n_control=(ns, nd), n_neighbors=nn,
-                                       source_asterisms=src.asterisms(ns, nn),
-                                       target_asterisms=dst.asterisms(nd, nn),
-                                       prior_trials=trials, **mat)
+                with warnings.catch_warnings():
+                    if nonlinear:  # the distortion model answers the linear fit's misfit
+                        warnings.simplefilter("ignore", PoorFitWarning)
+                    result = _match_points(src_pts, dst_pts, transform_type=linear_type,
+                                           source_frame=src_frame, target_frame=dst_frame,
+                                           source_errors=src_err, target_errors=dst_err,
+                                           n_control=(ns, nd), n_neighbors=nn,
+                                           source_asterisms=src.asterisms(ns, nn),
+                                           target_asterisms=dst.asterisms(nd, nn),
+                                           prior_trials=trials, **mat)
                 break
             except TransformNotFoundError as exc:
                 # Earlier attempts count in the trials factor of later ones.
@@ -305,6 +316,13 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
     log.debug(f"astroalign_nd: match found at attempt {len(tried)}: {result.n_matches} "
               f"stars, RMS {result.rms:.3f} px")
     result.n_sources_used = max(ns, nd)
+    if nonlinear:
+        kind = model_selection.nonlinear_name(transform_type)
+        result = model_selection.extend_match(result, src, dst, transform_type=kind,
+                                              degree=degree, tolerance=mat["tolerance"])
+        info = result.extra["model_selection"]
+        log.debug(f"astroalign_nd: {info['model']} model (degree {info['degree']}) over "
+                  f"{result.n_matches} stars, RMS {result.rms:.3f} px")
     return result
 
 
@@ -345,7 +363,7 @@ def _widen(plan, src_pts, dst_pts, user_nn):
 
 def find_transform(source: Any, target: Any, *, transform_type: str | type = "similarity",
                    n_sources: int = 50, max_sources: int = 200,
-                   hdu: int | str | None = None,
+                   hdu: int | str | None = None, degree: int | str | None = None,
                    **options: Any) -> tuple[LinearTransform2D, tuple[np.ndarray, np.ndarray]]:
     """
     Find the transform that maps ``source`` pixel coordinates onto ``target``.
@@ -361,9 +379,13 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
         with ``x``/``y`` columns (masked entries are left out) or an
         (N, 2) array of positions, brightest first (a catalog contributes
         its first ``max(2 * n_sources, 1000)`` positions).
-    transform_type : {'similarity', 'euclidean', 'translation', 'affine'}, optional
+    transform_type : {'similarity', 'euclidean', 'translation', 'affine', \
+'projective', 'polynomial'}, optional
         The model to fit (default 'similarity': scale, rotation, shift,
-        mirrored or not).
+        mirrored or not).  'projective' (a homography) and 'polynomial'
+        (distortion in the SIP form) are for wide fields: they start from
+        the similarity match of the brightest stars and grow the fit over
+        up to 2000 stars per image (`~astroalign_nd.model_selection`).
     n_sources : int, optional
         Brightest sources used as control points (default 50).
     max_sources : int, optional
@@ -373,6 +395,10 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
         The HDU of FITS paths and HDULists to read (index or extension
         name, as in `~astropy.nddata.CCDData.read`); by default the first
         one with image data.
+    degree : int or 'auto', optional
+        Degree of a 'polynomial' model, 2 to 5 (default 3), or 'auto': an
+        F-test admits each extra group of terms only if the stars need it,
+        so that a pair with no distortion gets a linear model.
     **options
         Detection options (``fwhm``, ``nsigma``, ``sharpness_range``,
         ``roundness_range``, ``peak_max``, ``bin_factor``,
@@ -385,10 +411,15 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
 
     Returns
     -------
-    transform : `~astroalign_nd.transforms.LinearTransform2D`
+    transform : `~astroalign_nd.transforms.LinearTransform2D` or non-linear model
         The source-to-target model.  ``transform.meta['quality']`` holds the
         number of matched stars, the RMS residual (pixels), the parameter
-        covariance and the log10 false-alarm probability.
+        covariance and the log10 false-alarm probability; for the
+        'projective' and 'polynomial' types also ``model``, ``degree``,
+        ``predicted_error_max`` and ``predicted_error_rms`` (the 1-sigma
+        error of the mapping over the frame, from the covariance) and
+        ``model_selection`` (the candidates compared, their test
+        statistics and the stars' coverage of the frame).
     (source_points, target_points) : tuple of (K, 2) ndarray
         The matched control points.
 
@@ -398,6 +429,9 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
         If an image gave fewer than 3 sources.
     TransformNotFoundError
         If no transform could be found or trusted.
+    PoorCoverageError
+        If the stars do not cover the frame well enough for the requested
+        polynomial degree or projective model.
     ValueError, TypeError
         If an option is outside its accepted range (the message names it
         and the range), or ``max_sources`` with ``n_neighbors`` would build
@@ -413,7 +447,7 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
     True
     """
     result = find_match(source, target, transform_type=transform_type, n_sources=n_sources,
-                        max_sources=max_sources, hdu=hdu, **options)
+                        max_sources=max_sources, hdu=hdu, degree=degree, **options)
     model = result.transform
     model.meta["quality"] = _quality_dict(result)
     return model, (result.source_points, result.target_points)
@@ -421,7 +455,7 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
 
 def _quality_dict(result: MatchResult) -> dict:
     """The quality figures of a `~astroalign_nd.matching.MatchResult` as a dict."""
-    return dict(
+    quality = dict(
         n_matches=int(result.n_matches),
         rms=float(result.rms),
         covariance=np.array(result.covariance),
@@ -431,6 +465,12 @@ def _quality_dict(result: MatchResult) -> dict:
         n_triangle_matches=int(result.n_triangle_matches),
         n_hypotheses=int(result.n_hypotheses),
     )
+    info = result.extra.get("model_selection")
+    if info is not None:
+        quality.update(model=info["model"], degree=info["degree"],
+                       predicted_error_max=info["predicted_error_max"],
+                       predicted_error_rms=info["predicted_error_rms"], model_selection=info)
+    return quality
 
 
 def register(source: Any, target: Any, *, transform_type: str | type = "similarity",
@@ -438,7 +478,7 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
              conserve_flux: bool = False, fill_value: float = np.nan,
              method: str = "interpolate", unit: Any = None, parallel: bool = True,
              hdu: int | str | None = None, add_keyword: bool = True,
-             **options: Any) -> CCDData:
+             degree: int | str | None = None, **options: Any) -> CCDData:
     """
     Align ``source`` onto ``target``: `find_transform`, then
     `~astroalign_nd.apply_transform`.
@@ -448,7 +488,7 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
     source, target
         As in `find_transform`, but both must be images: the source is
         resampled onto the target's pixel grid.
-    transform_type, n_sources, max_sources, hdu, **options
+    transform_type, n_sources, max_sources, hdu, degree, **options
         As in `find_transform`.
     order, conserve_flux, fill_value, method, unit, parallel, add_keyword
         As in `~astroalign_nd.apply_transform`.
@@ -474,7 +514,7 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
 
     src, dst, transform, quality = _find_for_apply(
         source, target, dict(options, transform_type=transform_type, n_sources=n_sources,
-                             max_sources=max_sources), hdu=hdu, unit=unit)
+                             max_sources=max_sources, degree=degree), hdu=hdu, unit=unit)
     return apply_transform(transform, src._parsed, dst._parsed, order=order,
                            conserve_flux=conserve_flux, fill_value=fill_value, method=method,
                            unit=unit, parallel=parallel, quality=quality,

@@ -732,7 +732,7 @@ class SimulatedPair:
         The two simulated frames.
     transform : `~astroalign_nd.transforms.LinearTransform2D`
         The true transform mapping source pixel coordinates to target pixel
-        coordinates.
+        coordinates (its linear part, when the pair has distortion).
     truth_matrix : (3, 3) ndarray
         Its homogeneous matrix.
     source_stars, target_stars : `~astropy.table.Table`
@@ -740,7 +740,8 @@ class SimulatedPair:
         by ``missing_fraction``), with columns ``x``, ``y``, ``flux`` and
         ``id``, brightest first.  Positions are in each frame's own pixel
         coordinates; the same ``id`` is the same star in both tables, and
-        ``transform(source x, y) == target x, y`` for it.
+        ``truth_map(source x, y) == target x, y`` for it (and
+        ``transform(source x, y)`` when the pair has no distortion).
     transients : `~astropy.table.Table`
         Extra stars present only in the target (same columns, target
         coordinates, ids that no real star uses).
@@ -748,6 +749,10 @@ class SimulatedPair:
         The simulation settings actually used (rotation in degrees, scale,
         centre shift, mirror, per-frame fwhm and background, number of stars,
         seed...).
+    mapping : callable or None
+        ``mapping(x, y) -> (x_target, y_target)``: the full non-linear truth
+        when the pair was simulated with ``distortion`` (None otherwise);
+        use `truth_map`, which falls back on ``transform``.
 
     Examples
     --------
@@ -777,6 +782,44 @@ class SimulatedPair:
     target_stars: Table
     transients: Table
     meta: dict = field(default_factory=dict)
+    mapping: object = None
+
+    def truth_map(self, x, y):
+        """
+        The true source -> target mapping, at any source position.
+
+        Equals ``transform(x, y)`` for a pair without distortion; with
+        ``distortion`` it includes the lens's radial distortion and the
+        tilt of the focal plane (see `simulate_pair`), so a fitted model
+        can be checked over the whole frame, not only at the stars.
+
+        Parameters
+        ----------
+        x, y : float or array-like
+            Source pixel coordinates.
+
+        Returns
+        -------
+        x_target, y_target : ndarray
+            Target pixel coordinates.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from astroalign_nd.simulate import simulate_pair
+        >>> pair = simulate_pair((256, 256), n_stars=50, rotation=10.0, seed=1,
+        ...                      distortion={"k1": -0.02})
+        >>> xt, yt = pair.truth_map([0.0, 127.5], [0.0, 127.5])
+        >>> lx, ly = pair.transform([0.0, 127.5], [0.0, 127.5])
+        >>> np.round(np.hypot(xt - lx, yt - ly), 2)  # barrel: 2% of the half diagonal
+        array([3.58, 0.  ])
+        """
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        if self.mapping is None:
+            xt, yt = self.transform(x, y)
+            return np.asarray(xt, dtype=float), np.asarray(yt, dtype=float)
+        return self.mapping(x, y)
 
     def matched_stars(self):
         """
@@ -890,6 +933,85 @@ def _build_transform(rng, shape, target_shape, rotation, scale, translation, mir
     return model, info
 
 
+_DISTORTION_KEYS = ("k1", "k2", "tilt", "center")
+
+
+def _check_distortion(distortion, shape):
+    """Validated distortion settings (a dict), or None for no distortion."""
+    if distortion is None:
+        return None
+    if not isinstance(distortion, dict):
+        raise TypeError(
+            "distortion must be a dict with keys among "
+            f"{list(_DISTORTION_KEYS)}, e.g. {{'k1': -0.003}} for a barrel distortion; "
+            f"got {type(distortion).__name__}.")
+    unknown = sorted(set(distortion) - set(_DISTORTION_KEYS))
+    if unknown:
+        raise ValueError(f"unknown distortion key(s) {unknown}; use {list(_DISTORTION_KEYS)}.")
+    hint = " Pass a dimensionless coefficient (radius in units of the half diagonal)."
+    k1 = _check_real(distortion.get("k1", 0.0), "distortion['k1']", hint=hint)
+    k2 = _check_real(distortion.get("k2", 0.0), "distortion['k2']", hint=hint)
+    ny, nx = shape
+    pairs = {}
+    for key, default in (("tilt", (0.0, 0.0)), ("center", ((nx - 1) / 2.0, (ny - 1) / 2.0))):
+        value = distortion.get(key, default)
+        try:
+            a = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            a = None
+        if a is None or a.shape != (2,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"distortion['{key}'] must be a finite (x, y) pair; got {value!r}.")
+        pairs[key] = (float(a[0]), float(a[1]))
+    if np.hypot(*pairs["tilt"]) >= 0.5:
+        raise ValueError(
+            f"distortion['tilt'] = {pairs['tilt']} is too strong: its length must be below 0.5 "
+            "(a tilt of t changes the scale by about t across the half diagonal).")
+    radius = 0.5 * float(np.hypot(nx, ny))  # half diagonal of the source frame
+    return dict(k1=k1, k2=k2, tilt=pairs["tilt"], center=pairs["center"], radius=radius)
+
+
+def _distort(d, x, y):
+    """
+    Source pixels through the optics: radial distortion about ``center``
+    (``r' = r (1 + k1 rho**2 + k2 rho**4)``, ``rho = r / radius``), then
+    the tilted focal plane (a homography that keeps the centre fixed).
+    """
+    cx, cy = d["center"]
+    u = np.asarray(x, dtype=float) - cx
+    v = np.asarray(y, dtype=float) - cy
+    rho2 = (u * u + v * v) / d["radius"] ** 2
+    f = 1.0 + rho2 * (d["k1"] + d["k2"] * rho2)
+    u, v = u * f, v * f
+    tx, ty = d["tilt"]
+    if tx or ty:
+        w = 1.0 + (tx * u + ty * v) / d["radius"]
+        u, v = u / w, v / w
+    return u + cx, v + cy
+
+
+def _check_monotonic(d, box):
+    """Refuse a distortion that folds the plane over inside the simulated region."""
+    x0, x1, y0, y1 = box
+    cx, cy = d["center"]
+    rho2 = max((x - cx) ** 2 + (y - cy) ** 2 for x in (x0, x1) for y in (y0, y1))
+    rho2 = rho2 / d["radius"] ** 2
+    r = np.linspace(0.0, np.sqrt(rho2), 256) ** 2
+    slope = 1.0 + 3.0 * d["k1"] * r + 5.0 * d["k2"] * r * r  # d r' / d r
+    f = 1.0 + d["k1"] * r + d["k2"] * r * r
+    if np.any(slope <= 0.05) or np.any(f <= 0.05):
+        raise ValueError(
+            f"distortion k1={d['k1']:g}, k2={d['k2']:g} folds the image over inside the "
+            "simulated field; use smaller coefficients (|k1| of a few 0.001 gives a few "
+            "pixels at the corners of a 4096 px frame).")
+    tx, ty = d["tilt"]
+    corners = np.array([(x, y) for x in (x0, x1) for y in (y0, y1)], float)
+    w = 1.0 + (tx * (corners[:, 0] - cx) + ty * (corners[:, 1] - cy)) / d["radius"]
+    if np.any(w <= 0.1):
+        raise ValueError(
+            f"distortion['tilt'] = {d['tilt']} sends part of the simulated field to infinity; "
+            "use a smaller tilt.")
+
+
 def _map_xy(m, x, y):
     return m[0, 0] * x + m[0, 1] * y + m[0, 2], m[1, 0] * x + m[1, 1] * y + m[1, 2]
 
@@ -900,7 +1022,7 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
                   gradient=0.0, flux_range=(300.0, 3e5), flux_index=1.5, read_noise=5.0,
                   gain=1.0, saturation=None, n_hot_pixels=0, n_cosmic_rays=0,
                   missing_fraction=0.0, n_transients=0, noise=True, seed=None,
-                  dtype=np.float32):
+                  dtype=np.float32, distortion=None):
     """
     Simulate a source/target image pair of one star field with a known transform.
 
@@ -978,6 +1100,28 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
         The geometry, the star field, each frame's noise and the transients
         use independent streams, so that e.g. adding transients does not
         change the star field.
+    distortion : dict, optional
+        Make the mapping non-linear, as wide-field optics do: source
+        positions go through the lens's radial distortion, then a tilted
+        focal plane, then ``transform``.  Keys (all optional):
+
+        * ``k1``, ``k2``: radial coefficients about ``center``,
+          ``r' = r (1 + k1 rho**2 + k2 rho**4)`` with ``rho`` the radius in
+          units of the source frame's half diagonal ``R``; negative is
+          barrel, positive pincushion.  The corners move by
+          ``R (k1 + k2)`` pixels (``k1=-0.0035``: 10 px on a 4096x4096
+          frame).
+        * ``tilt``: ``(tx, ty)``, the focal plane's tilt, a homography
+          ``(u, v) -> (u, v) / (1 + (tx u + ty v) / R)`` about ``center``
+          (dimensionless, ``|tilt| < 0.5``).
+        * ``center``: the optical centre ``(x, y)`` in source pixels
+          (default the frame centre).
+
+        The pair's `SimulatedPair.truth_map` is then the true mapping
+        (``transform`` stays its linear part) and ``meta['corner_shift']``
+        the largest distance, over the source frame's corners, between the
+        true mapping and ``transform``.  ``None`` (default): no distortion,
+        bit-identical to a pair simulated without this option.
 
     Returns
     -------
@@ -1008,9 +1152,21 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     >>> xt, yt = pair.transform(m["x_source"], m["y_source"])
     >>> bool(np.allclose(xt, m["x_target"]) and np.allclose(yt, m["y_target"]))
     True
+
+    A wide-field pair, barrel distortion moving the corners by 5 px:
+
+    >>> wide = simulate_pair((512, 512), n_stars=200, rotation=5.0, seed=1,
+    ...                      distortion={"k1": -5.0 / np.hypot(256, 256)})
+    >>> round(wide.meta["corner_shift"], 1)
+    5.0
+    >>> m = wide.matched_stars()
+    >>> xt, yt = wide.truth_map(m["x_source"], m["y_source"])
+    >>> bool(np.allclose(xt, m["x_target"]) and np.allclose(yt, m["y_target"]))
+    True
     """
     shape = _check_shape(shape)
     target_shape = shape if target_shape is None else _check_shape(target_shape, "target_shape")
+    dist = _check_distortion(distortion, shape)
     n_stars = _check_count(n_stars, "n_stars")
     n_transients = _check_count(n_transients, "n_transients")
     if not isinstance(mirror, (bool, np.bool_)):
@@ -1067,6 +1223,22 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     x1 = max(fx.max(), nx - 0.5 + pad_s)
     y0 = min(fy.min(), -0.5 - pad_s)
     y1 = max(fy.max(), ny - 0.5 + pad_s)
+    if dist is None:
+        def mapping(x, y):
+            return _map_xy(m, x, y)
+    else:
+        def mapping(x, y):
+            return _map_xy(m, *_distort(dist, x, y))
+
+        # The distorted footprint: widen the region by the largest
+        # displacement at its corners (the farthest points from the centre).
+        _check_monotonic(dist, (x0, x1, y0, y1))
+        bx = np.array([x0, x1, x1, x0])
+        by = np.array([y0, y0, y1, y1])
+        dx, dy = _distort(dist, bx, by)
+        grow = float(np.max(np.hypot(dx - bx, dy - by))) * 1.25 + 1.0
+        x0, x1, y0, y1 = x0 - grow, x1 + grow, y0 - grow, y1 + grow
+        _check_monotonic(dist, (x0, x1, y0, y1))
     density = n_stars / float(nx * ny)
     expected = density * (x1 - x0) * (y1 - y0)
     if expected > _MAX_STARS:
@@ -1080,7 +1252,7 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     n_out = int(rng_stars.poisson(expected)) if n_stars else 0
     x_out = rng_stars.uniform(x0, x1, n_out)
     y_out = rng_stars.uniform(y0, y1, n_out)
-    xt_out, yt_out = _map_xy(m, x_out, y_out)
+    xt_out, yt_out = mapping(x_out, y_out)
     keep = ~_inside(x_out, y_out, shape) & (
         _inside(x_out, y_out, shape, pad_s) | _inside(xt_out, yt_out, target_shape, pad_t)
     )
@@ -1092,7 +1264,7 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     ids[np.lexsort((np.arange(n_total), -flux))] = np.arange(n_total)  # 0 = brightest
     present_src = rng_stars.random(n_total) >= missing_fraction
     present_tgt = rng_stars.random(n_total) >= missing_fraction
-    xt, yt = _map_xy(m, xs, ys)
+    xt, yt = mapping(xs, ys)
 
     # -- transients, in target coordinates --
     tr_x = rng_trans.uniform(-0.5, ntx - 0.5, n_transients)
@@ -1126,6 +1298,13 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
         n_transients=n_transients,
         seed=seed if isinstance(seed, (numbers.Integral, type(None))) else repr(seed),
     )
+    if dist is not None:
+        ccx = np.array([-0.5, nx - 0.5, nx - 0.5, -0.5])
+        ccy = np.array([-0.5, -0.5, ny - 0.5, ny - 0.5])
+        lx, ly = _map_xy(m, ccx, ccy)
+        tx_, ty_ = mapping(ccx, ccy)
+        meta.update(distortion={k: dist[k] for k in _DISTORTION_KEYS},
+                    corner_shift=float(np.max(np.hypot(tx_ - lx, ty_ - ly))))
     return SimulatedPair(
         source=source,
         target=target,
@@ -1135,6 +1314,7 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
         target_stars=_star_table(xt[in_tgt], yt[in_tgt], flux[in_tgt], ids[in_tgt]),
         transients=_star_table(tr_x, tr_y, tr_flux, tr_ids),
         meta=meta,
+        mapping=None if dist is None else mapping,
     )
 
 
@@ -1425,9 +1605,15 @@ def bayer_bin(pair, *, gains=(0.55, 1.0, 1.0, 0.75)):
         t["y"] = (t["y"] - 0.5) / 2.0
         return t
 
+    def binned_mapping(x, y):
+        xt, yt = pair.mapping(2.0 * np.asarray(x, float) + 0.5, 2.0 * np.asarray(y, float) + 0.5)
+        return (xt - 0.5) / 2.0, (yt - 0.5) / 2.0
+
+    mapping = None if pair.mapping is None else binned_mapping
+
     meta = dict(pair.meta, bayer_binned=True)
     return SimulatedPair(source=binned(pair.source), target=binned(pair.target),
                          transform=from_matrix(truth), truth_matrix=truth,
                          source_stars=stars(pair.source_stars),
                          target_stars=stars(pair.target_stars),
-                         transients=stars(pair.transients), meta=meta)
+                         transients=stars(pair.transients), meta=meta, mapping=mapping)

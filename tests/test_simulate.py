@@ -405,3 +405,89 @@ def test_effects_leave_input_alone():
     # Only the strips change: the interior is the input's.
     np.testing.assert_array_equal(strips[:-4, 4:-4], img[:-4, 4:-4])
     assert np.all(strips[:, :4] == 0.0)
+
+
+# -- distortion (issue 18) -------------------------------------------------------
+
+
+def test_distortion_none_is_bit_identical():
+    a = simulate_pair((128, 128), n_stars=60, rotation=12.0, seed=5)
+    b = simulate_pair((128, 128), n_stars=60, rotation=12.0, seed=5, distortion=None)
+    assert np.array_equal(a.source, b.source) and np.array_equal(a.target, b.target)
+    assert b.mapping is None and "corner_shift" not in b.meta
+    xt, yt = b.truth_map([3.0, 100.0], [7.0, 50.0])
+    lx, ly = b.transform([3.0, 100.0], [7.0, 50.0])
+    assert np.array_equal(xt, lx) and np.array_equal(yt, ly)
+
+
+@pytest.mark.parametrize("k1, k2", [(-0.01, 0.0), (0.008, 0.0), (-0.006, -0.003)])
+def test_radial_distortion_truth(k1, k2):
+    shape = (300, 400)
+    pair = simulate_pair(shape, n_stars=200, rotation=20.0, translation=(4.0, -3.0), seed=2,
+                         distortion={"k1": k1, "k2": k2})
+    half = 0.5 * np.hypot(400, 300)
+    assert pair.meta["corner_shift"] == pytest.approx(half * abs(k1 + k2), rel=1e-9)
+    m = pair.matched_stars()
+    xt, yt = pair.truth_map(m["x_source"], m["y_source"])
+    assert np.allclose(xt, m["x_target"]) and np.allclose(yt, m["y_target"])
+    # The distortion is radial: about the centre, along the radius, growing as r**3.
+    c = np.array([199.5, 149.5])
+    lin_inv = np.linalg.inv(pair.truth_matrix)
+    p = np.array([[399.5, 149.5], [199.5 + 100.0, 149.5]])
+    xt, yt = pair.truth_map(p[:, 0], p[:, 1])
+    back = (lin_inv @ np.vstack([xt, yt, np.ones(2)]))[:2].T - c
+    r = np.hypot(*(p - c).T)
+    rho2 = (r / half) ** 2
+    assert np.allclose(np.hypot(*back.T), r * (1 + k1 * rho2 + k2 * rho2 ** 2))
+    assert np.allclose(back[:, 1], 0.0, atol=1e-9)  # along the radius
+
+
+def test_tilt_is_projective():
+    pair = simulate_pair((256, 256), n_stars=100, seed=3, rotation=0.0,
+                         distortion={"tilt": (0.02, 0.0)})
+    # A homography maps straight lines onto straight lines ...
+    y = np.linspace(0.0, 255.0, 7)
+    xt, yt = pair.truth_map(np.full(7, 40.0), y)
+    assert np.allclose(np.polyval(np.polyfit(yt, xt, 1), yt), xt, atol=1e-9)
+    # ... but shrinks the side it tilts away from, stretches the other.
+    xl, _ = pair.truth_map([0.0, 10.0], [127.5, 127.5])
+    xr, _ = pair.truth_map([245.0, 255.0], [127.5, 127.5])
+    assert np.diff(xl)[0] > 10.0 > np.diff(xr)[0]
+    assert pair.meta["corner_shift"] > 2.0
+
+
+def test_distortion_bad_options():
+    with pytest.raises(TypeError, match="distortion must be a dict"):
+        simulate_pair((64, 64), n_stars=10, distortion=0.01)
+    with pytest.raises(ValueError, match="unknown distortion key"):
+        simulate_pair((64, 64), n_stars=10, distortion={"k3": 0.1})
+    with pytest.raises(ValueError, match="folds the image over"):
+        simulate_pair((64, 64), n_stars=10, distortion={"k1": -0.5})
+    with pytest.raises(ValueError, match="too strong"):
+        simulate_pair((64, 64), n_stars=10, distortion={"tilt": (0.6, 0.0)})
+    with pytest.raises(ValueError, match="finite"):
+        simulate_pair((64, 64), n_stars=10, distortion={"center": (np.nan, 3.0)})
+    with pytest.raises(TypeError, match="real number"):
+        simulate_pair((64, 64), n_stars=10, distortion={"k1": "big"})
+
+
+def test_distortion_fills_the_target_frame():
+    """Stars reach the target's corners although barrel distortion pulls them in."""
+    pair = simulate_pair((256, 256), n_stars=2000, rotation=0.0, seed=4,
+                         distortion={"k1": -0.04})
+    t = pair.target_stars
+    assert len(t) > 0.95 * 2000 * (1 - 0.01)  # about the source's density
+    for cx in (0, 255):
+        for cy in (0, 255):
+            assert np.min(np.hypot(t["x"] - cx, t["y"] - cy)) < 10.0
+
+
+def test_bayer_bin_keeps_the_distortion():
+    full = simulate_pair((256, 256), n_stars=200, fwhm=2.6, seed=1, rotation=10.0,
+                         distortion={"k1": -0.02})
+    from astroalign_nd.simulate import bayer_bin
+
+    binned = bayer_bin(full)
+    m = binned.matched_stars()
+    xt, yt = binned.truth_map(m["x_source"], m["y_source"])
+    assert np.allclose(xt, m["x_target"]) and np.allclose(yt, m["y_target"])

@@ -1,0 +1,845 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Stage 4 (for wide fields): non-linear models grown from the linear match.
+
+Wide-field optics (camera lenses, small refractors, all-sky cameras) leave
+several pixels of residual at the corners under any linear model.  This
+stage takes the trusted linear match of `~astroalign_nd.matching` (found on
+the brightest stars) and extends it to a projective (homography) or
+polynomial-distortion model over all detected stars:
+
+1. **Grow.** Starting from the linear model, the fit is extended outwards
+   from the matched stars in discs of growing radius: predict every star of
+   the disc with the current model, pair it with the nearest target star
+   within ``tolerance`` (mutual nearest neighbours), refit, clip.  Near the
+   matched stars the linear model is right; each larger disc is predicted
+   by a model fitted on the previous one, so the pairing follows the
+   distortion instead of locking onto chance pairs at the corners.  The
+   degree used while growing is capped by the number of paired stars.
+2. **Refine.** Over the whole frame, the pairing radius shrinks to five
+   times the residual scatter and pairs more than 4 sigma off the model
+   (chi-square of 16, counting the model's own prediction variance) are
+   clipped, as in the linear refinement.  Wrong pairs (30% and more) do not
+   survive: they are far off a model fitted to the majority.
+3. **Choose.** With ``degree='auto'`` the candidate models (the linear one
+   of the match, affine, polynomial degrees 2 to 5) are fitted to the same
+   pairs with the same weights; a more complex candidate replaces the
+   current choice only if an F-test says its extra terms are significant
+   (p < ``significance``) and its Bayesian information criterion (BIC) is
+   lower.
+4. **Trust.** The stars must cover the frame well enough for the model's
+   terms: the occupancy of a grid of ``(degree + 1)**2`` cells and the
+   number of stars per coefficient.  Too little coverage is refused
+   (`~astroalign_nd.exceptions.PoorCoverageError`), borderline coverage
+   warned about (`~astroalign_nd.exceptions.PoorFitWarning`).  The
+   parameter covariance gives the predicted 1-sigma error of the mapping on
+   a grid over the frame (largest and RMS), reported in the quality dict.
+
+The fitting is done here on numpy design matrices (coordinates normalised
+to the half diagonal of the frame, for conditioning); the returned models
+are built by `~astroalign_nd.transforms.fit_transform` on the final pairs,
+like the linear ones.
+"""
+
+import numbers
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.special import betainc
+
+from .exceptions import PoorCoverageError, PoorFitWarning, TooFewSourcesError, warn
+
+__all__ = ["NONLINEAR_TYPES", "check_degree", "fit_nonlinear", "extend_match", "DistortionFit"]
+
+#: The transform types handled by this stage.
+NONLINEAR_TYPES = ("projective", "polynomial")
+#: Polynomial degrees offered (the SIP convention's useful range).
+DEGREES = (2, 3, 4, 5)
+#: Chi-square (2 degrees of freedom) above which a pair is clipped: p = 3e-4.
+CLIP_CHI2 = 16.0
+#: Coverage refused below these (explicit degree) ...
+MIN_OCCUPANCY = 0.6
+MIN_STARS_PER_TERM = 3.0
+#: ... and warned about below these.
+WARN_OCCUPANCY = 0.85
+WARN_STARS_PER_TERM = 6.0
+#: Predicted 1-sigma error (px) above which the fit is reported as uncertain.
+WARN_PREDICTED = 0.3
+#: Grid (per axis) on which the predicted error is evaluated.
+ERROR_GRID = 33
+#: The linear search's matching radius is this many times the usual one when a
+#: distortion model follows: a tilted or distorted wide field is several
+#: pixels off any linear model away from the centre.
+SEARCH_TOLERANCE_FACTOR = 2.5
+
+
+def check_degree(transform_type, degree):
+    """
+    The validated ``degree`` for ``transform_type``.
+
+    Parameters
+    ----------
+    transform_type : str or type
+        The requested transform type.
+    degree : int, 'auto' or None
+        Polynomial degree (2 to 5) or ``'auto'``; only for
+        ``transform_type='polynomial'`` (None there means 3).
+
+    Returns
+    -------
+    degree : int, 'auto' or None
+
+    Raises
+    ------
+    ValueError, TypeError
+        For a degree out of range, or given with another transform type.
+
+    Examples
+    --------
+    >>> from astroalign_nd.model_selection import check_degree
+    >>> check_degree("polynomial", None), check_degree("polynomial", "auto")
+    (3, 'auto')
+    >>> check_degree("similarity", None) is None
+    True
+    """
+    is_poly = nonlinear_name(transform_type) == "polynomial"
+    if degree is None:
+        return 3 if is_poly else None
+    if not is_poly:
+        raise ValueError(
+            f"degree={degree!r} applies to transform_type='polynomial' only; got "
+            f"transform_type={transform_type!r}. Pass transform_type='polynomial' or drop "
+            "degree.")
+    if isinstance(degree, str):
+        if degree.lower() == "auto":
+            return "auto"
+        if degree.strip().isdigit():
+            degree = int(degree)
+    if isinstance(degree, (bool, np.bool_)) or not isinstance(degree, numbers.Integral):
+        raise TypeError(f"degree must be an integer from 2 to 5 or 'auto'; got {degree!r}.")
+    if int(degree) not in DEGREES:
+        raise ValueError(f"degree must be an integer from 2 to 5 or 'auto'; got {degree!r}. "
+                         "(Degree 1 is transform_type='affine'.)")
+    return int(degree)
+
+
+def nonlinear_name(transform_type):
+    """'projective' or 'polynomial' for this stage's types (names or classes), else None."""
+    if isinstance(transform_type, str):
+        name = transform_type.lower()
+        return name if name in NONLINEAR_TYPES else None
+    if isinstance(transform_type, type):
+        from .nonlinear import PolynomialTransform, ProjectiveTransform
+
+        if issubclass(transform_type, ProjectiveTransform):
+            return "projective"
+        if issubclass(transform_type, PolynomialTransform):
+            return "polynomial"
+    return None
+
+
+def is_nonlinear(transform_type):
+    """True for the transform types of this stage ('projective', 'polynomial')."""
+    return nonlinear_name(transform_type) is not None
+
+
+# -- the candidate models, as design matrices ---------------------------------------
+
+
+def _n_terms(degree):
+    return (degree + 1) * (degree + 2) // 2
+
+
+def _terms(degree):
+    """Exponents (p, q) of u**p v**q, total degree 0 to ``degree``."""
+    return [(n - q, q) for n in range(degree + 1) for q in range(n + 1)]
+
+
+class _Poly:
+    """A full polynomial of total degree ``degree`` per axis (degree 1: affine)."""
+
+    def __init__(self, degree):
+        self.degree = degree
+        self.terms = _terms(degree)
+        self.k = 2 * len(self.terms)
+        self.name = "affine" if degree == 1 else f"polynomial degree {degree}"
+        self.linear = True
+
+    def design(self, uv, params=None):
+        """(N, 2, k) derivatives of (x', y') with respect to the parameters."""
+        base = np.column_stack([uv[:, 0] ** p * uv[:, 1] ** q for p, q in self.terms])
+        t = len(self.terms)
+        d = np.zeros((len(uv), 2, self.k))
+        d[:, 0, :t] = base
+        d[:, 1, t:] = base
+        return d
+
+
+class _Similarity:
+    """Scale, rotation, shift (mirrored when ``parity`` is -1): 4 parameters."""
+
+    def __init__(self, parity):
+        self.parity = parity
+        self.k = 4
+        self.name = "similarity"
+        self.linear = True
+
+    def design(self, uv, params=None):
+        u, v = uv[:, 0], self.parity * uv[:, 1]
+        d = np.zeros((len(uv), 2, 4))
+        one = np.ones(len(uv))
+        d[:, 0, 0], d[:, 0, 1], d[:, 0, 2] = u, -v, one
+        d[:, 1, 0], d[:, 1, 1], d[:, 1, 3] = v, u, one
+        return d
+
+
+class _Projective:
+    """Homography h1..h8 (h9 = 1) in normalised coordinates: non-linear, Gauss-Newton."""
+
+    def __init__(self):
+        self.k = 8
+        self.name = "projective"
+        self.linear = False
+
+    @staticmethod
+    def predict(params, uv):
+        h = params
+        w = h[6] * uv[:, 0] + h[7] * uv[:, 1] + 1.0
+        x = (h[0] * uv[:, 0] + h[1] * uv[:, 1] + h[2]) / w
+        y = (h[3] * uv[:, 0] + h[4] * uv[:, 1] + h[5]) / w
+        return np.column_stack([x, y])
+
+    def design(self, uv, params):
+        u, v = uv[:, 0], uv[:, 1]
+        h = params
+        w = h[6] * u + h[7] * v + 1.0
+        xy = self.predict(params, uv)
+        d = np.zeros((len(uv), 2, 8))
+        d[:, 0, 0], d[:, 0, 1], d[:, 0, 2] = u / w, v / w, 1.0 / w
+        d[:, 1, 3], d[:, 1, 4], d[:, 1, 5] = u / w, v / w, 1.0 / w
+        d[:, 0, 6], d[:, 0, 7] = -u * xy[:, 0] / w, -v * xy[:, 0] / w
+        d[:, 1, 6], d[:, 1, 7] = -u * xy[:, 1] / w, -v * xy[:, 1] / w
+        return d
+
+
+def _predict(cand, params, uv):
+    if cand.linear:
+        return np.einsum("nik,k->ni", cand.design(uv), params)
+    return cand.predict(params, uv)
+
+
+def _solve(a, b):
+    """Least squares through the normal equations (well conditioned: coordinates are
+    normalised); (solution, inverse normal matrix), or None if rank deficient."""
+    n = a.T @ a
+    d = np.sqrt(np.diag(n))
+    if not np.all(d > 0):
+        return None
+    ns = n / np.outer(d, d)  # unit diagonal: the condition number is meaningful
+    if np.linalg.cond(ns) > 1e12:
+        return None
+    inv = np.linalg.inv(ns) / np.outer(d, d)
+    return inv @ (a.T @ b), inv
+
+
+def _wls(cand, uv, dst, w, start=None):
+    """Weighted least squares: (params, unscaled covariance), or None if degenerate."""
+    sw = np.sqrt(np.repeat(w, 2))
+    if cand.linear:
+        a = cand.design(uv).reshape(-1, cand.k) * sw[:, None]
+        sol = _solve(a, dst.reshape(-1) * sw)
+        return sol
+    params = np.array(start, float)
+    for _ in range(20):  # Gauss-Newton; converges in a few steps from an affine start
+        a = cand.design(uv, params).reshape(-1, cand.k) * sw[:, None]
+        r = (dst - cand.predict(params, uv)).reshape(-1) * sw
+        sol = _solve(a, r)
+        if sol is None:
+            return None
+        params = params + sol[0]
+        if np.max(np.abs(sol[0])) < 1e-13:
+            break
+    a = cand.design(uv, params).reshape(-1, cand.k) * sw[:, None]
+    sol = _solve(a, np.zeros(len(a)))
+    return None if sol is None else (params, sol[1])
+
+
+def _prediction_var(cand, params, cov, uv):
+    """Variance (x plus y, px^2) of the fitted mapping at ``uv``."""
+    d = cand.design(uv, params)
+    return np.einsum("nik,kl,nil->n", d, cov, d)
+
+
+def _projective_start(aff_params):
+    """The homography equal to an affine fit (``_Poly(1)`` parameter order)."""
+    c = aff_params  # x: 1, u, v ; y: 1, u, v
+    return np.array([c[1], c[2], c[0], c[4], c[5], c[3], 0.0, 0.0])
+
+
+# -- pairing ------------------------------------------------------------------------
+
+
+def _mutual(pred, dst_pts, tree, tol):
+    """Mutual nearest neighbours within ``tol``: (source indices, target indices)."""
+    if len(pred) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    d, j = tree.query(pred, distance_upper_bound=tol)
+    ok = np.isfinite(d)
+    si, dj = np.flatnonzero(ok), j[ok]
+    if len(si) == 0:
+        return si, dj
+    # Keep, for each target star, only its nearest predicted source star.
+    order = np.lexsort((d[si], dj))
+    first = np.r_[True, dj[order][1:] != dj[order][:-1]]
+    keep = order[first]
+    return si[keep], dj[keep]
+
+
+class _Pairs:
+    """How source and target stars are paired: by position, or as given."""
+
+    def __init__(self, src, dst, given):
+        self.src, self.dst, self.given = src, dst, given
+        self.tree = None if given else cKDTree(dst)
+
+    def pair(self, pred, idx, tol):
+        """Pairs among source stars ``idx`` whose prediction lies within ``tol``."""
+        if self.given:
+            r = np.hypot(*(pred - self.dst[idx]).T)
+            ok = r <= tol
+            return idx[ok], idx[ok]
+        si, dj = _mutual(pred, self.dst, self.tree, tol)
+        return idx[si], dj
+
+
+# -- the robust fit -----------------------------------------------------------------
+
+
+def _robust_fit(cand, uv, dst, var, start=None, keep=None):
+    """
+    Fit, clip pairs above ``CLIP_CHI2`` (residual over expected variance,
+    scaled so that the median is Gaussian, plus the prediction variance),
+    refit, until the kept set is stable.  Returns (params, cov, keep,
+    total variance) or None.
+    """
+    n = len(uv)
+    keep = np.ones(n, bool) if keep is None else keep.copy()
+    out = None
+    for _ in range(12):
+        if keep.sum() * 2 <= cand.k:
+            return out
+        fit = _wls(cand, uv[keep], dst[keep], 1.0 / var[keep], start)
+        if fit is None:
+            return out
+        params, cov = fit
+        r = _predict(cand, params, uv) - dst
+        r2 = np.einsum("ij,ij->i", r, r)
+        # A median is not moved by the wrong pairs the cut must remove.
+        infl = max(1.0, float(np.median(r2[keep] / var[keep])) / (2.0 * np.log(2.0)))
+        total = var * infl
+        pv = _prediction_var(cand, params, cov * infl, uv)
+        new = r2 / (total + pv) <= CLIP_CHI2
+        out = (params, cov * infl, keep, total)
+        if new.sum() * 2 <= cand.k or np.array_equal(new, keep):
+            break
+        keep = new
+        if not cand.linear:
+            start = params
+    return out
+
+
+def _occupancy(uv, frame_uv, degree):
+    """Fraction of the ``(degree + 1)**2`` cells of the frame holding a star."""
+    g = degree + 1
+    x0, x1, y0, y1 = frame_uv
+    ix = np.clip(((uv[:, 0] - x0) / (x1 - x0) * g).astype(int), 0, g - 1)
+    iy = np.clip(((uv[:, 1] - y0) / (y1 - y0) * g).astype(int), 0, g - 1)
+    return len(np.unique(iy * g + ix)) / float(g * g), g
+
+
+def _coverage(uv, frame_uv, degree, n_terms):
+    occ, g = _occupancy(uv, frame_uv, degree)
+    return dict(grid=(g, g), occupancy=occ, n_stars=int(len(uv)),
+                stars_per_term=len(uv) / float(n_terms))
+
+
+def _coverage_ok(cov, strict):
+    occ_min = MIN_OCCUPANCY if strict else WARN_OCCUPANCY
+    per_min = MIN_STARS_PER_TERM if strict else WARN_STARS_PER_TERM
+    return cov["occupancy"] >= occ_min and cov["stars_per_term"] >= per_min
+
+
+def _f_pvalue(chi_small, k_small, chi_big, k_big, n_eq):
+    """P-value of the F-test that the ``k_big - k_small`` extra terms are needed."""
+    d1, d2 = k_big - k_small, n_eq - k_big
+    if d1 <= 0 or d2 <= 0:
+        return 1.0
+    f = ((chi_small - chi_big) / d1) / max(chi_big / d2, 1e-300)
+    if f <= 0:
+        return 1.0
+    return float(betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f)))
+
+
+# -- the stage ----------------------------------------------------------------------
+
+
+class DistortionFit:
+    """
+    The outcome of `fit_nonlinear`.
+
+    Attributes
+    ----------
+    transform : astropy Model
+        The chosen source-to-target model: a
+        `~astroalign_nd.transforms.ProjectiveTransform`, a
+        `~astroalign_nd.transforms.PolynomialTransform`, or a linear model
+        when ``degree='auto'`` found no distortion.
+    covariance : ndarray
+        Covariance of the model's free parameters (from
+        `~astroalign_nd.transforms.fit_transform`).
+    source_index, target_index : ndarray of int
+        The pairs used in the final fit (indices into the point lists).
+    residuals : (K, 2) ndarray
+        ``transform(source) - target`` for them, pixels.
+    rms : float
+        Their RMS distance, pixels.
+    info : dict
+        How the model was chosen and how far it can be trusted: ``model``,
+        ``degree``, ``requested_degree``, ``candidates`` (name, number of
+        parameters, chi-square, BIC and F-test p-value of each model
+        compared), ``coverage`` (grid, occupancy, stars per term),
+        ``predicted_error_max`` and ``predicted_error_rms`` (1-sigma
+        position error of the mapping in pixels on a grid over the source
+        frame, from the covariance), ``n_pairs`` and ``n_clipped``.
+    """
+
+    def __init__(self, transform, covariance, source_index, target_index, residuals, info):
+        self.transform = transform
+        self.covariance = covariance
+        self.source_index = source_index
+        self.target_index = target_index
+        self.residuals = residuals
+        self.rms = float(np.sqrt(np.mean(np.sum(residuals ** 2, axis=1))))
+        self.info = info
+
+    def __repr__(self):
+        return (f"<DistortionFit {type(self.transform).__name__} {self.info.get('model')} "
+                f"degree={self.info.get('degree')} n={len(self.source_index)} "
+                f"rms={self.rms:.3f} px>")
+
+
+def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degree=3,
+                  seed_points=None, source_errors=None, target_errors=None, source_frame=None,
+                  tolerance=3.0, min_tolerance=0.3, significance=1e-4, pairs_given=False,
+                  linear_type=None):
+    """
+    Grow a linear match into a projective or polynomial model over all stars.
+
+    Parameters
+    ----------
+    src_pts, dst_pts : (N, 2), (M, 2) array-like
+        Source and target star positions (pixels).  With ``pairs_given``,
+        two arrays of the same length whose rows are candidate pairs (some
+        may be wrong).
+    linear : (3, 3) array-like, linear model or None
+        The linear source-to-target transform to start from (the matched
+        similarity or affine transform).  None, with ``pairs_given``: the
+        affine transform that the most pairs agree with, to ``tolerance``
+        (a deterministic consensus over 1000 triples of pairs).
+    transform_type : {'polynomial', 'projective'}, optional
+    degree : int or 'auto', optional
+        Polynomial degree, 2 to 5, or 'auto' to choose it (linear
+        included): a candidate with more terms is chosen only if an F-test
+        (p < ``significance``) and the BIC both prefer it.
+    seed_points : (K, 2) array-like, optional
+        Source positions of the stars matched by the linear stage: the
+        growth starts around them (by default around the stars the linear
+        model pairs within ``tolerance``).
+    source_errors, target_errors : (N,), (M,) array-like, optional
+        Expected centroid errors (pixels); 0.1 px when not given.
+    source_frame : (x0, x1, y0, y1), optional
+        The source image's extent; the source stars' bounding box by default.
+        Coverage and the predicted error are evaluated over it.
+    tolerance : float, optional
+        Pairing radius (pixels) while growing.
+    min_tolerance : float, optional
+        Smallest pairing radius of the final refinement.
+    significance : float, optional
+        F-test p-value below which extra terms are accepted (``'auto'``).
+    pairs_given : bool, optional
+        Treat rows of ``src_pts`` and ``dst_pts`` as given pairs instead of
+        pairing stars by position.
+    linear_type : str, optional
+        The linear candidate of ``degree='auto'`` ('similarity' includes a
+        similarity before the affine model; default: affine only).
+
+    Returns
+    -------
+    `DistortionFit`
+
+    Raises
+    ------
+    PoorCoverageError
+        If the paired stars do not cover the frame well enough for the
+        requested degree (or any projective model).
+    TooFewSourcesError
+        If too few stars pair up to fit even an affine model.
+
+    Examples
+    --------
+    Stars of a 4096-pixel frame through a barrel distortion of 10 px at
+    the corners, and 30% of the pairs wrong:
+
+    >>> import numpy as np
+    >>> from astroalign_nd.model_selection import fit_nonlinear
+    >>> rng = np.random.default_rng(0)
+    >>> src = rng.uniform(0, 4095, (600, 2))
+    >>> u = (src - 2047.5) / 2896.0
+    >>> dst = src + (u * -0.0035 * (u ** 2).sum(1)[:, None]) * 2896.0
+    >>> dst[:180] = rng.uniform(0, 4095, (180, 2))       # wrong pairs
+    >>> fit = fit_nonlinear(src, dst, np.eye(3), degree="auto", pairs_given=True,
+    ...                     tolerance=15.0, source_frame=(-0.5, 4095.5, -0.5, 4095.5))
+    >>> fit.info["model"], fit.info["degree"], fit.info["n_pairs"]
+    ('polynomial', 3, 420)
+    >>> bool(fit.rms < 0.01)
+    True
+    """
+    from .transforms import fit_transform
+
+    if not is_nonlinear(transform_type):
+        raise ValueError(f"transform_type must be one of {list(NONLINEAR_TYPES)}; got "
+                         f"{transform_type!r}.")
+    transform_type = nonlinear_name(transform_type)
+    degree = check_degree("polynomial", degree) if transform_type == "polynomial" else None
+    src = np.asarray(src_pts, float).reshape(-1, 2)
+    dst = np.asarray(dst_pts, float).reshape(-1, 2)
+    if pairs_given and len(src) != len(dst):
+        raise ValueError(f"pairs_given needs as many source as target points; got {len(src)} "
+                         f"and {len(dst)}.")
+    if linear is None:
+        if not pairs_given:
+            raise ValueError("linear=None needs pairs_given=True; pass the linear match's "
+                             "matrix or model to grow from.")
+        linear = _consensus_affine(src, dst, tolerance)
+    m = _as_matrix(linear)
+    if source_frame is None:
+        x0, y0 = src.min(axis=0) - 0.5
+        x1, y1 = src.max(axis=0) + 0.5
+        source_frame = (x0, x1, y0, y1)
+    x0, x1, y0, y1 = (float(v) for v in source_frame)
+    centre = np.array([(x0 + x1) / 2.0, (y0 + y1) / 2.0])
+    half = 0.5 * float(np.hypot(x1 - x0, y1 - y0))
+    uv = (src - centre) / half
+    frame_uv = ((x0 - centre[0]) / half, (x1 - centre[0]) / half,
+                (y0 - centre[1]) / half, (y1 - centre[1]) / half)
+    s2 = abs(np.linalg.det(m[:2, :2]))
+    e_src = np.full(len(src), 0.1) if source_errors is None else np.asarray(source_errors, float)
+    e_dst = np.full(len(dst), 0.1) if target_errors is None else np.asarray(target_errors, float)
+    pairs = _Pairs(src, dst, pairs_given)
+
+    def variance(si, dj):
+        return np.maximum(s2 * e_src[si] ** 2 + e_dst[dj] ** 2, 1e-6)
+
+    # The linear start, as affine parameters in normalised coordinates.
+    aff = _Poly(1)
+    lin_params = np.array([m[0, 2] + m[0, 0] * centre[0] + m[0, 1] * centre[1],
+                           m[0, 0] * half, m[0, 1] * half,
+                           m[1, 2] + m[1, 0] * centre[0] + m[1, 1] * centre[1],
+                           m[1, 0] * half, m[1, 1] * half])
+    top = 5 if degree == "auto" else (degree if degree is not None else 1)
+
+    def growth_model(n_pairs):
+        """The most flexible model ``n_pairs`` pairs support while growing."""
+        if transform_type == "projective":
+            return _Projective() if n_pairs >= 4 * 8 else aff
+        d = top
+        while d > 1 and n_pairs < 2 * WARN_STARS_PER_TERM * _n_terms(d):
+            d -= 1
+        return _Poly(d)
+
+    cand, params = aff, lin_params
+
+    def fit_on(cand_new, cand_old, params_old, si, dj):
+        var = variance(si, dj)
+        start = None
+        if not cand_new.linear:
+            start = (params_old if not cand_old.linear
+                     else _projective_start(_fit_affine(uv[si], dst[dj], var, params_old)))
+        return _robust_fit(cand_new, uv[si], dst[dj], var, start)
+
+    # 1. Grow outwards from the linear match's stars.
+    all_idx = np.arange(len(src))
+    if seed_points is None or len(seed_points) == 0:
+        seed_si, _ = pairs.pair(_predict(aff, lin_params, uv), all_idx, tolerance)
+        seed_uv = uv[seed_si]
+    else:
+        seed_uv = (np.asarray(seed_points, float).reshape(-1, 2) - centre) / half
+    if len(seed_uv) < 3:
+        raise TooFewSourcesError(
+            f"only {len(seed_uv)} star(s) pair up under the linear transform within "
+            f"{tolerance:g} px; a distortion model needs many more. Pass more stars or a "
+            "larger tolerance.")
+    seed_centre = seed_uv.mean(axis=0)
+    dist = np.hypot(*(uv - seed_centre).T)
+    radius = max(float(np.median(np.hypot(*(seed_uv - seed_centre).T))), 1e-3)
+    r_max = float(dist.max())
+    while True:
+        idx = all_idx[dist <= radius]
+        si, dj = pairs.pair(_predict(cand, params, uv[idx]), idx, tolerance)
+        new = growth_model(len(si))
+        fit = fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
+        if fit is not None:
+            cand, params = new, fit[0]
+        if radius >= r_max:
+            break
+        radius = min(radius * 1.4, r_max)
+
+    # 2. Refine over the whole frame with a shrinking pairing radius.
+    tol = float(tolerance)
+    final = None
+    for _ in range(10):
+        si, dj = pairs.pair(_predict(cand, params, uv), all_idx, tol)
+        new = growth_model(len(si))
+        fit = fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
+        if fit is None:
+            break
+        cand, params = new, fit[0]
+        _, _, keep, total = fit
+        final = (si, dj, keep, total)
+        new_tol = float(np.clip(5.0 * np.sqrt(np.median(total[keep])), min_tolerance, tol))
+        if new_tol == tol:
+            break
+        tol = new_tol
+    if final is None:
+        raise TooFewSourcesError(
+            f"too few stars pair up under the linear transform to fit a {transform_type} "
+            f"model; pass more stars (n_sources, nsigma) or use transform_type='affine'.")
+    si, dj, keep, total = final
+    n_paired = len(si)
+    si, dj, total = si[keep], dj[keep], total[keep]
+    w = 1.0 / total
+    fuv, fdst = uv[si], dst[dj]
+
+    # 3. Choose (degree='auto') or check the requested model.
+    candidates = []
+    if transform_type == "projective":
+        chosen, chosen_params, chosen_cov = _check_and_fit(
+            _Projective(), fuv, fdst, w, frame_uv, 1, strict=True, start=params,
+            what="a projective model")
+        name, deg = "projective", None
+    else:
+        pool = []
+        if degree == "auto":
+            parity = 1 if np.linalg.det(m[:2, :2]) > 0 else -1
+            if linear_type in ("similarity", "euclidean", "translation"):
+                pool.append((_Similarity(parity), 1, "similarity"))
+            pool.append((_Poly(1), 1, "affine"))
+            for d in DEGREES:
+                cov_d = _coverage(fuv, frame_uv, d, _n_terms(d))
+                if _coverage_ok(cov_d, strict=True):
+                    pool.append((_Poly(d), d, "polynomial"))
+        else:
+            pool.append((_Poly(degree), degree, "polynomial"))
+        n_eq = 2 * len(fuv)
+        fits = []
+        for c, d, label in pool:
+            fit = _wls(c, fuv, fdst, w)
+            if fit is None:
+                continue
+            r = _predict(c, fit[0], fuv) - fdst
+            chi2 = float(np.sum(w * np.einsum("ij,ij->i", r, r)))
+            fits.append((c, d, label, fit, chi2))
+        if not fits:
+            raise PoorCoverageError(
+                f"the {len(fuv)} paired stars cannot constrain a polynomial model; use "
+                "transform_type='affine' or pass more stars.")
+        # The residual variance scale, from the most flexible candidate (as in
+        # the F-test): the BIC needs chi-squares in units of the actual scatter.
+        s2 = max(fits[-1][4] / max(n_eq - fits[-1][0].k, 1), 1e-300)
+        best = 0
+        for i, (c, d, label, fit, chi2) in enumerate(fits):
+            p = 1.0 if i == 0 else _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq)
+            bic = float(chi2 / s2 + c.k * np.log(n_eq))
+            candidates.append(dict(model=label, degree=d, n_parameters=c.k, chi2=chi2,
+                                   bic=bic, p_value=p))
+            # Both tests must agree: the F-test guards small samples, BIC (whose
+            # penalty grows with the number of stars) large ones, where centroid
+            # errors that are not quite Gaussian make tiny p-values cheap.
+            if i > 0 and p < significance and bic < candidates[best]["bic"]:
+                best = i
+        for i, entry in enumerate(candidates):
+            entry["chosen"] = i == best
+        c, d, label, _, _ = fits[best]
+        if degree == "auto":
+            chosen, chosen_params, chosen_cov = c, *fits[best][3]
+        else:
+            chosen, chosen_params, chosen_cov = _check_and_fit(
+                c, fuv, fdst, w, frame_uv, d, strict=True, start=None,
+                what=f"a polynomial of degree {d}")
+        name, deg = label, (d if label == "polynomial" else 1)
+
+    # 4. Trust: coverage and predicted error over the frame.
+    n_terms = chosen.k / 2.0
+    coverage = _coverage(fuv, frame_uv, deg or 1, n_terms)
+    r = _predict(chosen, chosen_params, fuv) - fdst
+    chi_red = float(np.sum(w * np.einsum("ij,ij->i", r, r))) / max(2 * len(fuv) - chosen.k, 1)
+    gx = np.linspace(frame_uv[0], frame_uv[1], ERROR_GRID)
+    gy = np.linspace(frame_uv[2], frame_uv[3], ERROR_GRID)
+    grid = np.column_stack([a.ravel() for a in np.meshgrid(gx, gy)])
+    pv = _prediction_var(chosen, chosen_params, chosen_cov * max(chi_red, 1.0), grid)
+    pred_max, pred_rms = float(np.sqrt(pv.max())), float(np.sqrt(pv.mean()))
+    if name in ("polynomial", "projective") and not _coverage_ok(coverage, strict=False):
+        warn(f"the {len(fuv)} stars fitting the {_label(name, deg)} cover "
+             f"{coverage['occupancy']:.0%} of a {coverage['grid'][0]}x{coverage['grid'][1]} grid "
+             f"over the frame with {coverage['stars_per_term']:.1f} stars per term (want "
+             f"{WARN_OCCUPANCY:.0%} and {WARN_STARS_PER_TERM:g}); the model is poorly "
+             "constrained where there are no stars. Use a lower degree (or degree='auto') or "
+             "more stars (n_sources, nsigma).", PoorFitWarning)
+    if pred_max > WARN_PREDICTED:
+        warn(f"the {_label(name, deg)} is uncertain: its covariance gives a 1-sigma position "
+             f"error of up to {pred_max:.2f} px over the frame (RMS {pred_rms:.2f} px, "
+             f"{len(fuv)} stars). Use a lower degree (or degree='auto') or more stars.",
+             PoorFitWarning)
+
+    # The model object, through the same fitting function as the linear models.
+    s_pts, d_pts = src[si], dst[dj]
+    if name == "polynomial":
+        model, cov, resid = _fit_polynomial(fit_transform, s_pts, d_pts, deg, w, centre,
+                                            source_frame)
+    else:
+        kind = {"similarity": "similarity", "affine": "affine", "projective": "projective"}[name]
+        kw = {"parity": 1 if np.linalg.det(m[:2, :2]) > 0 else -1} if kind == "similarity" else {}
+        model, cov, resid = fit_transform(s_pts, d_pts, kind, weights=w, **kw)
+    info = dict(model=name, degree=deg, requested_degree=degree if name != "projective" else None,
+                selection="F-test and BIC" if degree == "auto" else None, significance=significance,
+                candidates=candidates, coverage=coverage, predicted_error_max=pred_max,
+                predicted_error_rms=pred_rms, n_pairs=int(len(si)),
+                n_clipped=int(n_paired - len(si)), pairing_tolerance=float(tol))
+    return DistortionFit(model, cov, si, dj, resid, info)
+
+
+def _consensus_affine(src, dst, tolerance, n_trials=1000):
+    """
+    The affine transform of the triple of given pairs that the most pairs
+    agree with (within ``tolerance``), refitted to them: a start that wrong
+    pairs cannot pull away.  Deterministic (a fixed seed).
+    """
+    n = len(src)
+    if n < 3:
+        raise TooFewSourcesError(f"{n} pair(s) given; at least 3 are needed.")
+    rng = np.random.default_rng(0)
+    tri = np.array([rng.choice(n, 3, replace=False) for _ in range(n_trials)])
+    ones = np.ones((n_trials, 3, 1))
+    a = np.concatenate([src[tri], ones], axis=2)  # (T, 3, 3)
+    ok = np.abs(np.linalg.det(a)) > 1e-6 * np.ptp(src) ** 2
+    if not ok.any():
+        raise TooFewSourcesError("the given pairs are collinear; no affine start exists.")
+    coef = np.linalg.solve(a[ok], dst[tri[ok]])  # (T, 3, 2): x' = [x y 1] @ coef
+    full = np.concatenate([src, np.ones((n, 1))], axis=1)
+    pred = np.einsum("nk,tkj->tnj", full, coef)
+    votes = (np.hypot(*(pred - dst).transpose(2, 0, 1)) <= tolerance).sum(axis=1)
+    best = coef[np.argmax(votes)]
+    inl = np.hypot(*(full @ best - dst).T) <= tolerance
+    if inl.sum() >= 3:
+        best, *_ = np.linalg.lstsq(full[inl], dst[inl], rcond=None)
+    m = np.eye(3)
+    m[:2, :] = best.T
+    return m
+
+
+def _label(name, degree):
+    return f"polynomial model of degree {degree}" if name == "polynomial" else f"{name} model"
+
+
+def _fit_affine(uv, dst, var, params):
+    """Affine parameters (``_Poly(1)``) of these pairs (``params`` if degenerate)."""
+    fit = _wls(_Poly(1), uv, dst, 1.0 / var)
+    return params if fit is None else fit[0]
+
+
+def _check_and_fit(cand, uv, dst, w, frame_uv, degree, *, strict, start, what):
+    """Refuse too little coverage for ``cand``, then fit it: (cand, params, cov)."""
+    n_terms = cand.k / 2.0
+    cov = _coverage(uv, frame_uv, degree, n_terms)
+    if not _coverage_ok(cov, strict=True):
+        raise PoorCoverageError(
+            f"the {len(uv)} paired stars do not cover the frame well enough for {what}: they "
+            f"fill {cov['occupancy']:.0%} of a {cov['grid'][0]}x{cov['grid'][1]} grid of cells "
+            f"(need {MIN_OCCUPANCY:.0%}) with {cov['stars_per_term']:.1f} stars per term (need "
+            f"{MIN_STARS_PER_TERM:g}). Pass a lower degree or degree='auto', "
+            "transform_type='affine', or more stars (n_sources, nsigma).")
+    fit = _wls(cand, uv, dst, w, start)
+    if fit is None:
+        raise PoorCoverageError(f"the paired stars cannot constrain {what} (degenerate "
+                                "geometry); use a lower degree or transform_type='affine'.")
+    return cand, fit[0], fit[1]
+
+
+def _fit_polynomial(fit_transform, src, dst, degree, w, centre, frame):
+    """The PolynomialTransform of the final pairs, about the frame centre."""
+    return fit_transform(src, dst, "polynomial", degree=degree, weights=w,
+                         crpix=(float(centre[0]), float(centre[1])),
+                         domain=tuple(float(v) for v in frame))
+
+
+def _as_matrix(linear):
+    from .transforms import as_matrix
+
+    m = np.asarray(as_matrix(linear), float)
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+        raise ValueError("linear must be a finite 3x3 matrix or a linear transform model.")
+    return m
+
+
+#: Stars of each image used to grow a distortion model: ``Reference.stars``
+#: detects twice this many (brightest first).
+FIT_SOURCES = 1000
+
+
+def extend_match(result, source, target, *, transform_type, degree=3, tolerance=3.0,
+                 significance=1e-4, n_fit=FIT_SOURCES):
+    """
+    Grow the linear `~astroalign_nd.matching.MatchResult` of
+    `~astroalign_nd.find_match` into a non-linear one over many more stars.
+
+    Parameters
+    ----------
+    result : `~astroalign_nd.matching.MatchResult`
+        The trusted linear match.
+    source, target : `~astroalign_nd.Reference`
+        The two frames (their detections are cached and reused).
+    transform_type, degree, tolerance, significance
+        See `fit_nonlinear`.
+    n_fit : int, optional
+        Detect up to ``2 * n_fit`` stars per image for the fit.
+
+    Returns
+    -------
+    `~astroalign_nd.matching.MatchResult`
+        ``transform`` is the chosen model; the indices refer to the larger
+        star lists; ``extra['model_selection']`` holds `DistortionFit.info`
+        and ``extra['linear_transform']`` the linear match.
+    """
+    from .matching import MatchResult
+
+    n = max(int(n_fit), int(result.n_sources_used or 0))
+    src_pts, src_err, src_frame = source.stars(n)
+    dst_pts, dst_err, _ = target.stars(n)
+    fit = fit_nonlinear(src_pts, dst_pts, result.transform.matrix, transform_type=transform_type,
+                        degree=degree, seed_points=result.source_points,
+                        source_errors=src_err, target_errors=dst_err, source_frame=src_frame,
+                        tolerance=tolerance, significance=significance,
+                        linear_type=type(result.transform).__name__.replace(
+                            "Transform", "").lower())
+    out = MatchResult(
+        transform=fit.transform, source_index=fit.source_index, target_index=fit.target_index,
+        residuals=fit.residuals, rms=fit.rms, covariance=fit.covariance,
+        log10_false_alarm=result.log10_false_alarm, n_source=len(src_pts),
+        n_target=len(dst_pts), n_triangle_matches=result.n_triangle_matches,
+        n_hypotheses=result.n_hypotheses, model_misfit=0.0,
+        predicted_error=fit.info["predicted_error_max"],
+        source_points=src_pts[fit.source_index], target_points=dst_pts[fit.target_index],
+        n_sources_used=result.n_sources_used)
+    out.extra["model_selection"] = fit.info
+    out.extra["linear_transform"] = result.transform
+    return out
