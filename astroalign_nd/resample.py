@@ -155,38 +155,44 @@ def _axis_taps_numpy(u, n, order):
     return i0, ok, w
 
 
+def _interp_numpy(data, var, has_var, u, v, fill, sd, sv, out, out_var, out_mask, order):
+    """The compiled kernel's interpolation at source positions ``(u, v)`` (NaN: outside)."""
+    ny, nx = data.shape
+    jx, okx, wx = _axis_taps_numpy(u, nx, order)
+    jy, oky, wy = _axis_taps_numpy(v, ny, order)
+    inside = okx & oky
+    acc = np.zeros(inside.shape)
+    accv = np.zeros(inside.shape)
+    for ky in range(order + 1):
+        rows = np.clip(jy + ky, 0, ny - 1)
+        for kx in range(order + 1):
+            cols = np.clip(jx + kx, 0, nx - 1)
+            # Taps with zero weight along an axis are not used (the compiled
+            # kernel skips them), so their NaNs must not leak in.
+            use = inside & (wy[ky] != 0.0) & (wx[kx] != 0.0)
+            w = wy[ky] * wx[kx]
+            acc += np.where(use, w * data[rows, cols], 0.0)
+            if has_var:
+                accv += np.where(use, w * w * var[rows, cols], 0.0)
+    good = inside & np.isfinite(acc) & np.isfinite(accv)
+    out[...] = np.where(good, acc * sd, fill)
+    if has_var:
+        out_var[...] = np.where(good, accv * sv, np.inf)
+    out_mask[...] = ~good
+
+
 def _resample_numpy(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask, *, order):
     """Same result as the compiled kernel, with NumPy gathers over blocks of rows."""
-    ny, nx = data.shape
     ny_out, nx_out = out.shape
     block = max(1, _NUMPY_BLOCK_PIXELS // max(nx_out, 1))
     xo = np.arange(nx_out, dtype=float)[None, :]
     for y0 in range(0, ny_out, block):
         yo = np.arange(y0, min(y0 + block, ny_out), dtype=float)[:, None]
+        sl = slice(y0, y0 + len(yo))
         u = m[0] * xo + (m[1] * yo + m[2])
         v = m[3] * xo + (m[4] * yo + m[5])
-        jx, okx, wx = _axis_taps_numpy(u, nx, order)
-        jy, oky, wy = _axis_taps_numpy(v, ny, order)
-        inside = okx & oky
-        acc = np.zeros(inside.shape)
-        accv = np.zeros(inside.shape)
-        for ky in range(order + 1):
-            rows = np.clip(jy + ky, 0, ny - 1)
-            for kx in range(order + 1):
-                cols = np.clip(jx + kx, 0, nx - 1)
-                # Taps with zero weight along an axis are not used (the compiled
-                # kernel skips them), so their NaNs must not leak in.
-                use = inside & (wy[ky] != 0.0) & (wx[kx] != 0.0)
-                w = wy[ky] * wx[kx]
-                acc += np.where(use, w * data[rows, cols], 0.0)
-                if has_var:
-                    accv += np.where(use, w * w * var[rows, cols], 0.0)
-        good = inside & np.isfinite(acc) & np.isfinite(accv)
-        sl = slice(y0, y0 + len(yo))
-        out[sl] = np.where(good, acc * sd, fill)
-        if has_var:
-            out_var[sl] = np.where(good, accv * sv, np.inf)
-        out_mask[sl] = ~good
+        _interp_numpy(data, var, has_var, u, v, fill, sd, sv, out[sl],
+                      out_var[sl] if has_var else None, out_mask[sl], order)
 
 
 # -- input checking --------------------------------------------------------------
@@ -204,15 +210,25 @@ def _parse_order(order):
     )
 
 
-def _parse_matrix(matrix):
-    """Return the 3x3 matrix as float64 after checking it is an invertible affine."""
+def _parse_matrix(matrix, what="resample"):
+    """
+    The 3x3 source -> target matrix of an affine transform as float64, or, for
+    a non-linear one, a `_CoordinateMap` (``what`` names the caller for errors).
+    """
+    from astropy.modeling import Model
+
     if not isinstance(matrix, np.ndarray) and (
         hasattr(matrix, "params") or hasattr(matrix, "n_inputs")
     ):
         # A package/astropy/scikit-image transform rather than a bare matrix.
         from .transforms import as_matrix
 
-        matrix = as_matrix(matrix)
+        try:
+            matrix = as_matrix(matrix)
+        except ValueError:
+            if not isinstance(matrix, Model):
+                raise
+            return _nonlinear(_CoordinateMap.from_model(matrix), what)
     try:
         m = np.array(matrix, dtype=float)
     except (TypeError, ValueError):
@@ -222,28 +238,159 @@ def _parse_matrix(matrix):
         ) from None
     if m.shape == (2, 3):
         m = np.vstack([m, [0.0, 0.0, 1.0]])
-    if m.shape != (3, 3):
+    elif m.shape != (3, 3) or not np.all(np.isfinite(m)):
         raise ValueError(
-            f"matrix must have shape (3, 3) or (2, 3) (pass transform.matrix); got {m.shape}."
+            f"matrix must be a finite array of shape (3, 3) or (2, 3) (pass transform.matrix);"
+            f" got shape {m.shape}{'' if m.shape != (3, 3) else ' with NaN or inf'}."
         )
-    if not np.all(np.isfinite(m)):
-        raise ValueError("matrix contains NaN or infinite values.")
     # cos(90 deg) is 6e-17, not 0: snap such round-off to the integer, or an exact
     # quarter turn maps edge pixels a hair outside the source and masks them.
     near = np.abs(m - np.round(m)) < 1e-12
     m[near] = np.round(m[near])
+    singular = ValueError(
+        "matrix is singular (it cannot be inverted); pass the matrix of a valid "
+        "source->target transform.")
     if not np.allclose(m[2], [0.0, 0.0, 1.0]):
-        raise ValueError(
-            "matrix is projective (last row is not [0, 0, 1]); only affine transforms "
-            "can be resampled."
-        )
+        # A homography: resampled through its (exact) inverse as a coordinate map.
+        if abs(np.linalg.det(m)) < 1e-300 or np.linalg.cond(m) > 1e15:
+            raise singular
+        return _nonlinear(_CoordinateMap.from_homography(m), what)
     lin = m[:2, :2]
     if np.linalg.det(lin) == 0.0 or np.linalg.cond(lin) > 1e12:
-        raise ValueError(
-            "matrix is singular (its 2x2 linear part cannot be inverted); pass the "
-            "matrix of a valid source->target transform."
-        )
+        raise singular
     return m
+
+
+def _nonlinear(cmap, what):
+    if what == "resample_exact":
+        raise ValueError(
+            f"resample_exact handles affine transforms only (reproject_exact needs straight "
+            f"pixel edges); this {cmap.name} is not affine. Use resample (or apply_transform "
+            "with method='interpolate'), which resamples any model through its coordinate map.")
+    return cmap
+
+
+# Coordinate maps (non-linear models): output pixels per band of map, and
+# the accuracy asked of the source positions (pixels).
+_MAP_BAND_PIXELS = 1 << 18
+_NEWTON_STEPS = 4
+_NEWTON_STOP = 1e-8     # all positions this close: no further step
+_MAP_TOL = 1e-4         # positions further than this from solving f(x) = x' are bad
+_NEWTON_STEP_PX = 1e-3  # finite-difference step of the Jacobian
+
+
+class _CoordinateMap:
+    """
+    Target -> source pixel positions for a non-linear source -> target map.
+
+    The inverse gives the first guess; the forward map checks it, and Newton
+    steps (finite-difference Jacobian of the forward map) polish positions
+    whose round trip misses by more than ``_NEWTON_STOP`` px (a fitted,
+    approximate inverse, such as SIP's AP/BP terms).  Positions still off by
+    more than ``_MAP_TOL`` px (no source position there) come back as NaN.
+    """
+
+    def __init__(self, forward, inverse, name):
+        self.forward, self.inverse, self.name = forward, inverse, name
+
+    @classmethod
+    def from_homography(cls, m):
+        inv = np.linalg.inv(m)
+
+        def apply(h, x, y, check=False):
+            w = h[2, 0] * x + h[2, 1] * y + h[2, 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                xo = (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / w
+                yo = (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / w
+            if check:
+                # A target pixel whose source lies beyond the horizon (the
+                # forward map's denominator <= 0) has no source position.
+                ws = m[2, 0] * xo + m[2, 1] * yo + m[2, 2]
+                xo[~(ws > 0)] = np.nan
+            return xo, yo
+
+        return cls(lambda x, y: apply(m, x, y), lambda x, y: apply(inv, x, y, True),
+                   "projective matrix")
+
+    @classmethod
+    def from_model(cls, model):
+        name = f"{type(model).__name__} model"
+        if model.n_inputs != 2 or model.n_outputs != 2:
+            raise TypeError(
+                f"the transform must map (x, y) to (x, y) (2 inputs, 2 outputs); this {name} "
+                f"has {model.n_inputs} inputs and {model.n_outputs} outputs.")
+        try:
+            inverse = model.inverse
+        except NotImplementedError:
+            raise ValueError(
+                f"this {name} has no inverse, which resampling needs (the source position of "
+                "each target pixel); give it one, even approximate (model.inverse = ...): "
+                "Newton steps on the model polish it.") from None
+
+        def call(f):
+            def run(x, y):
+                xo, yo = f(x, y)
+                return np.asarray(xo, dtype=float), np.asarray(yo, dtype=float)
+            return run
+
+        return cls(call(model), call(inverse), name)
+
+    def __call__(self, xo, yo):
+        """Source positions ``(x, y)`` of target positions ``(xo, yo)`` (same shape)."""
+        x, y = self.inverse(xo, yo)
+        x, y = np.array(x, dtype=float), np.array(y, dtype=float)  # own copies
+        sel = None  # the positions still to polish (flat indices), None = all
+        for step in range(_NEWTON_STEPS + 1):
+            xs, ys = (x, y) if sel is None else (x.flat[sel], y.flat[sel])
+            tx, ty = (xo, yo) if sel is None else (xo.flat[sel], yo.flat[sel])
+            fx, fy = self.forward(xs, ys)
+            rx, ry = fx - tx, fy - ty
+            r = np.hypot(rx, ry)
+            lost = np.flatnonzero(~np.isfinite(r))
+            if lost.size:  # no position (NaN from the model): bad, and not polished
+                x.flat[lost if sel is None else sel[lost]] = np.nan
+            todo = ~(r <= _NEWTON_STOP) & np.isfinite(r)
+            if step == _NEWTON_STEPS or not todo.any():
+                break
+            idx = np.flatnonzero(todo)
+            pick = idx if sel is None else sel[idx]
+            xs, ys, rx, ry, fx, fy = (a.ravel()[idx] for a in (xs, ys, rx, ry, fx, fy))
+            h = _NEWTON_STEP_PX
+            fxx, fyx = self.forward(xs + h, ys)
+            fxy, fyy = self.forward(xs, ys + h)
+            j11, j21 = (fxx - fx) / h, (fyx - fy) / h
+            j12, j22 = (fxy - fx) / h, (fyy - fy) / h
+            with np.errstate(divide="ignore", invalid="ignore"):
+                det = j11 * j22 - j12 * j21
+                x.flat[pick] = xs - (j22 * rx - j12 * ry) / det
+                y.flat[pick] = ys - (j11 * ry - j21 * rx) / det
+            sel = pick
+        if sel is None:
+            x[~(r <= _MAP_TOL)] = np.nan
+        else:
+            x.flat[sel[~(r.ravel() <= _MAP_TOL)]] = np.nan
+        y[np.isnan(x)] = np.nan
+        return x, y
+
+    def band(self, r0, r1, nx_out, jacobian=False):
+        """
+        Source positions of output rows ``r0:r1`` (C-contiguous float64) and,
+        if ``jacobian``, ``|det|`` of the map's Jacobian there (central
+        differences over neighbouring output pixels): the local ratio of
+        target to source pixel area that ``conserve_flux`` applies.
+        """
+        pad = 1 if jacobian else 0
+        yo, xo = np.mgrid[r0 - pad:r1 + pad, -pad:nx_out + pad].astype(float)
+        x, y = self(xo, yo)
+        if not jacobian:
+            return x, y, None
+        with np.errstate(invalid="ignore"):
+            jac = np.abs((x[1:-1, 2:] - x[1:-1, :-2]) * (y[2:, 1:-1] - y[:-2, 1:-1])
+                         - (x[2:, 1:-1] - x[:-2, 1:-1]) * (y[1:-1, 2:] - y[1:-1, :-2])) / 4.0
+        x = np.ascontiguousarray(x[1:-1, 1:-1])
+        y = np.ascontiguousarray(y[1:-1, 1:-1])
+        x[~np.isfinite(jac)] = np.nan  # no flux factor: no valid output pixel
+        return x, y, jac
 
 
 def _inverse_coefficients(m):
@@ -344,6 +491,25 @@ def _parse_fill(fill_value):
         raise TypeError(
             f"fill_value must be a number (e.g. np.nan or 0); got {fill_value!r}."
         ) from None
+
+
+#: How `resample` reads its ``variance`` plane (the compiled kernels' ``var_kind``).
+_VARIANCE_KINDS = {"variance": 0, "stddev": 1, "inverse": 2}
+
+# The Jacobian argument of the coordinate-map kernel when there is none.
+_DUMMY_MAP = np.zeros((1, 1))
+
+
+def _run_affine(data, var, has_var, kind, bad8, has_mask, coeffs, order, fill, sd, sv,
+                out, out_var, mask, rows_per_thread, parallel, start, n):
+    """Output rows ``start:start + n`` of one channel, on the compiled affine kernels."""
+    if order == 1:
+        kernel, extra = _ckernels.bilinear_rows, (fill, sd, sv)
+    else:
+        kernel, extra = _ckernels.resample_rows, (order, fill, sd, sv)
+    run_split(kernel, n, (data, var, has_var, kind, bad8, has_mask, coeffs) + extra
+              + (out, out_var, mask.view(np.uint8)),
+              min_per_thread=rows_per_thread, parallel=parallel, start=start)
 
 
 # Output pixels per band when working planes are made band by band (see `resample`).
@@ -480,79 +646,95 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     """
     order = _parse_order(order)
     m = _parse_matrix(matrix)
+    cmap = m if isinstance(m, _CoordinateMap) else None
+    if _variance_kind not in _VARIANCE_KINDS:
+        raise ValueError(f"unknown _variance_kind {_variance_kind!r}")
     data_cf, var_cf, bad, shape, multichannel, dtype = _prepare(
         data, variance, mask, shape_out, keep_var_dtype=_variance_kind != "variance")
     fill = _parse_fill(fill_value)
-    coeffs, det = _inverse_coefficients(m)
-    sd = 1.0 / det if conserve_flux else 1.0
+    if cmap is None:
+        coeffs, det = _inverse_coefficients(m)
+        sd = 1.0 / det if conserve_flux else 1.0
+    else:
+        sd = 1.0  # the flux factor is the map's local Jacobian, pixel by pixel
     sv = sd * sd
 
     nc = data_cf.shape[0]
     has_var = var_cf is not None
     if bad is not None and not bad.any():
         bad = None
-    if _variance_kind not in ("variance", "stddev", "inverse"):
-        raise ValueError(f"unknown _variance_kind {_variance_kind!r}")
-    convert = has_var and _variance_kind != "variance"
+    kind = _VARIANCE_KINDS[_variance_kind] if has_var else 0
     compiled = _USE_COMPILED and HAVE_COMPILED
-    if not compiled and (convert or bad is not None):
+    if not compiled and (kind or bad is not None):
         # NumPy path: whole-frame working copies (it is the slow path anyway).
-        if convert:
+        if kind:
             var_cf = _to_variance(var_cf, _variance_kind, dtype)
         if bad is not None:
             data_cf = np.where(bad, np.array(np.nan, dtype), data_cf)
-        convert, bad = False, None
+        kind, bad = 0, None
+    # The compiled kernel squares a standard deviation or inverts an inverse
+    # variance tap by tap, and reads the mask, so that no working copy of a
+    # plane is made -- unless the uncertainty's type differs from the data's
+    # (then the variance is made in the data's type: band by band on the
+    # affine path, once on the coordinate-map path).
+    convert = has_var and var_cf.dtype != dtype
+    if convert and cmap is not None:
+        var_cf, kind, convert = _to_variance(var_cf, _variance_kind, dtype), 0, False
     out = np.empty((nc,) + shape, dtype=dtype)
     masks = np.empty((nc,) + shape, dtype=bool)
     # The compiled kernel needs typed arrays even for absent inputs/outputs: tiny dummies.
     dummy = np.empty((1, 1), dtype)
+    bad8 = np.empty((1, 1), np.uint8) if bad is None else bad.view(np.uint8)
     out_var = np.empty((nc,) + shape, dtype=dtype) if has_var else None
-
-    # Channels one at a time, so that the compiled kernel is 2-D only; the
-    # positions are recomputed per channel.
     rows_per_thread = max(1, _MIN_PIXELS_PER_THREAD // shape[1])
-    if compiled and (convert or bad is not None):
+
+    if cmap is not None:
+        # Source positions (and flux factors) one band of output rows at a
+        # time, shared by all channels: a few MB whatever the frame size.
+        step = max(1, _MAP_BAND_PIXELS // shape[1])
+        for r0 in range(0, shape[0], step):
+            r1 = min(r0 + step, shape[0])
+            xs, ys, jac = cmap.band(r0, r1, shape[1], jacobian=conserve_flux)
+            for c in range(nc):
+                ov = out_var[c, r0:r1] if has_var else dummy
+                if not compiled:
+                    sdk = 1.0 if jac is None else jac
+                    _interp_numpy(data_cf[c], var_cf[c] if has_var else None, has_var, xs, ys,
+                                  fill, sdk, sdk * sdk if jac is not None else 1.0,
+                                  out[c, r0:r1], ov, masks[c, r0:r1], order)
+                    continue
+                run_split(_ckernels.map_rows, r1 - r0,
+                          (data_cf[c], var_cf[c] if has_var else dummy, has_var, kind, bad8,
+                           bad is not None, xs, ys, _DUMMY_MAP if jac is None else jac,
+                           jac is not None, order, fill, 1.0, out[c, r0:r1], ov,
+                           masks[c, r0:r1].view(np.uint8)),
+                          min_per_thread=rows_per_thread, parallel=parallel)
+    elif compiled and convert:
+        # Working variance (a standard deviation squared, or an inverse
+        # variance inverted, into the data's type) one band of output rows at
+        # a time, for the source rows that band reads: a scratch of a
+        # fraction of a frame instead of a whole-frame copy.
         bands = _bands(coeffs, shape, data_cf.shape[1], order)
         scratch = np.empty((max(s1 - s0 for _, _, s0, s1 in bands), data_cf.shape[2]), dtype)
-    for c in range(nc):
-        outs = (out[c], out_var[c] if has_var else dummy)
-        if not compiled:
-            args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
-            _resample_numpy(*args, fill, sd, sv, *outs, masks[c], order=order)
-            continue
-        kernel = _ckernels.bilinear_rows if order == 1 else _ckernels.resample_rows
-        extra = (fill, sd, sv) if order == 1 else (order, fill, sd, sv)
-        if not (convert or bad is not None):
-            args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
-            run_split(kernel, shape[0], args + extra + outs + (masks[c].view(np.uint8),),
-                      min_per_thread=rows_per_thread, parallel=parallel)
-            continue
-        # Working planes (the variance from a standard deviation or inverse
-        # variance; masked pixels as NaN, so that the kernel needs a single
-        # finiteness test for NaN, inf and masked inputs) are made one band of
-        # output rows at a time, for the source rows that band reads: a
-        # scratch of a fraction of a frame instead of whole-frame copies.
-        for r0, r1, s0, s1 in bands:
-            h = s1 - s0
-            d = data_cf[c, s0:s1]
-            v = var_cf[c, s0:s1] if has_var else dummy
-            if convert:
-                v = _to_variance(v, _variance_kind, dtype, out=scratch[:h])
-            if bad is not None:
-                # The kernel tests data and variance together: the NaNs go
-                # into whichever plane is already scratch.
-                if not convert:
-                    np.copyto(scratch[:h], d)
-                    d = scratch[:h]
-                    np.copyto(d, np.array(np.nan, dtype), where=bad[s0:s1])
-                else:
-                    np.copyto(v, np.array(np.nan, dtype), where=bad[s0:s1])
-            band_coeffs = coeffs.copy()
-            band_coeffs[5] -= s0  # source row s0 is row 0 of the band
-            run_split(kernel, r1 - r0,
-                      (d, v, has_var, band_coeffs) + extra + outs
-                      + (masks[c].view(np.uint8),),
-                      min_per_thread=rows_per_thread, parallel=parallel, start=r0)
+        for c in range(nc):
+            for r0, r1, s0, s1 in bands:
+                v = _to_variance(var_cf[c, s0:s1], _variance_kind, dtype, out=scratch[:s1 - s0])
+                band_coeffs = coeffs.copy()
+                band_coeffs[5] -= s0  # source row s0 is row 0 of the band
+                _run_affine(data_cf[c, s0:s1], v, True, 0,
+                            bad8 if bad is None else bad8[s0:s1], bad is not None,
+                            band_coeffs, order, fill, sd, sv, out[c], out_var[c], masks[c],
+                            rows_per_thread, parallel, r0, r1 - r0)
+    else:
+        for c in range(nc):
+            outs = (out[c], out_var[c] if has_var else dummy)
+            if not compiled:
+                args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
+                _resample_numpy(*args, fill, sd, sv, *outs, masks[c], order=order)
+                continue
+            _run_affine(data_cf[c], var_cf[c] if has_var else dummy, has_var, kind, bad8,
+                        bad is not None, coeffs, order, fill, sd, sv, *outs, masks[c],
+                        rows_per_thread, parallel, 0, shape[0])
 
     mask_out = masks[0]
     if nc > 1:
