@@ -35,7 +35,8 @@ from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUnce
 
 from ._input import parse_input
 from .io.header import add_provenance, check_quality, header_from_meta, header_without_wcs
-from .resample import ORDERS, resample, resample_exact
+from .resample import (_MAP_BAND_PIXELS, ORDERS, _CoordinateMap, _parse_matrix, resample,
+                       resample_exact)
 from .transforms import LinearTransform2D, as_matrix, from_matrix
 
 __all__ = ["apply_transform"]
@@ -123,13 +124,73 @@ def _resample_flags(flags, matrix, shape_out):
         return out
     flags = np.asarray(flags)
     ny, nx = shape_out
-    inv = np.linalg.inv(matrix)
-    yo, xo = np.mgrid[:ny, :nx]
-    xs = np.rint(inv[0, 0] * xo + inv[0, 1] * yo + inv[0, 2]).astype(np.intp)
-    ys = np.rint(inv[1, 0] * xo + inv[1, 1] * yo + inv[1, 2]).astype(np.intp)
-    inside = (xs >= 0) & (xs < flags.shape[1]) & (ys >= 0) & (ys < flags.shape[0])
     out = np.zeros((ny, nx) + flags.shape[2:], dtype=flags.dtype)
-    out[inside] = flags[ys[inside], xs[inside]]
+    step = max(1, _MAP_BAND_PIXELS // nx)
+    if isinstance(matrix, _CoordinateMap):
+        inv = None
+    else:
+        inv = np.linalg.inv(matrix)
+    for r0 in range(0, ny, step):  # bands of rows: bounded temporaries
+        r1 = min(r0 + step, ny)
+        if inv is None:
+            xs, ys, _ = matrix.band(r0, r1, nx)
+        else:
+            yo, xo = np.mgrid[r0:r1, :nx]
+            xs = inv[0, 0] * xo + inv[0, 1] * yo + inv[0, 2]
+            ys = inv[1, 0] * xo + inv[1, 1] * yo + inv[1, 2]
+        xs, ys = np.rint(xs), np.rint(ys)
+        with np.errstate(invalid="ignore"):  # NaN (no source position) is outside
+            inside = (xs >= 0) & (xs < flags.shape[1]) & (ys >= 0) & (ys < flags.shape[0])
+        xs = np.where(inside, xs, 0).astype(np.intp)
+        ys = np.where(inside, ys, 0).astype(np.intp)
+        out[r0:r1][inside] = flags[ys[inside], xs[inside]]
+    return out
+
+
+def _source_to_target(transform):
+    """The 3x3 matrix of an affine transform, or the `_CoordinateMap` of another."""
+    from astropy.modeling import Model
+
+    try:
+        m = as_matrix(transform)
+    except ValueError:
+        if not isinstance(transform, Model):
+            raise
+        return _parse_matrix(transform)  # non-linear: its coordinate map (or a clear error)
+    if np.all(np.isfinite(m)) and not np.allclose(m[2], [0.0, 0.0, 1.0]):
+        return _parse_matrix(m)  # a homography (e.g. scikit-image's ProjectiveTransform)
+    if not np.all(np.isfinite(m)) or abs(np.linalg.det(m[:2, :2])) < 1e-12:
+        raise ValueError("transform is singular or not finite; it cannot be applied.")
+    return m
+
+
+def _nonlinear_provenance(header, transform, cmap, quality, names):
+    """
+    `add_provenance` for a non-linear transform: its header keywords when the
+    model can write them, otherwise HISTORY cards only (save the model itself
+    with ASDF).
+    """
+    from astropy.modeling import Model
+
+    from .io.header import _add_history, fits_text
+
+    model = transform
+    if not isinstance(model, Model):  # a projective matrix or scikit-image transform
+        from . import transforms
+
+        cls = getattr(transforms, "ProjectiveTransform", None)
+        model = cls.from_matrix(as_matrix(transform)) if cls is not None else None
+    if model is not None:
+        try:
+            return add_provenance(header, model, quality=quality, **names)
+        except (ValueError, TypeError):
+            pass  # not storable in a header
+    out = header.copy()
+    _add_history(out, f"astroalign_nd: registered {fits_text(names['source_name'])} onto the "
+                      f"pixel grid of {fits_text(names['target_name'])} through a non-linear {cmap.name} (not "
+                      "stored in this header)")
+    _add_history(out, f"astroalign_nd resampling: {names['order']}, "
+                      f"conserve_flux={names['conserve_flux']}")
     return out
 
 
@@ -225,9 +286,9 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
             f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
             "accepts order, conserve_flux, fill_value, method, unit, parallel, quality, hdu "
             f"and add_keyword.{_astroalign_advice(unexpected)}")
-    m = as_matrix(transform)
-    if not np.all(np.isfinite(m)) or abs(np.linalg.det(m[:2, :2])) < 1e-12:
-        raise ValueError("transform is singular or not finite; it cannot be applied.")
+    m = _source_to_target(transform)
+    if method == "exact" and isinstance(m, _CoordinateMap):
+        _parse_matrix(transform, "resample_exact")  # raises: say what to use instead
     if isinstance(order, str) and order not in ORDERS:
         raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
     if method not in ("interpolate", "exact"):
@@ -297,15 +358,19 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     # Non-FITS keys become HIERARCH cards; the WCS cards describe the old grid.
     header = header_without_wcs(header_from_meta(src.meta))
     if add_keyword:
-        model = transform if isinstance(transform, LinearTransform2D) else from_matrix(m)
-        header = add_provenance(header, model, quality=quality, source_name=src.name,
-                                target_name=dst.name if dst is not None else "shape",
-                                order=order_name, conserve_flux=conserve_flux)
+        names = dict(source_name=src.name, target_name=dst.name if dst is not None else "shape",
+                     order=order_name, conserve_flux=conserve_flux)
+        if not isinstance(m, _CoordinateMap):
+            model = transform if isinstance(transform, LinearTransform2D) else from_matrix(m)
+            header = add_provenance(header, model, quality=quality, **names)
+        else:
+            header = _nonlinear_provenance(header, transform, m, quality, names)
 
     wcs = None
     if dst is not None and dst.wcs is not None:
         wcs = dst.wcs.deepcopy()
-    elif src.wcs is not None:
+    elif src.wcs is not None and not isinstance(m, _CoordinateMap):
+        # (A non-linear map cannot be carried into a WCS here: the output has none.)
         wcs = _carry_wcs(src.wcs, m, shape_out)
     full_mask = mask_out if out.ndim == 2 else np.broadcast_to(
         mask_out[..., None], out.shape).copy()

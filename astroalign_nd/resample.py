@@ -217,6 +217,8 @@ def _parse_matrix(matrix, what="resample"):
     """
     from astropy.modeling import Model
 
+    if isinstance(matrix, _CoordinateMap):  # already parsed (by apply_transform)
+        return _nonlinear(matrix, what)
     if not isinstance(matrix, np.ndarray) and (
         hasattr(matrix, "params") or hasattr(matrix, "n_inputs")
     ):
@@ -272,7 +274,7 @@ def _nonlinear(cmap, what):
 
 # Coordinate maps (non-linear models): output pixels per band of map, and
 # the accuracy asked of the source positions (pixels).
-_MAP_BAND_PIXELS = 1 << 18
+_MAP_BAND_PIXELS = 1 << 16
 _NEWTON_STEPS = 4
 _NEWTON_STOP = 1e-8     # all positions this close: no further step
 _MAP_TOL = 1e-4         # positions further than this from solving f(x) = x' are bad
@@ -337,40 +339,51 @@ class _CoordinateMap:
 
     def __call__(self, xo, yo):
         """Source positions ``(x, y)`` of target positions ``(xo, yo)`` (same shape)."""
+        shape = np.shape(xo)
+        xo, yo = np.ravel(xo), np.ravel(yo)
         x, y = self.inverse(xo, yo)
-        x, y = np.array(x, dtype=float), np.array(y, dtype=float)  # own copies
-        sel = None  # the positions still to polish (flat indices), None = all
+        x = np.array(x, dtype=float).ravel()  # own copies, polished in place
+        y = np.array(y, dtype=float).ravel()
+        idx = None  # the positions still being polished (None: all)
+        h = _NEWTON_STEP_PX
         for step in range(_NEWTON_STEPS + 1):
-            xs, ys = (x, y) if sel is None else (x.flat[sel], y.flat[sel])
-            tx, ty = (xo, yo) if sel is None else (xo.flat[sel], yo.flat[sel])
-            fx, fy = self.forward(xs, ys)
+            if idx is None:
+                xs, ys, tx, ty = x, y, xo, yo
+            else:
+                xs, ys, tx, ty = x[idx], y[idx], xo[idx], yo[idx]
+            fx, fy = (np.ravel(a) for a in self.forward(xs, ys))
             rx, ry = fx - tx, fy - ty
-            r = np.hypot(rx, ry)
-            lost = np.flatnonzero(~np.isfinite(r))
-            if lost.size:  # no position (NaN from the model): bad, and not polished
-                x.flat[lost if sel is None else sel[lost]] = np.nan
-            todo = ~(r <= _NEWTON_STOP) & np.isfinite(r)
-            if step == _NEWTON_STEPS or not todo.any():
+            r2 = rx * rx + ry * ry
+            with np.errstate(invalid="ignore"):
+                if step == _NEWTON_STEPS:
+                    # Still missing by more than _MAP_TOL: no source position here.
+                    lost = ~(r2 <= _MAP_TOL**2)
+                else:
+                    lost = np.isnan(r2)  # the model gives no value
+                    todo = np.flatnonzero(r2 > _NEWTON_STOP**2)
+            if lost.any():
+                x[np.flatnonzero(lost) if idx is None else idx[lost]] = np.nan
+            if step == _NEWTON_STEPS or len(todo) == 0:
                 break
-            idx = np.flatnonzero(todo)
-            pick = idx if sel is None else sel[idx]
-            xs, ys, rx, ry, fx, fy = (a.ravel()[idx] for a in (xs, ys, rx, ry, fx, fy))
-            h = _NEWTON_STEP_PX
-            fxx, fyx = self.forward(xs + h, ys)
-            fxy, fyy = self.forward(xs, ys + h)
-            j11, j21 = (fxx - fx) / h, (fyx - fy) / h
-            j12, j22 = (fxy - fx) / h, (fyy - fy) / h
+            if len(todo) < len(r2):
+                idx = todo if idx is None else idx[todo]
+                xs, ys, fx, fy, rx, ry = (a[todo] for a in (xs, ys, fx, fy, rx, ry))
+            # Newton step, the forward map's Jacobian by finite differences.
+            fxx, fyx = (np.ravel(a) for a in self.forward(xs + h, ys))
+            fxy, fyy = (np.ravel(a) for a in self.forward(xs, ys + h))
+            j11, j21, j12, j22 = fxx - fx, fyx - fy, fxy - fx, fyy - fy  # (times h)
             with np.errstate(divide="ignore", invalid="ignore"):
-                det = j11 * j22 - j12 * j21
-                x.flat[pick] = xs - (j22 * rx - j12 * ry) / det
-                y.flat[pick] = ys - (j11 * ry - j21 * rx) / det
-            sel = pick
-        if sel is None:
-            x[~(r <= _MAP_TOL)] = np.nan
-        else:
-            x.flat[sel[~(r.ravel() <= _MAP_TOL)]] = np.nan
+                det = (j11 * j22 - j12 * j21) / h
+                dx = (j22 * rx - j12 * ry) / det
+                dy = (j11 * ry - j21 * rx) / det
+            if idx is None:
+                x -= dx
+                y -= dy
+            else:
+                x[idx] = xs - dx
+                y[idx] = ys - dy
         y[np.isnan(x)] = np.nan
-        return x, y
+        return x.reshape(shape), y.reshape(shape)
 
     def band(self, r0, r1, nx_out, jacobian=False):
         """
@@ -850,7 +863,7 @@ def resample_exact(data, matrix, shape_out, *, variance=None, mask=None,
     """
     from reproject import reproject_exact
 
-    m = _parse_matrix(matrix)
+    m = _parse_matrix(matrix, "resample_exact")
     data_cf, var_cf, bad, shape, multichannel, dtype = _prepare(data, variance, mask,
                                                                 shape_out)
     fill = _parse_fill(fill_value)
