@@ -187,8 +187,8 @@ def _nonlinear_provenance(header, transform, cmap, quality, names):
             pass  # not storable in a header
     out = header.copy()
     _add_history(out, f"astroalign_nd: registered {fits_text(names['source_name'])} onto the "
-                      f"pixel grid of {fits_text(names['target_name'])} through a non-linear {cmap.name} (not "
-                      "stored in this header)")
+                      f"pixel grid of {fits_text(names['target_name'])} through a non-linear "
+                      f"{cmap.name} (not stored in this header)")
     _add_history(out, f"astroalign_nd resampling: {names['order']}, "
                       f"conserve_flux={names['conserve_flux']}")
     return out
