@@ -237,6 +237,14 @@ cdef inline bint _axis_taps(double u, Py_ssize_t n, int order, Py_ssize_t* i0,
     return ok
 
 
+# Output columns per tile: each thread walks its rows one tile of columns at a
+# time, so that the source rows a rotated or scaled map reads stay in the cache
+# between neighbouring output rows (every output pixel is computed exactly as
+# without tiles: the order of the pixels does not change any value).
+cdef enum:
+    TILE = 512
+
+
 cdef inline double _variance_tap(real v, int kind) noexcept nogil:
     """
     Variance of one input pixel from its plane's value: ``kind`` 0 is a
@@ -280,54 +288,56 @@ cdef inline void _resample_block(const real* d, const real* dv, bint has_var, in
     # Source positions come from the affine coefficients ``m``, or, when ``xs``
     # is not NULL, from the coordinate maps ``xs``/``ys`` (one value per output
     # pixel), with ``jac`` (if not NULL) the per-pixel flux factor.
-    cdef Py_ssize_t iy, ix, jx, jy, kx, ky, row, k
+    cdef Py_ssize_t iy, ix, jx, jy, kx, ky, row, k, t0, ti
     cdef int nt = order + 1
     cdef double ux = 0.0, vy = 0.0, u, v, acc, accv, w, wyk, wxk, sdk, svk
     cdef double wx[4]
     cdef double wy[4]
     cdef bint good, masked
-    for iy in range(row0, row1):
-        if xs == NULL:
-            # Same operation order as the NumPy path, so both give identical positions.
-            ux = m[1] * iy + m[2]
-            vy = m[4] * iy + m[5]
-        for ix in range(nx_out):
-            k = iy * nx_out + ix
+    for ti in range((nx_out + TILE - 1) // TILE):
+        t0 = ti * TILE
+        for iy in range(row0, row1):
             if xs == NULL:
-                u = m[0] * ix + ux
-                v = m[3] * ix + vy
-            else:
-                u = xs[k]
-                v = ys[k]
-            good = _axis_taps(u, nx, order, &jx, wx)
-            good = _axis_taps(v, ny, order, &jy, wy) and good
-            acc = 0.0
-            accv = 0.0
-            masked = False
-            if good:
-                for ky in range(nt):
-                    wyk = wy[ky]
-                    if wyk != 0.0:  # zero-weight taps are not used (may be outside)
-                        row = (jy + ky) * nx + jx
-                        for kx in range(nt):
-                            wxk = wx[kx]
-                            if wxk != 0.0:
-                                w = wyk * wxk
-                                acc += w * d[row + kx]
-                                if has_var:
-                                    accv += w * w * _variance_tap(dv[row + kx], var_kind)
-                                if has_mask and mk[row + kx]:
-                                    masked = True
-                # A NaN/inf pixel with nonzero weight makes the sum non-finite:
-                # with the mask test, this is the whole mask propagation.
-                good = isfinite(acc) and isfinite(accv) and not masked
-            if jac == NULL:
-                sdk = sd
-                svk = sv
-            else:
-                sdk = sd * jac[k]
-                svk = sdk * sdk
-            _store(k, good, acc, accv, has_var, fill, sdk, svk, o, ov, om)
+                # Same operation order as the NumPy path, so both give identical positions.
+                ux = m[1] * iy + m[2]
+                vy = m[4] * iy + m[5]
+            for ix in range(t0, min(t0 + TILE, nx_out)):
+                k = iy * nx_out + ix
+                if xs == NULL:
+                    u = m[0] * ix + ux
+                    v = m[3] * ix + vy
+                else:
+                    u = xs[k]
+                    v = ys[k]
+                good = _axis_taps(u, nx, order, &jx, wx)
+                good = _axis_taps(v, ny, order, &jy, wy) and good
+                acc = 0.0
+                accv = 0.0
+                masked = False
+                if good:
+                    for ky in range(nt):
+                        wyk = wy[ky]
+                        if wyk != 0.0:  # zero-weight taps are not used (may be outside)
+                            row = (jy + ky) * nx + jx
+                            for kx in range(nt):
+                                wxk = wx[kx]
+                                if wxk != 0.0:
+                                    w = wyk * wxk
+                                    acc += w * d[row + kx]
+                                    if has_var:
+                                        accv += w * w * _variance_tap(dv[row + kx], var_kind)
+                                    if has_mask and mk[row + kx]:
+                                        masked = True
+                    # A NaN/inf pixel with nonzero weight makes the sum non-finite:
+                    # with the mask test, this is the whole mask propagation.
+                    good = isfinite(acc) and isfinite(accv) and not masked
+                if jac == NULL:
+                    sdk = sd
+                    svk = sv
+                else:
+                    sdk = sd * jac[k]
+                    svk = sdk * sdk
+                _store(k, good, acc, accv, has_var, fill, sdk, svk, o, ov, om)
 
 
 cdef inline void _dispatch(const real* d, const real* dv, bint has_var, int var_kind,
@@ -424,34 +434,26 @@ def map_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int 
                   order, fill, sd, sd * sd, o, ov, om, nx_out, row0, row1)
 
 
-def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int var_kind,
-                  const unsigned char[:, ::1] mask, bint has_mask,
-                  const double[::1] m, double fill, double sd, double sv,
-                  real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
-                  Py_ssize_t row0, Py_ssize_t row1):
-    """
-    `resample_rows` for order 1, written out: the same positions, weights,
-    tap order and mask rule (so the same bits), without the generic tap
-    machinery, which costs several times more per pixel.
-    """
-    _check_kinds(1, var_kind)
-    cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
-    cdef Py_ssize_t iy, ix, jx, jy, k
+cdef inline void _bilinear_block(const real* d, const real* dv, const bint has_var,
+                                 const int var_kind, const unsigned char* mk,
+                                 const bint has_mask, Py_ssize_t ny, Py_ssize_t nx,
+                                 const double* m, double fill, double sd, double sv,
+                                 real* o, real* ov, unsigned char* om, Py_ssize_t nx_out,
+                                 Py_ssize_t row0, Py_ssize_t row1) noexcept nogil:
+    # Called with literal ``has_var``, ``var_kind`` and ``has_mask``: the C
+    # compiler drops the branches that do not apply.
+    cdef Py_ssize_t iy, ix, jx, jy, k, t0, t1, ti
     cdef double ux, vy, u, v, acc, accv, w, fx, fy, flx, fly, wx0, wx1, wy0, wy1
     cdef bint good, okx, oky, masked
-    cdef const real* d = &data[0, 0]
-    cdef const real* dv = &var[0, 0]
-    cdef const unsigned char* mk = &mask[0, 0]
-    cdef real* o = &out[0, 0]
-    cdef real* ov = &out_var[0, 0]
-    cdef unsigned char* om = &out_mask[0, 0]
     cdef double a0 = m[0], a3 = m[3]
     cdef double xmax = nx - 1, ymax = ny - 1
-    with nogil:
+    for ti in range((nx_out + TILE - 1) // TILE):
+        t0 = ti * TILE
+        t1 = min(t0 + TILE, nx_out)
         for iy in range(row0, row1):
             ux = m[1] * iy + m[2]
             vy = m[4] * iy + m[5]
-            for ix in range(nx_out):
+            for ix in range(t0, t1):
                 u = a0 * ix + ux
                 v = a3 * ix + vy
                 acc = 0.0
@@ -510,3 +512,54 @@ def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
                             masked = masked or (has_mask and mk[k + nx + 1])
                     good = isfinite(acc) and isfinite(accv) and not masked
                 _store(iy * nx_out + ix, good, acc, accv, has_var, fill, sd, sv, o, ov, om)
+
+
+def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int var_kind,
+                  const unsigned char[:, ::1] mask, bint has_mask,
+                  const double[::1] m, double fill, double sd, double sv,
+                  real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
+                  Py_ssize_t row0, Py_ssize_t row1):
+    """
+    `resample_rows` for order 1, written out: the same positions, weights,
+    tap order and mask rule (so the same bits), without the generic tap
+    machinery, which costs several times more per pixel.
+    """
+    _check_kinds(1, var_kind)
+    cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
+    cdef const real* d = &data[0, 0]
+    cdef const real* dv = &var[0, 0]
+    cdef const unsigned char* mk = &mask[0, 0]
+    cdef real* o = &out[0, 0]
+    cdef real* ov = &out_var[0, 0]
+    cdef unsigned char* om = &out_mask[0, 0]
+    cdef const double* mp = &m[0]
+    # One literal combination of the options per call, see `_bilinear_block`.
+    with nogil:
+        if not has_var:
+            if has_mask:
+                _bilinear_block(d, dv, False, 0, mk, True, ny, nx, mp, fill, sd, sv, o, ov,
+                                om, nx_out, row0, row1)
+            else:
+                _bilinear_block(d, dv, False, 0, mk, False, ny, nx, mp, fill, sd, sv, o, ov,
+                                om, nx_out, row0, row1)
+        elif var_kind == 0:
+            if has_mask:
+                _bilinear_block(d, dv, True, 0, mk, True, ny, nx, mp, fill, sd, sv, o, ov,
+                                om, nx_out, row0, row1)
+            else:
+                _bilinear_block(d, dv, True, 0, mk, False, ny, nx, mp, fill, sd, sv, o, ov,
+                                om, nx_out, row0, row1)
+        elif var_kind == 1:
+            if has_mask:
+                _bilinear_block(d, dv, True, 1, mk, True, ny, nx, mp, fill, sd, sv, o, ov,
+                                om, nx_out, row0, row1)
+            else:
+                _bilinear_block(d, dv, True, 1, mk, False, ny, nx, mp, fill, sd, sv, o, ov,
+                                om, nx_out, row0, row1)
+        else:
+            if has_mask:
+                _bilinear_block(d, dv, True, 2, mk, True, ny, nx, mp, fill, sd, sv, o, ov,
+                                om, nx_out, row0, row1)
+            else:
+                _bilinear_block(d, dv, True, 2, mk, False, ny, nx, mp, fill, sd, sv, o, ov,
+                                om, nx_out, row0, row1)
