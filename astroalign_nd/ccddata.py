@@ -207,8 +207,11 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     ----------
     transform : `~astroalign_nd.transforms.LinearTransform2D`, model or matrix
         The source-to-target transform (as `~astroalign_nd.find_transform`
-        returns it).  Any affine 2-in/2-out astropy model, a scikit-image
-        transform or a 3x3 matrix works too.
+        returns it).  Any 2-in/2-out astropy model, a scikit-image
+        transform or a 3x3 matrix works too.  A non-linear one (projective,
+        polynomial, compound...) needs an ``inverse`` and is resampled
+        through its coordinate map (see `~astroalign_nd.resample.resample`);
+        ``method='exact'`` takes affine transforms only.
     source : array-like, `~astropy.nddata.NDData`, HDU, path or tuple
         The image to resample (2-D or channels-last multichannel).  A FITS
         path is read as `~astropy.nddata.CCDData.read` reads it (``MASK``,
@@ -253,7 +256,11 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     Returns
     -------
     registered : `~astropy.nddata.CCDData`
-        A new object; the inputs are not modified.
+        A new object; the inputs are not modified.  After a non-linear
+        transform the source's WCS is not carried (the output has the
+        target's, or none), and the header records the transform when the
+        model can be written there (otherwise HISTORY only: save the model
+        with ASDF).
 
     Examples
     --------

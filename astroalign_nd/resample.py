@@ -3,8 +3,10 @@
 Resampling of a source image onto the pixel grid of a target image.
 
 `resample` interpolates a source image at the positions of the target
-pixels, given the 3x3 homogeneous matrix of the *source -> target* pixel
-transform (the ``matrix`` of the transforms in `astroalign_nd.transforms`).
+pixels, given the *source -> target* pixel transform: the 3x3 homogeneous
+matrix of an affine transform (the ``matrix`` of the transforms in
+`astroalign_nd.transforms`), or any 2-in 2-out model (projective,
+polynomial, an astropy compound model...) that has an ``inverse``.
 In the same pass it propagates a per-pixel variance image and a bad-pixel
 mask, so the three outputs are always consistent with each other.
 
@@ -20,6 +22,21 @@ columns and ``y`` along rows, as everywhere in this package.  For an
 output (target) pixel ``(x', y')`` the source position is
 ``(x, y) = A^-1 ((x', y') - t)`` where ``A`` and ``t`` are the linear part and
 the translation of ``matrix``.
+
+Non-linear transforms
+---------------------
+A model that is not affine (or a projective 3x3 matrix) is resampled
+through a *coordinate map*: the source position of every target pixel,
+computed one band of output rows at a time (``_MAP_BAND_PIXELS`` pixels, a
+few MB) and shared by all channels.  The model's ``inverse`` gives the first
+guess; the forward model checks it, and positions whose round trip misses by
+more than 1e-8 px (a fitted inverse, as SIP's AP/BP terms are) get Newton
+steps on the forward model (Jacobian by finite differences), at most 4.  A
+position still off by more than 1e-4 px (no source position: outside the
+region where the model can be inverted), or NaN, gives a masked output
+pixel.  The compiled kernel then interpolates data, variance and mask from
+the map with the same kernels, footprint and mask rules as below.  A linear
+model always takes the affine path (same bits as its matrix).
 
 Interpolation kernels
 ---------------------
@@ -80,7 +97,9 @@ resampling: a flat sky of 100 counts/pixel stays 100.  With
 ratio target-pixel area / source-pixel area, measured in source pixels) so
 that total counts are preserved: a transform that magnifies by ``s``
 spreads each star over ``s**2`` more pixels, each holding ``1 / s**2`` of
-the counts.  The variance is multiplied by ``1 / det(A)**2``.
+the counts.  The variance is multiplied by ``1 / det(A)**2``.  Through a
+coordinate map the factor is the local ``|det|`` of the map's Jacobian
+(central differences between neighbouring target pixels), pixel by pixel.
 """
 
 import numbers
@@ -582,10 +601,14 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
         processed and returned as float32, anything else as float64.  A
         `numpy.ma.MaskedArray` contributes its mask to ``mask``.
     matrix : (3, 3) or (2, 3) array-like, or transform
-        The *source -> target* homogeneous pixel transform, e.g.
-        ``transform.matrix`` of an `astroalign_nd.transforms` model (the
-        model itself, a scikit-image transform or an astropy affine model
-        are also accepted).  Must be affine and invertible.
+        The *source -> target* pixel transform: a homogeneous matrix, e.g.
+        ``transform.matrix`` of an `astroalign_nd.transforms` model, or the
+        model itself, a scikit-image transform, or any astropy model with 2
+        inputs and 2 outputs.  An affine transform must be invertible; a
+        non-linear one (a projective matrix or model, a polynomial model, a
+        compound model...) is resampled through its coordinate map and
+        needs an ``inverse`` (an approximate one is polished by Newton
+        steps on the model; see the module docstring).
     shape_out : tuple of int
         ``(ny, nx)`` of the target grid.
     order : {'nearest-neighbor', 'bilinear', 'biquadratic', 'bicubic'} or int, optional
@@ -603,8 +626,10 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
         Value of masked output pixels in ``data_out`` (default NaN).
     conserve_flux : bool, optional
         If True, scale the result by ``1 / |det A|`` (``A`` the linear part
-        of ``matrix``) so that total counts, not surface brightness, are
-        preserved; variance is scaled by ``1 / det(A)**2``.  Default False.
+        of ``matrix``; for a non-linear transform, the local Jacobian
+        determinant of its inverse) so that total counts, not surface
+        brightness, are preserved; variance is scaled by the square.
+        Default False.
     parallel : bool, optional
         Split the output rows over threads (default True): as many as the
         CPUs this process may use, or ``ASTROALIGN_ND_NUM_THREADS`` if set in
@@ -626,8 +651,9 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     Raises
     ------
     ValueError
-        For a matrix that is not 3x3/2x3, singular or projective, data that is
-        not 2-D or 3-D, an unknown ``order``, or mismatched shapes.
+        For a matrix that is not 3x3/2x3 or singular, a non-linear model
+        without an ``inverse``, data that is not 2-D or 3-D, an unknown
+        ``order``, or mismatched shapes.
     TypeError
         For non-numeric data, matrix, shape_out or fill_value.
 
@@ -639,7 +665,8 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     over an aperture underestimates the variance of the sum).
 
     The computation runs in a compiled (Cython) kernel that produces data,
-    variance and mask in one pass over the output; a NumPy implementation
+    variance and mask in one pass over the output, reading the mask and the
+    uncertainty plane as they are (no working copies); a NumPy implementation
     of the same kernels gives the same results, more slowly, if the
     compiled module is missing.  Threads never share an output pixel, so
     the result is deterministic and the same for any number of threads.
@@ -813,7 +840,7 @@ def resample_exact(data, matrix, shape_out, *, variance=None, mask=None,
     Parameters
     ----------
     data, matrix, shape_out, variance, mask, fill_value, conserve_flux
-        As in `resample`.
+        As in `resample`, but the transform must be affine.
     parallel : bool or int, optional
         Passed to `reproject.reproject_exact`.
 
@@ -824,6 +851,13 @@ def resample_exact(data, matrix, shape_out, *, variance=None, mask=None,
         entirely covered by the source image (coverage below
         ``1 - 1e-6``), or overlaps a bad source pixel by more than ``1e-6``
         of its area.
+
+    Raises
+    ------
+    ValueError
+        For a non-linear (projective, polynomial...) transform: its pixel
+        edges are not straight, which the overlap computation needs; use
+        `resample` (``apply_transform(method='interpolate')``) instead.
 
     Notes
     -----
