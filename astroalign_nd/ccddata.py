@@ -147,7 +147,7 @@ def _resample_flags(flags, matrix, shape_out):
     return out
 
 
-def _source_to_target(transform):
+def _source_to_target(transform, shape_in):
     """The 3x3 matrix of an affine transform, or the `_CoordinateMap` of another."""
     from astropy.modeling import Model
 
@@ -156,7 +156,8 @@ def _source_to_target(transform):
     except ValueError:
         if not isinstance(transform, Model):
             raise
-        return _parse_matrix(transform)  # non-linear: its coordinate map (or a clear error)
+        # Non-linear: its coordinate map (or a clear error).
+        return _parse_matrix(transform, shape_in=shape_in)
     if np.all(np.isfinite(m)) and not np.allclose(m[2], [0.0, 0.0, 1.0]):
         return _parse_matrix(m)  # a homography (e.g. scikit-image's ProjectiveTransform)
     if not np.all(np.isfinite(m)) or abs(np.linalg.det(m[:2, :2])) < 1e-12:
@@ -293,9 +294,6 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
             f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
             "accepts order, conserve_flux, fill_value, method, unit, parallel, quality, hdu "
             f"and add_keyword.{_astroalign_advice(unexpected)}")
-    m = _source_to_target(transform)
-    if method == "exact" and isinstance(m, _CoordinateMap):
-        _parse_matrix(transform, "resample_exact")  # raises: say what to use instead
     if isinstance(order, str) and order not in ORDERS:
         raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
     if method not in ("interpolate", "exact"):
@@ -306,6 +304,9 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     src = parse_input(source, "source", hdu=hdu, unit=unit)
     if src.is_catalog:
         raise TypeError("source is a catalog; apply_transform needs an image to resample.")
+    m = _source_to_target(transform, np.shape(src.data)[:2])
+    if method == "exact" and isinstance(m, _CoordinateMap):
+        _parse_matrix(m, "resample_exact")  # raises: say what to use instead
     if isinstance(target, tuple) and len(target) == 2 and all(
             isinstance(v, (int, np.integer)) for v in target):
         shape_out, dst = tuple(int(v) for v in target), None

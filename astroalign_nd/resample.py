@@ -229,27 +229,31 @@ def _parse_order(order):
     )
 
 
-def _parse_matrix(matrix, what="resample"):
+def _parse_matrix(matrix, what="resample", shape_in=None):
     """
     The 3x3 source -> target matrix of an affine transform as float64, or, for
-    a non-linear one, a `_CoordinateMap` (``what`` names the caller for errors).
+    a non-linear one, a `_CoordinateMap` (``what`` names the caller for errors;
+    ``shape_in``, the source's ``(ny, nx)``, is the domain of a polynomial
+    model that has none).
     """
     from astropy.modeling import Model
 
+    from .transforms import ProjectiveTransform, _as_3x3, as_matrix
+
     if isinstance(matrix, _CoordinateMap):  # already parsed (by apply_transform)
         return _nonlinear(matrix, what)
-    if not isinstance(matrix, np.ndarray) and (
+    if isinstance(matrix, ProjectiveTransform):
+        matrix = matrix.matrix  # affine or not, exactly (the homography path)
+    elif not isinstance(matrix, np.ndarray) and (
         hasattr(matrix, "params") or hasattr(matrix, "n_inputs")
     ):
         # A package/astropy/scikit-image transform rather than a bare matrix.
-        from .transforms import as_matrix
-
         try:
             matrix = as_matrix(matrix)
         except ValueError:
             if not isinstance(matrix, Model):
                 raise
-            return _nonlinear(_CoordinateMap.from_model(matrix), what)
+            return _nonlinear(_CoordinateMap.from_model(matrix, shape_in), what)
     try:
         m = np.array(matrix, dtype=float)
     except (TypeError, ValueError):
@@ -257,13 +261,7 @@ def _parse_matrix(matrix, what="resample"):
             "matrix must be a 3x3 (or 2x3) array of numbers, e.g. transform.matrix; "
             f"got {type(matrix).__name__}."
         ) from None
-    if m.shape == (2, 3):
-        m = np.vstack([m, [0.0, 0.0, 1.0]])
-    elif m.shape != (3, 3) or not np.all(np.isfinite(m)):
-        raise ValueError(
-            f"matrix must be a finite array of shape (3, 3) or (2, 3) (pass transform.matrix);"
-            f" got shape {m.shape}{'' if m.shape != (3, 3) else ' with NaN or inf'}."
-        )
+    m = _as_3x3(m)
     # cos(90 deg) is 6e-17, not 0: snap such round-off to the integer, or an exact
     # quarter turn maps edge pixels a hair outside the source and masks them.
     near = np.abs(m - np.round(m)) < 1e-12
@@ -334,19 +332,25 @@ class _CoordinateMap:
                    "projective matrix")
 
     @classmethod
-    def from_model(cls, model):
+    def from_model(cls, model, shape_in=None):
         name = f"{type(model).__name__} model"
         if model.n_inputs != 2 or model.n_outputs != 2:
             raise TypeError(
                 f"the transform must map (x, y) to (x, y) (2 inputs, 2 outputs); this {name} "
                 f"has {model.n_inputs} inputs and {model.n_outputs} outputs.")
+        if getattr(model, "domain", False) is None and shape_in is not None:
+            # A PolynomialTransform without the domain its inverse is fitted
+            # over: the source frame is that domain.
+            model = model.copy()
+            model.domain = (0.0, shape_in[1] - 1.0, 0.0, shape_in[0] - 1.0)
         try:
             inverse = model.inverse
-        except NotImplementedError:
+        except NotImplementedError as exc:
             raise ValueError(
                 f"this {name} has no inverse, which resampling needs (the source position of "
                 "each target pixel); give it one, even approximate (model.inverse = ...): "
-                "Newton steps on the model polish it.") from None
+                f"Newton steps on the model polish it.{' (' + str(exc) + ')' if str(exc) else ''}"
+            ) from None
 
         def call(f):
             def run(x, y):
@@ -685,7 +689,7 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     array([ True, False, False, False])
     """
     order = _parse_order(order)
-    m = _parse_matrix(matrix)
+    m = _parse_matrix(matrix, shape_in=np.shape(data)[:2])
     cmap = m if isinstance(m, _CoordinateMap) else None
     if _variance_kind not in _VARIANCE_KINDS:
         raise ValueError(f"unknown _variance_kind {_variance_kind!r}")

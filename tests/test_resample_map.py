@@ -344,3 +344,78 @@ def test_apply_transform_ccddata(model):
     expect = np.zeros(SHAPE, np.int16)
     expect[inside] = flags[iy[inside], ix[inside]]
     assert_array_equal(out.flags, expect)
+
+
+# -- the package's non-linear models ------------------------------------------------
+
+def barrel(n=512, k=1.05e-7, domain=True):
+    """A PolynomialTransform with radial distortion x_d = u (1 + k r^2), ~5 px at the corners."""
+    from astroalign_nd import PolynomialTransform
+
+    c = (n - 1) / 2.0
+    return PolynomialTransform(degree=3, crpix=(c, c), translation_x=c + 3.0,
+                               translation_y=c - 2.0, a11=1.01, a12=0.02, a21=-0.02,
+                               a22=1.01, A_3_0=k, A_1_2=k, B_2_1=k, B_0_3=k,
+                               domain=(0, n - 1, 0, n - 1) if domain else None)
+
+
+def test_polynomial_transform_positions_and_stars():
+    n = 512
+    model = barrel(n)
+    out, _, bad = resample(coordinate_images((n, n)), model, (n, n), order=1)
+    yy, xx = np.mgrid[:n, :n].astype(float)
+    assert bad.mean() < 0.1
+    fx, fy = model(out[..., 0], out[..., 1])  # the positions used, sent forward
+    assert np.hypot(fx - xx, fy - yy)[~bad].max() < 1e-6  # pixels
+    # Distortion is really there: the linear part alone is off by pixels.
+    lx, ly = model.linear_part(out[..., 0], out[..., 1])
+    assert np.hypot(lx - xx, ly - yy)[~bad].max() > 3.0
+    # Stars land where the model sends them.
+    src_xy = np.array([(x, y) for x in range(30, 500, 70) for y in range(30, 500, 70)], float)
+    source = _star_field((n, n), src_xy, sigma=2.0)
+    img, _, bad = resample(source, model, (n, n), order="bicubic")
+    tx, ty = model(src_xy[:, 0], src_xy[:, 1])
+    checked = 0
+    for x, y in zip(tx, ty):
+        r = np.hypot(xx - x, yy - y) < 7
+        if bad[r].any() or not r.any():
+            continue
+        w = img[r]
+        assert np.hypot((w * xx[r]).sum() / w.sum() - x, (w * yy[r]).sum() / w.sum() - y) < 0.05
+        checked += 1
+    assert checked >= 40
+    # Without a domain, the source frame is the domain of the fitted inverse.
+    again = resample(coordinate_images((n, n)), barrel(n, domain=False), (n, n), order=1)
+    assert_array_equal(again[2], resample(coordinate_images((n, n)), model, (n, n))[2])
+    assert_allclose(again[0][~again[2]], out[~again[2]], atol=1e-6)
+
+
+def test_projective_transform_model():
+    from astroalign_nd import ProjectiveTransform
+
+    data = np.random.default_rng(5).normal(size=(120, 130))
+    h = np.array([[1.01, 0.02, 3.0], [-0.01, 0.99, -2.0], [2e-4, -3e-4, 1.0]])
+    t = ProjectiveTransform.from_matrix(h)
+    for order in range(4):
+        for a, b in zip(resample(data, t, (110, 125), order=order),
+                        resample(data, h, (110, 125), order=order)):
+            assert_array_equal(a, b)
+    affine = ProjectiveTransform.from_matrix(np.vstack([h[:2], [0, 0, 1]]))
+    for a, b in zip(resample(data, affine, (110, 125)), resample(data, h[:2], (110, 125))):
+        assert_array_equal(a, b)  # h31 = h32 = 0: the affine path, same bits
+
+
+def test_apply_transform_polynomial_header_round_trip():
+    from astroalign_nd.io import transform_from_header
+
+    n = 256
+    model = barrel(n, k=4e-7)
+    data = _star_field((n, n), [(60.0, 70.0), (200.0, 180.0)], sigma=2.0).astype(np.float32)
+    ccd = CCDData(data, unit="adu", uncertainty=StdDevUncertainty(np.ones_like(data)))
+    out = apply_transform(model, ccd, (n, n))
+    back = transform_from_header(out.meta)
+    pts = np.array([[10.0, 20.0], [128.0, 128.0], [250.0, 5.0]])
+    assert_allclose(np.column_stack(back(*pts.T)), np.column_stack(model(*pts.T)), atol=1e-6)
+    ref, var, bad = resample(data, model, (n, n), variance=np.ones_like(data))
+    assert_array_equal(out.mask, bad)
+    assert_array_equal(out.data[~bad], ref[~bad])
