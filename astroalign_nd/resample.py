@@ -30,8 +30,10 @@ through a *coordinate map*: the source position of every target pixel,
 computed one band of output rows at a time (``_MAP_BAND_PIXELS`` pixels, a
 few MB) and shared by all channels.  The model's ``inverse`` gives the first
 guess; the forward model checks it, and positions whose round trip misses by
-more than 1e-8 px (a fitted inverse, as SIP's AP/BP terms are) get Newton
-steps on the forward model (Jacobian by finite differences), at most 4.  A
+more than 1e-6 px (a fitted inverse, as SIP's AP/BP terms are) get Newton
+steps on the forward model, at most 4: the first with the Jacobian of the
+inverse map from differences between neighbouring target pixels (no model
+evaluation), the next ones with the forward model's, by finite differences.  A
 position still off by more than 1e-4 px (no source position: outside the
 region where the model can be inverted), or NaN, gives a masked output
 pixel.  The compiled kernel then interpolates data, variance and mask from
@@ -293,7 +295,7 @@ def _nonlinear(cmap, what):
 # the accuracy asked of the source positions (pixels).
 _MAP_BAND_PIXELS = 1 << 16
 _NEWTON_STEPS = 4
-_NEWTON_STOP = 1e-8     # all positions this close: no further step
+_NEWTON_STOP = 1e-6     # all positions this close: no further step
 _MAP_TOL = 1e-4         # positions further than this from solving f(x) = x' are bad
 _NEWTON_STEP_PX = 1e-3  # finite-difference step of the Jacobian
 
@@ -360,13 +362,26 @@ class _CoordinateMap:
 
         return cls(call(model), call(inverse), name)
 
-    def __call__(self, xo, yo):
-        """Source positions ``(x, y)`` of target positions ``(xo, yo)`` (same shape)."""
+    def __call__(self, xo, yo, grid=False):
+        """
+        Source positions ``(x, y)`` of target positions ``(xo, yo)`` (same shape).
+
+        With ``grid`` True, ``(xo, yo)`` are 2-D and spaced by one pixel
+        (columns along x, rows along y): the first Newton step then takes
+        the inverse map's Jacobian from differences between neighbouring
+        positions, which costs no evaluation of the model.
+        """
         shape = np.shape(xo)
         xo, yo = np.ravel(xo), np.ravel(yo)
         x, y = self.inverse(xo, yo)
         x = np.array(x, dtype=float).ravel()  # own copies, polished in place
         y = np.array(y, dtype=float).ravel()
+        gjac = None
+        if grid and len(shape) == 2 and min(shape) >= 3:
+            # d(x, y)/d(x', y') of the (approximate) inverse, second order.
+            with np.errstate(invalid="ignore"):
+                gjac = [np.gradient(a.reshape(shape), axis=k, edge_order=2).ravel()
+                        for a in (x, y) for k in (1, 0)]
         idx = None  # the positions still being polished (None: all)
         h = _NEWTON_STEP_PX
         for step in range(_NEWTON_STEPS + 1):
@@ -391,14 +406,25 @@ class _CoordinateMap:
             if len(todo) < len(r2):
                 idx = todo if idx is None else idx[todo]
                 xs, ys, fx, fy, rx, ry = (a[todo] for a in (xs, ys, fx, fy, rx, ry))
-            # Newton step, the forward map's Jacobian by finite differences.
-            fxx, fyx = (np.ravel(a) for a in self.forward(xs + h, ys))
-            fxy, fyy = (np.ravel(a) for a in self.forward(xs, ys + h))
-            j11, j21, j12, j22 = fxx - fx, fyx - fy, fxy - fx, fyy - fy  # (times h)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                det = (j11 * j22 - j12 * j21) / h
-                dx = (j22 * rx - j12 * ry) / det
-                dy = (j11 * ry - j21 * rx) / det
+            if step == 0 and gjac is not None:
+                # The first step with the grid's Jacobian of the inverse map.
+                g = gjac if idx is None else [a[idx] for a in gjac]
+                with np.errstate(invalid="ignore"):
+                    dx = g[0] * rx + g[1] * ry
+                    dy = g[2] * rx + g[3] * ry
+                fd = np.flatnonzero(~(np.isfinite(dx) & np.isfinite(dy)))  # NaN neighbours
+            else:
+                dx, dy, fd = np.empty_like(rx), np.empty_like(rx), slice(None)
+            if not isinstance(fd, np.ndarray) or fd.size:
+                # Newton step, the forward map's Jacobian by finite differences.
+                xf, yf, rxf, ryf, fxf, fyf = (a[fd] for a in (xs, ys, rx, ry, fx, fy))
+                fxx, fyx = (np.ravel(a) for a in self.forward(xf + h, yf))
+                fxy, fyy = (np.ravel(a) for a in self.forward(xf, yf + h))
+                j11, j21, j12, j22 = fxx - fxf, fyx - fyf, fxy - fxf, fyy - fyf  # (times h)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    det = (j11 * j22 - j12 * j21) / h
+                    dx[fd] = (j22 * rxf - j12 * ryf) / det
+                    dy[fd] = (j11 * ryf - j21 * rxf) / det
             if idx is None:
                 x -= dx
                 y -= dy
@@ -417,7 +443,7 @@ class _CoordinateMap:
         """
         pad = 1 if jacobian else 0
         yo, xo = np.mgrid[r0 - pad:r1 + pad, -pad:nx_out + pad].astype(float)
-        x, y = self(xo, yo)
+        x, y = self(xo, yo, grid=True)
         if not jacobian:
             return x, y, None
         with np.errstate(invalid="ignore"):
