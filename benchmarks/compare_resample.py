@@ -5,7 +5,9 @@ Resamples fixed random images (float32 and float64, 2-D and 3-channel)
 through three affine matrices (a rotation with scale, a shift, a shear), with
 every order, with no variance, a variance, a standard deviation (in the data's
 type and in float64), an inverse variance, with and without a mask, and with
-and without ``conserve_flux``; saves every data, variance and mask array to
+and without ``conserve_flux``, and a 2600x2600 float32 frame (several bands
+of output rows) with a mask and a variance or standard deviation; saves
+every data, variance and mask array to
 an ``.npz`` file.  Run it on the tree before a change and on the tree after;
 ``--compare`` reports every array that differs (exact equality, NaN equal to
 NaN).
@@ -49,6 +51,15 @@ def _cases():
                                                            conserve_flux=cf, _variance_kind=k)
                 key = f"rgb_{dt.__name__}_{mi}_{order}"
                 yield key, (rgb, m, order), dict(variance=s * s, mask=bad)
+    # A frame large enough for several bands of output rows (issue 16's banded
+    # working planes, before the kernel read the mask and standard deviation).
+    big = rng.normal(100, 10, (2600, 2600)).astype(np.float32)
+    big_std = rng.uniform(1, 3, big.shape).astype(np.float32)
+    big_bad = rng.random(big.shape) < 0.001
+    for order in (1, 3):
+        for kind, var in (("variance", big_std * big_std), ("stddev", big_std)):
+            yield f"large_{order}_{kind}", (big, mats[0], order), dict(
+                variance=var, mask=big_bad, _variance_kind=kind, shape_out=(2500, 2700))
 
 
 def run(out):
@@ -56,7 +67,7 @@ def run(out):
 
     res = {}
     for key, (d, m, order), kw in _cases():
-        o = resample(d, m, (290, 310), order=order, **kw)
+        o = resample(d, m, kw.pop("shape_out", (290, 310)), order=order, **kw)
         res[key + "_d"], res[key + "_m"] = o[0], o[2]
         if o[1] is not None:
             res[key + "_v"] = o[1]
@@ -74,8 +85,11 @@ def compare(a, b):
             print(f"{k}: only in {'after' if k not in ra.files else 'before'}")
         elif not np.array_equal(ra[k], rb[k], equal_nan=True):
             ndiff += 1
-            diff = np.nanmax(np.abs(ra[k].astype(float) - rb[k].astype(float)))
-            print(f"{k}: differs (max abs difference {diff:.3g})")
+            x, y = ra[k].astype(float), rb[k].astype(float)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                rel = np.nanmax(np.abs(x - y) / np.maximum(np.abs(x), 1e-300))
+            print(f"{k}: differs in {np.sum(~((x == y) | (np.isnan(x) & np.isnan(y))))} of "
+                  f"{x.size} elements (max relative difference {rel:.3g})")
     print(f"{len(keys)} arrays compared, {ndiff} different")
     return ndiff
 
