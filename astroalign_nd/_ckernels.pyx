@@ -32,32 +32,48 @@ cdef inline double _floor(double u) noexcept nogil:
 
 # -- detection -------------------------------------------------------------------
 
+cdef inline void _bin_despike_block(const real* d, const unsigned char* mk,
+                                    const bint use_mask, Py_ssize_t nx_in, Py_ssize_t b,
+                                    double fill, float* o, Py_ssize_t nx,
+                                    Py_ssize_t row0, Py_ssize_t row1) noexcept nogil:
+    # Called with a literal ``use_mask``: without a mask the loop reads no
+    # mask byte and has no branch for it.
+    cdef Py_ssize_t i, j, di, dj, k
+    cdef double inv = 1.0 / (b * b - 1)
+    cdef double total, t, p, v
+    for i in range(row0, row1):
+        for j in range(nx):
+            total = 0.0
+            p = -INFINITY
+            for di in range(b):
+                k = (i * b + di) * nx_in + j * b
+                t = 0.0
+                for dj in range(b):
+                    v = d[k + dj]
+                    if not isfinite(v) or (use_mask and mk[k + dj]):
+                        v = fill
+                    t += v
+                    if v > p:
+                        p = v
+                total += t
+            o[i * nx + j] = <float>((total - p) * inv)
+
+
 def bin_despike_rows(const real[:, ::1] data, const unsigned char[:, ::1] mask,
                      bint use_mask, Py_ssize_t b, double fill, float[:, ::1] out,
                      Py_ssize_t row0, Py_ssize_t row1):
     """Rows ``row0:row1`` of `astroalign_nd._kernels.bin_despike`."""
-    cdef Py_ssize_t nx = out.shape[1]
-    cdef Py_ssize_t i, j, di, dj, y, x
-    cdef double inv = 1.0 / (b * b - 1)
-    cdef double total, t, p, v
+    cdef Py_ssize_t nx = out.shape[1], nx_in = data.shape[1]
+    cdef const real* d = &data[0, 0]
+    cdef const unsigned char* mk = &mask[0, 0]
+    cdef float* o = &out[0, 0]
+    if use_mask and (mask.shape[0] != data.shape[0] or mask.shape[1] != data.shape[1]):
+        raise ValueError("mask must have the data's shape.")
     with nogil:
-        for i in range(row0, row1):
-            for j in range(nx):
-                total = 0.0
-                p = -INFINITY
-                for di in range(b):
-                    y = i * b + di
-                    t = 0.0
-                    for dj in range(b):
-                        x = j * b + dj
-                        v = data[y, x]
-                        if not isfinite(v) or (use_mask and mask[y, x]):
-                            v = fill
-                        t += v
-                        if v > p:
-                            p = v
-                    total += t
-                out[i, j] = <float>((total - p) * inv)
+        if use_mask:
+            _bin_despike_block(d, mk, True, nx_in, b, fill, o, nx, row0, row1)
+        else:
+            _bin_despike_block(d, mk, False, nx_in, b, fill, o, nx, row0, row1)
 
 
 def peaks(const float[:, ::1] img, double threshold, Py_ssize_t border):
