@@ -37,7 +37,7 @@ from ._input import parse_input
 from .io.header import add_provenance, check_quality, header_from_meta, header_without_wcs
 from .resample import (_MAP_BAND_PIXELS, ORDERS, _CoordinateMap, _parse_matrix, resample,
                        resample_exact)
-from .transforms import LinearTransform2D, as_matrix, from_matrix
+from .transforms import LinearTransform2D, ProjectiveTransform, as_matrix, from_matrix
 
 __all__ = ["apply_transform"]
 
@@ -177,15 +177,11 @@ def _nonlinear_provenance(header, transform, cmap, quality, names):
 
     model = transform
     if not isinstance(model, Model):  # a projective matrix or scikit-image transform
-        from . import transforms
-
-        cls = getattr(transforms, "ProjectiveTransform", None)
-        model = cls.from_matrix(as_matrix(transform)) if cls is not None else None
-    if model is not None:
-        try:
-            return add_provenance(header, model, quality=quality, **names)
-        except (ValueError, TypeError):
-            pass  # not storable in a header
+        model = ProjectiveTransform.from_matrix(as_matrix(transform))
+    try:
+        return add_provenance(header, model, quality=quality, **names)
+    except (ValueError, TypeError):
+        pass  # not storable in a header
     out = header.copy()
     _add_history(out, f"astroalign_nd: registered {fits_text(names['source_name'])} onto the "
                       f"pixel grid of {fits_text(names['target_name'])} through a non-linear "

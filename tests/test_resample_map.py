@@ -290,6 +290,7 @@ def test_homography_matrix_and_skimage():
                           SHAPE)
     assert_array_equal(ccd.mask, bad)
     assert_array_equal(ccd.data[~bad], out[..., 0][~bad])
+    assert ccd.header["AATTYPE"] == "projective"  # the matrix, stored as the model
 
 
 def test_linear_models_keep_affine_path():
