@@ -15,7 +15,7 @@ This is plain C once compiled: there is no JIT, nothing to cache, and
 nothing heavy to import.
 """
 
-from libc.math cimport isfinite, INFINITY
+from libc.math cimport isfinite, sqrt, INFINITY
 
 import numpy as np
 
@@ -278,22 +278,36 @@ cdef inline double _variance_tap(real v, int kind) noexcept nogil:
 
 
 cdef inline void _store(Py_ssize_t k, bint good, double acc, double accv, bint has_var,
-                        double fill, double sd, double sv, real* o, real* ov,
+                        int out_kind, double fill, double sd, double sv, real* o, real* ov,
                         unsigned char* om) noexcept nogil:
-    """Write output pixel ``k``: the value and variance, or fill/inf and the mask."""
+    """
+    Write output pixel ``k``: the value and variance, or fill/inf and the mask.
+
+    ``out_kind`` 1 stores the standard deviation and 2 the inverse variance
+    instead of the variance: the square root or reciprocal of the variance
+    *rounded to the output type*, as NumPy's ``np.sqrt`` or ``1 / var`` on
+    the variance plane would give it (the same bits, without that pass).
+    """
+    cdef real var
     om[k] = not good
     if good:
         o[k] = <real>(acc * sd)
         if has_var:
-            ov[k] = <real>(accv * sv)
+            var = <real>(accv * sv)
+            if out_kind == 1:
+                ov[k] = <real>sqrt(var)
+            elif out_kind == 2:
+                ov[k] = <real>(1.0 / var)
+            else:
+                ov[k] = var
     else:
         o[k] = <real>fill
         if has_var:
-            ov[k] = <real>INFINITY
+            ov[k] = <real>(0.0 if out_kind == 2 else INFINITY)
 
 
 cdef inline void _resample_block(const real* d, const real* dv, bint has_var, int var_kind,
-                                 const unsigned char* mk, bint has_mask,
+                                 int out_kind, const unsigned char* mk, bint has_mask,
                                  Py_ssize_t ny, Py_ssize_t nx, const double* m,
                                  const double* xs, const double* ys, const double* jac,
                                  const int order, double fill, double sd, double sv,
@@ -353,11 +367,11 @@ cdef inline void _resample_block(const real* d, const real* dv, bint has_var, in
                 else:
                     sdk = sd * jac[k]
                     svk = sdk * sdk
-                _store(k, good, acc, accv, has_var, fill, sdk, svk, o, ov, om)
+                _store(k, good, acc, accv, has_var, out_kind, fill, sdk, svk, o, ov, om)
 
 
 cdef inline void _dispatch(const real* d, const real* dv, bint has_var, int var_kind,
-                           const unsigned char* mk, bint has_mask,
+                           int out_kind, const unsigned char* mk, bint has_mask,
                            Py_ssize_t ny, Py_ssize_t nx, const double* m,
                            const double* xs, const double* ys, const double* jac,
                            int order, double fill, double sd, double sv,
@@ -365,29 +379,30 @@ cdef inline void _dispatch(const real* d, const real* dv, bint has_var, int var_
                            Py_ssize_t row0, Py_ssize_t row1) noexcept nogil:
     # One literal order per call, see `_resample_block`.
     if order == 0:
-        _resample_block(d, dv, has_var, var_kind, mk, has_mask, ny, nx, m, xs, ys, jac, 0,
-                        fill, sd, sv, o, ov, om, nx_out, row0, row1)
+        _resample_block(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, m, xs, ys, jac,
+                        0, fill, sd, sv, o, ov, om, nx_out, row0, row1)
     elif order == 1:
-        _resample_block(d, dv, has_var, var_kind, mk, has_mask, ny, nx, m, xs, ys, jac, 1,
-                        fill, sd, sv, o, ov, om, nx_out, row0, row1)
+        _resample_block(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, m, xs, ys, jac,
+                        1, fill, sd, sv, o, ov, om, nx_out, row0, row1)
     elif order == 2:
-        _resample_block(d, dv, has_var, var_kind, mk, has_mask, ny, nx, m, xs, ys, jac, 2,
-                        fill, sd, sv, o, ov, om, nx_out, row0, row1)
+        _resample_block(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, m, xs, ys, jac,
+                        2, fill, sd, sv, o, ov, om, nx_out, row0, row1)
     else:
-        _resample_block(d, dv, has_var, var_kind, mk, has_mask, ny, nx, m, xs, ys, jac, 3,
-                        fill, sd, sv, o, ov, om, nx_out, row0, row1)
+        _resample_block(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, m, xs, ys, jac,
+                        3, fill, sd, sv, o, ov, om, nx_out, row0, row1)
 
 
-def _check_kinds(int order, int var_kind):
+def _check_kinds(int order, int var_kind, int out_kind):
     if order not in (0, 1, 2, 3):
         raise ValueError(f"order must be 0-3; got {order}.")
-    if var_kind not in (0, 1, 2):
-        raise ValueError(f"var_kind must be 0 (variance), 1 (stddev) or 2 (inverse); "
-                         f"got {var_kind}.")
+    for name, kind in (("var_kind", var_kind), ("out_kind", out_kind)):
+        if kind not in (0, 1, 2):
+            raise ValueError(f"{name} must be 0 (variance), 1 (stddev) or 2 (inverse); "
+                             f"got {kind}.")
 
 
 def resample_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int var_kind,
-                  const unsigned char[:, ::1] mask, bint has_mask,
+                  int out_kind, const unsigned char[:, ::1] mask, bint has_mask,
                   const double[::1] m, int order, double fill, double sd, double sv,
                   real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
                   Py_ssize_t row0, Py_ssize_t row1):
@@ -401,7 +416,7 @@ def resample_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
     standard deviation or inverse variance (``var_kind`` 0, 1, 2); ``mask``
     (uint8, nonzero = bad) is read only if ``has_mask``.
     """
-    _check_kinds(order, var_kind)
+    _check_kinds(order, var_kind, out_kind)
     cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
     # Raw pointers: C-contiguous arrays, and no per-pixel memoryview overhead.
     cdef const real* d = &data[0, 0]
@@ -412,12 +427,12 @@ def resample_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
     cdef unsigned char* om = &out_mask[0, 0]
     cdef const double* mp = &m[0]
     with nogil:
-        _dispatch(d, dv, has_var, var_kind, mk, has_mask, ny, nx, mp, NULL, NULL, NULL,
-                  order, fill, sd, sv, o, ov, om, nx_out, row0, row1)
+        _dispatch(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, mp, NULL, NULL,
+                  NULL, order, fill, sd, sv, o, ov, om, nx_out, row0, row1)
 
 
 def map_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int var_kind,
-             const unsigned char[:, ::1] mask, bint has_mask,
+             int out_kind, const unsigned char[:, ::1] mask, bint has_mask,
              const double[:, ::1] xs, const double[:, ::1] ys, const double[:, ::1] jac,
              bint has_jac, int order, double fill, double sd,
              real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
@@ -429,7 +444,7 @@ def map_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int 
     when ``has_jac``, by ``sd`` otherwise.  ``xs``, ``ys``, ``jac`` and the
     outputs have the same shape (a band of output rows).
     """
-    _check_kinds(order, var_kind)
+    _check_kinds(order, var_kind, out_kind)
     if xs.shape[0] != out.shape[0] or xs.shape[1] != out.shape[1] or \
             ys.shape[0] != out.shape[0] or ys.shape[1] != out.shape[1]:
         raise ValueError("the coordinate maps must have the output's shape.")
@@ -446,12 +461,12 @@ def map_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int 
     cdef const double* yp = &ys[0, 0]
     cdef const double* jp = &jac[0, 0] if has_jac else NULL
     with nogil:
-        _dispatch(d, dv, has_var, var_kind, mk, has_mask, ny, nx, NULL, xp, yp, jp,
+        _dispatch(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, NULL, xp, yp, jp,
                   order, fill, sd, sd * sd, o, ov, om, nx_out, row0, row1)
 
 
 cdef inline void _bilinear_block(const real* d, const real* dv, const bint has_var,
-                                 const int var_kind, const unsigned char* mk,
+                                 const int var_kind, int out_kind, const unsigned char* mk,
                                  const bint has_mask, Py_ssize_t ny, Py_ssize_t nx,
                                  const double* m, double fill, double sd, double sv,
                                  real* o, real* ov, unsigned char* om, Py_ssize_t nx_out,
@@ -527,11 +542,12 @@ cdef inline void _bilinear_block(const real* d, const real* dv, const bint has_v
                                 accv += w * w * _variance_tap(dv[k + nx + 1], var_kind)
                             masked = masked or (has_mask and mk[k + nx + 1])
                     good = isfinite(acc) and isfinite(accv) and not masked
-                _store(iy * nx_out + ix, good, acc, accv, has_var, fill, sd, sv, o, ov, om)
+                _store(iy * nx_out + ix, good, acc, accv, has_var, out_kind, fill, sd, sv, o,
+                       ov, om)
 
 
 def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int var_kind,
-                  const unsigned char[:, ::1] mask, bint has_mask,
+                  int out_kind, const unsigned char[:, ::1] mask, bint has_mask,
                   const double[::1] m, double fill, double sd, double sv,
                   real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
                   Py_ssize_t row0, Py_ssize_t row1):
@@ -540,7 +556,7 @@ def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
     tap order and mask rule (so the same bits), without the generic tap
     machinery, which costs several times more per pixel.
     """
-    _check_kinds(1, var_kind)
+    _check_kinds(1, var_kind, out_kind)
     cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
     cdef const real* d = &data[0, 0]
     cdef const real* dv = &var[0, 0]
@@ -553,29 +569,29 @@ def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
     with nogil:
         if not has_var:
             if has_mask:
-                _bilinear_block(d, dv, False, 0, mk, True, ny, nx, mp, fill, sd, sv, o, ov,
-                                om, nx_out, row0, row1)
+                _bilinear_block(d, dv, False, 0, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
             else:
-                _bilinear_block(d, dv, False, 0, mk, False, ny, nx, mp, fill, sd, sv, o, ov,
-                                om, nx_out, row0, row1)
+                _bilinear_block(d, dv, False, 0, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
         elif var_kind == 0:
             if has_mask:
-                _bilinear_block(d, dv, True, 0, mk, True, ny, nx, mp, fill, sd, sv, o, ov,
-                                om, nx_out, row0, row1)
+                _bilinear_block(d, dv, True, 0, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
             else:
-                _bilinear_block(d, dv, True, 0, mk, False, ny, nx, mp, fill, sd, sv, o, ov,
-                                om, nx_out, row0, row1)
+                _bilinear_block(d, dv, True, 0, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
         elif var_kind == 1:
             if has_mask:
-                _bilinear_block(d, dv, True, 1, mk, True, ny, nx, mp, fill, sd, sv, o, ov,
-                                om, nx_out, row0, row1)
+                _bilinear_block(d, dv, True, 1, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
             else:
-                _bilinear_block(d, dv, True, 1, mk, False, ny, nx, mp, fill, sd, sv, o, ov,
-                                om, nx_out, row0, row1)
+                _bilinear_block(d, dv, True, 1, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
         else:
             if has_mask:
-                _bilinear_block(d, dv, True, 2, mk, True, ny, nx, mp, fill, sd, sv, o, ov,
-                                om, nx_out, row0, row1)
+                _bilinear_block(d, dv, True, 2, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
             else:
-                _bilinear_block(d, dv, True, 2, mk, False, ny, nx, mp, fill, sd, sv, o, ov,
-                                om, nx_out, row0, row1)
+                _bilinear_block(d, dv, True, 2, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)

@@ -71,12 +71,14 @@ def _variance_of(uncertainty, dtype, check_only=False):
         return np.divide(1.0, arr, out=var, casting="unsafe")
 
 
-def _uncertainty_like(template, variance, unit):
+def _uncertainty_like(template, variance, unit, converted=False):
     """
     Variance back into the uncertainty class that came in.
 
-    ``variance`` is the resampler's own output: it is converted in place and
-    wrapped without a copy (astropy's ``represent_as`` would make two).
+    ``variance`` is the resampler's own output: it is converted in place
+    (unless ``converted``: the kernel already stored it in the template's
+    kind) and wrapped without a copy (astropy's ``represent_as`` would make
+    two).
     """
     var_unit = unit**2 if unit is not None else None
     cls = type(template)
@@ -84,10 +86,12 @@ def _uncertainty_like(template, variance, unit):
         return cls(variance, unit=var_unit, copy=False)
     with np.errstate(divide="ignore", invalid="ignore"):
         if issubclass(cls, StdDevUncertainty):
-            np.sqrt(variance, out=variance)
+            if not converted:
+                np.sqrt(variance, out=variance)
             return cls(variance, unit=None if var_unit is None else var_unit ** (1 / 2),
                        copy=False)
-        np.divide(1.0, variance, out=variance)
+        if not converted:
+            np.divide(1.0, variance, out=variance)
         return cls(variance, unit=None if var_unit is None else 1 / var_unit, copy=False)
 
 
@@ -350,14 +354,15 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
         out, var_out, mask_out = resample(data, m, shape_out, order=order, variance=variance,
                                           mask=src.mask, fill_value=fill_value,
                                           conserve_flux=conserve_flux, parallel=parallel,
-                                          _variance_kind=kind)
+                                          _variance_kind=kind, _output_kind=kind)
         order_name = order if isinstance(order, str) else {v: k for k, v in ORDERS.items()}[
             int(order)]
 
     out_unit = src.unit if src.unit is not None else u.Unit(unit if unit is not None else "adu")
     uncertainty = None
     if var_out is not None:
-        uncertainty = _uncertainty_like(src.uncertainty, var_out, out_unit)
+        uncertainty = _uncertainty_like(src.uncertainty, var_out, out_unit,
+                                        converted=method != "exact")
 
     # Non-FITS keys become HIERARCH cards; the WCS cards describe the old grid.
     header = header_without_wcs(header_from_meta(src.meta))

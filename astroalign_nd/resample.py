@@ -562,14 +562,14 @@ _VARIANCE_KINDS = {"variance": 0, "stddev": 1, "inverse": 2}
 _DUMMY_MAP = np.zeros((1, 1))
 
 
-def _run_affine(data, var, has_var, kind, bad8, has_mask, coeffs, order, fill, sd, sv,
+def _run_affine(data, var, has_var, kind, okind, bad8, has_mask, coeffs, order, fill, sd, sv,
                 out, out_var, mask, rows_per_thread, parallel, start, n):
     """Output rows ``start:start + n`` of one channel, on the compiled affine kernels."""
     if order == 1:
         kernel, extra = _ckernels.bilinear_rows, (fill, sd, sv)
     else:
         kernel, extra = _ckernels.resample_rows, (order, fill, sd, sv)
-    run_split(kernel, n, (data, var, has_var, kind, bad8, has_mask, coeffs) + extra
+    run_split(kernel, n, (data, var, has_var, kind, okind, bad8, has_mask, coeffs) + extra
               + (out, out_var, mask.view(np.uint8)),
               min_per_thread=rows_per_thread, parallel=parallel, start=start)
 
@@ -590,6 +590,15 @@ def _to_variance(arr, kind, dtype, out=None):
         return np.square(arr, out=out, casting="unsafe")
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.divide(1.0, arr, out=out, casting="unsafe")
+
+
+def _from_variance(var, okind):
+    """In place: a variance plane to a standard deviation (1) or inverse variance (2)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if okind == 1:
+            np.sqrt(var, out=var)
+        else:
+            np.divide(1.0, var, out=var)
 
 
 def _bands(coeffs, shape_out, ny, order):
@@ -619,7 +628,8 @@ def _bands(coeffs, shape_out, ny, order):
 # -- public API ------------------------------------------------------------------
 
 def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=None,
-             fill_value=np.nan, conserve_flux=False, parallel=True, _variance_kind="variance"):
+             fill_value=np.nan, conserve_flux=False, parallel=True, _variance_kind="variance",
+             _output_kind="variance"):
     """
     Resample an image onto the target pixel grid, with variance and mask.
 
@@ -717,8 +727,9 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     order = _parse_order(order)
     m = _parse_matrix(matrix, shape_in=np.shape(data)[:2])
     cmap = m if isinstance(m, _CoordinateMap) else None
-    if _variance_kind not in _VARIANCE_KINDS:
-        raise ValueError(f"unknown _variance_kind {_variance_kind!r}")
+    if _variance_kind not in _VARIANCE_KINDS or _output_kind not in _VARIANCE_KINDS:
+        raise ValueError(f"unknown _variance_kind {_variance_kind!r} or _output_kind "
+                         f"{_output_kind!r}")
     data_cf, var_cf, bad, shape, multichannel, dtype = _prepare(
         data, variance, mask, shape_out, keep_var_dtype=_variance_kind != "variance")
     fill = _parse_fill(fill_value)
@@ -734,6 +745,10 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     if bad is not None and not bad.any():
         bad = None
     kind = _VARIANCE_KINDS[_variance_kind] if has_var else 0
+    # The variance output may be stored as a standard deviation or an inverse
+    # variance (``_output_kind``, for apply_transform's uncertainty classes):
+    # the kernels convert each pixel as they store it, saving a pass.
+    okind = _VARIANCE_KINDS[_output_kind] if has_var else 0
     compiled = _USE_COMPILED and HAVE_COMPILED
     if not compiled and (kind or bad is not None):
         # NumPy path: whole-frame working copies (it is the slow path anyway).
@@ -774,7 +789,7 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
                                   out[c, r0:r1], ov, masks[c, r0:r1], order)
                     continue
                 run_split(_ckernels.map_rows, r1 - r0,
-                          (data_cf[c], var_cf[c] if has_var else dummy, has_var, kind, bad8,
+                          (data_cf[c], var_cf[c] if has_var else dummy, has_var, kind, okind, bad8,
                            bad is not None, xs, ys, _DUMMY_MAP if jac is None else jac,
                            jac is not None, order, fill, 1.0, out[c, r0:r1], ov,
                            masks[c, r0:r1].view(np.uint8)),
@@ -791,7 +806,7 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
                 v = _to_variance(var_cf[c, s0:s1], _variance_kind, dtype, out=scratch[:s1 - s0])
                 band_coeffs = coeffs.copy()
                 band_coeffs[5] -= s0  # source row s0 is row 0 of the band
-                _run_affine(data_cf[c, s0:s1], v, True, 0,
+                _run_affine(data_cf[c, s0:s1], v, True, 0, okind,
                             bad8 if bad is None else bad8[s0:s1], bad is not None,
                             band_coeffs, order, fill, sd, sv, out[c], out_var[c], masks[c],
                             rows_per_thread, parallel, r0, r1 - r0)
@@ -802,17 +817,19 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
                 args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
                 _resample_numpy(*args, fill, sd, sv, *outs, masks[c], order=order)
                 continue
-            _run_affine(data_cf[c], var_cf[c] if has_var else dummy, has_var, kind, bad8,
-                        bad is not None, coeffs, order, fill, sd, sv, *outs, masks[c],
+            _run_affine(data_cf[c], var_cf[c] if has_var else dummy, has_var, kind, okind,
+                        bad8, bad is not None, coeffs, order, fill, sd, sv, *outs, masks[c],
                         rows_per_thread, parallel, 0, shape[0])
 
+    if has_var and okind and not compiled:
+        _from_variance(out_var, okind)
     mask_out = masks[0]
     if nc > 1:
         # The mask applies to all channels: a pixel bad in one is bad in all.
         mask_out = masks.any(axis=0)
         out[:, mask_out] = fill
         if has_var:
-            out_var[:, mask_out] = np.inf
+            out_var[:, mask_out] = 0.0 if okind == 2 else np.inf
     if multichannel:
         out = np.ascontiguousarray(np.moveaxis(out, 0, -1))
         out_var = None if out_var is None else np.ascontiguousarray(np.moveaxis(out_var, 0, -1))

@@ -425,3 +425,28 @@ def test_apply_transform_polynomial_header_round_trip():
     ref, var, bad = resample(data, model, (n, n), variance=np.ones_like(data))
     assert_array_equal(out.mask, bad)
     assert_array_equal(out.data[~bad], ref[~bad])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_output_kind_same_bits_as_numpy(model, monkeypatch, dtype):
+    # The kernel may store the standard deviation or inverse variance (for
+    # apply_transform's uncertainty classes): the same bits as converting the
+    # variance output with NumPy, masked pixels included (inf and 0).
+    rng = np.random.default_rng(7)
+    data = rng.normal(10, 1, (90, 100, 2)).astype(dtype)
+    std = rng.uniform(1, 3, (90, 100)).astype(dtype)
+    bad = rng.random((90, 100)) < 0.01
+    m = np.array([[0.98, 0.1, 4.5], [-0.1, 0.98, -3.2], [0, 0, 1]])
+    for compiled in (True, False):
+        monkeypatch.setattr(rs, "_USE_COMPILED", compiled)
+        for t in (m, model):
+            for order in range(4):
+                for plane in (data, data[..., 0]):
+                    _, var, _ = resample(plane, t, (80, 95), order=order, variance=std,
+                                         mask=bad, _variance_kind="stddev")
+                    with np.errstate(divide="ignore"):
+                        for kind, expect in (("stddev", np.sqrt(var)), ("inverse", 1 / var)):
+                            got = resample(plane, t, (80, 95), order=order, variance=std,
+                                           mask=bad, _variance_kind="stddev",
+                                           _output_kind=kind)[1]
+                            assert_array_equal(got, expect)
