@@ -15,7 +15,7 @@ This is plain C once compiled: there is no JIT, nothing to cache, and
 nothing heavy to import.
 """
 
-from libc.math cimport isfinite, INFINITY
+from libc.math cimport isfinite, sqrt, INFINITY
 
 import numpy as np
 
@@ -32,32 +32,48 @@ cdef inline double _floor(double u) noexcept nogil:
 
 # -- detection -------------------------------------------------------------------
 
+cdef inline void _bin_despike_block(const real* d, const unsigned char* mk,
+                                    const bint use_mask, Py_ssize_t nx_in, Py_ssize_t b,
+                                    double fill, float* o, Py_ssize_t nx,
+                                    Py_ssize_t row0, Py_ssize_t row1) noexcept nogil:
+    # Called with a literal ``use_mask``: without a mask the loop reads no
+    # mask byte and has no branch for it.
+    cdef Py_ssize_t i, j, di, dj, k
+    cdef double inv = 1.0 / (b * b - 1)
+    cdef double total, t, p, v
+    for i in range(row0, row1):
+        for j in range(nx):
+            total = 0.0
+            p = -INFINITY
+            for di in range(b):
+                k = (i * b + di) * nx_in + j * b
+                t = 0.0
+                for dj in range(b):
+                    v = d[k + dj]
+                    if not isfinite(v) or (use_mask and mk[k + dj]):
+                        v = fill
+                    t += v
+                    if v > p:
+                        p = v
+                total += t
+            o[i * nx + j] = <float>((total - p) * inv)
+
+
 def bin_despike_rows(const real[:, ::1] data, const unsigned char[:, ::1] mask,
                      bint use_mask, Py_ssize_t b, double fill, float[:, ::1] out,
                      Py_ssize_t row0, Py_ssize_t row1):
     """Rows ``row0:row1`` of `astroalign_nd._kernels.bin_despike`."""
-    cdef Py_ssize_t nx = out.shape[1]
-    cdef Py_ssize_t i, j, di, dj, y, x
-    cdef double inv = 1.0 / (b * b - 1)
-    cdef double total, t, p, v
+    cdef Py_ssize_t nx = out.shape[1], nx_in = data.shape[1]
+    cdef const real* d = &data[0, 0]
+    cdef const unsigned char* mk = &mask[0, 0]
+    cdef float* o = &out[0, 0]
+    if use_mask and (mask.shape[0] != data.shape[0] or mask.shape[1] != data.shape[1]):
+        raise ValueError("mask must have the data's shape.")
     with nogil:
-        for i in range(row0, row1):
-            for j in range(nx):
-                total = 0.0
-                p = -INFINITY
-                for di in range(b):
-                    y = i * b + di
-                    t = 0.0
-                    for dj in range(b):
-                        x = j * b + dj
-                        v = data[y, x]
-                        if not isfinite(v) or (use_mask and mask[y, x]):
-                            v = fill
-                        t += v
-                        if v > p:
-                            p = v
-                    total += t
-                out[i, j] = <float>((total - p) * inv)
+        if use_mask:
+            _bin_despike_block(d, mk, True, nx_in, b, fill, o, nx, row0, row1)
+        else:
+            _bin_despike_block(d, mk, False, nx_in, b, fill, o, nx, row0, row1)
 
 
 def peaks(const float[:, ::1] img, double threshold, Py_ssize_t border):
@@ -237,65 +253,156 @@ cdef inline bint _axis_taps(double u, Py_ssize_t n, int order, Py_ssize_t* i0,
     return ok
 
 
+# Output columns per tile: each thread walks its rows one tile of columns at a
+# time, so that the source rows a rotated or scaled map reads stay in the cache
+# between neighbouring output rows (every output pixel is computed exactly as
+# without tiles: the order of the pixels does not change any value).
+cdef enum:
+    TILE = 512
+
+
+cdef inline double _variance_tap(real v, int kind) noexcept nogil:
+    """
+    Variance of one input pixel from its plane's value: ``kind`` 0 is a
+    variance, 1 a standard deviation (squared), 2 an inverse variance.
+
+    The square or reciprocal is rounded to the plane's own type, as NumPy's
+    ``np.square(std)`` or ``1 / ivar`` on the whole plane would round it, so
+    the result is the same to the bit without a variance copy of the frame.
+    """
+    if kind == 1:
+        return <real>(v * v)
+    if kind == 2:
+        return <real>(1.0 / v)
+    return v
+
+
 cdef inline void _store(Py_ssize_t k, bint good, double acc, double accv, bint has_var,
-                        double fill, double sd, double sv, real* o, real* ov,
+                        int out_kind, double fill, double sd, double sv, real* o, real* ov,
                         unsigned char* om) noexcept nogil:
-    """Write output pixel ``k``: the value and variance, or fill/inf and the mask."""
+    """
+    Write output pixel ``k``: the value and variance, or fill/inf and the mask.
+
+    ``out_kind`` 1 stores the standard deviation and 2 the inverse variance
+    instead of the variance: the square root or reciprocal of the variance
+    *rounded to the output type*, as NumPy's ``np.sqrt`` or ``1 / var`` on
+    the variance plane would give it (the same bits, without that pass).
+    """
+    cdef real var
     om[k] = not good
     if good:
         o[k] = <real>(acc * sd)
         if has_var:
-            ov[k] = <real>(accv * sv)
+            var = <real>(accv * sv)
+            if out_kind == 1:
+                ov[k] = <real>sqrt(var)
+            elif out_kind == 2:
+                ov[k] = <real>(1.0 / var)
+            else:
+                ov[k] = var
     else:
         o[k] = <real>fill
         if has_var:
-            ov[k] = <real>INFINITY
+            ov[k] = <real>(0.0 if out_kind == 2 else INFINITY)
 
 
-cdef inline void _resample_block(const real* d, const real* dv, bint has_var,
+cdef inline void _resample_block(const real* d, const real* dv, bint has_var, int var_kind,
+                                 int out_kind, const unsigned char* mk, bint has_mask,
                                  Py_ssize_t ny, Py_ssize_t nx, const double* m,
+                                 const double* xs, const double* ys, const double* jac,
                                  const int order, double fill, double sd, double sv,
                                  real* o, real* ov, unsigned char* om, Py_ssize_t nx_out,
                                  Py_ssize_t row0, Py_ssize_t row1) noexcept nogil:
     # Called with a literal ``order``: the C compiler specialises the loop for
     # each order (fixed tap counts, unrolled), ~2x faster than a runtime count.
-    cdef Py_ssize_t iy, ix, jx, jy, kx, ky, row
+    # Source positions come from the affine coefficients ``m``, or, when ``xs``
+    # is not NULL, from the coordinate maps ``xs``/``ys`` (one value per output
+    # pixel), with ``jac`` (if not NULL) the per-pixel flux factor.
+    cdef Py_ssize_t iy, ix, jx, jy, kx, ky, row, k, t0, ti
     cdef int nt = order + 1
-    cdef double ux, vy, u, v, acc, accv, w, wyk, wxk
+    cdef double ux = 0.0, vy = 0.0, u, v, acc, accv, w, wyk, wxk, sdk, svk
     cdef double wx[4]
     cdef double wy[4]
-    cdef bint good
-    for iy in range(row0, row1):
-        # Same operation order as the NumPy path, so both give identical positions.
-        ux = m[1] * iy + m[2]
-        vy = m[4] * iy + m[5]
-        for ix in range(nx_out):
-            u = m[0] * ix + ux
-            v = m[3] * ix + vy
-            good = _axis_taps(u, nx, order, &jx, wx)
-            good = _axis_taps(v, ny, order, &jy, wy) and good
-            acc = 0.0
-            accv = 0.0
-            if good:
-                for ky in range(nt):
-                    wyk = wy[ky]
-                    if wyk != 0.0:  # zero-weight taps are not used (may be outside)
-                        row = (jy + ky) * nx + jx
-                        for kx in range(nt):
-                            wxk = wx[kx]
-                            if wxk != 0.0:
-                                w = wyk * wxk
-                                acc += w * d[row + kx]
-                                if has_var:
-                                    accv += w * w * dv[row + kx]
-                # Masked input pixels arrive as NaN, and a NaN/inf pixel with
-                # nonzero weight makes the sum non-finite: this one test does
-                # the whole mask propagation.
-                good = isfinite(acc) and isfinite(accv)
-            _store(iy * nx_out + ix, good, acc, accv, has_var, fill, sd, sv, o, ov, om)
+    cdef bint good, masked
+    for ti in range((nx_out + TILE - 1) // TILE):
+        t0 = ti * TILE
+        for iy in range(row0, row1):
+            if xs == NULL:
+                # Same operation order as the NumPy path, so both give identical positions.
+                ux = m[1] * iy + m[2]
+                vy = m[4] * iy + m[5]
+            for ix in range(t0, min(t0 + TILE, nx_out)):
+                k = iy * nx_out + ix
+                if xs == NULL:
+                    u = m[0] * ix + ux
+                    v = m[3] * ix + vy
+                else:
+                    u = xs[k]
+                    v = ys[k]
+                good = _axis_taps(u, nx, order, &jx, wx)
+                good = _axis_taps(v, ny, order, &jy, wy) and good
+                acc = 0.0
+                accv = 0.0
+                masked = False
+                if good:
+                    for ky in range(nt):
+                        wyk = wy[ky]
+                        if wyk != 0.0:  # zero-weight taps are not used (may be outside)
+                            row = (jy + ky) * nx + jx
+                            for kx in range(nt):
+                                wxk = wx[kx]
+                                if wxk != 0.0:
+                                    w = wyk * wxk
+                                    acc += w * d[row + kx]
+                                    if has_var:
+                                        accv += w * w * _variance_tap(dv[row + kx], var_kind)
+                                    if has_mask and mk[row + kx]:
+                                        masked = True
+                    # A NaN/inf pixel with nonzero weight makes the sum non-finite:
+                    # with the mask test, this is the whole mask propagation.
+                    good = isfinite(acc) and isfinite(accv) and not masked
+                if jac == NULL:
+                    sdk = sd
+                    svk = sv
+                else:
+                    sdk = sd * jac[k]
+                    svk = sdk * sdk
+                _store(k, good, acc, accv, has_var, out_kind, fill, sdk, svk, o, ov, om)
 
 
-def resample_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
+cdef inline void _dispatch(const real* d, const real* dv, bint has_var, int var_kind,
+                           int out_kind, const unsigned char* mk, bint has_mask,
+                           Py_ssize_t ny, Py_ssize_t nx, const double* m,
+                           const double* xs, const double* ys, const double* jac,
+                           int order, double fill, double sd, double sv,
+                           real* o, real* ov, unsigned char* om, Py_ssize_t nx_out,
+                           Py_ssize_t row0, Py_ssize_t row1) noexcept nogil:
+    # One literal order per call, see `_resample_block`.
+    if order == 0:
+        _resample_block(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, m, xs, ys, jac,
+                        0, fill, sd, sv, o, ov, om, nx_out, row0, row1)
+    elif order == 1:
+        _resample_block(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, m, xs, ys, jac,
+                        1, fill, sd, sv, o, ov, om, nx_out, row0, row1)
+    elif order == 2:
+        _resample_block(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, m, xs, ys, jac,
+                        2, fill, sd, sv, o, ov, om, nx_out, row0, row1)
+    else:
+        _resample_block(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, m, xs, ys, jac,
+                        3, fill, sd, sv, o, ov, om, nx_out, row0, row1)
+
+
+def _check_kinds(int order, int var_kind, int out_kind):
+    if order not in (0, 1, 2, 3):
+        raise ValueError(f"order must be 0-3; got {order}.")
+    for name, kind in (("var_kind", var_kind), ("out_kind", out_kind)):
+        if kind not in (0, 1, 2):
+            raise ValueError(f"{name} must be 0 (variance), 1 (stddev) or 2 (inverse); "
+                             f"got {kind}.")
+
+
+def resample_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int var_kind,
+                  int out_kind, const unsigned char[:, ::1] mask, bint has_mask,
                   const double[::1] m, int order, double fill, double sd, double sv,
                   real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
                   Py_ssize_t row0, Py_ssize_t row1):
@@ -305,58 +412,79 @@ def resample_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
 
     ``m`` holds the target -> source coefficients ``(a, b, c, d, e, f)``:
     the source position of output pixel ``(ix, iy)`` is
-    ``(a ix + b iy + c, d ix + e iy + f)``.
+    ``(a ix + b iy + c, d ix + e iy + f)``.  ``var`` holds a variance,
+    standard deviation or inverse variance (``var_kind`` 0, 1, 2); ``mask``
+    (uint8, nonzero = bad) is read only if ``has_mask``.
     """
+    _check_kinds(order, var_kind, out_kind)
     cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
     # Raw pointers: C-contiguous arrays, and no per-pixel memoryview overhead.
     cdef const real* d = &data[0, 0]
     cdef const real* dv = &var[0, 0]
+    cdef const unsigned char* mk = &mask[0, 0]
     cdef real* o = &out[0, 0]
     cdef real* ov = &out_var[0, 0]
     cdef unsigned char* om = &out_mask[0, 0]
     cdef const double* mp = &m[0]
-    if order not in (0, 1, 2, 3):
-        raise ValueError(f"order must be 0-3; got {order}.")
     with nogil:
-        if order == 0:
-            _resample_block(d, dv, has_var, ny, nx, mp, 0, fill, sd, sv, o, ov, om, nx_out,
-                            row0, row1)
-        elif order == 1:
-            _resample_block(d, dv, has_var, ny, nx, mp, 1, fill, sd, sv, o, ov, om, nx_out,
-                            row0, row1)
-        elif order == 2:
-            _resample_block(d, dv, has_var, ny, nx, mp, 2, fill, sd, sv, o, ov, om, nx_out,
-                            row0, row1)
-        else:
-            _resample_block(d, dv, has_var, ny, nx, mp, 3, fill, sd, sv, o, ov, om, nx_out,
-                            row0, row1)
+        _dispatch(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, mp, NULL, NULL,
+                  NULL, order, fill, sd, sv, o, ov, om, nx_out, row0, row1)
 
 
-def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
-                  const double[::1] m, double fill, double sd, double sv,
-                  real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
-                  Py_ssize_t row0, Py_ssize_t row1):
+def map_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int var_kind,
+             int out_kind, const unsigned char[:, ::1] mask, bint has_mask,
+             const double[:, ::1] xs, const double[:, ::1] ys, const double[:, ::1] jac,
+             bint has_jac, int order, double fill, double sd,
+             real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
+             Py_ssize_t row0, Py_ssize_t row1):
     """
-    `resample_rows` for order 1, written out: the same positions, weights,
-    tap order and mask rule (so the same bits), without the generic tap
-    machinery, which costs several times more per pixel.
+    `resample_rows` through a coordinate map: output pixel ``(ix, iy)``
+    reads the source at ``(xs[iy, ix], ys[iy, ix])`` (NaN: outside), and
+    its value is scaled by ``sd * jac[iy, ix]`` (variance by its square)
+    when ``has_jac``, by ``sd`` otherwise.  ``xs``, ``ys``, ``jac`` and the
+    outputs have the same shape (a band of output rows).
     """
+    _check_kinds(order, var_kind, out_kind)
+    if xs.shape[0] != out.shape[0] or xs.shape[1] != out.shape[1] or \
+            ys.shape[0] != out.shape[0] or ys.shape[1] != out.shape[1]:
+        raise ValueError("the coordinate maps must have the output's shape.")
+    if has_jac and (jac.shape[0] != out.shape[0] or jac.shape[1] != out.shape[1]):
+        raise ValueError("the Jacobian map must have the output's shape.")
     cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
-    cdef Py_ssize_t iy, ix, jx, jy, k
-    cdef double ux, vy, u, v, acc, accv, w, fx, fy, flx, fly, wx0, wx1, wy0, wy1
-    cdef bint good, okx, oky
     cdef const real* d = &data[0, 0]
     cdef const real* dv = &var[0, 0]
+    cdef const unsigned char* mk = &mask[0, 0]
     cdef real* o = &out[0, 0]
     cdef real* ov = &out_var[0, 0]
     cdef unsigned char* om = &out_mask[0, 0]
+    cdef const double* xp = &xs[0, 0]
+    cdef const double* yp = &ys[0, 0]
+    cdef const double* jp = &jac[0, 0] if has_jac else NULL
+    with nogil:
+        _dispatch(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, NULL, xp, yp, jp,
+                  order, fill, sd, sd * sd, o, ov, om, nx_out, row0, row1)
+
+
+cdef inline void _bilinear_block(const real* d, const real* dv, const bint has_var,
+                                 const int var_kind, int out_kind, const unsigned char* mk,
+                                 const bint has_mask, Py_ssize_t ny, Py_ssize_t nx,
+                                 const double* m, double fill, double sd, double sv,
+                                 real* o, real* ov, unsigned char* om, Py_ssize_t nx_out,
+                                 Py_ssize_t row0, Py_ssize_t row1) noexcept nogil:
+    # Called with literal ``has_var``, ``var_kind`` and ``has_mask``: the C
+    # compiler drops the branches that do not apply.
+    cdef Py_ssize_t iy, ix, jx, jy, k, t0, t1, ti
+    cdef double ux, vy, u, v, acc, accv, w, fx, fy, flx, fly, wx0, wx1, wy0, wy1
+    cdef bint good, okx, oky, masked
     cdef double a0 = m[0], a3 = m[3]
     cdef double xmax = nx - 1, ymax = ny - 1
-    with nogil:
+    for ti in range((nx_out + TILE - 1) // TILE):
+        t0 = ti * TILE
+        t1 = min(t0 + TILE, nx_out)
         for iy in range(row0, row1):
             ux = m[1] * iy + m[2]
             vy = m[4] * iy + m[5]
-            for ix in range(nx_out):
+            for ix in range(t0, t1):
                 u = a0 * ix + ux
                 v = a3 * ix + vy
                 acc = 0.0
@@ -390,24 +518,80 @@ def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
                     wx1 = fx
                     wy0 = 1.0 - fy
                     wy1 = fy
+                    masked = has_mask and mk[k]
                     w = wy0 * wx0
                     acc += w * d[k]
                     if has_var:
-                        accv += w * w * dv[k]
+                        accv += w * w * _variance_tap(dv[k], var_kind)
                     if wx1 != 0.0:
                         w = wy0 * wx1
                         acc += w * d[k + 1]
                         if has_var:
-                            accv += w * w * dv[k + 1]
+                            accv += w * w * _variance_tap(dv[k + 1], var_kind)
+                        masked = masked or (has_mask and mk[k + 1])
                     if wy1 != 0.0:
                         w = wy1 * wx0
                         acc += w * d[k + nx]
                         if has_var:
-                            accv += w * w * dv[k + nx]
+                            accv += w * w * _variance_tap(dv[k + nx], var_kind)
+                        masked = masked or (has_mask and mk[k + nx])
                         if wx1 != 0.0:
                             w = wy1 * wx1
                             acc += w * d[k + nx + 1]
                             if has_var:
-                                accv += w * w * dv[k + nx + 1]
-                    good = isfinite(acc) and isfinite(accv)
-                _store(iy * nx_out + ix, good, acc, accv, has_var, fill, sd, sv, o, ov, om)
+                                accv += w * w * _variance_tap(dv[k + nx + 1], var_kind)
+                            masked = masked or (has_mask and mk[k + nx + 1])
+                    good = isfinite(acc) and isfinite(accv) and not masked
+                _store(iy * nx_out + ix, good, acc, accv, has_var, out_kind, fill, sd, sv, o,
+                       ov, om)
+
+
+def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int var_kind,
+                  int out_kind, const unsigned char[:, ::1] mask, bint has_mask,
+                  const double[::1] m, double fill, double sd, double sv,
+                  real[:, ::1] out, real[:, ::1] out_var, unsigned char[:, ::1] out_mask,
+                  Py_ssize_t row0, Py_ssize_t row1):
+    """
+    `resample_rows` for order 1, written out: the same positions, weights,
+    tap order and mask rule (so the same bits), without the generic tap
+    machinery, which costs several times more per pixel.
+    """
+    _check_kinds(1, var_kind, out_kind)
+    cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
+    cdef const real* d = &data[0, 0]
+    cdef const real* dv = &var[0, 0]
+    cdef const unsigned char* mk = &mask[0, 0]
+    cdef real* o = &out[0, 0]
+    cdef real* ov = &out_var[0, 0]
+    cdef unsigned char* om = &out_mask[0, 0]
+    cdef const double* mp = &m[0]
+    # One literal combination of the options per call, see `_bilinear_block`.
+    with nogil:
+        if not has_var:
+            if has_mask:
+                _bilinear_block(d, dv, False, 0, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
+            else:
+                _bilinear_block(d, dv, False, 0, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
+        elif var_kind == 0:
+            if has_mask:
+                _bilinear_block(d, dv, True, 0, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
+            else:
+                _bilinear_block(d, dv, True, 0, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
+        elif var_kind == 1:
+            if has_mask:
+                _bilinear_block(d, dv, True, 1, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
+            else:
+                _bilinear_block(d, dv, True, 1, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
+        else:
+            if has_mask:
+                _bilinear_block(d, dv, True, 2, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)
+            else:
+                _bilinear_block(d, dv, True, 2, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
+                                o, ov, om, nx_out, row0, row1)

@@ -35,8 +35,9 @@ from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUnce
 
 from ._input import parse_input
 from .io.header import add_provenance, check_quality, header_from_meta, header_without_wcs
-from .resample import ORDERS, resample, resample_exact
-from .transforms import LinearTransform2D, as_matrix, from_matrix
+from .resample import (_MAP_BAND_PIXELS, ORDERS, _CoordinateMap, _parse_matrix, resample,
+                       resample_exact)
+from .transforms import LinearTransform2D, ProjectiveTransform, as_matrix, from_matrix
 
 __all__ = ["apply_transform"]
 
@@ -70,12 +71,14 @@ def _variance_of(uncertainty, dtype, check_only=False):
         return np.divide(1.0, arr, out=var, casting="unsafe")
 
 
-def _uncertainty_like(template, variance, unit):
+def _uncertainty_like(template, variance, unit, converted=False):
     """
     Variance back into the uncertainty class that came in.
 
-    ``variance`` is the resampler's own output: it is converted in place and
-    wrapped without a copy (astropy's ``represent_as`` would make two).
+    ``variance`` is the resampler's own output: it is converted in place
+    (unless ``converted``: the kernel already stored it in the template's
+    kind) and wrapped without a copy (astropy's ``represent_as`` would make
+    two).
     """
     var_unit = unit**2 if unit is not None else None
     cls = type(template)
@@ -83,10 +86,12 @@ def _uncertainty_like(template, variance, unit):
         return cls(variance, unit=var_unit, copy=False)
     with np.errstate(divide="ignore", invalid="ignore"):
         if issubclass(cls, StdDevUncertainty):
-            np.sqrt(variance, out=variance)
+            if not converted:
+                np.sqrt(variance, out=variance)
             return cls(variance, unit=None if var_unit is None else var_unit ** (1 / 2),
                        copy=False)
-        np.divide(1.0, variance, out=variance)
+        if not converted:
+            np.divide(1.0, variance, out=variance)
         return cls(variance, unit=None if var_unit is None else 1 / var_unit, copy=False)
 
 
@@ -123,13 +128,70 @@ def _resample_flags(flags, matrix, shape_out):
         return out
     flags = np.asarray(flags)
     ny, nx = shape_out
-    inv = np.linalg.inv(matrix)
-    yo, xo = np.mgrid[:ny, :nx]
-    xs = np.rint(inv[0, 0] * xo + inv[0, 1] * yo + inv[0, 2]).astype(np.intp)
-    ys = np.rint(inv[1, 0] * xo + inv[1, 1] * yo + inv[1, 2]).astype(np.intp)
-    inside = (xs >= 0) & (xs < flags.shape[1]) & (ys >= 0) & (ys < flags.shape[0])
     out = np.zeros((ny, nx) + flags.shape[2:], dtype=flags.dtype)
-    out[inside] = flags[ys[inside], xs[inside]]
+    step = max(1, _MAP_BAND_PIXELS // nx)
+    if isinstance(matrix, _CoordinateMap):
+        inv = None
+    else:
+        inv = np.linalg.inv(matrix)
+    for r0 in range(0, ny, step):  # bands of rows: bounded temporaries
+        r1 = min(r0 + step, ny)
+        if inv is None:
+            xs, ys, _ = matrix.band(r0, r1, nx)
+        else:
+            yo, xo = np.mgrid[r0:r1, :nx]
+            xs = inv[0, 0] * xo + inv[0, 1] * yo + inv[0, 2]
+            ys = inv[1, 0] * xo + inv[1, 1] * yo + inv[1, 2]
+        xs, ys = np.rint(xs), np.rint(ys)
+        with np.errstate(invalid="ignore"):  # NaN (no source position) is outside
+            inside = (xs >= 0) & (xs < flags.shape[1]) & (ys >= 0) & (ys < flags.shape[0])
+        xs = np.where(inside, xs, 0).astype(np.intp)
+        ys = np.where(inside, ys, 0).astype(np.intp)
+        out[r0:r1][inside] = flags[ys[inside], xs[inside]]
+    return out
+
+
+def _source_to_target(transform, shape_in):
+    """The 3x3 matrix of an affine transform, or the `_CoordinateMap` of another."""
+    from astropy.modeling import Model
+
+    try:
+        m = as_matrix(transform)
+    except ValueError:
+        if not isinstance(transform, Model):
+            raise
+        # Non-linear: its coordinate map (or a clear error).
+        return _parse_matrix(transform, shape_in=shape_in)
+    if np.all(np.isfinite(m)) and not np.allclose(m[2], [0.0, 0.0, 1.0]):
+        return _parse_matrix(m)  # a homography (e.g. scikit-image's ProjectiveTransform)
+    if not np.all(np.isfinite(m)) or abs(np.linalg.det(m[:2, :2])) < 1e-12:
+        raise ValueError("transform is singular or not finite; it cannot be applied.")
+    return m
+
+
+def _nonlinear_provenance(header, transform, cmap, quality, names):
+    """
+    `add_provenance` for a non-linear transform: its header keywords when the
+    model can write them, otherwise HISTORY cards only (save the model itself
+    with ASDF).
+    """
+    from astropy.modeling import Model
+
+    from .io.header import _add_history, fits_text
+
+    model = transform
+    if not isinstance(model, Model):  # a projective matrix or scikit-image transform
+        model = ProjectiveTransform.from_matrix(as_matrix(transform))
+    try:
+        return add_provenance(header, model, quality=quality, **names)
+    except (ValueError, TypeError):
+        pass  # not storable in a header
+    out = header.copy()
+    _add_history(out, f"astroalign_nd: registered {fits_text(names['source_name'])} onto the "
+                      f"pixel grid of {fits_text(names['target_name'])} through a non-linear "
+                      f"{cmap.name} (not stored in this header)")
+    _add_history(out, f"astroalign_nd resampling: {names['order']}, "
+                      f"conserve_flux={names['conserve_flux']}")
     return out
 
 
@@ -146,8 +208,11 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     ----------
     transform : `~astroalign_nd.transforms.LinearTransform2D`, model or matrix
         The source-to-target transform (as `~astroalign_nd.find_transform`
-        returns it).  Any affine 2-in/2-out astropy model, a scikit-image
-        transform or a 3x3 matrix works too.
+        returns it).  Any 2-in/2-out astropy model, a scikit-image
+        transform or a 3x3 matrix works too.  A non-linear one (projective,
+        polynomial, compound...) needs an ``inverse`` and is resampled
+        through its coordinate map (see `~astroalign_nd.resample.resample`);
+        ``method='exact'`` takes affine transforms only.
     source : array-like, `~astropy.nddata.NDData`, HDU, path or tuple
         The image to resample (2-D or channels-last multichannel).  A FITS
         path is read as `~astropy.nddata.CCDData.read` reads it (``MASK``,
@@ -192,7 +257,11 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     Returns
     -------
     registered : `~astropy.nddata.CCDData`
-        A new object; the inputs are not modified.
+        A new object; the inputs are not modified.  After a non-linear
+        transform the source's WCS is not carried (the output has the
+        target's, or none), and the header records the transform when the
+        model can be written there (otherwise HISTORY only: save the model
+        with ASDF).
 
     Examples
     --------
@@ -225,9 +294,6 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
             f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
             "accepts order, conserve_flux, fill_value, method, unit, parallel, quality, hdu "
             f"and add_keyword.{_astroalign_advice(unexpected)}")
-    m = as_matrix(transform)
-    if not np.all(np.isfinite(m)) or abs(np.linalg.det(m[:2, :2])) < 1e-12:
-        raise ValueError("transform is singular or not finite; it cannot be applied.")
     if isinstance(order, str) and order not in ORDERS:
         raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
     if method not in ("interpolate", "exact"):
@@ -238,6 +304,9 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     src = parse_input(source, "source", hdu=hdu, unit=unit)
     if src.is_catalog:
         raise TypeError("source is a catalog; apply_transform needs an image to resample.")
+    m = _source_to_target(transform, np.shape(src.data)[:2])
+    if method == "exact" and isinstance(m, _CoordinateMap):
+        _parse_matrix(m, "resample_exact")  # raises: say what to use instead
     if isinstance(target, tuple) and len(target) == 2 and all(
             isinstance(v, (int, np.integer)) for v in target):
         shape_out, dst = tuple(int(v) for v in target), None
@@ -285,27 +354,32 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
         out, var_out, mask_out = resample(data, m, shape_out, order=order, variance=variance,
                                           mask=src.mask, fill_value=fill_value,
                                           conserve_flux=conserve_flux, parallel=parallel,
-                                          _variance_kind=kind)
+                                          _variance_kind=kind, _output_kind=kind)
         order_name = order if isinstance(order, str) else {v: k for k, v in ORDERS.items()}[
             int(order)]
 
     out_unit = src.unit if src.unit is not None else u.Unit(unit if unit is not None else "adu")
     uncertainty = None
     if var_out is not None:
-        uncertainty = _uncertainty_like(src.uncertainty, var_out, out_unit)
+        uncertainty = _uncertainty_like(src.uncertainty, var_out, out_unit,
+                                        converted=method != "exact")
 
     # Non-FITS keys become HIERARCH cards; the WCS cards describe the old grid.
     header = header_without_wcs(header_from_meta(src.meta))
     if add_keyword:
-        model = transform if isinstance(transform, LinearTransform2D) else from_matrix(m)
-        header = add_provenance(header, model, quality=quality, source_name=src.name,
-                                target_name=dst.name if dst is not None else "shape",
-                                order=order_name, conserve_flux=conserve_flux)
+        names = dict(source_name=src.name, target_name=dst.name if dst is not None else "shape",
+                     order=order_name, conserve_flux=conserve_flux)
+        if not isinstance(m, _CoordinateMap):
+            model = transform if isinstance(transform, LinearTransform2D) else from_matrix(m)
+            header = add_provenance(header, model, quality=quality, **names)
+        else:
+            header = _nonlinear_provenance(header, transform, m, quality, names)
 
     wcs = None
     if dst is not None and dst.wcs is not None:
         wcs = dst.wcs.deepcopy()
-    elif src.wcs is not None:
+    elif src.wcs is not None and not isinstance(m, _CoordinateMap):
+        # (A non-linear map cannot be carried into a WCS here: the output has none.)
         wcs = _carry_wcs(src.wcs, m, shape_out)
     full_mask = mask_out if out.ndim == 2 else np.broadcast_to(
         mask_out[..., None], out.shape).copy()

@@ -3,8 +3,10 @@
 Resampling of a source image onto the pixel grid of a target image.
 
 `resample` interpolates a source image at the positions of the target
-pixels, given the 3x3 homogeneous matrix of the *source -> target* pixel
-transform (the ``matrix`` of the transforms in `astroalign_nd.transforms`).
+pixels, given the *source -> target* pixel transform: the 3x3 homogeneous
+matrix of an affine transform (the ``matrix`` of the transforms in
+`astroalign_nd.transforms`), or any 2-in 2-out model (projective,
+polynomial, an astropy compound model...) that has an ``inverse``.
 In the same pass it propagates a per-pixel variance image and a bad-pixel
 mask, so the three outputs are always consistent with each other.
 
@@ -20,6 +22,23 @@ columns and ``y`` along rows, as everywhere in this package.  For an
 output (target) pixel ``(x', y')`` the source position is
 ``(x, y) = A^-1 ((x', y') - t)`` where ``A`` and ``t`` are the linear part and
 the translation of ``matrix``.
+
+Non-linear transforms
+---------------------
+A model that is not affine (or a projective 3x3 matrix) is resampled
+through a *coordinate map*: the source position of every target pixel,
+computed one band of output rows at a time (``_MAP_BAND_PIXELS`` pixels, a
+few MB) and shared by all channels.  The model's ``inverse`` gives the first
+guess; the forward model checks it, and positions whose round trip misses by
+more than 1e-6 px (a fitted inverse, as SIP's AP/BP terms are) get Newton
+steps on the forward model, at most 4: the first with the Jacobian of the
+inverse map from differences between neighbouring target pixels (no model
+evaluation), the next ones with the forward model's, by finite differences.  A
+position still off by more than 1e-4 px (no source position: outside the
+region where the model can be inverted), or NaN, gives a masked output
+pixel.  The compiled kernel then interpolates data, variance and mask from
+the map with the same kernels, footprint and mask rules as below.  A linear
+model always takes the affine path (same bits as its matrix).
 
 Interpolation kernels
 ---------------------
@@ -80,7 +99,9 @@ resampling: a flat sky of 100 counts/pixel stays 100.  With
 ratio target-pixel area / source-pixel area, measured in source pixels) so
 that total counts are preserved: a transform that magnifies by ``s``
 spreads each star over ``s**2`` more pixels, each holding ``1 / s**2`` of
-the counts.  The variance is multiplied by ``1 / det(A)**2``.
+the counts.  The variance is multiplied by ``1 / det(A)**2``.  Through a
+coordinate map the factor is the local ``|det|`` of the map's Jacobian
+(central differences between neighbouring target pixels), pixel by pixel.
 """
 
 import numbers
@@ -155,38 +176,44 @@ def _axis_taps_numpy(u, n, order):
     return i0, ok, w
 
 
+def _interp_numpy(data, var, has_var, u, v, fill, sd, sv, out, out_var, out_mask, order):
+    """The compiled kernel's interpolation at source positions ``(u, v)`` (NaN: outside)."""
+    ny, nx = data.shape
+    jx, okx, wx = _axis_taps_numpy(u, nx, order)
+    jy, oky, wy = _axis_taps_numpy(v, ny, order)
+    inside = okx & oky
+    acc = np.zeros(inside.shape)
+    accv = np.zeros(inside.shape)
+    for ky in range(order + 1):
+        rows = np.clip(jy + ky, 0, ny - 1)
+        for kx in range(order + 1):
+            cols = np.clip(jx + kx, 0, nx - 1)
+            # Taps with zero weight along an axis are not used (the compiled
+            # kernel skips them), so their NaNs must not leak in.
+            use = inside & (wy[ky] != 0.0) & (wx[kx] != 0.0)
+            w = wy[ky] * wx[kx]
+            acc += np.where(use, w * data[rows, cols], 0.0)
+            if has_var:
+                accv += np.where(use, w * w * var[rows, cols], 0.0)
+    good = inside & np.isfinite(acc) & np.isfinite(accv)
+    out[...] = np.where(good, acc * sd, fill)
+    if has_var:
+        out_var[...] = np.where(good, accv * sv, np.inf)
+    out_mask[...] = ~good
+
+
 def _resample_numpy(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask, *, order):
     """Same result as the compiled kernel, with NumPy gathers over blocks of rows."""
-    ny, nx = data.shape
     ny_out, nx_out = out.shape
     block = max(1, _NUMPY_BLOCK_PIXELS // max(nx_out, 1))
     xo = np.arange(nx_out, dtype=float)[None, :]
     for y0 in range(0, ny_out, block):
         yo = np.arange(y0, min(y0 + block, ny_out), dtype=float)[:, None]
+        sl = slice(y0, y0 + len(yo))
         u = m[0] * xo + (m[1] * yo + m[2])
         v = m[3] * xo + (m[4] * yo + m[5])
-        jx, okx, wx = _axis_taps_numpy(u, nx, order)
-        jy, oky, wy = _axis_taps_numpy(v, ny, order)
-        inside = okx & oky
-        acc = np.zeros(inside.shape)
-        accv = np.zeros(inside.shape)
-        for ky in range(order + 1):
-            rows = np.clip(jy + ky, 0, ny - 1)
-            for kx in range(order + 1):
-                cols = np.clip(jx + kx, 0, nx - 1)
-                # Taps with zero weight along an axis are not used (the compiled
-                # kernel skips them), so their NaNs must not leak in.
-                use = inside & (wy[ky] != 0.0) & (wx[kx] != 0.0)
-                w = wy[ky] * wx[kx]
-                acc += np.where(use, w * data[rows, cols], 0.0)
-                if has_var:
-                    accv += np.where(use, w * w * var[rows, cols], 0.0)
-        good = inside & np.isfinite(acc) & np.isfinite(accv)
-        sl = slice(y0, y0 + len(yo))
-        out[sl] = np.where(good, acc * sd, fill)
-        if has_var:
-            out_var[sl] = np.where(good, accv * sv, np.inf)
-        out_mask[sl] = ~good
+        _interp_numpy(data, var, has_var, u, v, fill, sd, sv, out[sl],
+                      out_var[sl] if has_var else None, out_mask[sl], order)
 
 
 # -- input checking --------------------------------------------------------------
@@ -204,15 +231,31 @@ def _parse_order(order):
     )
 
 
-def _parse_matrix(matrix):
-    """Return the 3x3 matrix as float64 after checking it is an invertible affine."""
-    if not isinstance(matrix, np.ndarray) and (
+def _parse_matrix(matrix, what="resample", shape_in=None):
+    """
+    The 3x3 source -> target matrix of an affine transform as float64, or, for
+    a non-linear one, a `_CoordinateMap` (``what`` names the caller for errors;
+    ``shape_in``, the source's ``(ny, nx)``, is the domain of a polynomial
+    model that has none).
+    """
+    from astropy.modeling import Model
+
+    from .transforms import ProjectiveTransform, _as_3x3, as_matrix
+
+    if isinstance(matrix, _CoordinateMap):  # already parsed (by apply_transform)
+        return _nonlinear(matrix, what)
+    if isinstance(matrix, ProjectiveTransform):
+        matrix = matrix.matrix  # affine or not, exactly (the homography path)
+    elif not isinstance(matrix, np.ndarray) and (
         hasattr(matrix, "params") or hasattr(matrix, "n_inputs")
     ):
         # A package/astropy/scikit-image transform rather than a bare matrix.
-        from .transforms import as_matrix
-
-        matrix = as_matrix(matrix)
+        try:
+            matrix = as_matrix(matrix)
+        except ValueError:
+            if not isinstance(matrix, Model):
+                raise
+            return _nonlinear(_CoordinateMap.from_model(matrix, shape_in), what)
     try:
         m = np.array(matrix, dtype=float)
     except (TypeError, ValueError):
@@ -220,30 +263,196 @@ def _parse_matrix(matrix):
             "matrix must be a 3x3 (or 2x3) array of numbers, e.g. transform.matrix; "
             f"got {type(matrix).__name__}."
         ) from None
-    if m.shape == (2, 3):
-        m = np.vstack([m, [0.0, 0.0, 1.0]])
-    if m.shape != (3, 3):
-        raise ValueError(
-            f"matrix must have shape (3, 3) or (2, 3) (pass transform.matrix); got {m.shape}."
-        )
-    if not np.all(np.isfinite(m)):
-        raise ValueError("matrix contains NaN or infinite values.")
+    m = _as_3x3(m)
     # cos(90 deg) is 6e-17, not 0: snap such round-off to the integer, or an exact
     # quarter turn maps edge pixels a hair outside the source and masks them.
     near = np.abs(m - np.round(m)) < 1e-12
     m[near] = np.round(m[near])
+    singular = ValueError(
+        "matrix is singular (it cannot be inverted); pass the matrix of a valid "
+        "source->target transform.")
     if not np.allclose(m[2], [0.0, 0.0, 1.0]):
-        raise ValueError(
-            "matrix is projective (last row is not [0, 0, 1]); only affine transforms "
-            "can be resampled."
-        )
+        # A homography: resampled through its (exact) inverse as a coordinate map.
+        if abs(np.linalg.det(m)) < 1e-300 or np.linalg.cond(m) > 1e15:
+            raise singular
+        return _nonlinear(_CoordinateMap.from_homography(m), what)
     lin = m[:2, :2]
     if np.linalg.det(lin) == 0.0 or np.linalg.cond(lin) > 1e12:
-        raise ValueError(
-            "matrix is singular (its 2x2 linear part cannot be inverted); pass the "
-            "matrix of a valid source->target transform."
-        )
+        raise singular
     return m
+
+
+def _nonlinear(cmap, what):
+    if what == "resample_exact":
+        raise ValueError(
+            f"resample_exact handles affine transforms only (reproject_exact needs straight "
+            f"pixel edges); this {cmap.name} is not affine. Use resample (or apply_transform "
+            "with method='interpolate'), which resamples any model through its coordinate map.")
+    return cmap
+
+
+# Coordinate maps (non-linear models): output pixels per band of map, and
+# the accuracy asked of the source positions (pixels).
+_MAP_BAND_PIXELS = 1 << 16
+_NEWTON_STEPS = 4
+_NEWTON_STOP = 1e-6     # all positions this close: no further step
+_MAP_TOL = 1e-4         # positions further than this from solving f(x) = x' are bad
+_NEWTON_STEP_PX = 1e-3  # finite-difference step of the Jacobian
+
+
+class _CoordinateMap:
+    """
+    Target -> source pixel positions for a non-linear source -> target map.
+
+    The inverse gives the first guess; the forward map checks it, and Newton
+    steps (finite-difference Jacobian of the forward map) polish positions
+    whose round trip misses by more than ``_NEWTON_STOP`` px (a fitted,
+    approximate inverse, such as SIP's AP/BP terms).  Positions still off by
+    more than ``_MAP_TOL`` px (no source position there) come back as NaN.
+    """
+
+    def __init__(self, forward, inverse, name):
+        self.forward, self.inverse, self.name = forward, inverse, name
+
+    @classmethod
+    def from_homography(cls, m):
+        inv = np.linalg.inv(m)
+
+        def apply(h, x, y, check=False):
+            w = h[2, 0] * x + h[2, 1] * y + h[2, 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                xo = (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / w
+                yo = (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / w
+            if check:
+                # A target pixel whose source lies beyond the horizon (the
+                # forward map's denominator <= 0) has no source position.
+                ws = m[2, 0] * xo + m[2, 1] * yo + m[2, 2]
+                xo[~(ws > 0)] = np.nan
+            return xo, yo
+
+        return cls(lambda x, y: apply(m, x, y), lambda x, y: apply(inv, x, y, True),
+                   "projective matrix")
+
+    @classmethod
+    def from_model(cls, model, shape_in=None):
+        name = f"{type(model).__name__} model"
+        if model.n_inputs != 2 or model.n_outputs != 2:
+            raise TypeError(
+                f"the transform must map (x, y) to (x, y) (2 inputs, 2 outputs); this {name} "
+                f"has {model.n_inputs} inputs and {model.n_outputs} outputs.")
+        if getattr(model, "domain", False) is None and shape_in is not None:
+            # A PolynomialTransform without the domain its inverse is fitted
+            # over: the source frame is that domain.
+            model = model.copy()
+            model.domain = (0.0, shape_in[1] - 1.0, 0.0, shape_in[0] - 1.0)
+        try:
+            inverse = model.inverse
+        except NotImplementedError as exc:
+            raise ValueError(
+                f"this {name} has no inverse, which resampling needs (the source position of "
+                "each target pixel); give it one, even approximate (model.inverse = ...): "
+                f"Newton steps on the model polish it.{' (' + str(exc) + ')' if str(exc) else ''}"
+            ) from None
+
+        def call(f):
+            def run(x, y):
+                xo, yo = f(x, y)
+                return np.asarray(xo, dtype=float), np.asarray(yo, dtype=float)
+            return run
+
+        return cls(call(model), call(inverse), name)
+
+    def __call__(self, xo, yo, grid=False):
+        """
+        Source positions ``(x, y)`` of target positions ``(xo, yo)`` (same shape).
+
+        With ``grid`` True, ``(xo, yo)`` are 2-D and spaced by one pixel
+        (columns along x, rows along y): the first Newton step then takes
+        the inverse map's Jacobian from differences between neighbouring
+        positions, which costs no evaluation of the model.
+        """
+        shape = np.shape(xo)
+        xo, yo = np.ravel(xo), np.ravel(yo)
+        x, y = self.inverse(xo, yo)
+        x = np.array(x, dtype=float).ravel()  # own copies, polished in place
+        y = np.array(y, dtype=float).ravel()
+        gjac = None
+        if grid and len(shape) == 2 and min(shape) >= 3:
+            # d(x, y)/d(x', y') of the (approximate) inverse, second order.
+            with np.errstate(invalid="ignore"):
+                gjac = [np.gradient(a.reshape(shape), axis=k, edge_order=2).ravel()
+                        for a in (x, y) for k in (1, 0)]
+        idx = None  # the positions still being polished (None: all)
+        h = _NEWTON_STEP_PX
+        for step in range(_NEWTON_STEPS + 1):
+            if idx is None:
+                xs, ys, tx, ty = x, y, xo, yo
+            else:
+                xs, ys, tx, ty = x[idx], y[idx], xo[idx], yo[idx]
+            fx, fy = (np.ravel(a) for a in self.forward(xs, ys))
+            rx, ry = fx - tx, fy - ty
+            r2 = rx * rx + ry * ry
+            with np.errstate(invalid="ignore"):
+                if step == _NEWTON_STEPS:
+                    # Still missing by more than _MAP_TOL: no source position here.
+                    lost = ~(r2 <= _MAP_TOL**2)
+                else:
+                    lost = np.isnan(r2)  # the model gives no value
+                    todo = np.flatnonzero(r2 > _NEWTON_STOP**2)
+            if lost.any():
+                x[np.flatnonzero(lost) if idx is None else idx[lost]] = np.nan
+            if step == _NEWTON_STEPS or len(todo) == 0:
+                break
+            if len(todo) < len(r2):
+                idx = todo if idx is None else idx[todo]
+                xs, ys, fx, fy, rx, ry = (a[todo] for a in (xs, ys, fx, fy, rx, ry))
+            if step == 0 and gjac is not None:
+                # The first step with the grid's Jacobian of the inverse map.
+                g = gjac if idx is None else [a[idx] for a in gjac]
+                with np.errstate(invalid="ignore"):
+                    dx = g[0] * rx + g[1] * ry
+                    dy = g[2] * rx + g[3] * ry
+                fd = np.flatnonzero(~(np.isfinite(dx) & np.isfinite(dy)))  # NaN neighbours
+            else:
+                dx, dy, fd = np.empty_like(rx), np.empty_like(rx), slice(None)
+            if not isinstance(fd, np.ndarray) or fd.size:
+                # Newton step, the forward map's Jacobian by finite differences.
+                xf, yf, rxf, ryf, fxf, fyf = (a[fd] for a in (xs, ys, rx, ry, fx, fy))
+                fxx, fyx = (np.ravel(a) for a in self.forward(xf + h, yf))
+                fxy, fyy = (np.ravel(a) for a in self.forward(xf, yf + h))
+                j11, j21, j12, j22 = fxx - fxf, fyx - fyf, fxy - fxf, fyy - fyf  # (times h)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    det = (j11 * j22 - j12 * j21) / h
+                    dx[fd] = (j22 * rxf - j12 * ryf) / det
+                    dy[fd] = (j11 * ryf - j21 * rxf) / det
+            if idx is None:
+                x -= dx
+                y -= dy
+            else:
+                x[idx] = xs - dx
+                y[idx] = ys - dy
+        y[np.isnan(x)] = np.nan
+        return x.reshape(shape), y.reshape(shape)
+
+    def band(self, r0, r1, nx_out, jacobian=False):
+        """
+        Source positions of output rows ``r0:r1`` (C-contiguous float64) and,
+        if ``jacobian``, ``|det|`` of the map's Jacobian there (central
+        differences over neighbouring output pixels): the local ratio of
+        target to source pixel area that ``conserve_flux`` applies.
+        """
+        pad = 1 if jacobian else 0
+        yo, xo = np.mgrid[r0 - pad:r1 + pad, -pad:nx_out + pad].astype(float)
+        x, y = self(xo, yo, grid=True)
+        if not jacobian:
+            return x, y, None
+        with np.errstate(invalid="ignore"):
+            jac = np.abs((x[1:-1, 2:] - x[1:-1, :-2]) * (y[2:, 1:-1] - y[:-2, 1:-1])
+                         - (x[2:, 1:-1] - x[:-2, 1:-1]) * (y[1:-1, 2:] - y[1:-1, :-2])) / 4.0
+        x = np.ascontiguousarray(x[1:-1, 1:-1])
+        y = np.ascontiguousarray(y[1:-1, 1:-1])
+        x[~np.isfinite(jac)] = np.nan  # no flux factor: no valid output pixel
+        return x, y, jac
 
 
 def _inverse_coefficients(m):
@@ -346,6 +555,25 @@ def _parse_fill(fill_value):
         ) from None
 
 
+#: How `resample` reads its ``variance`` plane (the compiled kernels' ``var_kind``).
+_VARIANCE_KINDS = {"variance": 0, "stddev": 1, "inverse": 2}
+
+# The Jacobian argument of the coordinate-map kernel when there is none.
+_DUMMY_MAP = np.zeros((1, 1))
+
+
+def _run_affine(data, var, has_var, kind, okind, bad8, has_mask, coeffs, order, fill, sd, sv,
+                out, out_var, mask, rows_per_thread, parallel, start, n):
+    """Output rows ``start:start + n`` of one channel, on the compiled affine kernels."""
+    if order == 1:
+        kernel, extra = _ckernels.bilinear_rows, (fill, sd, sv)
+    else:
+        kernel, extra = _ckernels.resample_rows, (order, fill, sd, sv)
+    run_split(kernel, n, (data, var, has_var, kind, okind, bad8, has_mask, coeffs) + extra
+              + (out, out_var, mask.view(np.uint8)),
+              min_per_thread=rows_per_thread, parallel=parallel, start=start)
+
+
 # Output pixels per band when working planes are made band by band (see `resample`).
 _BAND_PIXELS = 1 << 22
 
@@ -362,6 +590,15 @@ def _to_variance(arr, kind, dtype, out=None):
         return np.square(arr, out=out, casting="unsafe")
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.divide(1.0, arr, out=out, casting="unsafe")
+
+
+def _from_variance(var, okind):
+    """In place: a variance plane to a standard deviation (1) or inverse variance (2)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if okind == 1:
+            np.sqrt(var, out=var)
+        else:
+            np.divide(1.0, var, out=var)
 
 
 def _bands(coeffs, shape_out, ny, order):
@@ -391,7 +628,8 @@ def _bands(coeffs, shape_out, ny, order):
 # -- public API ------------------------------------------------------------------
 
 def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=None,
-             fill_value=np.nan, conserve_flux=False, parallel=True, _variance_kind="variance"):
+             fill_value=np.nan, conserve_flux=False, parallel=True, _variance_kind="variance",
+             _output_kind="variance"):
     """
     Resample an image onto the target pixel grid, with variance and mask.
 
@@ -403,10 +641,14 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
         processed and returned as float32, anything else as float64.  A
         `numpy.ma.MaskedArray` contributes its mask to ``mask``.
     matrix : (3, 3) or (2, 3) array-like, or transform
-        The *source -> target* homogeneous pixel transform, e.g.
-        ``transform.matrix`` of an `astroalign_nd.transforms` model (the
-        model itself, a scikit-image transform or an astropy affine model
-        are also accepted).  Must be affine and invertible.
+        The *source -> target* pixel transform: a homogeneous matrix, e.g.
+        ``transform.matrix`` of an `astroalign_nd.transforms` model, or the
+        model itself, a scikit-image transform, or any astropy model with 2
+        inputs and 2 outputs.  An affine transform must be invertible; a
+        non-linear one (a projective matrix or model, a polynomial model, a
+        compound model...) is resampled through its coordinate map and
+        needs an ``inverse`` (an approximate one is polished by Newton
+        steps on the model; see the module docstring).
     shape_out : tuple of int
         ``(ny, nx)`` of the target grid.
     order : {'nearest-neighbor', 'bilinear', 'biquadratic', 'bicubic'} or int, optional
@@ -424,8 +666,10 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
         Value of masked output pixels in ``data_out`` (default NaN).
     conserve_flux : bool, optional
         If True, scale the result by ``1 / |det A|`` (``A`` the linear part
-        of ``matrix``) so that total counts, not surface brightness, are
-        preserved; variance is scaled by ``1 / det(A)**2``.  Default False.
+        of ``matrix``; for a non-linear transform, the local Jacobian
+        determinant of its inverse) so that total counts, not surface
+        brightness, are preserved; variance is scaled by the square.
+        Default False.
     parallel : bool, optional
         Split the output rows over threads (default True): as many as the
         CPUs this process may use, or ``ASTROALIGN_ND_NUM_THREADS`` if set in
@@ -447,8 +691,9 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     Raises
     ------
     ValueError
-        For a matrix that is not 3x3/2x3, singular or projective, data that is
-        not 2-D or 3-D, an unknown ``order``, or mismatched shapes.
+        For a matrix that is not 3x3/2x3 or singular, a non-linear model
+        without an ``inverse``, data that is not 2-D or 3-D, an unknown
+        ``order``, or mismatched shapes.
     TypeError
         For non-numeric data, matrix, shape_out or fill_value.
 
@@ -460,7 +705,8 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     over an aperture underestimates the variance of the sum).
 
     The computation runs in a compiled (Cython) kernel that produces data,
-    variance and mask in one pass over the output; a NumPy implementation
+    variance and mask in one pass over the output, reading the mask and the
+    uncertainty plane as they are (no working copies); a NumPy implementation
     of the same kernels gives the same results, more slowly, if the
     compiled module is missing.  Threads never share an output pixel, so
     the result is deterministic and the same for any number of threads.
@@ -479,88 +725,111 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     array([ True, False, False, False])
     """
     order = _parse_order(order)
-    m = _parse_matrix(matrix)
+    m = _parse_matrix(matrix, shape_in=np.shape(data)[:2])
+    cmap = m if isinstance(m, _CoordinateMap) else None
+    if _variance_kind not in _VARIANCE_KINDS or _output_kind not in _VARIANCE_KINDS:
+        raise ValueError(f"unknown _variance_kind {_variance_kind!r} or _output_kind "
+                         f"{_output_kind!r}")
     data_cf, var_cf, bad, shape, multichannel, dtype = _prepare(
         data, variance, mask, shape_out, keep_var_dtype=_variance_kind != "variance")
     fill = _parse_fill(fill_value)
-    coeffs, det = _inverse_coefficients(m)
-    sd = 1.0 / det if conserve_flux else 1.0
+    if cmap is None:
+        coeffs, det = _inverse_coefficients(m)
+        sd = 1.0 / det if conserve_flux else 1.0
+    else:
+        sd = 1.0  # the flux factor is the map's local Jacobian, pixel by pixel
     sv = sd * sd
 
     nc = data_cf.shape[0]
     has_var = var_cf is not None
     if bad is not None and not bad.any():
         bad = None
-    if _variance_kind not in ("variance", "stddev", "inverse"):
-        raise ValueError(f"unknown _variance_kind {_variance_kind!r}")
-    convert = has_var and _variance_kind != "variance"
+    kind = _VARIANCE_KINDS[_variance_kind] if has_var else 0
+    # The variance output may be stored as a standard deviation or an inverse
+    # variance (``_output_kind``, for apply_transform's uncertainty classes):
+    # the kernels convert each pixel as they store it, saving a pass.
+    okind = _VARIANCE_KINDS[_output_kind] if has_var else 0
     compiled = _USE_COMPILED and HAVE_COMPILED
-    if not compiled and (convert or bad is not None):
+    if not compiled and (kind or bad is not None):
         # NumPy path: whole-frame working copies (it is the slow path anyway).
-        if convert:
+        if kind:
             var_cf = _to_variance(var_cf, _variance_kind, dtype)
         if bad is not None:
             data_cf = np.where(bad, np.array(np.nan, dtype), data_cf)
-        convert, bad = False, None
+        kind, bad = 0, None
+    # The compiled kernel squares a standard deviation or inverts an inverse
+    # variance tap by tap, and reads the mask, so that no working copy of a
+    # plane is made -- unless the uncertainty's type differs from the data's
+    # (then the variance is made in the data's type: band by band on the
+    # affine path, once on the coordinate-map path).
+    convert = has_var and var_cf.dtype != dtype
+    if convert and cmap is not None:
+        var_cf, kind, convert = _to_variance(var_cf, _variance_kind, dtype), 0, False
     out = np.empty((nc,) + shape, dtype=dtype)
     masks = np.empty((nc,) + shape, dtype=bool)
     # The compiled kernel needs typed arrays even for absent inputs/outputs: tiny dummies.
     dummy = np.empty((1, 1), dtype)
+    bad8 = np.empty((1, 1), np.uint8) if bad is None else bad.view(np.uint8)
     out_var = np.empty((nc,) + shape, dtype=dtype) if has_var else None
-
-    # Channels one at a time, so that the compiled kernel is 2-D only; the
-    # positions are recomputed per channel.
     rows_per_thread = max(1, _MIN_PIXELS_PER_THREAD // shape[1])
-    if compiled and (convert or bad is not None):
+
+    if cmap is not None:
+        # Source positions (and flux factors) one band of output rows at a
+        # time, shared by all channels: a few MB whatever the frame size.
+        step = max(1, _MAP_BAND_PIXELS // shape[1])
+        for r0 in range(0, shape[0], step):
+            r1 = min(r0 + step, shape[0])
+            xs, ys, jac = cmap.band(r0, r1, shape[1], jacobian=conserve_flux)
+            for c in range(nc):
+                ov = out_var[c, r0:r1] if has_var else dummy
+                if not compiled:
+                    sdk = 1.0 if jac is None else jac
+                    _interp_numpy(data_cf[c], var_cf[c] if has_var else None, has_var, xs, ys,
+                                  fill, sdk, sdk * sdk if jac is not None else 1.0,
+                                  out[c, r0:r1], ov, masks[c, r0:r1], order)
+                    continue
+                run_split(_ckernels.map_rows, r1 - r0,
+                          (data_cf[c], var_cf[c] if has_var else dummy, has_var, kind, okind, bad8,
+                           bad is not None, xs, ys, _DUMMY_MAP if jac is None else jac,
+                           jac is not None, order, fill, 1.0, out[c, r0:r1], ov,
+                           masks[c, r0:r1].view(np.uint8)),
+                          min_per_thread=rows_per_thread, parallel=parallel)
+    elif compiled and convert:
+        # Working variance (a standard deviation squared, or an inverse
+        # variance inverted, into the data's type) one band of output rows at
+        # a time, for the source rows that band reads: a scratch of a
+        # fraction of a frame instead of a whole-frame copy.
         bands = _bands(coeffs, shape, data_cf.shape[1], order)
         scratch = np.empty((max(s1 - s0 for _, _, s0, s1 in bands), data_cf.shape[2]), dtype)
-    for c in range(nc):
-        outs = (out[c], out_var[c] if has_var else dummy)
-        if not compiled:
-            args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
-            _resample_numpy(*args, fill, sd, sv, *outs, masks[c], order=order)
-            continue
-        kernel = _ckernels.bilinear_rows if order == 1 else _ckernels.resample_rows
-        extra = (fill, sd, sv) if order == 1 else (order, fill, sd, sv)
-        if not (convert or bad is not None):
-            args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
-            run_split(kernel, shape[0], args + extra + outs + (masks[c].view(np.uint8),),
-                      min_per_thread=rows_per_thread, parallel=parallel)
-            continue
-        # Working planes (the variance from a standard deviation or inverse
-        # variance; masked pixels as NaN, so that the kernel needs a single
-        # finiteness test for NaN, inf and masked inputs) are made one band of
-        # output rows at a time, for the source rows that band reads: a
-        # scratch of a fraction of a frame instead of whole-frame copies.
-        for r0, r1, s0, s1 in bands:
-            h = s1 - s0
-            d = data_cf[c, s0:s1]
-            v = var_cf[c, s0:s1] if has_var else dummy
-            if convert:
-                v = _to_variance(v, _variance_kind, dtype, out=scratch[:h])
-            if bad is not None:
-                # The kernel tests data and variance together: the NaNs go
-                # into whichever plane is already scratch.
-                if not convert:
-                    np.copyto(scratch[:h], d)
-                    d = scratch[:h]
-                    np.copyto(d, np.array(np.nan, dtype), where=bad[s0:s1])
-                else:
-                    np.copyto(v, np.array(np.nan, dtype), where=bad[s0:s1])
-            band_coeffs = coeffs.copy()
-            band_coeffs[5] -= s0  # source row s0 is row 0 of the band
-            run_split(kernel, r1 - r0,
-                      (d, v, has_var, band_coeffs) + extra + outs
-                      + (masks[c].view(np.uint8),),
-                      min_per_thread=rows_per_thread, parallel=parallel, start=r0)
+        for c in range(nc):
+            for r0, r1, s0, s1 in bands:
+                v = _to_variance(var_cf[c, s0:s1], _variance_kind, dtype, out=scratch[:s1 - s0])
+                band_coeffs = coeffs.copy()
+                band_coeffs[5] -= s0  # source row s0 is row 0 of the band
+                _run_affine(data_cf[c, s0:s1], v, True, 0, okind,
+                            bad8 if bad is None else bad8[s0:s1], bad is not None,
+                            band_coeffs, order, fill, sd, sv, out[c], out_var[c], masks[c],
+                            rows_per_thread, parallel, r0, r1 - r0)
+    else:
+        for c in range(nc):
+            outs = (out[c], out_var[c] if has_var else dummy)
+            if not compiled:
+                args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
+                _resample_numpy(*args, fill, sd, sv, *outs, masks[c], order=order)
+                continue
+            _run_affine(data_cf[c], var_cf[c] if has_var else dummy, has_var, kind, okind,
+                        bad8, bad is not None, coeffs, order, fill, sd, sv, *outs, masks[c],
+                        rows_per_thread, parallel, 0, shape[0])
 
+    if has_var and okind and not compiled:
+        _from_variance(out_var, okind)
     mask_out = masks[0]
     if nc > 1:
         # The mask applies to all channels: a pixel bad in one is bad in all.
         mask_out = masks.any(axis=0)
         out[:, mask_out] = fill
         if has_var:
-            out_var[:, mask_out] = np.inf
+            out_var[:, mask_out] = 0.0 if okind == 2 else np.inf
     if multichannel:
         out = np.ascontiguousarray(np.moveaxis(out, 0, -1))
         out_var = None if out_var is None else np.ascontiguousarray(np.moveaxis(out_var, 0, -1))
@@ -618,7 +887,7 @@ def resample_exact(data, matrix, shape_out, *, variance=None, mask=None,
     Parameters
     ----------
     data, matrix, shape_out, variance, mask, fill_value, conserve_flux
-        As in `resample`.
+        As in `resample`, but the transform must be affine.
     parallel : bool or int, optional
         Passed to `reproject.reproject_exact`.
 
@@ -629,6 +898,13 @@ def resample_exact(data, matrix, shape_out, *, variance=None, mask=None,
         entirely covered by the source image (coverage below
         ``1 - 1e-6``), or overlaps a bad source pixel by more than ``1e-6``
         of its area.
+
+    Raises
+    ------
+    ValueError
+        For a non-linear (projective, polynomial...) transform: its pixel
+        edges are not straight, which the overlap computation needs; use
+        `resample` (``apply_transform(method='interpolate')``) instead.
 
     Notes
     -----
@@ -668,7 +944,7 @@ def resample_exact(data, matrix, shape_out, *, variance=None, mask=None,
     """
     from reproject import reproject_exact
 
-    m = _parse_matrix(matrix)
+    m = _parse_matrix(matrix, "resample_exact")
     data_cf, var_cf, bad, shape, multichannel, dtype = _prepare(data, variance, mask,
                                                                 shape_out)
     fill = _parse_fill(fill_value)
