@@ -166,14 +166,39 @@ def _build_parser():
     return parser
 
 
+#: Each subcommand's line in ``astroalign-nd --help`` and its own --help description.
+_COMMANDS = {
+    "register": (
+        "register SOURCE onto the pixel grid of TARGET",
+        "Register the SOURCE image onto the pixel grid of the TARGET image and "
+        "write the aligned image to OUT."),
+    "batch": (
+        "register several images onto one target",
+        "Register each SOURCE onto TARGET, writing DIR/<name>_aligned.fits for "
+        "each, and print each frame's line as soon as it is done. Give the target with "
+        "-r/--reference (sources first, as in register and in the Python API "
+        "register_batch(sources, target)); without -r, the first image is the target (the "
+        "older form 'batch TARGET SOURCES...'). A frame that fails is reported and the "
+        "others go on; the exit code is 1 if any frame failed."),
+    "demo": (
+        "simulate a pair of star fields, register them and compare with the truth",
+        "Simulate a 512x512 star-field pair related by a known similarity "
+        "transform (rotation 17 deg, scale 1.05, shift (12.3, -7.7) px), write "
+        "DIR/source.fits and DIR/target.fits, register the source onto the target, write "
+        "DIR/aligned.fits and report the error of the recovered transform."),
+}
+
+
+def _add_command(sub, name, func, parents=()):
+    """The subparser of the subcommand ``name``, which ``main`` runs through ``func``."""
+    help_line, description = _COMMANDS[name]
+    p = sub.add_parser(name, parents=list(parents), help=help_line, description=description)
+    p.set_defaults(func=func)
+    return p
+
+
 def _add_register_command(sub, reg_opts):
-    p = sub.add_parser(
-        "register",
-        parents=[reg_opts],
-        help="register SOURCE onto the pixel grid of TARGET",
-        description="Register the SOURCE image onto the pixel grid of the TARGET image and "
-        "write the aligned image to OUT.",
-    )
+    p = _add_command(sub, "register", _cmd_register, [reg_opts])
     p.add_argument("source", metavar="SOURCE",
                    help="image to be transformed (FITS, or JPEG/PNG/TIFF)")
     p.add_argument("target", metavar="TARGET", help="image that defines the output grid")
@@ -183,21 +208,10 @@ def _add_register_command(sub, reg_opts):
     p.add_argument("--plot", metavar="PLOT.png", default=None,
                    help="also write a diagnostic figure (matched stars, invariants, residuals, "
                    "difference image; needs matplotlib)")
-    p.set_defaults(func=_cmd_register)
 
 
 def _add_batch_command(sub, reg_opts):
-    p = sub.add_parser(
-        "batch",
-        parents=[reg_opts],
-        help="register several images onto one target",
-        description="Register each SOURCE onto TARGET, writing DIR/<name>_aligned.fits for "
-        "each, and print each frame's line as soon as it is done. Give the target with "
-        "-r/--reference (sources first, as in register and in the Python API "
-        "register_batch(sources, target)); without -r, the first image is the target (the "
-        "older form 'batch TARGET SOURCES...'). A frame that fails is reported and the "
-        "others go on; the exit code is 1 if any frame failed.",
-    )
+    p = _add_command(sub, "batch", _cmd_batch, [reg_opts])
     p.add_argument("images", metavar="SOURCES", nargs="+",
                    help="images to be transformed (FITS, or JPEG/PNG/TIFF); without "
                    "-r/--reference, the first one is the target")
@@ -225,24 +239,15 @@ def _add_batch_command(sub, reg_opts):
                    help="show a progress bar (default: when standard error is a terminal)")
     p.add_argument("--no-progress", dest="progress", action="store_false",
                    help="never show a progress bar")
-    p.set_defaults(func=_cmd_batch)
 
 
 def _add_demo_command(sub):
-    p = sub.add_parser(
-        "demo",
-        help="simulate a pair of star fields, register them and compare with the truth",
-        description="Simulate a 512x512 star-field pair related by a known similarity "
-        "transform (rotation 17 deg, scale 1.05, shift (12.3, -7.7) px), write "
-        "DIR/source.fits and DIR/target.fits, register the source onto the target, write "
-        "DIR/aligned.fits and report the error of the recovered transform.",
-    )
+    p = _add_command(sub, "demo", _cmd_demo)
     p.add_argument("--output-dir", required=True, metavar="DIR",
                    help="folder for source.fits, target.fits and aligned.fits "
                    "(created if needed)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
-    p.set_defaults(func=_cmd_demo)
 
 
 # -- helpers ---------------------------------------------------------------------------------

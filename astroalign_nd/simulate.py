@@ -880,6 +880,15 @@ def _check_transform(transform):
     return model, np.array(m, dtype=float)
 
 
+def _finite_pair(value):
+    """``value`` as floats (None if not numbers), and whether it is a finite (x, y) pair."""
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return None, False
+    return a, a.shape == (2,) and bool(np.all(np.isfinite(a)))
+
+
 def _build_transform(rng, shape, target_shape, rotation, scale, translation, mirror):
     """SimilarityTransform about the frame centres, plus its description (degrees)."""
     ny, nx = shape
@@ -900,13 +909,8 @@ def _build_transform(rng, shape, target_shape, rotation, scale, translation, mir
     if translation is None:
         translation = np.zeros(2)
     else:
-        try:
-            translation = np.asarray(translation, dtype=float)
-        except (TypeError, ValueError):
-            translation = None
-        if translation is None or translation.shape != (2,) or not np.all(
-            np.isfinite(translation)
-        ):
+        translation, ok = _finite_pair(translation)
+        if not ok:
             raise ValueError(
                 "translation must be a finite (dx, dy) pair in target pixels (x first); "
                 f"got {translation!r}."
@@ -955,11 +959,8 @@ def _check_distortion(distortion, shape):
     pairs = {}
     for key, default in (("tilt", (0.0, 0.0)), ("center", ((nx - 1) / 2.0, (ny - 1) / 2.0))):
         value = distortion.get(key, default)
-        try:
-            a = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            a = None
-        if a is None or a.shape != (2,) or not np.all(np.isfinite(a)):
+        a, ok = _finite_pair(value)
+        if not ok:
             raise ValueError(f"distortion['{key}'] must be a finite (x, y) pair; got {value!r}.")
         pairs[key] = (float(a[0]), float(a[1]))
     if np.hypot(*pairs["tilt"]) >= 0.5:
