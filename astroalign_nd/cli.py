@@ -28,13 +28,13 @@ import sys
 
 __all__ = ["main"]
 
-PROG = "astroalign-nd"
+_PROG = "astroalign-nd"
 
 #: Errors reported as ``astroalign-nd: error: <message>`` rather than with a traceback.
 _USER_ERRORS = (ValueError, TypeError, OSError)
 
 
-class CLIError(Exception):
+class _CLIError(Exception):
     """A problem with the command line itself (exit code 2)."""
 
 
@@ -42,7 +42,7 @@ def _expected_errors():
     """The exception classes that are reported without a traceback."""
     from astroalign_nd import AstroalignError
 
-    return (AstroalignError, CLIError) + _USER_ERRORS
+    return (AstroalignError, _CLIError) + _USER_ERRORS
 
 
 # -- argument parsing ------------------------------------------------------------------------
@@ -51,7 +51,17 @@ def _expected_errors():
 def _registration_options():
     """Options shared by ``register`` and ``batch`` (passed on to `astroalign_nd.register`)."""
     parent = argparse.ArgumentParser(add_help=False)
-    group = parent.add_argument_group("registration options")
+    _add_model_options(parent.add_argument_group("registration options"))
+    _add_detection_options(parent.add_argument_group(
+        "detection options", "as in astroalign_nd.find_sources; by default estimated from "
+        "each image"))
+    _add_matching_options(parent.add_argument_group(
+        "matching options", "as in astroalign_nd.matching.match_points"))
+    return parent
+
+
+def _add_model_options(group):
+    """The model, resampling and input options of a registration."""
     group.add_argument(
         "--transform-type",
         default="similarity",
@@ -106,9 +116,10 @@ def _registration_options():
         help="FITS extension to read, an index or a name (default: the first one with "
         "image data); MASK, UNCERT and FLAGS extensions are read as CCDData.read does",
     )
-    det = parent.add_argument_group(
-        "detection options", "as in astroalign_nd.find_sources; by default estimated from "
-        "each image")
+
+
+def _add_detection_options(det):
+    """Options passed on to `astroalign_nd.find_sources` (None: estimated from each image)."""
     det.add_argument("--fwhm", type=float, default=None, metavar="PX",
                      help="stellar FWHM in pixels (give it when the estimate fails, e.g. on "
                      "nebulosity)")
@@ -122,15 +133,16 @@ def _registration_options():
                      metavar=("LO", "HI"), help="accepted DAOFIND roundness range")
     det.add_argument("--bin-factor", type=int, default=None, metavar="B",
                      help="detect on the image binned BxB (for large, oversampled frames)")
-    mat = parent.add_argument_group("matching options",
-                                    "as in astroalign_nd.matching.match_points")
+
+
+def _add_matching_options(mat):
+    """Options passed on to `astroalign_nd.matching.match_points`."""
     mat.add_argument("--tolerance", type=float, default=None, metavar="PX",
                      help="largest distance (px) for a star to count as matched")
     mat.add_argument("--max-false-alarm", type=float, default=None, metavar="P",
                      help="largest false-alarm probability accepted (default: 1e-6)")
     mat.add_argument("--no-mirror", dest="allow_mirror", action="store_false", default=None,
                      help="do not consider mirrored (flipped) solutions")
-    return parent
 
 
 #: CLI destinations forwarded to find_transform when given (None: the library's default).
@@ -140,7 +152,7 @@ _FORWARDED = ("max_sources", "fwhm", "nsigma", "peak_max", "sharpness_range",
 
 def _build_parser():
     parser = argparse.ArgumentParser(
-        prog=PROG,
+        prog=_PROG,
         description="Register (align) astronomical images by matching star triangles. "
         "Inputs are FITS images; outputs are FITS images written as CCDData, "
         "with mask and uncertainty when the inputs have them.",
@@ -148,14 +160,45 @@ def _build_parser():
     parser.add_argument("--version", action="store_true", help="print the version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     reg_opts = _registration_options()
+    _add_register_command(sub, reg_opts)
+    _add_batch_command(sub, reg_opts)
+    _add_demo_command(sub)
+    return parser
 
-    p = sub.add_parser(
-        "register",
-        parents=[reg_opts],
-        help="register SOURCE onto the pixel grid of TARGET",
-        description="Register the SOURCE image onto the pixel grid of the TARGET image and "
-        "write the aligned image to OUT.",
-    )
+
+#: Each subcommand's line in ``astroalign-nd --help`` and its own --help description.
+_COMMANDS = {
+    "register": (
+        "register SOURCE onto the pixel grid of TARGET",
+        "Register the SOURCE image onto the pixel grid of the TARGET image and "
+        "write the aligned image to OUT."),
+    "batch": (
+        "register several images onto one target",
+        "Register each SOURCE onto TARGET, writing DIR/<name>_aligned.fits for "
+        "each, and print each frame's line as soon as it is done. Give the target with "
+        "-r/--reference (sources first, as in register and in the Python API "
+        "register_batch(sources, target)); without -r, the first image is the target (the "
+        "older form 'batch TARGET SOURCES...'). A frame that fails is reported and the "
+        "others go on; the exit code is 1 if any frame failed."),
+    "demo": (
+        "simulate a pair of star fields, register them and compare with the truth",
+        "Simulate a 512x512 star-field pair related by a known similarity "
+        "transform (rotation 17 deg, scale 1.05, shift (12.3, -7.7) px), write "
+        "DIR/source.fits and DIR/target.fits, register the source onto the target, write "
+        "DIR/aligned.fits and report the error of the recovered transform."),
+}
+
+
+def _add_command(sub, name, func, parents=()):
+    """The subparser of the subcommand ``name``, which ``main`` runs through ``func``."""
+    help_line, description = _COMMANDS[name]
+    p = sub.add_parser(name, parents=list(parents), help=help_line, description=description)
+    p.set_defaults(func=func)
+    return p
+
+
+def _add_register_command(sub, reg_opts):
+    p = _add_command(sub, "register", _cmd_register, [reg_opts])
     p.add_argument("source", metavar="SOURCE",
                    help="image to be transformed (FITS, or JPEG/PNG/TIFF)")
     p.add_argument("target", metavar="TARGET", help="image that defines the output grid")
@@ -165,19 +208,10 @@ def _build_parser():
     p.add_argument("--plot", metavar="PLOT.png", default=None,
                    help="also write a diagnostic figure (matched stars, invariants, residuals, "
                    "difference image; needs matplotlib)")
-    p.set_defaults(func=_cmd_register)
 
-    p = sub.add_parser(
-        "batch",
-        parents=[reg_opts],
-        help="register several images onto one target",
-        description="Register each SOURCE onto TARGET, writing DIR/<name>_aligned.fits for "
-        "each, and print each frame's line as soon as it is done. Give the target with "
-        "-r/--reference (sources first, as in register and in the Python API "
-        "register_batch(sources, target)); without -r, the first image is the target (the "
-        "older form 'batch TARGET SOURCES...'). A frame that fails is reported and the "
-        "others go on; the exit code is 1 if any frame failed.",
-    )
+
+def _add_batch_command(sub, reg_opts):
+    p = _add_command(sub, "batch", _cmd_batch, [reg_opts])
     p.add_argument("images", metavar="SOURCES", nargs="+",
                    help="images to be transformed (FITS, or JPEG/PNG/TIFF); without "
                    "-r/--reference, the first one is the target")
@@ -205,24 +239,15 @@ def _build_parser():
                    help="show a progress bar (default: when standard error is a terminal)")
     p.add_argument("--no-progress", dest="progress", action="store_false",
                    help="never show a progress bar")
-    p.set_defaults(func=_cmd_batch)
 
-    p = sub.add_parser(
-        "demo",
-        help="simulate a pair of star fields, register them and compare with the truth",
-        description="Simulate a 512x512 star-field pair related by a known similarity "
-        "transform (rotation 17 deg, scale 1.05, shift (12.3, -7.7) px), write "
-        "DIR/source.fits and DIR/target.fits, register the source onto the target, write "
-        "DIR/aligned.fits and report the error of the recovered transform.",
-    )
+
+def _add_demo_command(sub):
+    p = _add_command(sub, "demo", _cmd_demo)
     p.add_argument("--output-dir", required=True, metavar="DIR",
                    help="folder for source.fits, target.fits and aligned.fits "
                    "(created if needed)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
-    p.set_defaults(func=_cmd_demo)
-
-    return parser
 
 
 # -- helpers ---------------------------------------------------------------------------------
@@ -259,25 +284,25 @@ def _check_writable(path, overwrite):
     try:
         check_output_path(path, overwrite)
     except FileExistsError:
-        raise CLIError(f"output file {path!r} already exists; pass --overwrite to replace "
-                       "it.") from None
+        raise _CLIError(f"output file {path!r} already exists; pass --overwrite to replace "
+                        "it.") from None
 
 
 def _check_output_dir(path):
     from astroalign_nd.io.write import _check_writable_dir
 
     if os.path.exists(path) and not os.path.isdir(path):
-        raise CLIError(f"--output-dir {path!r} is a file, not a folder.")
+        raise _CLIError(f"--output-dir {path!r} is a file, not a folder.")
     try:
         os.makedirs(path, exist_ok=True)
     except OSError as exc:
-        raise CLIError(f"cannot create output folder {path!r}: {exc.strerror or exc}.") from None
+        raise _CLIError(f"cannot create output folder {path!r}: {exc.strerror or exc}.") from None
     _check_writable_dir(path)
 
 
 def _check_input(path):
     if not os.path.isfile(path):
-        raise CLIError(f"input file {path!r} does not exist or is not a file.")
+        raise _CLIError(f"input file {path!r} does not exist or is not a file.")
     return path
 
 
@@ -362,24 +387,28 @@ def _frame_line(f):
     return f"{f.name}: {what} -> {f.output} ({', '.join(fig)}; {f.seconds:.1f} s)"
 
 
-def _cmd_batch(args):
-    import astroalign_nd
-
+def _batch_frames(args):
+    """``(target, sources)`` of ``batch``, from -r/--reference or the older form."""
     if args.reference is not None:
         target, sources = args.reference, list(args.images)
     else:
         if len(args.images) < 2:
-            raise CLIError("give the target with -r/--reference TARGET, or as the first of "
-                           "at least two images ('batch TARGET SOURCES...').")
+            raise _CLIError("give the target with -r/--reference TARGET, or as the first of "
+                            "at least two images ('batch TARGET SOURCES...').")
         target, sources = args.images[0], list(args.images[1:])
     _check_input(target)
     for src in sources:
         _check_input(src)
+    return target, sources
+
+
+def _check_batch_options(args):
+    """Refuse, before any work, options that cannot run or outputs that cannot be written."""
     if args.workers < 0:
-        raise CLIError(f"--workers must be 0 or more; got {args.workers}.")
+        raise _CLIError(f"--workers must be 0 or more; got {args.workers}.")
     if args.scheduler and args.workers:
-        raise CLIError("give --workers (local processes) or --scheduler (a dask.distributed "
-                       "cluster), not both.")
+        raise _CLIError("give --workers (local processes) or --scheduler (a dask.distributed "
+                        "cluster), not both.")
     _check_output_dir(args.output_dir)
     if args.summary is not None:
         from astroalign_nd.io.write import check_output_path
@@ -388,26 +417,21 @@ def _cmd_batch(args):
             check_output_path(args.summary, args.overwrite or args.skip_existing,
                               extensions=(".ecsv", ".csv"))
         except FileExistsError:
-            raise CLIError(f"summary file {args.summary!r} already exists; pass --overwrite "
-                           "(or --skip-existing) to replace it.") from None
+            raise _CLIError(f"summary file {args.summary!r} already exists; pass --overwrite "
+                            "(or --skip-existing) to replace it.") from None
 
-    progress = args.progress if args.progress is not None else sys.stderr.isatty()
-    client = None
-    if args.scheduler:
-        try:
-            from dask.distributed import Client
-        except ImportError:
-            raise CLIError("--scheduler needs dask.distributed: "
-                           "pip install 'astroalign_nd[dask]'") from None
 
-    n = len(sources)
-    if args.canvas == "union":
-        print(f"union canvas: finding the {n} transforms first, then resampling", flush=True)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
+def _dask_client_class():
+    try:
+        from dask.distributed import Client
+    except ImportError:
+        raise _CLIError("--scheduler needs dask.distributed: "
+                        "pip install 'astroalign_nd[dask]'") from None
+    return Client
 
-        bar = tqdm(total=n, unit="frame", file=sys.stderr)
+
+def _frame_reporter(n, bar):
+    """The batch's callback: print each frame's line as it finishes (above the bar, if any)."""
     done = []
 
     def report(f):
@@ -421,13 +445,43 @@ def _cmd_batch(args):
         else:
             print(line, flush=True)
 
+    return report
+
+
+def _write_summary(result, path):
+    """The per-frame table of a batch, as ECSV (or CSV by the extension)."""
+    from astroalign_nd.io.write import atomic_write
+
+    fmt = "ascii.ecsv" if path.lower().endswith(".ecsv") else "ascii.csv"
+    with atomic_write(path, overwrite=True) as tmp:
+        result.to_table().write(tmp, format=fmt, overwrite=True)
+    print(f"wrote {path}")
+
+
+def _cmd_batch(args):
+    import astroalign_nd
+
+    target, sources = _batch_frames(args)
+    _check_batch_options(args)
+    progress = args.progress if args.progress is not None else sys.stderr.isatty()
+    client = None
+    client_class = _dask_client_class() if args.scheduler else None
+
+    n = len(sources)
+    if args.canvas == "union":
+        print(f"union canvas: finding the {n} transforms first, then resampling", flush=True)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n, unit="frame", file=sys.stderr)
     try:
         if args.scheduler:
-            client = Client(args.scheduler)
+            client = client_class(args.scheduler)
         result = astroalign_nd.register_batch(
             sources, target, output_dir=args.output_dir, overwrite=args.overwrite,
             skip_existing=args.skip_existing, canvas=args.canvas, client=client,
-            workers=args.workers or None, callback=report, unit=args.unit,
+            workers=args.workers or None, callback=_frame_reporter(n, bar), unit=args.unit,
             **_registration_kwargs(args))
     finally:
         if bar is not None:
@@ -440,12 +494,7 @@ def _cmd_batch(args):
               f"{tuple(int(v) for v in result.canvas_offset)}")
     print(result.summary())
     if args.summary is not None:
-        from astroalign_nd.io.write import atomic_write
-
-        fmt = "ascii.ecsv" if args.summary.lower().endswith(".ecsv") else "ascii.csv"
-        with atomic_write(args.summary, overwrite=True) as tmp:
-            result.to_table().write(tmp, format=fmt, overwrite=True)
-        print(f"wrote {args.summary}")
+        _write_summary(result, args.summary)
     return 1 if result.failed else 0
 
 
@@ -501,7 +550,7 @@ def _cmd_demo(args):
 
 
 def _error(message):
-    print(f"{PROG}: error: {message}", file=sys.stderr)
+    print(f"{_PROG}: error: {message}", file=sys.stderr)
     return 2
 
 
@@ -530,9 +579,9 @@ def main(argv=None):
         from importlib.metadata import PackageNotFoundError, version
 
         try:
-            print(f"{PROG} {version('astroalign_nd')}")
+            print(f"{_PROG} {version('astroalign_nd')}")
         except PackageNotFoundError:
-            print(f"{PROG} (version unknown: package not installed)")
+            print(f"{_PROG} (version unknown: package not installed)")
         return 0
     if args.command is None:
         parser.print_help(sys.stderr)
@@ -545,7 +594,7 @@ def main(argv=None):
     import warnings
 
     def one_line_warning(message, category, filename, lineno, file=None, line=None):
-        print(f"{PROG}: warning: {message}", file=sys.stderr)
+        print(f"{_PROG}: warning: {message}", file=sys.stderr)
 
     old_showwarning = warnings.showwarning
     warnings.showwarning = one_line_warning

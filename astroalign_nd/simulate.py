@@ -880,6 +880,15 @@ def _check_transform(transform):
     return model, np.array(m, dtype=float)
 
 
+def _finite_pair(value):
+    """``value`` as floats (None if not numbers), and whether it is a finite (x, y) pair."""
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return None, False
+    return a, a.shape == (2,) and bool(np.all(np.isfinite(a)))
+
+
 def _build_transform(rng, shape, target_shape, rotation, scale, translation, mirror):
     """SimilarityTransform about the frame centres, plus its description (degrees)."""
     ny, nx = shape
@@ -900,13 +909,8 @@ def _build_transform(rng, shape, target_shape, rotation, scale, translation, mir
     if translation is None:
         translation = np.zeros(2)
     else:
-        try:
-            translation = np.asarray(translation, dtype=float)
-        except (TypeError, ValueError):
-            translation = None
-        if translation is None or translation.shape != (2,) or not np.all(
-            np.isfinite(translation)
-        ):
+        translation, ok = _finite_pair(translation)
+        if not ok:
             raise ValueError(
                 "translation must be a finite (dx, dy) pair in target pixels (x first); "
                 f"got {translation!r}."
@@ -955,11 +959,8 @@ def _check_distortion(distortion, shape):
     pairs = {}
     for key, default in (("tilt", (0.0, 0.0)), ("center", ((nx - 1) / 2.0, (ny - 1) / 2.0))):
         value = distortion.get(key, default)
-        try:
-            a = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            a = None
-        if a is None or a.shape != (2,) or not np.all(np.isfinite(a)):
+        a, ok = _finite_pair(value)
+        if not ok:
             raise ValueError(f"distortion['{key}'] must be a finite (x, y) pair; got {value!r}.")
         pairs[key] = (float(a[0]), float(a[1]))
     if np.hypot(*pairs["tilt"]) >= 0.5:
@@ -1014,6 +1015,144 @@ def _check_monotonic(d, box):
 
 def _map_xy(m, x, y):
     return m[0, 0] * x + m[0, 1] * y + m[0, 2], m[1, 0] * x + m[1, 1] * y + m[1, 2]
+
+
+def _check_pair_image_options(background, target_background, gradient, read_noise, gain,
+                              saturation, n_hot_pixels, n_cosmic_rays):
+    """Check the detector options of both frames; return the target's background."""
+    _check_image_options(background, gradient, read_noise, gain, saturation, n_hot_pixels,
+                         n_cosmic_rays)
+    if target_background is None:
+        target_background = background
+    _check_image_options(target_background, gradient, read_noise, gain, saturation,
+                         n_hot_pixels, n_cosmic_rays, name_prefix="target_")
+    return target_background
+
+
+def _pair_transform(rng, transform, rotation, scale, translation, mirror, shape,
+                    target_shape):
+    """The true linear transform of `simulate_pair`: ``(model, matrix, meta entries)``."""
+    if transform is None:
+        model, info = _build_transform(rng, shape, target_shape, rotation, scale,
+                                       translation, mirror)
+        return model, model.matrix, info
+    given = [n for n, v in (("rotation", rotation), ("scale", scale),
+                            ("translation", translation)) if v is not None]
+    if mirror:
+        given.append("mirror")
+    if given:
+        raise ValueError(
+            f"pass either transform or rotation/scale/translation/mirror, not both "
+            f"(got transform and {', '.join(given)})."
+        )
+    model, m = _check_transform(transform)
+    return model, m, {"random_transform": False}
+
+
+def _pair_mapping(m, dist):
+    """Source -> target pixels: the matrix ``m``, after the optics' distortion if any."""
+    if dist is None:
+        def mapping(x, y):
+            return _map_xy(m, x, y)
+    else:
+        def mapping(x, y):
+            return _map_xy(m, *_distort(dist, x, y))
+    return mapping
+
+
+def _star_region(shape, target_shape, m_inv, pads, dist):
+    """
+    The box ``(x0, x1, y0, y1)``, in source pixels, over which stars are drawn:
+    the source frame and the target frame's footprint, each padded by ``pads``
+    (source, target), widened for the distortion if any.
+    """
+    ny, nx = shape
+    nty, ntx = target_shape
+    pad_s, pad_t = pads
+    cx = np.array([-0.5 - pad_t, ntx - 0.5 + pad_t, ntx - 0.5 + pad_t, -0.5 - pad_t])
+    cy = np.array([-0.5 - pad_t, -0.5 - pad_t, nty - 0.5 + pad_t, nty - 0.5 + pad_t])
+    fx, fy = _map_xy(m_inv, cx, cy)  # padded target footprint in source coordinates
+    x0 = min(fx.min(), -0.5 - pad_s)
+    x1 = max(fx.max(), nx - 0.5 + pad_s)
+    y0 = min(fy.min(), -0.5 - pad_s)
+    y1 = max(fy.max(), ny - 0.5 + pad_s)
+    if dist is not None:
+        # The distorted footprint: widen the region by the largest
+        # displacement at its corners (the farthest points from the centre).
+        _check_monotonic(dist, (x0, x1, y0, y1))
+        bx = np.array([x0, x1, x1, x0])
+        by = np.array([y0, y0, y1, y1])
+        dx, dy = _distort(dist, bx, by)
+        grow = float(np.max(np.hypot(dx - bx, dy - by))) * 1.25 + 1.0
+        x0, x1, y0, y1 = x0 - grow, x1 + grow, y0 - grow, y1 + grow
+        _check_monotonic(dist, (x0, x1, y0, y1))
+    return x0, x1, y0, y1
+
+
+def _draw_pair_stars(rng, n_stars, shape, target_shape, region, pads, mapping, lumin,
+                     missing_fraction):
+    """
+    The star field of `simulate_pair`, in source pixels: ``n_stars`` in the
+    source frame and as dense over ``region`` wherever a star can touch either
+    frame.  Returns ``(x, y, flux, ids, present_in_source, present_in_target)``
+    (id 0 is the brightest star).
+    """
+    ny, nx = shape
+    x0, x1, y0, y1 = region
+    pad_s, pad_t = pads
+    density = n_stars / float(nx * ny)
+    expected = density * (x1 - x0) * (y1 - y0)
+    if expected > _MAX_STARS:
+        raise ValueError(
+            f"this configuration needs about {expected:.3g} stars to fill both frames "
+            f"(more than {_MAX_STARS:.0e}); reduce n_stars, the target size or the scale "
+            "difference between the frames."
+        )
+    x_in = rng.uniform(-0.5, nx - 0.5, n_stars)
+    y_in = rng.uniform(-0.5, ny - 0.5, n_stars)
+    n_out = int(rng.poisson(expected)) if n_stars else 0
+    x_out = rng.uniform(x0, x1, n_out)
+    y_out = rng.uniform(y0, y1, n_out)
+    xt_out, yt_out = mapping(x_out, y_out)
+    keep = ~_inside(x_out, y_out, shape) & (
+        _inside(x_out, y_out, shape, pad_s) | _inside(xt_out, yt_out, target_shape, pad_t)
+    )
+    xs = np.concatenate([x_in, x_out[keep]])
+    ys = np.concatenate([y_in, y_out[keep]])
+    flux = _draw_fluxes(rng, xs.size, *lumin)
+    ids = np.empty(xs.size, dtype=np.int64)
+    ids[np.lexsort((np.arange(xs.size), -flux))] = np.arange(xs.size)  # 0 = brightest
+    present_src = rng.random(xs.size) >= missing_fraction
+    present_tgt = rng.random(xs.size) >= missing_fraction
+    return xs, ys, flux, ids, present_src, present_tgt
+
+
+def _draw_transients(rng, n, target_shape, lo, hi, first_id):
+    """Extra stars of the target only, uniform over it, log-uniform fluxes, and their ids."""
+    nty, ntx = target_shape
+    x = rng.uniform(-0.5, ntx - 0.5, n)
+    y = rng.uniform(-0.5, nty - 0.5, n)
+    flux = np.exp(rng.uniform(np.log(lo), np.log(hi), n))
+    return x, y, flux, first_id + np.arange(n, dtype=np.int64)
+
+
+def _pair_meta(info, seed, dist, m, mapping, **entries):
+    """
+    A pair's ``meta``: the transform's ``info``, the options ``entries``, the
+    seed and, for a distorted pair, the distortion and its largest corner shift.
+    """
+    meta = dict(info)
+    meta.update(entries,
+                seed=seed if isinstance(seed, (numbers.Integral, type(None))) else repr(seed))
+    if dist is not None:
+        ny, nx = entries["shape"]
+        ccx = np.array([-0.5, nx - 0.5, nx - 0.5, -0.5])
+        ccy = np.array([-0.5, -0.5, ny - 0.5, ny - 0.5])
+        lx, ly = _map_xy(m, ccx, ccy)
+        tx_, ty_ = mapping(ccx, ccy)
+        meta.update(distortion={k: dist[k] for k in _DISTORTION_KEYS},
+                    corner_shift=float(np.max(np.hypot(tx_ - lx, ty_ - ly))))
+    return meta
 
 
 def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=None, scale=None,
@@ -1179,142 +1318,56 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     missing_fraction = _check_real(
         missing_fraction, "missing_fraction", minimum=0.0, maximum=1.0, strict_max=True,
         hint=" Pass the fraction of stars to drop from each frame, in [0, 1).")
-    _check_image_options(background, gradient, read_noise, gain, saturation, n_hot_pixels,
-                         n_cosmic_rays)
-    if target_background is None:
-        target_background = background
-    _check_image_options(target_background, gradient, read_noise, gain, saturation,
-                         n_hot_pixels, n_cosmic_rays, name_prefix="target_")
+    target_background = _check_pair_image_options(
+        background, target_background, gradient, read_noise, gain, saturation, n_hot_pixels,
+        n_cosmic_rays)
 
     rng_geom, rng_stars, rng_src, rng_tgt, rng_trans = _spawn(seed, 5)
-
-    # -- the transform --
-    if transform is not None:
-        given = [n for n, v in (("rotation", rotation), ("scale", scale),
-                                ("translation", translation)) if v is not None]
-        if mirror:
-            given.append("mirror")
-        if given:
-            raise ValueError(
-                f"pass either transform or rotation/scale/translation/mirror, not both "
-                f"(got transform and {', '.join(given)})."
-            )
-        model, m = _check_transform(transform)
-        info = {"random_transform": False}
-    else:
-        model, info = _build_transform(rng_geom, shape, target_shape, rotation, scale,
-                                       translation, mirror)
-        m = model.matrix
+    model, m, info = _pair_transform(rng_geom, transform, rotation, scale, translation, mirror,
+                                     shape, target_shape)
     m_inv = np.linalg.inv(m)
-    lin_scale = float(np.sqrt(abs(np.linalg.det(m[:2, :2]))))
-    if target_fwhm is None:
-        target_fwhm = fwhm * lin_scale
-    target_fwhm = _check_fwhm(target_fwhm, "target_fwhm")
+    target_fwhm = _check_fwhm(  # default: the same seeing on the sky
+        fwhm * float(np.sqrt(abs(np.linalg.det(m[:2, :2])))) if target_fwhm is None
+        else target_fwhm, "target_fwhm")
 
-    # -- the star field, in source coordinates --
-    ny, nx = shape
-    nty, ntx = target_shape
-    pad_s = _stamp_half_size(fwhm) + 1.0
-    pad_t = _stamp_half_size(target_fwhm) + 1.0
-    cx = np.array([-0.5 - pad_t, ntx - 0.5 + pad_t, ntx - 0.5 + pad_t, -0.5 - pad_t])
-    cy = np.array([-0.5 - pad_t, -0.5 - pad_t, nty - 0.5 + pad_t, nty - 0.5 + pad_t])
-    fx, fy = _map_xy(m_inv, cx, cy)  # padded target footprint in source coordinates
-    x0 = min(fx.min(), -0.5 - pad_s)
-    x1 = max(fx.max(), nx - 0.5 + pad_s)
-    y0 = min(fy.min(), -0.5 - pad_s)
-    y1 = max(fy.max(), ny - 0.5 + pad_s)
-    if dist is None:
-        def mapping(x, y):
-            return _map_xy(m, x, y)
-    else:
-        def mapping(x, y):
-            return _map_xy(m, *_distort(dist, x, y))
-
-        # The distorted footprint: widen the region by the largest
-        # displacement at its corners (the farthest points from the centre).
-        _check_monotonic(dist, (x0, x1, y0, y1))
-        bx = np.array([x0, x1, x1, x0])
-        by = np.array([y0, y0, y1, y1])
-        dx, dy = _distort(dist, bx, by)
-        grow = float(np.max(np.hypot(dx - bx, dy - by))) * 1.25 + 1.0
-        x0, x1, y0, y1 = x0 - grow, x1 + grow, y0 - grow, y1 + grow
-        _check_monotonic(dist, (x0, x1, y0, y1))
-    density = n_stars / float(nx * ny)
-    expected = density * (x1 - x0) * (y1 - y0)
-    if expected > _MAX_STARS:
-        raise ValueError(
-            f"this configuration needs about {expected:.3g} stars to fill both frames "
-            f"(more than {_MAX_STARS:.0e}); reduce n_stars, the target size or the scale "
-            "difference between the frames."
-        )
-    x_in = rng_stars.uniform(-0.5, nx - 0.5, n_stars)
-    y_in = rng_stars.uniform(-0.5, ny - 0.5, n_stars)
-    n_out = int(rng_stars.poisson(expected)) if n_stars else 0
-    x_out = rng_stars.uniform(x0, x1, n_out)
-    y_out = rng_stars.uniform(y0, y1, n_out)
-    xt_out, yt_out = mapping(x_out, y_out)
-    keep = ~_inside(x_out, y_out, shape) & (
-        _inside(x_out, y_out, shape, pad_s) | _inside(xt_out, yt_out, target_shape, pad_t)
-    )
-    xs = np.concatenate([x_in, x_out[keep]])
-    ys = np.concatenate([y_in, y_out[keep]])
-    n_total = xs.size
-    flux = _draw_fluxes(rng_stars, n_total, lo, hi, alpha)
-    ids = np.empty(n_total, dtype=np.int64)
-    ids[np.lexsort((np.arange(n_total), -flux))] = np.arange(n_total)  # 0 = brightest
-    present_src = rng_stars.random(n_total) >= missing_fraction
-    present_tgt = rng_stars.random(n_total) >= missing_fraction
+    mapping = _pair_mapping(m, dist)
+    pads = (_stamp_half_size(fwhm) + 1.0, _stamp_half_size(target_fwhm) + 1.0)
+    region = _star_region(shape, target_shape, m_inv, pads, dist)
+    xs, ys, flux, ids, present_src, present_tgt = _draw_pair_stars(
+        rng_stars, n_stars, shape, target_shape, region, pads, mapping, (lo, hi, alpha),
+        missing_fraction)
     xt, yt = mapping(xs, ys)
+    tr_x, tr_y, tr_flux, tr_ids = _draw_transients(rng_trans, n_transients, target_shape,
+                                                   lo, hi, xs.size)
 
-    # -- transients, in target coordinates --
-    tr_x = rng_trans.uniform(-0.5, ntx - 0.5, n_transients)
-    tr_y = rng_trans.uniform(-0.5, nty - 0.5, n_transients)
-    tr_flux = np.exp(rng_trans.uniform(np.log(lo), np.log(hi), n_transients))
-    tr_ids = n_total + np.arange(n_transients, dtype=np.int64)
-
-    # -- the images --
     common = dict(psf=psf, beta=beta, gradient=gradient, read_noise=read_noise, gain=gain,
                   saturation=saturation, n_hot_pixels=n_hot_pixels,
                   n_cosmic_rays=n_cosmic_rays, noise=noise, dtype=dtype)
     source = simulate_image(shape, xs[present_src], ys[present_src], flux[present_src],
                             fwhm=fwhm, background=background, seed=rng_src, **common)
+    # The target: the field's stars through the mapping, and the transients.
     target = simulate_image(
-        target_shape,
-        np.concatenate([xt[present_tgt], tr_x]),
-        np.concatenate([yt[present_tgt], tr_y]),
-        np.concatenate([flux[present_tgt], tr_flux]),
+        target_shape, *(np.concatenate([a[present_tgt], b])
+                        for a, b in ((xt, tr_x), (yt, tr_y), (flux, tr_flux))),
         fwhm=target_fwhm, background=target_background, seed=rng_tgt, **common,
     )
 
     in_src = present_src & _inside(xs, ys, shape)
     in_tgt = present_tgt & _inside(xt, yt, target_shape)
-    meta = dict(info)
-    meta.update(
-        shape=shape, target_shape=target_shape, n_stars=n_stars, n_stars_simulated=n_total,
+    meta = _pair_meta(
+        info, seed, dist, m, mapping,
+        shape=shape, target_shape=target_shape, n_stars=n_stars, n_stars_simulated=xs.size,
         fwhm=fwhm, target_fwhm=target_fwhm, psf=psf, background=float(background),
         target_background=float(target_background), gradient=float(gradient),
         flux_range=(lo, hi), flux_index=alpha, read_noise=float(read_noise), gain=float(gain),
         saturation=saturation, noise=noise_model, missing_fraction=missing_fraction,
-        n_transients=n_transients,
-        seed=seed if isinstance(seed, (numbers.Integral, type(None))) else repr(seed),
-    )
-    if dist is not None:
-        ccx = np.array([-0.5, nx - 0.5, nx - 0.5, -0.5])
-        ccy = np.array([-0.5, -0.5, ny - 0.5, ny - 0.5])
-        lx, ly = _map_xy(m, ccx, ccy)
-        tx_, ty_ = mapping(ccx, ccy)
-        meta.update(distortion={k: dist[k] for k in _DISTORTION_KEYS},
-                    corner_shift=float(np.max(np.hypot(tx_ - lx, ty_ - ly))))
+        n_transients=n_transients)
     return SimulatedPair(
-        source=source,
-        target=target,
-        transform=model,
-        truth_matrix=np.array(m, dtype=float),
+        source=source, target=target, transform=model, truth_matrix=np.array(m, dtype=float),
         source_stars=_star_table(xs[in_src], ys[in_src], flux[in_src], ids[in_src]),
         target_stars=_star_table(xt[in_tgt], yt[in_tgt], flux[in_tgt], ids[in_tgt]),
         transients=_star_table(tr_x, tr_y, tr_flux, tr_ids),
-        meta=meta,
-        mapping=None if dist is None else mapping,
+        meta=meta, mapping=None if dist is None else mapping,
     )
 
 

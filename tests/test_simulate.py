@@ -471,6 +471,18 @@ def test_distortion_bad_options():
         simulate_pair((64, 64), n_stars=10, distortion={"k1": "big"})
 
 
+@pytest.mark.parametrize("translation", [(np.nan, 1.0), (1.0, 2.0, 3.0), "ab", [[1.0, 2.0]]])
+def test_bad_translation(translation):
+    with pytest.raises(ValueError, match=r"translation must be a finite \(dx, dy\) pair"):
+        simulate_pair((64, 64), n_stars=10, translation=translation)
+
+
+@pytest.mark.parametrize("tilt", ["x", (0.1,), (0.1, np.inf)])
+def test_bad_distortion_pair(tilt):
+    with pytest.raises(ValueError, match=r"distortion\['tilt'\] must be a finite \(x, y\) pair"):
+        simulate_pair((64, 64), n_stars=10, distortion={"tilt": tilt})
+
+
 def test_distortion_fills_the_target_frame():
     """Stars reach the target's corners although barrel distortion pulls them in."""
     pair = simulate_pair((256, 256), n_stars=2000, rotation=0.0, seed=4,
