@@ -86,7 +86,8 @@ print(json.dumps(dict(rc=res.returncode, time=t, peak=peak, out=res.stdout[-800:
 
 def run_cli(src, dst, out, pythonpath):
     env = dict(os.environ, PYTHONPATH=pythonpath)
-    cmd = [sys.executable, "-m", "astroalign_nd.cli", "register", src, dst, "-o", out, "--overwrite"]
+    cmd = [sys.executable, "-m", "astroalign_nd.cli", "register", src, dst, "-o", out,
+           "--overwrite"]
     res = subprocess.run([sys.executable, "-c", _CHILD, *cmd], capture_output=True, text=True,
                          env=env, cwd=pythonpath, timeout=900)
     return json.loads(res.stdout.strip().splitlines()[-1])
@@ -117,8 +118,9 @@ def main(argv=None):
     print(f"{args.size}x{args.size} float32 frames written in {time.perf_counter() - t0:.0f} s; "
           f"load average {os.getloadavg()[0]:.1f}", flush=True)
     out = os.path.join(args.workdir, "big_aligned.fits")
-    trees = [("astroalign_nd", HERE)] + ([("before", os.path.abspath(args.before))]
-                                          if args.before else [])
+    trees = [("astroalign_nd", HERE)]
+    if args.before:
+        trees.append(("before", os.path.abspath(args.before)))
     try:
         for rep in range(args.repeats):
             for name, tree in trees:

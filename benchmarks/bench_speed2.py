@@ -242,8 +242,8 @@ def main(argv=None):
                 f"{k} {np.median(errs[k]):.4f} (max {np.max(errs[k]):.4f})" for k in names))
             for k in tools:
                 st = {s: float(np.median([d[s] for d in stages[k]])) for s in stages[k][0]}
-                print(f"      stages {k:>3}: " + ", ".join(f"{s} {v * 1e3:.0f} ms"
-                                                       for s, v in st.items()))
+                print(f"      stages {k:>3}: "
+                      + ", ".join(f"{s} {v * 1e3:.0f} ms" for s, v in st.items()))
             print(flush=True)
             summary.append((size, wl, {k: med[k] / med["astroalign"] for k in tools}))
 
