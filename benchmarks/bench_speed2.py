@@ -135,6 +135,7 @@ class StageTimer:
         mat = importlib.import_module(pkg + ".matching")
         ccd = importlib.import_module(pkg + ".ccddata")
         for mod, name, stage in ((reg, "find_sources", "detect"),
+                                 (reg, "_control_sources", "detect"),  # newer code calls this
                                  (reg, "build_asterisms", "asterisms"),
                                  (mat, "build_asterisms", "asterisms"),
                                  (reg, "_match_points", "match"),
