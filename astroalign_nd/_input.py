@@ -282,16 +282,37 @@ def _read_fits(path, name, hdu, unit):
     with warnings.catch_warnings():
         # Non-standard WCS keywords are fixed silently, not warned about per frame.
         warnings.simplefilter("ignore", FITSFixedWarning)
+        # Read into memory, not memory-mapped: FITS data are big-endian, and a
+        # map would be copied to native order by detection and again by the
+        # resampling, while its pages also count in the resident memory; the
+        # array read is ours, and is swapped to native order in place.
         ccd = CCDData.read(path, hdu=index, unit=read_unit,
-                           hdu_flags="FLAGS" if has_flags else None)
+                           hdu_flags="FLAGS" if has_flags else None, memmap=False)
     if primary is not None:
         # As CCDData.read does for an empty primary HDU: the extension's
         # header, completed by the primary's keywords.
         ccd.meta.extend(primary, unique=True)
     p = _from_nddata(ccd, name)
+    p.data = _native_in_place(p.data)
     p.unit = file_unit if file_unit is not None else _as_unit(unit)
     p.kind = "fits"
     return p
+
+
+def _native_in_place(arr):
+    """
+    ``arr`` in native byte order, swapped in place when it can be.
+
+    Only for arrays this module read from a file itself (nobody else holds
+    them).  The compiled kernels need native order; swapping in place
+    avoids a second full copy of the frame.
+    """
+    if arr.dtype.isnative or arr.dtype.byteorder == "|":
+        return arr
+    if arr.flags.writeable and arr.flags.c_contiguous:
+        arr.byteswap(inplace=True)
+        return arr.view(arr.dtype.newbyteorder("="))
+    return arr.astype(arr.dtype.newbyteorder("="))
 
 
 def _read_path(path, name, hdu=None, unit=None):

@@ -26,6 +26,7 @@ Stars wider than ~10 px (defocused frames, digitised plates) are measured
 on a binned copy instead, where they are well sampled and cheap.
 """
 
+import sys
 import warnings
 
 import numpy as np
@@ -752,18 +753,18 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     """
     Stage 3: measure the candidates with DAOStarFinder at a given FWHM.
 
-    Wide stars are measured on a binned copy (as well, at a fraction of the
-    cost: the mosaic of cutouts grows with the FWHM squared).
+    Full-resolution cutouts around the candidates, less their local sky,
+    are measured as one mosaic (`_dao_on_mosaic`); the brightest detection
+    near each tile's centre is kept (`_brightest_per_tile`), its centroid
+    refined (`_refined_positions`), and hot pixels, cosmic rays and faint
+    or duplicate sources dropped (`_filtered_table`).  Wide stars are
+    measured on a binned copy (as well, at a fraction of the cost: the
+    mosaic of cutouts grows with the FWHM squared).
     """
     if fwhm > _MAX_FULL_RES_FWHM:
         k = int(fwhm // (_MAX_FULL_RES_FWHM / 2))
         return _find_on_binned(data, mask, k, fwhm / k, opts)
-    nsigma = opts["nsigma"]
     half = int(np.ceil(max(3.0 * fwhm, 6)))
-    tile = 2 * half + 1
-    n = len(cand["x"])
-    ncol = int(np.ceil(np.sqrt(n)))
-    nrow = int(np.ceil(n / ncol))
     xc = np.clip(np.round(cand["x"]).astype(int), 0, data.shape[1] - 1)
     yc = np.clip(np.round(cand["y"]).astype(int), 0, data.shape[0] - 1)
     cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
@@ -772,6 +773,30 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     # biases fluxes and pulls centroids towards the tile centre.
     cut = cut - _local_background(cut, bad, min(2.0 * fwhm, half - 1.0))[:, None, None]
     cut[bad] = 0.0
+    tab, ncol = _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts)
+    if tab is None or len(tab["flux"]) == 0:
+        return _empty_table(fwhm, noise, b)
+    sel, kk, lx, ly = _brightest_per_tile(tab, len(cand["x"]), ncol, half, fwhm)
+    if sel.size == 0:
+        return _empty_table(fwhm, noise, b)
+    xs, ys = _refined_positions(cut[kk], bad[kk], lx[sel], ly[sel], fwhm, opts)
+    tab = {c: np.asarray(tab[c], float)[sel] for c in ("peak", "sharpness", "roundness1",
+                                                       "roundness2")}
+    return _filtered_table(cut[kk], bad[kk], xc[kk] - half + xs, yc[kk] - half + ys, xs, ys,
+                           tab, half, fwhm, noise, b, opts)
+
+
+def _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts):
+    """
+    DAOStarFinder's measurements of the cutouts tiled into one mosaic.
+
+    Returns the measurements (a dict of arrays, or None) and the number of
+    tiles per mosaic row.
+    """
+    tile = 2 * half + 1
+    n = len(cand["x"])
+    ncol = int(np.ceil(np.sqrt(n)))
+    nrow = int(np.ceil(n / ncol))
     # (n, tile, tile) -> (nrow*tile, ncol*tile) without a Python loop.
     pad = np.zeros((nrow * ncol, tile, tile))
     pad[:n] = cut
@@ -788,10 +813,11 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     # Imported here: photutils' import is the largest part of a fresh
     # process's first call, and a bare ``import astroalign_nd.detection``
     # (or a catalog-only run) does not need it.
+    _import_photutils()
     from photutils.detection import DAOStarFinder
 
     finder = DAOStarFinder(
-        threshold=nsigma * noise,
+        threshold=opts["nsigma"] * noise,
         fwhm=fwhm,
         sharpness_range=opts["sharpness_range"],
         roundness_range=opts["roundness_range"],
@@ -801,11 +827,18 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", AstropyWarning)
-        tab = _daofind(finder, mosaic, mmask if mmask.any() else None)
-    if tab is None or len(tab["flux"]) == 0:
-        return _empty_table(fwhm, noise, b)
+        return _daofind(finder, mosaic, mmask if mmask.any() else None), ncol
 
-    # Keep, per tile, the brightest detection near the candidate's centre.
+
+def _brightest_per_tile(tab, n, ncol, half, fwhm):
+    """
+    Per tile, the brightest detection near the candidate's centre.
+
+    Returns the indices of the kept detections, their tiles, and every
+    detection's position in its tile.
+    """
+    tile = 2 * half + 1
+    nrow = int(np.ceil(n / ncol))
     tx = np.asarray(tab["x_centroid"], float)
     ty = np.asarray(tab["y_centroid"], float)
     col = np.clip((tx // tile).astype(int), 0, ncol - 1)
@@ -817,39 +850,49 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     flux = np.asarray(tab["flux"], float)
     sel = np.flatnonzero(near)
     if sel.size == 0:
-        return _empty_table(fwhm, noise, b)
+        return sel, sel, lx, ly
     # Sort by tile then by flux descending; take the first per tile.
     order = np.lexsort((-flux[sel], k[sel]))
     sel = sel[order]
     _, first = np.unique(k[sel], return_index=True)
     sel = sel[first]
-    kk = k[sel]
-    xs = lx[sel]
-    ys = ly[sel]
-    if opts["refine_centroids"]:
-        # On undersampled stars a window as narrow as the star follows the
-        # pixel grid (pixel-phase bias), and hot pixels and noise pull it:
-        # a wider one measures them better.  Well-sampled stars keep the
-        # matched window, the most precise.
-        win = fwhm if fwhm >= _UNDERSAMPLED_FWHM else _MIN_WINDOW_FWHM
-        sigma = np.full(len(sel), win / _GAUSS_SIGMA_TO_FWHM)
-        xs, ys = _windowed_centroid(cut[kk], bad[kk], xs, ys, sigma)
-        # A refinement that wandered away means a blend: keep DAOFIND's.
-        moved = np.hypot(xs - lx[sel], ys - ly[sel]) > 0.5 * fwhm
-        xs = np.where(moved, lx[sel], xs)
-        ys = np.where(moved, ly[sel], ys)
-    gx = xc[kk] - half + xs
-    gy = yc[kk] - half + ys
-    aflux, perr, snr = _aperture_flux_and_error(cut[kk], bad[kk], xs, ys, fwhm, noise)
+    return sel, k[sel], lx, ly
+
+
+def _refined_positions(cut, bad, x0, y0, fwhm, opts):
+    """Gaussian-windowed centroids of the stars in their tiles (DAOFIND's if not refined)."""
+    if not opts["refine_centroids"]:
+        return x0, y0
+    # On undersampled stars a window as narrow as the star follows the
+    # pixel grid (pixel-phase bias), and hot pixels and noise pull it:
+    # a wider one measures them better.  Well-sampled stars keep the
+    # matched window, the most precise.
+    win = fwhm if fwhm >= _UNDERSAMPLED_FWHM else _MIN_WINDOW_FWHM
+    sigma = np.full(len(x0), win / _GAUSS_SIGMA_TO_FWHM)
+    xs, ys = _windowed_centroid(cut, bad, x0, y0, sigma)
+    # A refinement that wandered away means a blend: keep DAOFIND's.
+    moved = np.hypot(xs - x0, ys - y0) > 0.5 * fwhm
+    return np.where(moved, x0, xs), np.where(moved, y0, ys)
+
+
+def _filtered_table(cut, bad, gx, gy, xs, ys, dao, half, fwhm, noise, b, opts):
+    """
+    The output table: fluxes and errors, without hot pixels, cosmic rays,
+    faint sources and duplicates, brightest first.
+
+    ``cut`` and ``bad`` are the kept stars' tiles, ``gx, gy`` their image
+    positions, ``xs, ys`` their positions in the tiles, ``dao`` their
+    DAOStarFinder measurements.
+    """
+    nsigma = opts["nsigma"]
+    aflux, perr, snr = _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise)
 
     # Hot pixels and cosmic rays that got this far (a bright hit can pass
     # DAOFIND's sharpness limit) are much narrower than the stars.
-    own_fwhm = _adaptive_fwhm(cut[kk], bad[kk], xs - half, ys - half,
+    own_fwhm = _adaptive_fwhm(cut, bad, xs - half, ys - half,
                               sigma0=fwhm / _GAUSS_SIGMA_TO_FWHM, n_iter=4)
-    real = ~(own_fwhm < 0.6 * fwhm) if fwhm >= 1.5 else np.ones(len(kk), bool)
-    sharp = np.asarray(tab["sharpness"], float)[sel]
-    round1 = np.asarray(tab["roundness1"], float)[sel]
-    round2 = np.asarray(tab["roundness2"], float)[sel]
+    real = ~(own_fwhm < 0.6 * fwhm) if fwhm >= 1.5 else np.ones(len(gx), bool)
+    sharp, round1, round2 = dao["sharpness"], dao["roundness1"], dao["roundness2"]
     # Given positions, DAOStarFinder does not apply its threshold: apply
     # it as a matched-filter signal-to-noise.
     real &= snr >= nsigma
@@ -861,7 +904,7 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     cols = {
         "x": gx[keep], "y": gy[keep], "flux": aflux[keep], "position_error": perr[keep],
         "snr": snr[keep],
-        "peak": np.asarray(tab["peak"], float)[sel][keep], "sharpness": sharp[keep],
+        "peak": dao["peak"][keep], "sharpness": sharp[keep],
         "roundness1": round1[keep], "roundness2": round2[keep],
     }
     order = np.argsort(-cols["flux"], kind="stable")[:opts["n_sources"]]
@@ -971,6 +1014,37 @@ def _empty_table(fwhm, noise, b):
                      "roundness1", "roundness2"], dtype=[float] * 9)
     t.meta.update(fwhm=float(fwhm), noise=float(noise), bin_factor=int(b))
     return t
+
+
+def _import_photutils():
+    """
+    Import photutils without its scan of every installed package's metadata.
+
+    On import, photutils looks up its own distribution name with
+    `importlib.metadata.packages_distributions`, which reads the file list of
+    every installed distribution: 0.15-0.2 s of a fresh process's first
+    call, a third of it.  Its distribution is named ``photutils``, which is
+    what the scan would return; that answer is given for the duration of the
+    import.  Nothing else changes (photutils still reads its own metadata for
+    its optional dependencies).
+    """
+    if "photutils.utils._optional_deps" in sys.modules:
+        return
+    import importlib.metadata as metadata
+
+    scan = metadata.packages_distributions
+    metadata.packages_distributions = _photutils_distribution
+    try:
+        import photutils.utils._optional_deps  # noqa: F401 - imports photutils
+    except ImportError:  # a photutils without that module: a plain import
+        pass
+    finally:
+        metadata.packages_distributions = scan
+
+
+def _photutils_distribution():
+    """`importlib.metadata.packages_distributions`, as photutils' import uses it."""
+    return {"photutils": ["photutils"]}
 
 
 def _check_positive_int(value, name):

@@ -12,6 +12,7 @@ The high-level API, top to bottom as the method goes:
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import warnings
 from typing import TYPE_CHECKING, Any
@@ -168,6 +169,9 @@ class Reference:
 
 
 def _no_detections_warning():
+    from .detection import _import_photutils
+
+    _import_photutils()  # without photutils' slow metadata scan
     try:
         from photutils.utils.exceptions import NoDetectionsWarning
     except ImportError:  # moved in a future photutils: its base class then
@@ -515,7 +519,15 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
     src, dst, transform, quality = _find_for_apply(
         source, target, dict(options, transform_type=transform_type, n_sources=n_sources,
                              max_sources=max_sources, degree=degree), hdu=hdu, unit=unit)
-    return apply_transform(transform, src._parsed, dst._parsed, order=order,
+    # Resampling needs the target's grid, WCS and name, not its pixels: a
+    # frame read from a file here is freed before the output is made.
+    grid = _grid_only(dst._parsed)
+    if not isinstance(target, Reference) and dst._parsed is not target:
+        # Ours: the pixels go now, not at the next garbage collection.
+        dst._parsed.data = dst._parsed.mask = dst._parsed.uncertainty = None
+        dst._parsed.flags = None
+    del dst
+    return apply_transform(transform, src._parsed, grid, order=order,
                            conserve_flux=conserve_flux, fill_value=fill_value, method=method,
                            unit=unit, parallel=parallel, quality=quality,
                            add_keyword=add_keyword)
@@ -585,3 +597,9 @@ def _prepared_target(target, options, hdu=None):
     ref.asterisms(n, options.get("n_neighbors",
                                  inspect.signature(match_points).parameters["n_neighbors"].default))
     return ref
+
+
+def _grid_only(parsed):
+    """``parsed`` with its pixels replaced by a read-only view of one zero of the same shape."""
+    data = np.broadcast_to(np.zeros((), parsed.data.dtype), parsed.data.shape)
+    return dataclasses.replace(parsed, data=data, mask=None, uncertainty=None, flags=None)

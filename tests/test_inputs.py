@@ -545,3 +545,38 @@ def test_hdulist_in_memory_keeps_extensions(pair, tmp_path, cls):
         out = register(hdul, pair.target)
     expected = register(ccd, pair.target)
     _assert_same_frame(out, expected, cls)
+
+
+def test_fits_paths_read_in_native_order_and_register_as_arrays(tmp_path):
+    # FITS data are big-endian: a file read here is swapped in place (no second
+    # copy), and registering the files gives the arrays' result bit for bit.
+    from astroalign_nd._input import parse_input
+
+    pair = simulate_pair((256, 256), n_stars=120, rotation=20.0, seed=4)
+    src = pair.source.astype(np.float32)
+    dst = pair.target.astype(np.float32)
+    ps, pt = tmp_path / "s.fits", tmp_path / "t.fits"
+    fits.writeto(ps, src)
+    fits.writeto(pt, dst)
+    before = (ps.read_bytes(), pt.read_bytes())
+    parsed = parse_input(str(ps), "source")
+    assert parsed.data.dtype.isnative and parsed.data.dtype == np.float32
+    np.testing.assert_array_equal(parsed.data, src)
+    from_files = astroalign_nd.register(str(ps), str(pt))
+    from_arrays = astroalign_nd.register(src, dst)
+    np.testing.assert_array_equal(from_files.data, from_arrays.data)
+    np.testing.assert_array_equal(from_files.mask, from_arrays.mask)
+    assert (ps.read_bytes(), pt.read_bytes()) == before  # files untouched
+
+
+def test_register_keeps_a_reference_target_whole():
+    # register frees the pixels of a target it read itself, never those of a
+    # Reference (or array) the caller holds.
+    pair = simulate_pair((256, 256), n_stars=120, rotation=20.0, seed=4)
+    dst = pair.target.astype(np.float32)
+    ref = Reference(dst)
+    first = astroalign_nd.register(pair.source, ref)
+    assert ref._parsed.data is not None and ref._parsed.data.shape == dst.shape
+    second = astroalign_nd.register(pair.source, ref)
+    np.testing.assert_array_equal(first.data, second.data)
+    np.testing.assert_array_equal(ref._parsed.data, pair.target.astype(np.float32))
