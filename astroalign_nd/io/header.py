@@ -72,7 +72,9 @@ from ..nonlinear import DEGREES, PolynomialTransform, ProjectiveTransform, _expo
 from ..transforms import (
     TRANSFORM_TYPES,
     AffineTransform,
+    EuclideanTransform,
     LinearTransform2D,
+    SimilarityTransform,
     _check_invertible,
     as_matrix,
     transform_class,
@@ -174,6 +176,8 @@ def _affine_matrix(model):
 
 def _degrees(angle):
     """Angle in degrees wrapped to (-180, 180]."""
+    if -180.0 < angle <= 180.0:
+        return float(angle)  # unchanged, so that it reads back bit for bit
     rad = np.deg2rad(angle)
     degrees = float(np.degrees(np.arctan2(np.sin(rad), np.cos(rad))))
     return 180.0 if degrees == -180.0 else degrees
@@ -667,11 +671,37 @@ def transform_from_header(header: fits.Header | Mapping, *,
     indices = _MATRIX_INDICES + (_PROJECTIVE_INDICES if cls is ProjectiveTransform else ())
     matrix = _read_matrix(header, prefix, indices)
     try:
-        return cls.from_matrix(matrix)
+        model = cls.from_matrix(matrix)
     except ValueError as exc:
         raise ValueError(
             f"the matrix in the header is not a valid {cls.__name__} ({exc})."
         ) from None
+    return _from_written_parameters(header, prefix, model, matrix)
+
+
+def _from_written_parameters(header, prefix, model, matrix):
+    """
+    The model rebuilt from its written rotation and scale, when that gives the stored matrix.
+
+    ``from_matrix`` recovers a rotation through ``arctan2``, which can differ
+    from the written one in the last bit; the readable ROT/SCALE cards hold
+    the model's own parameters, so they are preferred when they reproduce
+    the stored matrix exactly (else the matrix wins).
+    """
+    if not isinstance(model, (EuclideanTransform, SimilarityTransform)):
+        return model
+    rot, scale = header.get(prefix + "ROT"), header.get(prefix + "SCALE", 1.0)
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (rot, scale)):
+        return model
+    params = dict(rotation=float(rot), translation_x=matrix[0, 2], translation_y=matrix[1, 2],
+                  parity=int(model.parity.value))
+    if isinstance(model, SimilarityTransform):
+        params["scale"] = float(scale)
+    try:
+        written = type(model)(**params)
+    except (ValueError, TypeError):
+        return model
+    return written if np.array_equal(written.matrix, matrix) else model
 
 
 def _read_polynomial(header, prefix):
