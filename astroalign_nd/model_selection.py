@@ -623,8 +623,12 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     # 3. Choose (degree='auto') or check the requested model.
     candidates = []
     if transform_type == "projective":
+        # Too few pairs while growing leave the affine model of the growth
+        # stage (6 parameters): the homography starts from its equivalent.
+        start = params if isinstance(cand, _Projective) else _projective_start(
+            _fit_affine(fuv, fdst, 1.0 / w, params))
         chosen, chosen_params, chosen_cov = _check_and_fit(
-            _Projective(), fuv, fdst, w, frame_uv, 1, strict=True, start=params,
+            _Projective(), fuv, fdst, w, frame_uv, 1, strict=True, start=start,
             what="a projective model")
         name, deg = "projective", None
     else:
@@ -797,7 +801,7 @@ FIT_SOURCES = 1000
 
 
 def extend_match(result, source, target, *, transform_type, degree=3, tolerance=3.0,
-                 significance=1e-4, n_fit=FIT_SOURCES):
+                 significance=1e-4, n_fit=FIT_SOURCES, n_control=None):
     """
     Grow the linear `~astroalign_nd.matching.MatchResult` of
     `~astroalign_nd.find_match` into a non-linear one over many more stars.
@@ -812,6 +816,11 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
         See `fit_nonlinear`.
     n_fit : int, optional
         Detect up to ``2 * n_fit`` stars per image for the fit.
+    n_control : (int, int), optional
+        The control points of each frame in the linear match (by default
+        ``result.n_sources_used`` for both).  The larger star lists are
+        detected with the FWHM those detections found, so that both frames
+        are measured as consistently as the control points were.
 
     Returns
     -------
@@ -823,8 +832,12 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
     from .matching import MatchResult
 
     n = max(int(n_fit), int(result.n_sources_used or 0))
-    src_pts, src_err, src_frame = source.stars(n)
-    dst_pts, dst_err, _ = target.stars(n)
+    if n_control is None:
+        n_control = (result.n_sources_used, result.n_sources_used)
+    # A longer list can make detection search other scales, and choose another
+    # width in one frame than in the other: keep the control points' FWHM.
+    src_pts, src_err, src_frame = source.stars(n, fwhm=source.detection_fwhm(n_control[0]))
+    dst_pts, dst_err, _ = target.stars(n, fwhm=target.detection_fwhm(n_control[1]))
     fit = fit_nonlinear(src_pts, dst_pts, result.transform.matrix, transform_type=transform_type,
                         degree=degree, seed_points=result.source_points,
                         source_errors=src_err, target_errors=dst_err, source_frame=src_frame,
