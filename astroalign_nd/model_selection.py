@@ -67,6 +67,12 @@ WARN_STARS_PER_TERM = 6.0
 WARN_PREDICTED = 0.3
 #: Grid (per axis) on which the predicted error is evaluated.
 ERROR_GRID = 33
+#: degree='auto': blocks per axis of the spatially blocked cross-validation
+#: (each block is held out in turn, so a model is scored where it extrapolates) ...
+CV_BLOCKS = 4
+#: ... and the simplest candidate whose held-out error is within this factor of
+#: the smallest one is chosen: extra terms must earn a meaningful improvement.
+CV_MARGIN = 1.1
 #: The linear search's matching radius is this many times the usual one when a
 #: distortion model follows: a tilted or distorted wide field is several
 #: pixels off any linear model away from the centre.
@@ -369,6 +375,38 @@ def _coverage_ok(cov, strict):
     return cov["occupancy"] >= occ_min and cov["stars_per_term"] >= per_min
 
 
+def _blocked_cv(cand, uv, dst, w, frame_uv, blocks=CV_BLOCKS):
+    """
+    Spatially blocked cross-validation: the frame is cut into ``blocks x
+    blocks`` cells; each cell's pairs are predicted by the model fitted to
+    all the others.  Returns the mean held-out chi-square per pair (inf when
+    a training set cannot constrain the model).
+
+    A fit to the stars of one region is judged where it has none: terms that
+    only follow the noise (or slightly systematic centroid errors) of
+    thousands of stars lower the in-sample chi-square, and the F-test and BIC
+    accept them, but they swing away from the stars towards the corners,
+    which the held-out cells expose.
+    """
+    x0, x1, y0, y1 = frame_uv
+    ix = np.clip(((uv[:, 0] - x0) / (x1 - x0) * blocks).astype(int), 0, blocks - 1)
+    iy = np.clip(((uv[:, 1] - y0) / (y1 - y0) * blocks).astype(int), 0, blocks - 1)
+    cell = iy * blocks + ix
+    sw = np.sqrt(np.repeat(w, 2))
+    a = cand.design(uv).reshape(-1, cand.k) * sw[:, None]
+    b = dst.reshape(-1) * sw
+    total = 0.0
+    for c in np.unique(cell):
+        out = cell == c
+        rows = np.repeat(~out, 2)
+        sol = _solve(a[rows], b[rows])
+        if sol is None:
+            return np.inf
+        r = a[~rows] @ sol[0] - b[~rows]
+        total += float(r @ r)
+    return total / len(uv)
+
+
 def _f_pvalue(chi_small, k_small, chi_big, k_big, n_eq):
     """P-value of the F-test that the ``k_big - k_small`` extra terms are needed."""
     d1, d2 = k_big - k_small, n_eq - k_big
@@ -548,11 +586,12 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
                            m[1, 0] * half, m[1, 1] * half])
     top = 5 if degree == "auto" else (degree if degree is not None else 1)
 
-    def growth_model(n_pairs):
-        """The most flexible model ``n_pairs`` pairs support while growing."""
+    def growth_model(n_pairs, cap=None):
+        """The most flexible model ``n_pairs`` pairs support while growing
+        (of degree ``cap`` at most)."""
         if transform_type == "projective":
             return _Projective() if n_pairs >= 4 * 8 else aff
-        d = top
+        d = top if cap is None else cap
         while d > 1 and n_pairs < 2 * WARN_STARS_PER_TERM * _n_terms(d):
             d -= 1
         return _Poly(d)
@@ -595,25 +634,29 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         radius = min(radius * 1.4, r_max)
 
     # 2. Refine over the whole frame with a shrinking pairing radius.
-    tol = float(tolerance)
-    final = None
-    for _ in range(10):
-        si, dj = pairs.pair(_predict(cand, params, uv), all_idx, tol)
-        new = growth_model(len(si))
-        fit = fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
-        if fit is None:
-            break
-        cand, params = new, fit[0]
-        _, _, keep, total = fit
-        final = (si, dj, keep, total)
-        new_tol = float(np.clip(5.0 * np.sqrt(np.median(total[keep])), min_tolerance, tol))
-        if new_tol == tol:
-            break
-        tol = new_tol
-    if final is None:
-        raise TooFewSourcesError(
-            f"too few stars pair up under the linear transform to fit a {transform_type} "
-            f"model; pass more stars (n_sources, nsigma) or use transform_type='affine'.")
+    def refine(cand, params, cap=None):
+        tol = float(tolerance)
+        final = None
+        for _ in range(10):
+            si, dj = pairs.pair(_predict(cand, params, uv), all_idx, tol)
+            new = growth_model(len(si), cap)
+            fit = fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
+            if fit is None:
+                break
+            cand, params = new, fit[0]
+            _, _, keep, total = fit
+            final = (si, dj, keep, total)
+            new_tol = float(np.clip(5.0 * np.sqrt(np.median(total[keep])), min_tolerance, tol))
+            if new_tol == tol:
+                break
+            tol = new_tol
+        if final is None:
+            raise TooFewSourcesError(
+                f"too few stars pair up under the linear transform to fit a {transform_type} "
+                f"model; pass more stars (n_sources, nsigma) or use transform_type='affine'.")
+        return cand, params, final, tol
+
+    cand, params, final, tol = refine(cand, params)
     si, dj, keep, total = final
     n_paired = len(si)
     si, dj, total = si[keep], dj[keep], total[keep]
@@ -664,18 +707,42 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         for i, (c, d, label, fit, chi2) in enumerate(fits):
             p = 1.0 if i == 0 else _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq)
             bic = float(chi2 / s2 + c.k * np.log(n_eq))
+            cv = _blocked_cv(c, fuv, fdst, w, frame_uv) if degree == "auto" else None
             candidates.append(dict(model=label, degree=d, n_parameters=c.k, chi2=chi2,
-                                   bic=bic, p_value=p))
+                                   bic=bic, p_value=p, cv_chi2=cv))
             # Both tests must agree: the F-test guards small samples, BIC (whose
             # penalty grows with the number of stars) large ones, where centroid
             # errors that are not quite Gaussian make tiny p-values cheap.
             if i > 0 and p < significance and bic < candidates[best]["bic"]:
                 best = i
+        if degree == "auto":
+            # With thousands of stars the tests accept terms that only follow
+            # slightly systematic centroid errors; those terms extrapolate badly
+            # where stars are few.  Up to the candidate the tests accept, the
+            # simplest whose held-out error (blocked cross-validation) is within
+            # CV_MARGIN of the smallest one is chosen.
+            cv = [candidates[i]["cv_chi2"] for i in range(best + 1)]
+            if np.isfinite(min(cv)):
+                best = min(i for i in range(best + 1) if cv[i] <= CV_MARGIN * min(cv))
         for i, entry in enumerate(candidates):
             entry["chosen"] = i == best
         c, d, label, _, _ = fits[best]
         if degree == "auto":
             chosen, chosen_params, chosen_cov = c, *fits[best][3]
+            if d < top and isinstance(cand, _Poly) and cand.degree > d:
+                # The pairs were paired and clipped by a model of higher degree:
+                # pair and clip again with the chosen one, as an explicit degree
+                # would have (a few pairs that only the discarded terms followed
+                # would otherwise stay).
+                _, _, final, tol = refine(c, chosen_params, cap=d)
+                si, dj, keep, total = final
+                n_paired = len(si)
+                si, dj, total = si[keep], dj[keep], total[keep]
+                w = 1.0 / total
+                fuv, fdst = uv[si], dst[dj]
+                refit = _wls(c, fuv, fdst, w)
+                if refit is not None:
+                    chosen_params, chosen_cov = refit
         else:
             chosen, chosen_params, chosen_cov = _check_and_fit(
                 c, fuv, fdst, w, frame_uv, d, strict=True, start=None,
@@ -798,6 +865,14 @@ def _as_matrix(linear):
 #: Stars of each image used to grow a distortion model: ``Reference.stars``
 #: detects twice this many (brightest first).
 FIT_SOURCES = 1000
+#: Stellar widths of the two frames (at the same scale) that differ by less than
+#: this factor are taken as consistent measurements.
+FWHM_AGREEMENT = 1.25
+
+
+def _fwhm_mismatch(fwhm_src, fwhm_dst, scale):
+    """|log| of the target FWHM over the source FWHM mapped to the target scale."""
+    return abs(float(np.log(fwhm_dst / (scale * fwhm_src))))
 
 
 def extend_match(result, source, target, *, transform_type, degree=3, tolerance=3.0,
@@ -818,9 +893,12 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
         Detect up to ``2 * n_fit`` stars per image for the fit.
     n_control : (int, int), optional
         The control points of each frame in the linear match (by default
-        ``result.n_sources_used`` for both).  The larger star lists are
-        detected with the FWHM those detections found, so that both frames
-        are measured as consistently as the control points were.
+        ``result.n_sources_used`` for both).  When the larger star lists'
+        detections found stellar widths that disagree between the frames
+        (by more than ``FWHM_AGREEMENT``, at the match's scale) and the
+        control points' widths agree better, the larger lists are detected
+        again at the control points' widths, so that both frames are
+        measured consistently.
 
     Returns
     -------
@@ -834,10 +912,21 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
     n = max(int(n_fit), int(result.n_sources_used or 0))
     if n_control is None:
         n_control = (result.n_sources_used, result.n_sources_used)
-    # A longer list can make detection search other scales, and choose another
-    # width in one frame than in the other: keep the control points' FWHM.
-    src_pts, src_err, src_frame = source.stars(n, fwhm=source.detection_fwhm(n_control[0]))
-    dst_pts, dst_err, _ = target.stars(n, fwhm=target.detection_fwhm(n_control[1]))
+    src_pts, src_err, src_frame = source.stars(n)
+    dst_pts, dst_err, _ = target.stars(n)
+    # Asking for many more stars can make detection search other scales and
+    # choose a very different width in one frame only; centroids of asymmetric
+    # stars (plate scans) then shift between the frames by a good fraction of
+    # a pixel.  If the control points' widths agreed better, detect again at them.
+    scale = float(np.sqrt(abs(np.linalg.det(result.transform.matrix[:2, :2]))))
+    free = (source.detection_fwhm(n), target.detection_fwhm(n))
+    ctrl = (source.detection_fwhm(n_control[0]), target.detection_fwhm(n_control[1]))
+    if (None not in free + ctrl and _fwhm_mismatch(*free, scale) > np.log(FWHM_AGREEMENT)
+            and _fwhm_mismatch(*ctrl, scale) < _fwhm_mismatch(*free, scale)):
+        if free[0] != ctrl[0]:
+            src_pts, src_err, src_frame = source.stars(n, fwhm=ctrl[0])
+        if free[1] != ctrl[1]:
+            dst_pts, dst_err, _ = target.stars(n, fwhm=ctrl[1])
     fit = fit_nonlinear(src_pts, dst_pts, result.transform.matrix, transform_type=transform_type,
                         degree=degree, seed_points=result.source_points,
                         source_errors=src_err, target_errors=dst_err, source_frame=src_frame,
