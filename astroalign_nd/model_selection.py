@@ -70,8 +70,8 @@ ERROR_GRID = 33
 #: degree='auto': blocks per axis of the spatially blocked cross-validation
 #: (each block is held out in turn, so a model is scored where it extrapolates) ...
 CV_BLOCKS = 4
-#: ... and the simplest candidate whose held-out error is within this factor of
-#: the smallest one is chosen: extra terms must earn a meaningful improvement.
+#: ... and a candidate with more terms must lower the held-out error by more
+#: than this factor (and by twice its standard error over the cells).
 CV_MARGIN = 1.1
 #: The linear search's matching radius is this many times the usual one when a
 #: distortion model follows: a tilted or distorted wide field is several
@@ -395,16 +395,36 @@ def _blocked_cv(cand, uv, dst, w, frame_uv, blocks=CV_BLOCKS):
     sw = np.sqrt(np.repeat(w, 2))
     a = cand.design(uv).reshape(-1, cand.k) * sw[:, None]
     b = dst.reshape(-1) * sw
-    total = 0.0
+    per_cell = np.full(blocks * blocks, np.nan)
     for c in np.unique(cell):
         out = cell == c
         rows = np.repeat(~out, 2)
         sol = _solve(a[rows], b[rows])
         if sol is None:
-            return np.inf
+            return np.inf, None
         r = a[~rows] @ sol[0] - b[~rows]
-        total += float(r @ r)
-    return total / len(uv)
+        per_cell[c] = float(r @ r)
+    return float(np.nansum(per_cell)) / len(uv), per_cell / len(uv)
+
+
+def _cv_better(cells_new, cv_new, cells_old, cv_old):
+    """
+    True if the held-out error ``cv_new`` improves on ``cv_old`` meaningfully:
+    by more than a fraction ``CV_MARGIN - 1`` of it, and by more than twice
+    the standard error of the per-cell differences (a model that wins in a
+    single held-out cell only is not better).
+    """
+    if not np.isfinite(cv_new):
+        return False
+    if not np.isfinite(cv_old):
+        return True
+    gain = cv_old - cv_new
+    if gain <= (CV_MARGIN - 1.0) * cv_new:
+        return False
+    ok = np.isfinite(cells_new) & np.isfinite(cells_old)
+    diff = (cells_old - cells_new)[ok] * ok.sum()  # per-cell contributions to the mean
+    se = float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else np.inf
+    return gain > 2.0 * se
 
 
 def _f_pvalue(chi_small, k_small, chi_big, k_big, n_eq):
@@ -703,11 +723,13 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         # The residual variance scale, from the most flexible candidate (as in
         # the F-test): the BIC needs chi-squares in units of the actual scatter.
         s2 = max(fits[-1][4] / max(n_eq - fits[-1][0].k, 1), 1e-300)
-        best = 0
+        best, cv_cells = 0, []
         for i, (c, d, label, fit, chi2) in enumerate(fits):
             p = 1.0 if i == 0 else _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq)
             bic = float(chi2 / s2 + c.k * np.log(n_eq))
-            cv = _blocked_cv(c, fuv, fdst, w, frame_uv) if degree == "auto" else None
+            cv, cells = _blocked_cv(c, fuv, fdst, w, frame_uv) if degree == "auto" else (None,
+                                                                                       None)
+            cv_cells.append(cells)
             candidates.append(dict(model=label, degree=d, n_parameters=c.k, chi2=chi2,
                                    bic=bic, p_value=p, cv_chi2=cv))
             # Both tests must agree: the F-test guards small samples, BIC (whose
@@ -718,12 +740,14 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         if degree == "auto":
             # With thousands of stars the tests accept terms that only follow
             # slightly systematic centroid errors; those terms extrapolate badly
-            # where stars are few.  Up to the candidate the tests accept, the
-            # simplest whose held-out error (blocked cross-validation) is within
-            # CV_MARGIN of the smallest one is chosen.
-            cv = [candidates[i]["cv_chi2"] for i in range(best + 1)]
-            if np.isfinite(min(cv)):
-                best = min(i for i in range(best + 1) if cv[i] <= CV_MARGIN * min(cv))
+            # where stars are few.  Up to the candidate the tests accept, a model
+            # with more terms replaces the choice only if it also predicts the
+            # held-out cells (blocked cross-validation) meaningfully better.
+            last, best = best, 0
+            for i in range(1, last + 1):
+                if _cv_better(cv_cells[i], candidates[i]["cv_chi2"], cv_cells[best],
+                              candidates[best]["cv_chi2"]):
+                    best = i
         for i, entry in enumerate(candidates):
             entry["chosen"] = i == best
         c, d, label, _, _ = fits[best]
