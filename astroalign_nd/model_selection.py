@@ -65,6 +65,9 @@ WARN_OCCUPANCY = 0.85
 WARN_STARS_PER_TERM = 6.0
 #: Predicted 1-sigma error (px) above which the fit is reported as uncertain.
 WARN_PREDICTED = 0.3
+#: degree='auto' warns when a linear choice leaves residuals this many times
+#: larger than the centroid errors predict.
+WARN_EXCESS = 3.0
 #: Grid (per axis) on which the predicted error is evaluated.
 ERROR_GRID = 33
 #: degree='auto': blocks per axis of the spatially blocked cross-validation
@@ -727,8 +730,8 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         for i, (c, d, label, fit, chi2) in enumerate(fits):
             p = 1.0 if i == 0 else _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq)
             bic = float(chi2 / s2 + c.k * np.log(n_eq))
-            cv, cells = _blocked_cv(c, fuv, fdst, w, frame_uv) if degree == "auto" else (None,
-                                                                                       None)
+            cv, cells = (_blocked_cv(c, fuv, fdst, w, frame_uv) if degree == "auto"
+                         else (None, None))
             cv_cells.append(cells)
             candidates.append(dict(model=label, degree=d, n_parameters=c.k, chi2=chi2,
                                    bic=bic, p_value=p, cv_chi2=cv))
@@ -777,7 +780,12 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     n_terms = chosen.k / 2.0
     coverage = _coverage(fuv, frame_uv, deg or 1, n_terms)
     r = _predict(chosen, chosen_params, fuv) - fdst
-    chi_red = float(np.sum(w * np.einsum("ij,ij->i", r, r))) / max(2 * len(fuv) - chosen.k, 1)
+    r2 = np.einsum("ij,ij->i", r, r)
+    dof = max(2 * len(fuv) - chosen.k, 1)
+    chi_red = float(np.sum(w * r2)) / dof
+    # The residual scatter over what the centroid errors alone predict (the
+    # weights above are scaled to the scatter; these are not).
+    excess = float(np.sqrt(np.sum(r2 / variance(si, dj)) / dof))
     gx = np.linspace(frame_uv[0], frame_uv[1], ERROR_GRID)
     gy = np.linspace(frame_uv[2], frame_uv[3], ERROR_GRID)
     grid = np.column_stack([a.ravel() for a in np.meshgrid(gx, gy)])
@@ -790,6 +798,16 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
              f"{WARN_OCCUPANCY:.0%} and {WARN_STARS_PER_TERM:g}); the model is poorly "
              "constrained where there are no stars. Use a lower degree (or degree='auto') or "
              "more stars (n_sources, nsigma).", PoorFitWarning)
+    tested = sorted({c["degree"] for c in candidates})
+    if degree == "auto" and name != "polynomial" and (excess > WARN_EXCESS or tested == [1]):
+        why = (f"its residuals are {excess:.1f} times what the centroid errors predict"
+               if excess > WARN_EXCESS else "no polynomial could be tested")
+        warn(f"degree='auto' chose the {_label(name, deg)}, but {why}: the {len(fuv)} stars it "
+             f"fits (covering {coverage['occupancy']:.0%} of a {coverage['grid'][0]}x"
+             f"{coverage['grid'][1]} grid) are too few to find or rule out a distortion, and "
+             "away from them the mapping can be off by more than the residuals show. Pass "
+             "more stars (n_sources, a lower nsigma) or check the registered frame's edges.",
+             PoorFitWarning)
     if pred_max > WARN_PREDICTED:
         warn(f"the {_label(name, deg)} is uncertain: its covariance gives a 1-sigma position "
              f"error of up to {pred_max:.2f} px over the frame (RMS {pred_rms:.2f} px, "
@@ -808,7 +826,8 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     info = dict(model=name, degree=deg, requested_degree=degree if name != "projective" else None,
                 selection="F-test and BIC" if degree == "auto" else None, significance=significance,
                 candidates=candidates, coverage=coverage, predicted_error_max=pred_max,
-                predicted_error_rms=pred_rms, n_pairs=int(len(si)),
+                predicted_error_rms=pred_rms, residual_excess=excess,
+                degrees_tested=tested if degree == "auto" else None, n_pairs=int(len(si)),
                 n_clipped=int(n_paired - len(si)), pairing_tolerance=float(tol))
     return DistortionFit(model, cov, si, dj, resid, info)
 
