@@ -148,9 +148,12 @@ def test_coverage_refused_and_warned():
     shift = np.array([[1.0, 0.0, 3.0], [0.0, 1.0, 4.0], [0.0, 0.0, 1.0]])
     with pytest.raises(PoorCoverageError, match="do not cover the frame"):
         fit_nonlinear(src, dst, shift, degree=4, pairs_given=True, source_frame=frame)
-    # 'auto' keeps to what the stars support instead of refusing.
-    fit = fit_nonlinear(src, dst, shift, degree="auto", pairs_given=True,
-                        source_frame=frame)
+    # 'auto' keeps to what the stars support instead of refusing, and says
+    # that it could not look for a distortion.
+    with pytest.warns(PoorFitWarning, match="no polynomial could be tested"):
+        fit = fit_nonlinear(src, dst, shift, degree="auto", pairs_given=True,
+                            source_frame=frame)
+    assert fit.info["degrees_tested"] == [1]
     assert fit.info["model"] == "affine"
     assert max(c["degree"] for c in fit.info["candidates"]) < 4
     # Too few stars per term for degree 5.
