@@ -824,7 +824,8 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         kw = {"parity": 1 if np.linalg.det(m[:2, :2]) > 0 else -1} if kind == "similarity" else {}
         model, cov, resid = fit_transform(s_pts, d_pts, kind, weights=w, **kw)
     info = dict(model=name, degree=deg, requested_degree=degree if name != "projective" else None,
-                selection="F-test and BIC" if degree == "auto" else None, significance=significance,
+                selection=("F-test, BIC and blocked cross-validation" if degree == "auto"
+                           else None), significance=significance,
                 candidates=candidates, coverage=coverage, predicted_error_max=pred_max,
                 predicted_error_rms=pred_rms, residual_excess=excess,
                 degrees_tested=tested if degree == "auto" else None, n_pairs=int(len(si)),
