@@ -78,6 +78,8 @@ ERROR_GRID = 33
 #: degree='auto': blocks per axis of the spatially blocked cross-validation
 #: (each block is held out in turn, so a model is scored where it extrapolates) ...
 CV_BLOCKS = 4
+#: ... for the degrees above this one (the tests alone decide up to it) ...
+CV_FROM_DEGREE = 3
 #: ... and a candidate with more terms must lower the held-out error by more
 #: than this factor (and by twice its standard error over the cells).
 CV_MARGIN = 1.1
@@ -418,9 +420,9 @@ def _blocked_cv(cand, uv, dst, w, frame_uv, blocks=CV_BLOCKS):
 def _cv_better(cells_new, cv_new, cells_old, cv_old):
     """
     True if the held-out error ``cv_new`` improves on ``cv_old`` meaningfully:
-    by more than a fraction ``CV_MARGIN - 1`` of it, and by more than twice
-    the standard error of the per-cell differences (a model that wins in a
-    single held-out cell only is not better).
+    by more than a fraction ``CV_MARGIN - 1`` of it, and either by half or by
+    more than twice the standard error of the per-cell differences (a model
+    that wins a little, in a single held-out cell, is not better).
     """
     if not np.isfinite(cv_new):
         return False
@@ -429,6 +431,8 @@ def _cv_better(cells_new, cv_new, cells_old, cv_old):
     gain = cv_old - cv_new
     if gain <= (CV_MARGIN - 1.0) * cv_new:
         return False
+    if cv_new * 2.0 < cv_old:  # halved: no doubt, however it spreads over the cells
+        return True
     ok = np.isfinite(cells_new) & np.isfinite(cells_old)
     diff = (cells_old - cells_new)[ok] * ok.sum()  # per-cell contributions to the mean
     se = float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else np.inf
@@ -736,7 +740,7 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         # The residual variance scale, from the most flexible candidate (as in
         # the F-test): the BIC needs chi-squares in units of the actual scatter.
         s2 = max(fits[-1][4] / max(n_eq - fits[-1][0].k, 1), 1e-300)
-        best, cv_cells = 0, []
+        best, cv_cells, accepted = 0, [], [0]
         for i, (c, d, label, fit, chi2) in enumerate(fits):
             p = 1.0 if i == 0 else _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq)
             bic = float(chi2 / s2 + c.k * np.log(n_eq))
@@ -750,14 +754,18 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
             # errors that are not quite Gaussian make tiny p-values cheap.
             if i > 0 and p < significance and bic < candidates[best]["bic"]:
                 best = i
-        if degree == "auto":
-            # With thousands of stars the tests accept terms that only follow
+                accepted.append(i)
+        if degree == "auto" and fits[best][1] > CV_FROM_DEGREE:
+            # With hundreds of stars the tests accept terms that only follow
             # slightly systematic centroid errors; those terms extrapolate badly
-            # where stars are few.  Up to the candidate the tests accept, a model
-            # with more terms replaces the choice only if it also predicts the
-            # held-out cells (blocked cross-validation) meaningfully better.
-            last, best = best, 0
-            for i in range(1, last + 1):
+            # where stars are few.  Up to the cubic (a radial distortion, a
+            # tilt) the tests decide: with tens of stars held-out cells are too
+            # noisy to.  Beyond it, a degree the tests accept replaces the
+            # current one only if it also predicts the held-out cells (blocked
+            # cross-validation) meaningfully better.
+            last = best
+            best = max(i for i in accepted if fits[i][1] <= CV_FROM_DEGREE)
+            for i in range(best + 1, last + 1):
                 if _cv_better(cv_cells[i], candidates[i]["cv_chi2"], cv_cells[best],
                               candidates[best]["cv_chi2"]):
                     best = i
