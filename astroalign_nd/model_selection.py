@@ -23,15 +23,15 @@ polynomial-distortion model over all detected stars:
    survive: they are far off a model fitted to the majority.
 3. **Choose.** With ``degree='auto'`` the candidate models (the linear one
    of the match, affine, polynomial degrees 2 to 5) are fitted to the same
-   pairs with the same weights.  An F-test (p < ``significance``) and the
-   Bayesian information criterion (BIC) bound the number of terms; up to
-   that bound a candidate with more terms replaces the current choice only
-   if it also predicts held-out stars meaningfully better, in a spatially
-   blocked cross-validation (each cell of a 4x4 grid predicted by the fit
-   to the others): with hundreds of real stars, whose centroid errors are
-   slightly systematic, the tests alone accept terms that swing away where
-   stars are few.  The pairs are then paired and clipped again with the
-   chosen model.
+   pairs with the same weights.  A candidate with more terms replaces the
+   current choice if an F-test (p < ``significance``) and the Bayesian
+   information criterion (BIC) both call for its extra terms; degrees 4
+   and 5 must also predict held-out stars meaningfully better, in a
+   spatially blocked cross-validation (each cell of a 4x4 grid predicted
+   by the fit to the others): with hundreds of real stars, whose centroid
+   errors are slightly systematic, the tests alone accept terms that swing
+   away where stars are few.  The pairs are then paired and clipped again
+   with the chosen model.
 4. **Trust.** The stars must cover the frame well enough for the model's
    terms: the occupancy of a grid of ``(degree + 1)**2`` cells and the
    number of stars per coefficient.  Too little coverage is refused
@@ -523,9 +523,9 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     degree : int or 'auto', optional
         Polynomial degree, 2 to 5, or 'auto' to choose it (linear
         included): a candidate with more terms is chosen only if an F-test
-        (p < ``significance``) and the BIC both prefer it, and its held-out
-        error in a spatially blocked cross-validation is lower by more
-        than 10% and two standard errors.
+        (p < ``significance``) and the BIC both prefer it, and, for degrees
+        4 and 5, its held-out error in a spatially blocked cross-validation
+        is meaningfully lower.
     seed_points : (K, 2) array-like, optional
         Source positions of the stars matched by the linear stage: the
         growth starts around them (by default around the stars the linear
