@@ -826,6 +826,12 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
              "away from them the mapping can be off by more than the residuals show. Pass "
              "more stars (n_sources, a lower nsigma) or check the registered frame's edges.",
              PoorFitWarning)
+    elif excess > WARN_EXCESS:
+        warn(f"the {_label(name, deg)}'s residuals over its {len(fuv)} stars are {excess:.1f} "
+             "times what their centroid errors predict: many pairs may be wrong (a crowded "
+             "field) or the model does not follow the mapping. Check "
+             "quality['model_selection'] and the registered frame; a lower degree, "
+             "transform_type='affine', or a smaller tolerance may do better.", PoorFitWarning)
     if pred_max > WARN_PREDICTED:
         warn(f"the {_label(name, deg)} is uncertain: its covariance gives a 1-sigma position "
              f"error of up to {pred_max:.2f} px over the frame (RMS {pred_rms:.2f} px, "

@@ -8,6 +8,7 @@ while the stars, noise and plate defects are real; the original frame is
 the target.  The simulator is not the judge here.
 """
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -108,3 +109,22 @@ def test_projective_on_sparse_real_frame():
     with pytest.warns(PoorFitWarning, match="no polynomial could be tested|times what"):
         t, _ = find_transform(src, dst, transform_type="polynomial", degree="auto")
     assert t.meta["quality"]["degree"] == 1
+
+
+def test_auto_warns_on_wrong_pairs_of_a_crowded_field():
+    # 2MASS J and H of the Galactic centre, resampled by the publisher onto
+    # one grid (the truth is the identity).  The crowded field pairs many
+    # wrong stars and degree 5 follows them (known limit, up to 49 px off
+    # at the corners): the user must be told.
+    field = DATA.parent / "field"
+    j, h = field / "gc_2MASS_j.fits.gz", field / "gc_2MASS_h.fits.gz"
+    if not (j.exists() and h.exists()):
+        pytest.skip("2MASS frames not available")
+    src = np.asarray(parse_input(str(j)).detection_image, np.float32)
+    dst = np.asarray(parse_input(str(h)).detection_image, np.float32)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        t, _ = find_transform(src, dst, transform_type="polynomial", degree="auto")
+    texts = [str(w.message) for w in caught if issubclass(w.category, PoorFitWarning)]
+    assert any("times what their centroid errors predict" in m for m in texts), texts
+    assert t.meta["quality"]["model_selection"]["residual_excess"] > 3.0
