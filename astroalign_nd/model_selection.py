@@ -23,10 +23,15 @@ polynomial-distortion model over all detected stars:
    survive: they are far off a model fitted to the majority.
 3. **Choose.** With ``degree='auto'`` the candidate models (the linear one
    of the match, affine, polynomial degrees 2 to 5) are fitted to the same
-   pairs with the same weights; a more complex candidate replaces the
-   current choice only if an F-test says its extra terms are significant
-   (p < ``significance``) and its Bayesian information criterion (BIC) is
-   lower.
+   pairs with the same weights.  A candidate with more terms replaces the
+   current choice if an F-test (p < ``significance``) and the Bayesian
+   information criterion (BIC) both call for its extra terms; degrees 4
+   and 5 must also predict held-out stars meaningfully better, in a
+   spatially blocked cross-validation (each cell of a 4x4 grid predicted
+   by the fit to the others): with hundreds of real stars, whose centroid
+   errors are slightly systematic, the tests alone accept terms that swing
+   away where stars are few.  The pairs are then paired and clipped again
+   with the chosen model.
 4. **Trust.** The stars must cover the frame well enough for the model's
    terms: the occupancy of a grid of ``(degree + 1)**2`` cells and the
    number of stars per coefficient.  Too little coverage is refused
@@ -65,8 +70,19 @@ WARN_OCCUPANCY = 0.85
 WARN_STARS_PER_TERM = 6.0
 #: Predicted 1-sigma error (px) above which the fit is reported as uncertain.
 WARN_PREDICTED = 0.3
+#: degree='auto' warns when a linear choice leaves residuals this many times
+#: larger than the centroid errors predict.
+WARN_EXCESS = 3.0
 #: Grid (per axis) on which the predicted error is evaluated.
 ERROR_GRID = 33
+#: degree='auto': blocks per axis of the spatially blocked cross-validation
+#: (each block is held out in turn, so a model is scored where it extrapolates) ...
+CV_BLOCKS = 4
+#: ... for the degrees above this one (the tests alone decide up to it) ...
+CV_FROM_DEGREE = 3
+#: ... and a candidate with more terms must lower the held-out error by more
+#: than this factor (and by twice its standard error over the cells).
+CV_MARGIN = 1.1
 #: The linear search's matching radius is this many times the usual one when a
 #: distortion model follows: a tilted or distorted wide field is several
 #: pixels off any linear model away from the centre.
@@ -369,6 +385,60 @@ def _coverage_ok(cov, strict):
     return cov["occupancy"] >= occ_min and cov["stars_per_term"] >= per_min
 
 
+def _blocked_cv(cand, uv, dst, w, frame_uv, blocks=CV_BLOCKS):
+    """
+    Spatially blocked cross-validation: the frame is cut into ``blocks x
+    blocks`` cells; each cell's pairs are predicted by the model fitted to
+    all the others.  Returns the mean held-out chi-square per pair (inf when
+    a training set cannot constrain the model).
+
+    A fit to the stars of one region is judged where it has none: terms that
+    only follow the noise (or slightly systematic centroid errors) of
+    thousands of stars lower the in-sample chi-square, and the F-test and BIC
+    accept them, but they swing away from the stars towards the corners,
+    which the held-out cells expose.
+    """
+    x0, x1, y0, y1 = frame_uv
+    ix = np.clip(((uv[:, 0] - x0) / (x1 - x0) * blocks).astype(int), 0, blocks - 1)
+    iy = np.clip(((uv[:, 1] - y0) / (y1 - y0) * blocks).astype(int), 0, blocks - 1)
+    cell = iy * blocks + ix
+    sw = np.sqrt(np.repeat(w, 2))
+    a = cand.design(uv).reshape(-1, cand.k) * sw[:, None]
+    b = dst.reshape(-1) * sw
+    per_cell = np.full(blocks * blocks, np.nan)
+    for c in np.unique(cell):
+        out = cell == c
+        rows = np.repeat(~out, 2)
+        sol = _solve(a[rows], b[rows])
+        if sol is None:
+            return np.inf, None
+        r = a[~rows] @ sol[0] - b[~rows]
+        per_cell[c] = float(r @ r)
+    return float(np.nansum(per_cell)) / len(uv), per_cell / len(uv)
+
+
+def _cv_better(cells_new, cv_new, cells_old, cv_old):
+    """
+    True if the held-out error ``cv_new`` improves on ``cv_old`` meaningfully:
+    by more than a fraction ``CV_MARGIN - 1`` of it, and either by half or by
+    more than twice the standard error of the per-cell differences (a model
+    that wins a little, in a single held-out cell, is not better).
+    """
+    if not np.isfinite(cv_new):
+        return False
+    if not np.isfinite(cv_old):
+        return True
+    gain = cv_old - cv_new
+    if gain <= (CV_MARGIN - 1.0) * cv_new:
+        return False
+    if cv_new * 2.0 < cv_old:  # halved: no doubt, however it spreads over the cells
+        return True
+    ok = np.isfinite(cells_new) & np.isfinite(cells_old)
+    diff = (cells_old - cells_new)[ok] * ok.sum()  # per-cell contributions to the mean
+    se = float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else np.inf
+    return gain > 2.0 * se
+
+
 def _f_pvalue(chi_small, k_small, chi_big, k_big, n_eq):
     """P-value of the F-test that the ``k_big - k_small`` extra terms are needed."""
     d1, d2 = k_big - k_small, n_eq - k_big
@@ -410,7 +480,10 @@ class DistortionFit:
         compared), ``coverage`` (grid, occupancy, stars per term),
         ``predicted_error_max`` and ``predicted_error_rms`` (1-sigma
         position error of the mapping in pixels on a grid over the source
-        frame, from the covariance), ``n_pairs`` and ``n_clipped``.
+        frame, from the covariance), ``residual_excess`` (residual scatter
+        over what the centroid errors predict), ``n_pairs`` and
+        ``n_clipped``; with ``degree='auto'``, each candidate's
+        ``cv_chi2`` (held-out chi-square per star) and ``degrees_tested``.
     """
 
     def __init__(self, transform, covariance, source_index, target_index, residuals, info):
@@ -450,7 +523,9 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     degree : int or 'auto', optional
         Polynomial degree, 2 to 5, or 'auto' to choose it (linear
         included): a candidate with more terms is chosen only if an F-test
-        (p < ``significance``) and the BIC both prefer it.
+        (p < ``significance``) and the BIC both prefer it, and, for degrees
+        4 and 5, its held-out error in a spatially blocked cross-validation
+        is meaningfully lower.
     seed_points : (K, 2) array-like, optional
         Source positions of the stars matched by the linear stage: the
         growth starts around them (by default around the stars the linear
@@ -548,11 +623,12 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
                            m[1, 0] * half, m[1, 1] * half])
     top = 5 if degree == "auto" else (degree if degree is not None else 1)
 
-    def growth_model(n_pairs):
-        """The most flexible model ``n_pairs`` pairs support while growing."""
+    def growth_model(n_pairs, cap=None):
+        """The most flexible model ``n_pairs`` pairs support while growing
+        (of degree ``cap`` at most)."""
         if transform_type == "projective":
             return _Projective() if n_pairs >= 4 * 8 else aff
-        d = top
+        d = top if cap is None else cap
         while d > 1 and n_pairs < 2 * WARN_STARS_PER_TERM * _n_terms(d):
             d -= 1
         return _Poly(d)
@@ -595,25 +671,29 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         radius = min(radius * 1.4, r_max)
 
     # 2. Refine over the whole frame with a shrinking pairing radius.
-    tol = float(tolerance)
-    final = None
-    for _ in range(10):
-        si, dj = pairs.pair(_predict(cand, params, uv), all_idx, tol)
-        new = growth_model(len(si))
-        fit = fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
-        if fit is None:
-            break
-        cand, params = new, fit[0]
-        _, _, keep, total = fit
-        final = (si, dj, keep, total)
-        new_tol = float(np.clip(5.0 * np.sqrt(np.median(total[keep])), min_tolerance, tol))
-        if new_tol == tol:
-            break
-        tol = new_tol
-    if final is None:
-        raise TooFewSourcesError(
-            f"too few stars pair up under the linear transform to fit a {transform_type} "
-            f"model; pass more stars (n_sources, nsigma) or use transform_type='affine'.")
+    def refine(cand, params, cap=None):
+        tol = float(tolerance)
+        final = None
+        for _ in range(10):
+            si, dj = pairs.pair(_predict(cand, params, uv), all_idx, tol)
+            new = growth_model(len(si), cap)
+            fit = fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
+            if fit is None:
+                break
+            cand, params = new, fit[0]
+            _, _, keep, total = fit
+            final = (si, dj, keep, total)
+            new_tol = float(np.clip(5.0 * np.sqrt(np.median(total[keep])), min_tolerance, tol))
+            if new_tol == tol:
+                break
+            tol = new_tol
+        if final is None:
+            raise TooFewSourcesError(
+                f"too few stars pair up under the linear transform to fit a {transform_type} "
+                f"model; pass more stars (n_sources, nsigma) or use transform_type='affine'.")
+        return cand, params, final, tol
+
+    cand, params, final, tol = refine(cand, params)
     si, dj, keep, total = final
     n_paired = len(si)
     si, dj, total = si[keep], dj[keep], total[keep]
@@ -623,8 +703,12 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     # 3. Choose (degree='auto') or check the requested model.
     candidates = []
     if transform_type == "projective":
+        # Too few pairs while growing leave the affine model of the growth
+        # stage (6 parameters): the homography starts from its equivalent.
+        start = params if isinstance(cand, _Projective) else _projective_start(
+            _fit_affine(fuv, fdst, 1.0 / w, params))
         chosen, chosen_params, chosen_cov = _check_and_fit(
-            _Projective(), fuv, fdst, w, frame_uv, 1, strict=True, start=params,
+            _Projective(), fuv, fdst, w, frame_uv, 1, strict=True, start=start,
             what="a projective model")
         name, deg = "projective", None
     else:
@@ -656,22 +740,54 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         # The residual variance scale, from the most flexible candidate (as in
         # the F-test): the BIC needs chi-squares in units of the actual scatter.
         s2 = max(fits[-1][4] / max(n_eq - fits[-1][0].k, 1), 1e-300)
-        best = 0
+        best, cv_cells, accepted = 0, [], [0]
         for i, (c, d, label, fit, chi2) in enumerate(fits):
             p = 1.0 if i == 0 else _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq)
             bic = float(chi2 / s2 + c.k * np.log(n_eq))
+            cv, cells = (_blocked_cv(c, fuv, fdst, w, frame_uv) if degree == "auto"
+                         else (None, None))
+            cv_cells.append(cells)
             candidates.append(dict(model=label, degree=d, n_parameters=c.k, chi2=chi2,
-                                   bic=bic, p_value=p))
+                                   bic=bic, p_value=p, cv_chi2=cv))
             # Both tests must agree: the F-test guards small samples, BIC (whose
             # penalty grows with the number of stars) large ones, where centroid
             # errors that are not quite Gaussian make tiny p-values cheap.
             if i > 0 and p < significance and bic < candidates[best]["bic"]:
                 best = i
+                accepted.append(i)
+        if degree == "auto" and fits[best][1] > CV_FROM_DEGREE:
+            # With hundreds of stars the tests accept terms that only follow
+            # slightly systematic centroid errors; those terms extrapolate badly
+            # where stars are few.  Up to the cubic (a radial distortion, a
+            # tilt) the tests decide: with tens of stars held-out cells are too
+            # noisy to.  Beyond it, a degree the tests accept replaces the
+            # current one only if it also predicts the held-out cells (blocked
+            # cross-validation) meaningfully better.
+            last = best
+            best = max(i for i in accepted if fits[i][1] <= CV_FROM_DEGREE)
+            for i in range(best + 1, last + 1):
+                if _cv_better(cv_cells[i], candidates[i]["cv_chi2"], cv_cells[best],
+                              candidates[best]["cv_chi2"]):
+                    best = i
         for i, entry in enumerate(candidates):
             entry["chosen"] = i == best
         c, d, label, _, _ = fits[best]
         if degree == "auto":
             chosen, chosen_params, chosen_cov = c, *fits[best][3]
+            if d < top and isinstance(cand, _Poly) and cand.degree > d:
+                # The pairs were paired and clipped by a model of higher degree:
+                # pair and clip again with the chosen one, as an explicit degree
+                # would have (a few pairs that only the discarded terms followed
+                # would otherwise stay).
+                _, _, final, tol = refine(c, chosen_params, cap=d)
+                si, dj, keep, total = final
+                n_paired = len(si)
+                si, dj, total = si[keep], dj[keep], total[keep]
+                w = 1.0 / total
+                fuv, fdst = uv[si], dst[dj]
+                refit = _wls(c, fuv, fdst, w)
+                if refit is not None:
+                    chosen_params, chosen_cov = refit
         else:
             chosen, chosen_params, chosen_cov = _check_and_fit(
                 c, fuv, fdst, w, frame_uv, d, strict=True, start=None,
@@ -682,7 +798,12 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     n_terms = chosen.k / 2.0
     coverage = _coverage(fuv, frame_uv, deg or 1, n_terms)
     r = _predict(chosen, chosen_params, fuv) - fdst
-    chi_red = float(np.sum(w * np.einsum("ij,ij->i", r, r))) / max(2 * len(fuv) - chosen.k, 1)
+    r2 = np.einsum("ij,ij->i", r, r)
+    dof = max(2 * len(fuv) - chosen.k, 1)
+    chi_red = float(np.sum(w * r2)) / dof
+    # The residual scatter over what the centroid errors alone predict (the
+    # weights above are scaled to the scatter; these are not).
+    excess = float(np.sqrt(np.sum(r2 / variance(si, dj)) / dof))
     gx = np.linspace(frame_uv[0], frame_uv[1], ERROR_GRID)
     gy = np.linspace(frame_uv[2], frame_uv[3], ERROR_GRID)
     grid = np.column_stack([a.ravel() for a in np.meshgrid(gx, gy)])
@@ -695,6 +816,22 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
              f"{WARN_OCCUPANCY:.0%} and {WARN_STARS_PER_TERM:g}); the model is poorly "
              "constrained where there are no stars. Use a lower degree (or degree='auto') or "
              "more stars (n_sources, nsigma).", PoorFitWarning)
+    tested = sorted({c["degree"] for c in candidates})
+    if degree == "auto" and name != "polynomial" and (excess > WARN_EXCESS or tested == [1]):
+        why = (f"its residuals are {excess:.1f} times what the centroid errors predict"
+               if excess > WARN_EXCESS else "no polynomial could be tested")
+        warn(f"degree='auto' chose the {_label(name, deg)}, but {why}: the {len(fuv)} stars it "
+             f"fits (covering {coverage['occupancy']:.0%} of a {coverage['grid'][0]}x"
+             f"{coverage['grid'][1]} grid) are too few to find or rule out a distortion, and "
+             "away from them the mapping can be off by more than the residuals show. Pass "
+             "more stars (n_sources, a lower nsigma) or check the registered frame's edges.",
+             PoorFitWarning)
+    elif excess > WARN_EXCESS:
+        warn(f"the {_label(name, deg)}'s residuals over its {len(fuv)} stars are {excess:.1f} "
+             "times what their centroid errors predict: many pairs may be wrong (a crowded "
+             "field) or the model does not follow the mapping. Check "
+             "quality['model_selection'] and the registered frame; a lower degree, "
+             "transform_type='affine', or a smaller tolerance may do better.", PoorFitWarning)
     if pred_max > WARN_PREDICTED:
         warn(f"the {_label(name, deg)} is uncertain: its covariance gives a 1-sigma position "
              f"error of up to {pred_max:.2f} px over the frame (RMS {pred_rms:.2f} px, "
@@ -711,9 +848,11 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         kw = {"parity": 1 if np.linalg.det(m[:2, :2]) > 0 else -1} if kind == "similarity" else {}
         model, cov, resid = fit_transform(s_pts, d_pts, kind, weights=w, **kw)
     info = dict(model=name, degree=deg, requested_degree=degree if name != "projective" else None,
-                selection="F-test and BIC" if degree == "auto" else None, significance=significance,
+                selection=("F-test, BIC and blocked cross-validation" if degree == "auto"
+                           else None), significance=significance,
                 candidates=candidates, coverage=coverage, predicted_error_max=pred_max,
-                predicted_error_rms=pred_rms, n_pairs=int(len(si)),
+                predicted_error_rms=pred_rms, residual_excess=excess,
+                degrees_tested=tested if degree == "auto" else None, n_pairs=int(len(si)),
                 n_clipped=int(n_paired - len(si)), pairing_tolerance=float(tol))
     return DistortionFit(model, cov, si, dj, resid, info)
 
@@ -794,10 +933,18 @@ def _as_matrix(linear):
 #: Stars of each image used to grow a distortion model: ``Reference.stars``
 #: detects twice this many (brightest first).
 FIT_SOURCES = 1000
+#: Stellar widths of the two frames (at the same scale) that differ by less than
+#: this factor are taken as consistent measurements.
+FWHM_AGREEMENT = 1.25
+
+
+def _fwhm_mismatch(fwhm_src, fwhm_dst, scale):
+    """|log| of the target FWHM over the source FWHM mapped to the target scale."""
+    return abs(float(np.log(fwhm_dst / (scale * fwhm_src))))
 
 
 def extend_match(result, source, target, *, transform_type, degree=3, tolerance=3.0,
-                 significance=1e-4, n_fit=FIT_SOURCES):
+                 significance=1e-4, n_fit=FIT_SOURCES, n_control=None):
     """
     Grow the linear `~astroalign_nd.matching.MatchResult` of
     `~astroalign_nd.find_match` into a non-linear one over many more stars.
@@ -812,6 +959,14 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
         See `fit_nonlinear`.
     n_fit : int, optional
         Detect up to ``2 * n_fit`` stars per image for the fit.
+    n_control : (int, int), optional
+        The control points of each frame in the linear match (by default
+        ``result.n_sources_used`` for both).  When the larger star lists'
+        detections found stellar widths that disagree between the frames
+        (by more than ``FWHM_AGREEMENT``, at the match's scale) and the
+        control points' widths agree better, the larger lists are detected
+        again at the control points' widths, so that both frames are
+        measured consistently.
 
     Returns
     -------
@@ -823,8 +978,23 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
     from .matching import MatchResult
 
     n = max(int(n_fit), int(result.n_sources_used or 0))
+    if n_control is None:
+        n_control = (result.n_sources_used, result.n_sources_used)
     src_pts, src_err, src_frame = source.stars(n)
     dst_pts, dst_err, _ = target.stars(n)
+    # Asking for many more stars can make detection search other scales and
+    # choose a very different width in one frame only; centroids of asymmetric
+    # stars (plate scans) then shift between the frames by a good fraction of
+    # a pixel.  If the control points' widths agreed better, detect again at them.
+    scale = float(np.sqrt(abs(np.linalg.det(result.transform.matrix[:2, :2]))))
+    free = (source.detection_fwhm(n), target.detection_fwhm(n))
+    ctrl = (source.detection_fwhm(n_control[0]), target.detection_fwhm(n_control[1]))
+    if (None not in free + ctrl and _fwhm_mismatch(*free, scale) > np.log(FWHM_AGREEMENT)
+            and _fwhm_mismatch(*ctrl, scale) < _fwhm_mismatch(*free, scale)):
+        if free[0] != ctrl[0]:
+            src_pts, src_err, src_frame = source.stars(n, fwhm=ctrl[0])
+        if free[1] != ctrl[1]:
+            dst_pts, dst_err, _ = target.stars(n, fwhm=ctrl[1])
     fit = fit_nonlinear(src_pts, dst_pts, result.transform.matrix, transform_type=transform_type,
                         degree=degree, seed_points=result.source_points,
                         source_errors=src_err, target_errors=dst_err, source_frame=src_frame,

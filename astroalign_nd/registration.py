@@ -110,6 +110,7 @@ class Reference:
         self.detect_options = detect_options
         self._stars = {}
         self._asterisms = {}
+        self._fwhms = {}
         self.fwhm = None
 
     @property
@@ -117,9 +118,23 @@ class Reference:
         """(ny, nx) of the image, None for a catalog."""
         return self._parsed.shape
 
-    def stars(self, n_sources: int) -> tuple[np.ndarray, np.ndarray | None, tuple | None]:
+    def stars(self, n_sources: int, fwhm: float | None = None
+              ) -> tuple[np.ndarray, np.ndarray | None, tuple | None]:
         """
         Stars for ``n_sources`` control points (cached).
+
+        Parameters
+        ----------
+        n_sources : int
+            Control points wanted; up to twice as many stars are detected.
+        fwhm : float, optional
+            Detect with this stellar FWHM (pixels) instead of estimating it,
+            unless the detection options already fix one.  The distortion
+            stage passes the FWHM of the control-point detection, so that
+            its larger star lists are measured like the control points: a
+            scale search run on a longer list can pick another width in one
+            frame than in the other, and centroids of asymmetric stars then
+            shift between the frames.
 
         Returns
         -------
@@ -132,15 +147,18 @@ class Reference:
         frame : (x0, x1, y0, y1) or None
             The image extent in pixels; None for catalogs.
         """
-        if n_sources not in self._stars:
-            p = self._parsed
+        p = self._parsed
+        fixed = fwhm is not None and not p.is_catalog and "fwhm" not in self.detect_options
+        key = (n_sources, float(fwhm)) if fixed else n_sources
+        if key not in self._stars:
             if p.is_catalog:
                 # Brightest first: the method needs the brightest stars only, and
                 # a cap keeps a million-point catalog from costing a million.
                 cap = max(2 * n_sources, _CATALOG_POINTS)
-                self._stars[n_sources] = (p.points[:cap], None, None)
+                self._stars[key] = (p.points[:cap], None, None)
             else:
-                opts = self.detect_options
+                opts = dict(self.detect_options, fwhm=float(fwhm)) if fixed \
+                    else self.detect_options
                 with warnings.catch_warnings():
                     # An empty image is reported by the caller (TooFewSourcesError),
                     # not by photutils' per-frame warning.
@@ -154,10 +172,17 @@ class Reference:
                 ny, nx = p.shape
                 pts = np.column_stack([np.asarray(table["x"], float),
                                        np.asarray(table["y"], float)])
-                self._stars[n_sources] = (pts, np.asarray(table["position_error"], float),
-                                          (-0.5, nx - 0.5, -0.5, ny - 0.5))
-                self.fwhm = table.meta.get("fwhm")
-        return self._stars[n_sources]
+                self._stars[key] = (pts, np.asarray(table["position_error"], float),
+                                    (-0.5, nx - 0.5, -0.5, ny - 0.5))
+                self._fwhms[key] = table.meta.get("fwhm")
+                if not fixed:
+                    self.fwhm = self._fwhms[key]
+        return self._stars[key]
+
+    def detection_fwhm(self, n_sources: int) -> float | None:
+        """The FWHM (pixels) the detection of `stars` ``(n_sources)`` used; None
+        for a catalog or before that detection ran."""
+        return self._fwhms.get(n_sources)
 
     def asterisms(self, n_sources: int, n_neighbors: int = 4) -> Any:
         """Triangles of the ``n_sources`` brightest stars (cached)."""
@@ -323,7 +348,8 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
     if nonlinear:
         kind = model_selection.nonlinear_name(transform_type)
         result = model_selection.extend_match(result, src, dst, transform_type=kind,
-                                              degree=degree, tolerance=mat["tolerance"])
+                                              degree=degree, tolerance=mat["tolerance"],
+                                              n_control=(ns, nd))
         info = result.extra["model_selection"]
         log.debug(f"astroalign_nd: {info['model']} model (degree {info['degree']}) over "
                   f"{result.n_matches} stars, RMS {result.rms:.3f} px")

@@ -78,7 +78,7 @@ def test_auto_degree_reports_its_tests():
     pair = _wide_pair(6.0, seed=5)
     result = find_match(pair.source, pair.target, transform_type="polynomial", degree="auto")
     info = result.extra["model_selection"]
-    assert info["selection"] == "F-test and BIC"
+    assert info["selection"] == "F-test, BIC and blocked cross-validation"
     names = [(c["model"], c["degree"]) for c in info["candidates"]]
     assert names[:3] == [("similarity", 1), ("affine", 1), ("polynomial", 2)]
     chosen = [c for c in info["candidates"] if c["chosen"]]
@@ -148,9 +148,12 @@ def test_coverage_refused_and_warned():
     shift = np.array([[1.0, 0.0, 3.0], [0.0, 1.0, 4.0], [0.0, 0.0, 1.0]])
     with pytest.raises(PoorCoverageError, match="do not cover the frame"):
         fit_nonlinear(src, dst, shift, degree=4, pairs_given=True, source_frame=frame)
-    # 'auto' keeps to what the stars support instead of refusing.
-    fit = fit_nonlinear(src, dst, shift, degree="auto", pairs_given=True,
-                        source_frame=frame)
+    # 'auto' keeps to what the stars support instead of refusing, and says
+    # that it could not look for a distortion.
+    with pytest.warns(PoorFitWarning, match="no polynomial could be tested"):
+        fit = fit_nonlinear(src, dst, shift, degree="auto", pairs_given=True,
+                            source_frame=frame)
+    assert fit.info["degrees_tested"] == [1]
     assert fit.info["model"] == "affine"
     assert max(c["degree"] for c in fit.info["candidates"]) < 4
     # Too few stars per term for degree 5.
@@ -259,3 +262,75 @@ def test_cli_degree_checked(tmp_path):
                           "--transform-type", "polynomial"], capture_output=True, text=True,
                          env=env)
     assert bad.returncode == 2 and "degree must be an integer from 2 to 5" in bad.stderr
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_auto_not_fooled_by_systematic_centroid_errors(seed):
+    # 2000 stars, dense at the centre and sparse at the corners, through an
+    # 8 px pincushion (a cubic map), with centroid errors that are heavy-tailed
+    # and slightly systematic (a 0.05 px pattern across the frame), as on real
+    # frames.  The F-test and BIC accept degree 5 (about 1 px off at the
+    # corners); the blocked cross-validation keeps degree 3.
+    n = 4096
+    half = 0.5 * np.hypot(n, n)
+
+    def truth(p):
+        u = (p - (n - 1) / 2.0) / half
+        return p + 8.0 * u * (u ** 2).sum(1)[:, None]
+
+    rng = np.random.default_rng(seed)
+    src = rng.normal((n - 1) / 2.0, n / 4.5, (3000, 2))
+    src = src[(src >= 0).all(1) & (src <= n - 1).all(1)][:2000]
+    pattern = 0.05 * np.sin(2 * np.pi * src[:, 0] / 3000.0 + 1.0) * np.cos(
+        2 * np.pi * src[:, 1] / 2500.0)
+    dst = truth(src) + np.column_stack([pattern, -pattern]) + 0.03 * rng.standard_t(3, src.shape)
+    err = np.full(len(src), 0.03)
+    fit = fit_nonlinear(src, dst, np.eye(3), degree="auto", pairs_given=True, tolerance=15.0,
+                        source_frame=(-0.5, n - 0.5, -0.5, n - 0.5), source_errors=err,
+                        target_errors=err)
+    info = fit.info
+    assert (info["model"], info["degree"]) == ("polynomial", 3), info["candidates"]
+    d5 = [c for c in info["candidates"] if c["degree"] == 5][0]
+    assert d5["p_value"] < 1e-4  # the tests alone would have taken degree 5
+    assert info["selection"] == "F-test, BIC and blocked cross-validation"
+    g = np.stack(np.meshgrid(np.linspace(0, n - 1, 33), np.linspace(0, n - 1, 33)), -1)
+    g = g.reshape(-1, 2)
+    mx, my = fit.transform(g[:, 0], g[:, 1])
+    t = truth(g)
+    assert np.hypot(mx - t[:, 0], my - t[:, 1]).max() < 0.3
+
+
+def test_projective_from_few_pairs():
+    # Fewer pairs than the growth stage needs to switch to the homography
+    # (32): the projective fit must start from the affine growth model, not
+    # index its 6 parameters as 8 (it raised IndexError).
+    rng = np.random.default_rng(4)
+    src = rng.uniform(0, 1000, (24, 2))
+    h = np.array([[1.01, 0.02, 5.0], [-0.015, 0.99, -3.0], [2e-5, -1e-5, 1.0]])
+    p = np.column_stack([src, np.ones(len(src))]) @ h.T
+    dst = p[:, :2] / p[:, 2:] + rng.normal(0, 0.03, src.shape)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PoorFitWarning)
+        fit = fit_nonlinear(src, dst, np.eye(3), transform_type="projective", pairs_given=True,
+                            tolerance=20.0, source_frame=(-0.5, 999.5, -0.5, 999.5))
+    assert isinstance(fit.transform, ProjectiveTransform)
+    mx, my = fit.transform(src[:, 0], src[:, 1])
+    assert np.hypot(mx - dst[:, 0], my - dst[:, 1]).max() < 0.2
+
+
+def test_reference_stars_at_a_given_fwhm():
+    from astroalign_nd import Reference
+
+    pair = simulate_pair((256, 256), n_stars=80, seed=2, fwhm=3.0)
+    ref = Reference(pair.target)
+    pts, _, _ = ref.stars(20)
+    free = ref.detection_fwhm(20)
+    assert free is not None and abs(free - 3.0) < 1.0
+    pts6, _, _ = ref.stars(20, fwhm=6.0)
+    assert ref.detection_fwhm(20) == free  # cached apart
+    assert ref.fwhm == free  # the estimate stays the frame's FWHM
+    assert ref.stars(20, fwhm=6.0)[0] is pts6
+    assert ref.stars(20)[0] is pts
+    # A FWHM fixed by the caller's options wins.
+    fixed = Reference(pair.target, fwhm=3.0)
+    assert fixed.stars(20, fwhm=6.0)[0] is fixed.stars(20)[0]

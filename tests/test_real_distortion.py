@@ -1,0 +1,130 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Distortion models on REAL frames (../shared/data/real, see its README.txt).
+
+Each frame is resampled through a known radial distortion and a similarity
+(as ``benchmarks/bench_distortion_real.py`` does), so the truth is exact
+while the stars, noise and plate defects are real; the original frame is
+the target.  The simulator is not the judge here.
+"""
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from astroalign_nd import find_transform
+from astroalign_nd._input import parse_input
+from astroalign_nd.exceptions import PoorFitWarning
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+
+pytestmark = pytest.mark.skipif(
+    not DATA.is_dir(), reason=f"real test images not available (expected {DATA})")
+
+
+class _Truth:
+    """Source -> target: radial distortion moving the corners by ``corner`` px, then a
+    rotation and shift (the mapping of bench_distortion_real.py)."""
+
+    def __init__(self, shape, corner, rotation, shift=(7.0, -5.0)):
+        ny, nx = shape
+        self.c = np.array([(nx - 1) / 2.0, (ny - 1) / 2.0])
+        self.r2max = float(np.sum(self.c ** 2))
+        self.k = corner / np.sqrt(self.r2max)
+        a = np.deg2rad(rotation)
+        self.rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        self.shift = np.asarray(shift, float)
+
+    def __call__(self, x, y):
+        dx, dy = x - self.c[0], y - self.c[1]
+        f = 1.0 + self.k * (dx * dx + dy * dy) / self.r2max
+        out = np.tensordot(self.rot, np.stack([dx * f, dy * f]), axes=1)
+        return out[0] + self.c[0] + self.shift[0], out[1] + self.c[1] + self.shift[1]
+
+
+def _distorted(name, corner, rotation):
+    """(source, target, truth): the frame seen through the truth, and the frame."""
+    path = DATA / name
+    if not path.exists():
+        pytest.skip(f"{path} not available")
+    img = np.asarray(parse_input(str(path)).detection_image, np.float64)
+    truth = _Truth(img.shape, corner, rotation)
+    yy, xx = np.mgrid[0:img.shape[0], 0:img.shape[1]].astype(float)
+    tx, ty = truth(xx, yy)
+    med = float(np.nanmedian(img))
+    src = ndimage.map_coordinates(np.nan_to_num(img, nan=med), [ty, tx], order=3,
+                                  mode="constant", cval=med)
+    return src.astype(np.float32), img.astype(np.float32), truth
+
+
+def _errors(t, truth, shape, step=16):
+    """(max, median) distance to the truth over the source grid landing in the target."""
+    yy, xx = np.mgrid[0:shape[0]:step, 0:shape[1]:step].astype(float)
+    tx, ty = truth(xx, yy)
+    inside = (tx >= 0) & (tx <= shape[1] - 1) & (ty >= 0) & (ty <= shape[0] - 1)
+    mx, my = t(xx[inside], yy[inside])
+    d = np.hypot(np.asarray(mx) - tx[inside], np.asarray(my) - ty[inside])
+    return float(d.max()), float(np.median(d))
+
+
+def test_auto_does_not_overfit_dense_real_frame():
+    # 8 px pincushion at the corners: a pure cubic radial map.  With hundreds
+    # of real stars the F-test and BIC accepted degree 5 (0.7 px off at the
+    # corners); the held-out cells of the cross-validation keep degree 3.
+    src, dst, truth = _distorted("singles/M6707HH.fits", 8.0, 55.0)
+    t, _ = find_transform(src, dst, transform_type="polynomial", degree="auto")
+    q = t.meta["quality"]
+    assert (q["model"], q["degree"]) == ("polynomial", 3), q["model_selection"]["candidates"]
+    err_max, err_med = _errors(t, truth, src.shape)
+    assert err_max < 0.15, err_max
+    assert err_med < 0.02, err_med
+    assert q["model_selection"]["residual_excess"] < 2.0
+
+
+def test_growth_detects_both_plates_consistently():
+    # A 1910 plate scan (asymmetric stars 14-16 px wide).  Asking detection for
+    # 2000 stars made it choose 6.5 px in the target only, and centroids moved
+    # by 0.7 px between the frames: polynomial and projective fits were 0.84 px
+    # off over the frame.  The growth stage keeps the control points' widths.
+    src, dst, truth = _distorted("pairs/m44_plates/m44-1910-04-01.jpg", -4.0, 15.0)
+    t, _ = find_transform(src, dst, transform_type="polynomial", degree=3)
+    err_max, err_med = _errors(t, truth, src.shape)
+    assert err_med < 0.15, err_med
+    assert err_max < 0.5, err_max
+
+
+def test_projective_on_sparse_real_frame():
+    # Few stars: the growth stage never reached the 32 pairs a homography needs
+    # and handed its affine start (6 parameters) to the projective fit:
+    # IndexError.  Now the homography starts from that affine model.
+    src, dst, truth = _distorted("singles/a8280271.fits", 8.0, 55.0)
+    with pytest.warns(PoorFitWarning):
+        t, _ = find_transform(src, dst, transform_type="projective")
+    assert t.meta["quality"]["model"] == "projective"
+    assert _errors(t, truth, src.shape)[1] < 1.0
+    # degree='auto' can only test linear models there, and says so.
+    with pytest.warns(PoorFitWarning, match="no polynomial could be tested|times what"):
+        t, _ = find_transform(src, dst, transform_type="polynomial", degree="auto")
+    assert t.meta["quality"]["degree"] == 1
+
+
+def test_auto_warns_on_wrong_pairs_of_a_crowded_field():
+    # 2MASS J and H of the Galactic centre, resampled by the publisher onto
+    # one grid (the truth is the identity).  The crowded field pairs many
+    # wrong stars and degree 5 follows them (known limit, up to 49 px off
+    # at the corners): the user must be told.
+    field = DATA.parent / "field"
+    j, h = field / "gc_2MASS_j.fits.gz", field / "gc_2MASS_h.fits.gz"
+    if not (j.exists() and h.exists()):
+        pytest.skip("2MASS frames not available")
+    src = np.asarray(parse_input(str(j)).detection_image, np.float32)
+    dst = np.asarray(parse_input(str(h)).detection_image, np.float32)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        t, _ = find_transform(src, dst, transform_type="polynomial", degree="auto")
+    texts = [str(w.message) for w in caught if issubclass(w.category, PoorFitWarning)]
+    assert any("times what their centroid errors predict" in m for m in texts), texts
+    assert t.meta["quality"]["model_selection"]["residual_excess"] > 3.0
