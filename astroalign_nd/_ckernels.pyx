@@ -417,18 +417,11 @@ def resample_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
     (uint8, nonzero = bad) is read only if ``has_mask``.
     """
     _check_kinds(order, var_kind, out_kind)
-    cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
     # Raw pointers: C-contiguous arrays, and no per-pixel memoryview overhead.
-    cdef const real* d = &data[0, 0]
-    cdef const real* dv = &var[0, 0]
-    cdef const unsigned char* mk = &mask[0, 0]
-    cdef real* o = &out[0, 0]
-    cdef real* ov = &out_var[0, 0]
-    cdef unsigned char* om = &out_mask[0, 0]
-    cdef const double* mp = &m[0]
     with nogil:
-        _dispatch(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, mp, NULL, NULL,
-                  NULL, order, fill, sd, sv, o, ov, om, nx_out, row0, row1)
+        _dispatch(&data[0, 0], &var[0, 0], has_var, var_kind, out_kind, &mask[0, 0], has_mask,
+                  data.shape[0], data.shape[1], &m[0], NULL, NULL, NULL, order, fill, sd, sv,
+                  &out[0, 0], &out_var[0, 0], &out_mask[0, 0], out.shape[1], row0, row1)
 
 
 def map_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int var_kind,
@@ -450,19 +443,12 @@ def map_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int 
         raise ValueError("the coordinate maps must have the output's shape.")
     if has_jac and (jac.shape[0] != out.shape[0] or jac.shape[1] != out.shape[1]):
         raise ValueError("the Jacobian map must have the output's shape.")
-    cdef Py_ssize_t ny = data.shape[0], nx = data.shape[1], nx_out = out.shape[1]
-    cdef const real* d = &data[0, 0]
-    cdef const real* dv = &var[0, 0]
-    cdef const unsigned char* mk = &mask[0, 0]
-    cdef real* o = &out[0, 0]
-    cdef real* ov = &out_var[0, 0]
-    cdef unsigned char* om = &out_mask[0, 0]
-    cdef const double* xp = &xs[0, 0]
-    cdef const double* yp = &ys[0, 0]
     cdef const double* jp = &jac[0, 0] if has_jac else NULL
-    with nogil:
-        _dispatch(d, dv, has_var, var_kind, out_kind, mk, has_mask, ny, nx, NULL, xp, yp, jp,
-                  order, fill, sd, sd * sd, o, ov, om, nx_out, row0, row1)
+    with nogil:  # (raw pointers, as in `resample_rows`)
+        _dispatch(&data[0, 0], &var[0, 0], has_var, var_kind, out_kind, &mask[0, 0], has_mask,
+                  data.shape[0], data.shape[1], NULL, &xs[0, 0], &ys[0, 0], jp, order, fill,
+                  sd, sd * sd, &out[0, 0], &out_var[0, 0], &out_mask[0, 0], out.shape[1], row0,
+                  row1)
 
 
 cdef inline void _bilinear_block(const real* d, const real* dv, const bint has_var,
@@ -546,6 +532,21 @@ cdef inline void _bilinear_block(const real* d, const real* dv, const bint has_v
                        ov, om)
 
 
+cdef inline void _bilinear_masked(
+        const real* d, const real* dv, const bint has_var, const int var_kind, int out_kind,
+        const unsigned char* mk, bint has_mask, Py_ssize_t ny, Py_ssize_t nx, const double* m,
+        double fill, double sd, double sv, real* o, real* ov, unsigned char* om,
+        Py_ssize_t nx_out, Py_ssize_t row0, Py_ssize_t row1) noexcept nogil:
+    # `_bilinear_block` with a literal ``has_mask`` (the caller's ``has_var``
+    # and ``var_kind`` are literals already): inlined, each call is compiled
+    # for its own combination.
+    if has_mask:
+        _bilinear_block(d, dv, has_var, var_kind, out_kind, mk, True, ny, nx, m, fill, sd, sv,
+                        o, ov, om, nx_out, row0, row1)
+    else:
+        _bilinear_block(d, dv, has_var, var_kind, out_kind, mk, False, ny, nx, m, fill, sd, sv,
+                        o, ov, om, nx_out, row0, row1)
+
 def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var, int var_kind,
                   int out_kind, const unsigned char[:, ::1] mask, bint has_mask,
                   const double[::1] m, double fill, double sd, double sv,
@@ -565,33 +566,18 @@ def bilinear_rows(const real[:, ::1] data, const real[:, ::1] var, bint has_var,
     cdef real* ov = &out_var[0, 0]
     cdef unsigned char* om = &out_mask[0, 0]
     cdef const double* mp = &m[0]
-    # One literal combination of the options per call, see `_bilinear_block`.
+    # One literal combination of the options per call, see `_bilinear_block`:
+    # the variance's here, the mask's in `_bilinear_masked`.
     with nogil:
         if not has_var:
-            if has_mask:
-                _bilinear_block(d, dv, False, 0, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
-                                o, ov, om, nx_out, row0, row1)
-            else:
-                _bilinear_block(d, dv, False, 0, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
-                                o, ov, om, nx_out, row0, row1)
+            _bilinear_masked(d, dv, False, 0, out_kind, mk, has_mask, ny, nx, mp, fill, sd, sv,
+                             o, ov, om, nx_out, row0, row1)
         elif var_kind == 0:
-            if has_mask:
-                _bilinear_block(d, dv, True, 0, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
-                                o, ov, om, nx_out, row0, row1)
-            else:
-                _bilinear_block(d, dv, True, 0, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
-                                o, ov, om, nx_out, row0, row1)
+            _bilinear_masked(d, dv, True, 0, out_kind, mk, has_mask, ny, nx, mp, fill, sd, sv,
+                             o, ov, om, nx_out, row0, row1)
         elif var_kind == 1:
-            if has_mask:
-                _bilinear_block(d, dv, True, 1, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
-                                o, ov, om, nx_out, row0, row1)
-            else:
-                _bilinear_block(d, dv, True, 1, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
-                                o, ov, om, nx_out, row0, row1)
+            _bilinear_masked(d, dv, True, 1, out_kind, mk, has_mask, ny, nx, mp, fill, sd, sv,
+                             o, ov, om, nx_out, row0, row1)
         else:
-            if has_mask:
-                _bilinear_block(d, dv, True, 2, out_kind, mk, True, ny, nx, mp, fill, sd, sv,
-                                o, ov, om, nx_out, row0, row1)
-            else:
-                _bilinear_block(d, dv, True, 2, out_kind, mk, False, ny, nx, mp, fill, sd, sv,
-                                o, ov, om, nx_out, row0, row1)
+            _bilinear_masked(d, dv, True, 2, out_kind, mk, has_mask, ny, nx, mp, fill, sd, sv,
+                             o, ov, om, nx_out, row0, row1)

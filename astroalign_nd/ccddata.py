@@ -195,6 +195,93 @@ def _nonlinear_provenance(header, transform, cmap, quality, names):
     return out
 
 
+def _check_options(unexpected, order, method):
+    """`apply_transform`'s keywords: none unknown, a known order and method."""
+    if unexpected:
+        from .registration import _astroalign_advice
+
+        raise TypeError(
+            f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
+            "accepts order, conserve_flux, fill_value, method, unit, parallel, quality, hdu "
+            f"and add_keyword.{_astroalign_advice(unexpected)}")
+    if isinstance(order, str) and order not in ORDERS:
+        raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
+    if method not in ("interpolate", "exact"):
+        raise ValueError(f"method must be 'interpolate' or 'exact'; got {method!r}.")
+
+
+def _target_grid(target, hdu):
+    """``(shape_out, parsed target)``; the target is None when given as an ``(ny, nx)`` shape."""
+    if isinstance(target, tuple) and len(target) == 2 and all(
+            isinstance(v, (int, np.integer)) for v in target):
+        return tuple(int(v) for v in target), None
+    dst = parse_input(target, "target", hdu=hdu)
+    if dst.is_catalog:
+        raise TypeError(
+            "target is a catalog, which has no pixel grid; pass the target image or its "
+            "shape as an (ny, nx) tuple."
+        )
+    return dst.shape, dst
+
+
+def _source_variance(src, method):
+    """
+    ``(plane, kind)``: the source's uncertainty plane in the data's shape and
+    how `resample` reads it ('variance', 'stddev' or 'inverse'); None if none.
+    """
+    data = src.data
+    if src.uncertainty is None:
+        return None, "variance"
+    unc = src.uncertainty
+    kind = "variance"
+    if method == "exact":
+        # float32 data is resampled in float32 (see `resample`): so is its variance.
+        dtype = np.float32 if data.dtype.kind == "f" and data.dtype.itemsize == 4 \
+            else np.float64
+        variance = _variance_of(unc, dtype)
+    else:
+        _variance_of(unc, None, check_only=True)
+        # resample squares (or inverts) the plane band by band: no
+        # whole-frame variance is made.
+        variance = np.asarray(unc.array)
+        kind = ("stddev" if isinstance(unc, StdDevUncertainty) else
+                "inverse" if isinstance(unc, InverseVariance) else "variance")
+    if variance.shape not in (data.shape, data.shape[:2]):
+        raise ValueError(
+            f"the source's uncertainty has shape {variance.shape}, but its data "
+            f"{data.shape}; give one uncertainty per pixel (shape {data.shape[:2]}"
+            f"{' or ' + str(data.shape) if data.ndim == 3 else ''}).")
+    if data.ndim == 3 and variance.ndim == 2:  # one plane for every channel
+        variance = variance[..., None]
+    if variance.shape != data.shape:
+        variance = np.broadcast_to(variance, data.shape)
+    return variance, kind
+
+
+def _output_header(src, dst, transform, m, quality, add_keyword, **names):
+    """The source's header as FITS cards, without its WCS, and the registration's keywords."""
+    # Non-FITS keys become HIERARCH cards; the WCS cards describe the old grid.
+    header = header_without_wcs(header_from_meta(src.meta))
+    if not add_keyword:
+        return header
+    names = dict(source_name=src.name, target_name=dst.name if dst is not None else "shape",
+                 **names)
+    if not isinstance(m, _CoordinateMap):
+        model = transform if isinstance(transform, LinearTransform2D) else from_matrix(m)
+        return add_provenance(header, model, quality=quality, **names)
+    return _nonlinear_provenance(header, transform, m, quality, names)
+
+
+def _output_wcs(src, dst, m, shape_out):
+    """The target's WCS, else the source's carried onto the target grid, else None."""
+    if dst is not None and dst.wcs is not None:
+        return dst.wcs.deepcopy()
+    if src.wcs is not None and not isinstance(m, _CoordinateMap):
+        # (A non-linear map cannot be carried into a WCS here: the output has none.)
+        return _carry_wcs(src.wcs, m, shape_out)
+    return None
+
+
 def apply_transform(transform: Any, source: Any, target: Any, *,
                     order: str | int = "bilinear", conserve_flux: bool = False,
                     fill_value: float = np.nan, method: str = "interpolate", unit: Any = None,
@@ -287,17 +374,7 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     >>> bool(abs(x - 3 + ix - star["x_target"]) <= 1 and abs(y - 3 + iy - star["y_target"]) <= 1)
     True
     """
-    if unexpected:
-        from .registration import _astroalign_advice
-
-        raise TypeError(
-            f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
-            "accepts order, conserve_flux, fill_value, method, unit, parallel, quality, hdu "
-            f"and add_keyword.{_astroalign_advice(unexpected)}")
-    if isinstance(order, str) and order not in ORDERS:
-        raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
-    if method not in ("interpolate", "exact"):
-        raise ValueError(f"method must be 'interpolate' or 'exact'; got {method!r}.")
+    _check_options(unexpected, order, method)
     if quality is None and isinstance(getattr(transform, "meta", None), dict):
         quality = transform.meta.get("quality")
     quality = check_quality(quality)  # before the work, not after it
@@ -307,54 +384,19 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     m = _source_to_target(transform, np.shape(src.data)[:2])
     if method == "exact" and isinstance(m, _CoordinateMap):
         _parse_matrix(m, "resample_exact")  # raises: say what to use instead
-    if isinstance(target, tuple) and len(target) == 2 and all(
-            isinstance(v, (int, np.integer)) for v in target):
-        shape_out, dst = tuple(int(v) for v in target), None
-    else:
-        dst = parse_input(target, "target", hdu=hdu)
-        if dst.is_catalog:
-            raise TypeError(
-                "target is a catalog, which has no pixel grid; pass the target image or its "
-                "shape as an (ny, nx) tuple."
-            )
-        shape_out = dst.shape
-
-    data = src.data
-    variance = None
-    kind = "variance"
-    if src.uncertainty is not None:
-        unc = src.uncertainty
-        if method == "exact":
-            # float32 data is resampled in float32 (see `resample`): so is its variance.
-            dtype = np.float32 if data.dtype.kind == "f" and data.dtype.itemsize == 4 \
-                else np.float64
-            variance = _variance_of(unc, dtype)
-        else:
-            _variance_of(unc, None, check_only=True)
-            # resample squares (or inverts) the plane band by band: no
-            # whole-frame variance is made.
-            variance = np.asarray(unc.array)
-            kind = ("stddev" if isinstance(unc, StdDevUncertainty) else
-                    "inverse" if isinstance(unc, InverseVariance) else "variance")
-        if variance.shape not in (data.shape, data.shape[:2]):
-            raise ValueError(
-                f"the source's uncertainty has shape {variance.shape}, but its data "
-                f"{data.shape}; give one uncertainty per pixel (shape {data.shape[:2]}"
-                f"{' or ' + str(data.shape) if data.ndim == 3 else ''}).")
-        if data.ndim == 3 and variance.ndim == 2:  # one plane for every channel
-            variance = variance[..., None]
-        if variance.shape != data.shape:
-            variance = np.broadcast_to(variance, data.shape)
+    shape_out, dst = _target_grid(target, hdu)
+    variance, kind = _source_variance(src, method)
     if method == "exact":
-        out, var_out, mask_out = resample_exact(data, m, shape_out, variance=variance,
+        out, var_out, mask_out = resample_exact(src.data, m, shape_out, variance=variance,
                                                 mask=src.mask, fill_value=fill_value,
                                                 conserve_flux=conserve_flux)
         order_name = "exact (reproject)"
     else:
-        out, var_out, mask_out = resample(data, m, shape_out, order=order, variance=variance,
-                                          mask=src.mask, fill_value=fill_value,
-                                          conserve_flux=conserve_flux, parallel=parallel,
-                                          _variance_kind=kind, _output_kind=kind)
+        out, var_out, mask_out = resample(src.data, m, shape_out, order=order,
+                                          variance=variance, mask=src.mask,
+                                          fill_value=fill_value, conserve_flux=conserve_flux,
+                                          parallel=parallel, _variance_kind=kind,
+                                          _output_kind=kind)
         order_name = order if isinstance(order, str) else {v: k for k, v in ORDERS.items()}[
             int(order)]
 
@@ -363,26 +405,10 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     if var_out is not None:
         uncertainty = _uncertainty_like(src.uncertainty, var_out, out_unit,
                                         converted=method != "exact")
-
-    # Non-FITS keys become HIERARCH cards; the WCS cards describe the old grid.
-    header = header_without_wcs(header_from_meta(src.meta))
-    if add_keyword:
-        names = dict(source_name=src.name, target_name=dst.name if dst is not None else "shape",
-                     order=order_name, conserve_flux=conserve_flux)
-        if not isinstance(m, _CoordinateMap):
-            model = transform if isinstance(transform, LinearTransform2D) else from_matrix(m)
-            header = add_provenance(header, model, quality=quality, **names)
-        else:
-            header = _nonlinear_provenance(header, transform, m, quality, names)
-
-    wcs = None
-    if dst is not None and dst.wcs is not None:
-        wcs = dst.wcs.deepcopy()
-    elif src.wcs is not None and not isinstance(m, _CoordinateMap):
-        # (A non-linear map cannot be carried into a WCS here: the output has none.)
-        wcs = _carry_wcs(src.wcs, m, shape_out)
+    header = _output_header(src, dst, transform, m, quality, add_keyword,
+                            order=order_name, conserve_flux=conserve_flux)
     full_mask = mask_out if out.ndim == 2 else np.broadcast_to(
         mask_out[..., None], out.shape).copy()
     flags = None if src.flags is None else _resample_flags(src.flags, m, shape_out)
     return CCDData(out, unit=out_unit, mask=full_mask, uncertainty=uncertainty, meta=header,
-                   wcs=wcs, flags=flags)
+                   wcs=_output_wcs(src, dst, m, shape_out), flags=flags)

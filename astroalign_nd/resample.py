@@ -105,6 +105,7 @@ coordinate map the factor is the local ``|det|`` of the map's Jacobian
 """
 
 import numbers
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -625,6 +626,168 @@ def _bands(coeffs, shape_out, ny, order):
     return out
 
 
+@dataclass
+class _Job:
+    """
+    The working planes of one `resample` call and what the kernels are told.
+
+    ``data`` and ``var`` are channels first; ``kind`` and ``okind`` the
+    kernels' ``var_kind`` of the variance plane read and written; ``bad8``
+    the mask as bytes (a dummy when ``has_mask`` is False); ``dummy`` the
+    tiny typed array the compiled kernels take for an absent plane.
+    """
+
+    data: np.ndarray
+    var: np.ndarray | None
+    variance_kind: str
+    kind: int
+    okind: int
+    bad8: np.ndarray
+    has_mask: bool
+    compiled: bool
+    convert: bool
+    order: int
+    fill: float
+    sd: float
+    parallel: bool
+    out: np.ndarray
+    out_var: np.ndarray | None
+    masks: np.ndarray
+    dummy: np.ndarray
+    rows_per_thread: int
+
+    @classmethod
+    def make(cls, data_cf, var_cf, bad, shape, dtype, variance_kind, output_kind, is_map, order,
+             fill, sd, parallel):
+        """The planes and flags, with what the chosen kernels need converted first."""
+        nc = data_cf.shape[0]
+        has_var = var_cf is not None
+        if bad is not None and not bad.any():
+            bad = None
+        kind = _VARIANCE_KINDS[variance_kind] if has_var else 0
+        # The variance output may be stored as a standard deviation or an inverse
+        # variance (``_output_kind``, for apply_transform's uncertainty classes):
+        # the kernels convert each pixel as they store it, saving a pass.
+        okind = _VARIANCE_KINDS[output_kind] if has_var else 0
+        compiled = _USE_COMPILED and HAVE_COMPILED
+        if not compiled and (kind or bad is not None):
+            # NumPy path: whole-frame working copies (it is the slow path anyway).
+            if kind:
+                var_cf = _to_variance(var_cf, variance_kind, dtype)
+            if bad is not None:
+                data_cf = np.where(bad, np.array(np.nan, dtype), data_cf)
+            kind, bad = 0, None
+        # The compiled kernel squares a standard deviation or inverts an inverse
+        # variance tap by tap, and reads the mask, so that no working copy of a
+        # plane is made -- unless the uncertainty's type differs from the data's
+        # (then the variance is made in the data's type: band by band on the
+        # affine path, once on the coordinate-map path).
+        convert = has_var and var_cf.dtype != dtype
+        if convert and is_map:
+            var_cf, kind, convert = _to_variance(var_cf, variance_kind, dtype), 0, False
+        # The compiled kernel needs typed arrays even for absent inputs/outputs: tiny dummies.
+        return cls(data=data_cf, var=var_cf, variance_kind=variance_kind, kind=kind,
+                   okind=okind,
+                   bad8=np.empty((1, 1), np.uint8) if bad is None else bad.view(np.uint8),
+                   has_mask=bad is not None, compiled=compiled, convert=convert, order=order,
+                   fill=fill, sd=sd, parallel=parallel,
+                   out=np.empty((nc,) + shape, dtype=dtype),
+                   out_var=np.empty((nc,) + shape, dtype=dtype) if has_var else None,
+                   masks=np.empty((nc,) + shape, dtype=bool), dummy=np.empty((1, 1), dtype),
+                   rows_per_thread=max(1, _MIN_PIXELS_PER_THREAD // shape[1]))
+
+    @property
+    def has_var(self):
+        return self.var is not None
+
+    def var_plane(self, c):
+        """Channel ``c`` of the variance, or the dummy."""
+        return self.var[c] if self.has_var else self.dummy
+
+    def finish(self, multichannel):
+        """``(data, variance, mask)`` in the caller's layout, the mask shared by all channels."""
+        out, out_var, has_var = self.out, self.out_var, self.has_var
+        if has_var and self.okind and not self.compiled:
+            _from_variance(out_var, self.okind)
+        mask_out = self.masks[0]
+        if out.shape[0] > 1:
+            # The mask applies to all channels: a pixel bad in one is bad in all.
+            mask_out = self.masks.any(axis=0)
+            out[:, mask_out] = self.fill
+            if has_var:
+                out_var[:, mask_out] = 0.0 if self.okind == 2 else np.inf
+        if multichannel:
+            out = np.ascontiguousarray(np.moveaxis(out, 0, -1))
+            out_var = None if out_var is None else np.ascontiguousarray(
+                np.moveaxis(out_var, 0, -1))
+        else:
+            out = out[0]
+            out_var = None if out_var is None else out_var[0]
+        return out, out_var, mask_out
+
+
+def _resample_map(job, cmap, conserve_flux):
+    """Through a coordinate map: source positions (and flux factors) band by band."""
+    # One band of output rows at a time, shared by all channels: a few MB
+    # whatever the frame size.
+    nc, ny_out, nx_out = job.out.shape
+    step = max(1, _MAP_BAND_PIXELS // nx_out)
+    for r0 in range(0, ny_out, step):
+        r1 = min(r0 + step, ny_out)
+        xs, ys, jac = cmap.band(r0, r1, nx_out, jacobian=conserve_flux)
+        for c in range(nc):
+            ov = job.out_var[c, r0:r1] if job.has_var else job.dummy
+            if not job.compiled:
+                sdk = 1.0 if jac is None else jac
+                _interp_numpy(job.data[c], job.var[c] if job.has_var else None, job.has_var,
+                              xs, ys, job.fill, sdk, sdk * sdk if jac is not None else 1.0,
+                              job.out[c, r0:r1], ov, job.masks[c, r0:r1], job.order)
+                continue
+            run_split(_ckernels.map_rows, r1 - r0,
+                      (job.data[c], job.var_plane(c), job.has_var, job.kind, job.okind,
+                       job.bad8, job.has_mask, xs, ys, _DUMMY_MAP if jac is None else jac,
+                       jac is not None, job.order, job.fill, 1.0, job.out[c, r0:r1], ov,
+                       job.masks[c, r0:r1].view(np.uint8)),
+                      min_per_thread=job.rows_per_thread, parallel=job.parallel)
+
+
+def _resample_affine_bands(job, coeffs):
+    """Affine, compiled, with the variance converted into the data's type band by band."""
+    # Working variance (a standard deviation squared, or an inverse variance
+    # inverted, into the data's type) one band of output rows at a time, for
+    # the source rows that band reads: a scratch of a fraction of a frame
+    # instead of a whole-frame copy.
+    bands = _bands(coeffs, job.out.shape[1:], job.data.shape[1], job.order)
+    scratch = np.empty((max(s1 - s0 for _, _, s0, s1 in bands), job.data.shape[2]),
+                       job.out.dtype)
+    sd = job.sd
+    for c in range(job.out.shape[0]):
+        for r0, r1, s0, s1 in bands:
+            v = _to_variance(job.var[c, s0:s1], job.variance_kind, job.out.dtype,
+                             out=scratch[:s1 - s0])
+            band_coeffs = coeffs.copy()
+            band_coeffs[5] -= s0  # source row s0 is row 0 of the band
+            _run_affine(job.data[c, s0:s1], v, True, 0, job.okind,
+                        job.bad8[s0:s1] if job.has_mask else job.bad8, job.has_mask,
+                        band_coeffs, job.order, job.fill, sd, sd * sd, job.out[c],
+                        job.out_var[c], job.masks[c], job.rows_per_thread, job.parallel, r0,
+                        r1 - r0)
+
+
+def _resample_affine(job, coeffs):
+    """Affine: each channel's rows on the compiled kernels (or the NumPy ones)."""
+    sd = job.sd
+    for c in range(job.out.shape[0]):
+        outs = (job.out[c], job.out_var[c] if job.has_var else job.dummy)
+        if not job.compiled:
+            args = (job.data[c], job.var_plane(c), job.has_var, coeffs)
+            _resample_numpy(*args, job.fill, sd, sd * sd, *outs, job.masks[c], order=job.order)
+            continue
+        _run_affine(job.data[c], job.var_plane(c), job.has_var, job.kind, job.okind, job.bad8,
+                    job.has_mask, coeffs, job.order, job.fill, sd, sd * sd, *outs, job.masks[c],
+                    job.rows_per_thread, job.parallel, 0, job.out.shape[1])
+
+
 # -- public API ------------------------------------------------------------------
 
 def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=None,
@@ -738,105 +901,15 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
         sd = 1.0 / det if conserve_flux else 1.0
     else:
         sd = 1.0  # the flux factor is the map's local Jacobian, pixel by pixel
-    sv = sd * sd
-
-    nc = data_cf.shape[0]
-    has_var = var_cf is not None
-    if bad is not None and not bad.any():
-        bad = None
-    kind = _VARIANCE_KINDS[_variance_kind] if has_var else 0
-    # The variance output may be stored as a standard deviation or an inverse
-    # variance (``_output_kind``, for apply_transform's uncertainty classes):
-    # the kernels convert each pixel as they store it, saving a pass.
-    okind = _VARIANCE_KINDS[_output_kind] if has_var else 0
-    compiled = _USE_COMPILED and HAVE_COMPILED
-    if not compiled and (kind or bad is not None):
-        # NumPy path: whole-frame working copies (it is the slow path anyway).
-        if kind:
-            var_cf = _to_variance(var_cf, _variance_kind, dtype)
-        if bad is not None:
-            data_cf = np.where(bad, np.array(np.nan, dtype), data_cf)
-        kind, bad = 0, None
-    # The compiled kernel squares a standard deviation or inverts an inverse
-    # variance tap by tap, and reads the mask, so that no working copy of a
-    # plane is made -- unless the uncertainty's type differs from the data's
-    # (then the variance is made in the data's type: band by band on the
-    # affine path, once on the coordinate-map path).
-    convert = has_var and var_cf.dtype != dtype
-    if convert and cmap is not None:
-        var_cf, kind, convert = _to_variance(var_cf, _variance_kind, dtype), 0, False
-    out = np.empty((nc,) + shape, dtype=dtype)
-    masks = np.empty((nc,) + shape, dtype=bool)
-    # The compiled kernel needs typed arrays even for absent inputs/outputs: tiny dummies.
-    dummy = np.empty((1, 1), dtype)
-    bad8 = np.empty((1, 1), np.uint8) if bad is None else bad.view(np.uint8)
-    out_var = np.empty((nc,) + shape, dtype=dtype) if has_var else None
-    rows_per_thread = max(1, _MIN_PIXELS_PER_THREAD // shape[1])
-
+    job = _Job.make(data_cf, var_cf, bad, shape, dtype, _variance_kind, _output_kind,
+                    cmap is not None, order, fill, sd, parallel)
     if cmap is not None:
-        # Source positions (and flux factors) one band of output rows at a
-        # time, shared by all channels: a few MB whatever the frame size.
-        step = max(1, _MAP_BAND_PIXELS // shape[1])
-        for r0 in range(0, shape[0], step):
-            r1 = min(r0 + step, shape[0])
-            xs, ys, jac = cmap.band(r0, r1, shape[1], jacobian=conserve_flux)
-            for c in range(nc):
-                ov = out_var[c, r0:r1] if has_var else dummy
-                if not compiled:
-                    sdk = 1.0 if jac is None else jac
-                    _interp_numpy(data_cf[c], var_cf[c] if has_var else None, has_var, xs, ys,
-                                  fill, sdk, sdk * sdk if jac is not None else 1.0,
-                                  out[c, r0:r1], ov, masks[c, r0:r1], order)
-                    continue
-                run_split(_ckernels.map_rows, r1 - r0,
-                          (data_cf[c], var_cf[c] if has_var else dummy, has_var, kind, okind, bad8,
-                           bad is not None, xs, ys, _DUMMY_MAP if jac is None else jac,
-                           jac is not None, order, fill, 1.0, out[c, r0:r1], ov,
-                           masks[c, r0:r1].view(np.uint8)),
-                          min_per_thread=rows_per_thread, parallel=parallel)
-    elif compiled and convert:
-        # Working variance (a standard deviation squared, or an inverse
-        # variance inverted, into the data's type) one band of output rows at
-        # a time, for the source rows that band reads: a scratch of a
-        # fraction of a frame instead of a whole-frame copy.
-        bands = _bands(coeffs, shape, data_cf.shape[1], order)
-        scratch = np.empty((max(s1 - s0 for _, _, s0, s1 in bands), data_cf.shape[2]), dtype)
-        for c in range(nc):
-            for r0, r1, s0, s1 in bands:
-                v = _to_variance(var_cf[c, s0:s1], _variance_kind, dtype, out=scratch[:s1 - s0])
-                band_coeffs = coeffs.copy()
-                band_coeffs[5] -= s0  # source row s0 is row 0 of the band
-                _run_affine(data_cf[c, s0:s1], v, True, 0, okind,
-                            bad8 if bad is None else bad8[s0:s1], bad is not None,
-                            band_coeffs, order, fill, sd, sv, out[c], out_var[c], masks[c],
-                            rows_per_thread, parallel, r0, r1 - r0)
+        _resample_map(job, cmap, conserve_flux)
+    elif job.compiled and job.convert:
+        _resample_affine_bands(job, coeffs)
     else:
-        for c in range(nc):
-            outs = (out[c], out_var[c] if has_var else dummy)
-            if not compiled:
-                args = (data_cf[c], var_cf[c] if has_var else dummy, has_var, coeffs)
-                _resample_numpy(*args, fill, sd, sv, *outs, masks[c], order=order)
-                continue
-            _run_affine(data_cf[c], var_cf[c] if has_var else dummy, has_var, kind, okind,
-                        bad8, bad is not None, coeffs, order, fill, sd, sv, *outs, masks[c],
-                        rows_per_thread, parallel, 0, shape[0])
-
-    if has_var and okind and not compiled:
-        _from_variance(out_var, okind)
-    mask_out = masks[0]
-    if nc > 1:
-        # The mask applies to all channels: a pixel bad in one is bad in all.
-        mask_out = masks.any(axis=0)
-        out[:, mask_out] = fill
-        if has_var:
-            out_var[:, mask_out] = 0.0 if okind == 2 else np.inf
-    if multichannel:
-        out = np.ascontiguousarray(np.moveaxis(out, 0, -1))
-        out_var = None if out_var is None else np.ascontiguousarray(np.moveaxis(out_var, 0, -1))
-    else:
-        out = out[0]
-        out_var = None if out_var is None else out_var[0]
-    return out, out_var, mask_out
+        _resample_affine(job, coeffs)
+    return job.finish(multichannel)
 
 
 # Pixel scale (deg) of the synthetic target WCS of `resample_exact`.  Measured

@@ -508,6 +508,23 @@ def _radians(rotation):
     return np.deg2rad(rotation)
 
 
+def _rotation_shift_parameters():
+    """
+    New ``rotation``, ``translation_x``, ``translation_y`` and ``parity``
+    Parameters, in that order: the Euclidean and similarity models' own.
+    """
+    return (Parameter(default=0.0, description="Rotation (degrees, counter-clockwise)"),
+            Parameter(default=0.0, description="Shift along x (pixels)"),
+            Parameter(default=0.0, description="Shift along y (pixels)"),
+            Parameter(default=1.0, fixed=True, description="+1 proper, -1 mirrored"))
+
+
+def _rotate_shift(x, y, c, s, translation_x, translation_y, parity):
+    """``[[c, -s], [s, c]] @ (x, parity * y) + (tx, ty)``: the rotating models' evaluate."""
+    yp = parity * y
+    return c * x - s * yp + translation_x, s * x + c * yp + translation_y
+
+
 class EuclideanTransform(LinearTransform2D):
     """
     Rotation plus shift (rigid motion), optionally mirrored.
@@ -537,10 +554,7 @@ class EuclideanTransform(LinearTransform2D):
     (array([ 1., -5.]), True)
     """
 
-    rotation = Parameter(default=0.0, description="Rotation (degrees, counter-clockwise)")
-    translation_x = Parameter(default=0.0, description="Shift along x (pixels)")
-    translation_y = Parameter(default=0.0, description="Shift along y (pixels)")
-    parity = Parameter(default=1.0, fixed=True, description="+1 proper, -1 mirrored")
+    rotation, translation_x, translation_y, parity = _rotation_shift_parameters()
     min_points = 2
     n_dof = 3
     _parities = (1, -1)
@@ -548,9 +562,8 @@ class EuclideanTransform(LinearTransform2D):
     @staticmethod
     def evaluate(x, y, rotation, translation_x, translation_y, parity):
         theta = _radians(rotation)
-        c, s = np.cos(theta), np.sin(theta)
-        yp = parity * y
-        return c * x - s * yp + translation_x, s * x + c * yp + translation_y
+        return _rotate_shift(x, y, np.cos(theta), np.sin(theta), translation_x, translation_y,
+                             parity)
 
     @property
     def scale(self):
@@ -625,10 +638,7 @@ class SimilarityTransform(LinearTransform2D):
     """
 
     scale = Parameter(default=1.0, description="Scale factor")
-    rotation = Parameter(default=0.0, description="Rotation (degrees, counter-clockwise)")
-    translation_x = Parameter(default=0.0, description="Shift along x (pixels)")
-    translation_y = Parameter(default=0.0, description="Shift along y (pixels)")
-    parity = Parameter(default=1.0, fixed=True, description="+1 proper, -1 mirrored")
+    rotation, translation_x, translation_y, parity = _rotation_shift_parameters()
     min_points = 2
     n_dof = 4
     _parities = (1, -1)
@@ -636,9 +646,8 @@ class SimilarityTransform(LinearTransform2D):
     @staticmethod
     def evaluate(x, y, scale, rotation, translation_x, translation_y, parity):
         theta = _radians(rotation)
-        c, s = scale * np.cos(theta), scale * np.sin(theta)
-        yp = parity * y
-        return c * x - s * yp + translation_x, s * x + c * yp + translation_y
+        return _rotate_shift(x, y, scale * np.cos(theta), scale * np.sin(theta), translation_x,
+                             translation_y, parity)
 
     @classmethod
     def _from_matrix(cls, m):
