@@ -315,7 +315,7 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
         if key not in tried:
             tried.add(key)
             if "tolerance" not in options:
-                mat["tolerance"] = _search_tolerance(dst.fwhm)
+                mat["tolerance"] = grow_tolerance = _search_tolerance(dst.fwhm)
                 if nonlinear:  # a linear model is pixels off at the corners of a wide field
                     mat["tolerance"] *= model_selection.SEARCH_TOLERANCE_FACTOR
             log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "
@@ -347,8 +347,12 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
     result.n_sources_used = max(ns, nd)
     if nonlinear:
         kind = model_selection.nonlinear_name(transform_type)
+        # The growth pairs stars with the usual radius, not the widened search's:
+        # it follows the distortion disc by disc, and in a crowded field a wide
+        # radius pairs chance neighbours that a polynomial then chases.
+        tol = mat["tolerance"] if "tolerance" in options else grow_tolerance
         result = model_selection.extend_match(result, src, dst, transform_type=kind,
-                                              degree=degree, tolerance=mat["tolerance"],
+                                              degree=degree, tolerance=tol,
                                               n_control=(ns, nd))
         info = result.extra["model_selection"]
         log.debug(f"astroalign_nd: {info['model']} model (degree {info['degree']}) over "

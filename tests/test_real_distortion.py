@@ -111,20 +111,24 @@ def test_projective_on_sparse_real_frame():
     assert t.meta["quality"]["degree"] == 1
 
 
-def test_auto_warns_on_wrong_pairs_of_a_crowded_field():
+def test_auto_stays_linear_on_a_crowded_identity_pair():
     # 2MASS J and H of the Galactic centre, resampled by the publisher onto
-    # one grid (the truth is the identity).  The crowded field pairs many
-    # wrong stars and degree 5 follows them (known limit, up to 49 px off
-    # at the corners): the user must be told.
+    # one grid (the truth is the identity).  With the widened search radius
+    # the growth paired chance neighbours in this crowded field and degree 5
+    # followed them, up to 49 px off at the corners.  The growth now pairs
+    # with the usual radius: the answer stays linear and right, and the
+    # residual excess (J and H centroids differ) is still reported.
     field = DATA.parent / "field"
     j, h = field / "gc_2MASS_j.fits.gz", field / "gc_2MASS_h.fits.gz"
     if not (j.exists() and h.exists()):
         pytest.skip("2MASS frames not available")
     src = np.asarray(parse_input(str(j)).detection_image, np.float32)
     dst = np.asarray(parse_input(str(h)).detection_image, np.float32)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PoorFitWarning)
         t, _ = find_transform(src, dst, transform_type="polynomial", degree="auto")
-    texts = [str(w.message) for w in caught if issubclass(w.category, PoorFitWarning)]
-    assert any("times what their centroid errors predict" in m for m in texts), texts
-    assert t.meta["quality"]["model_selection"]["residual_excess"] > 3.0
+    assert t.meta["quality"]["degree"] == 1
+    ny, nx = src.shape
+    gx, gy = np.meshgrid(np.linspace(0, nx - 1, 33), np.linspace(0, ny - 1, 33))
+    mx, my = t(gx, gy)
+    assert np.hypot(mx - gx, my - gy).max() < 0.3  # px, over the whole frame
