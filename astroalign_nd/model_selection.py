@@ -1117,8 +1117,9 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
     -------
     `~astroalign_nd.matching.MatchResult`
         ``transform`` is the chosen model; the indices refer to the larger
-        star lists; ``extra['model_selection']`` holds `DistortionFit.info`
-        and ``extra['linear_transform']`` the linear match.
+        star lists; ``extra['model_selection']`` holds the ``info`` of the
+        `~astroalign_nd.model_selection.DistortionFit` and
+        ``extra['linear_transform']`` the linear match.
     """
     from .matching import MatchResult
 
