@@ -47,6 +47,7 @@ like the linear ones.
 """
 
 import numbers
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -579,8 +580,119 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     >>> bool(fit.rms < 0.01)
     True
     """
-    from .transforms import fit_transform
+    prob = _prepare(src_pts, dst_pts, linear, transform_type=transform_type, degree=degree,
+                    source_errors=source_errors, target_errors=target_errors,
+                    source_frame=source_frame, tolerance=tolerance,
+                    min_tolerance=min_tolerance, pairs_given=pairs_given)
+    # 1. Grow outwards from the linear match's stars.
+    cand, params = _grow(prob, seed_points)
+    # 2. Refine over the whole frame with a shrinking pairing radius.
+    cand, params, final, tol = _refine(prob, cand, params)
+    paired = _kept_pairs(prob, final, tol)
+    # 3. Choose (degree='auto') or check the requested model.
+    if prob.transform_type == "projective":
+        choice = _choose_projective(prob, cand, params, paired)
+    else:
+        choice, paired = _choose_polynomial(prob, cand, paired, significance, linear_type)
+    # 4. Trust: coverage and predicted error over the frame.
+    trust = _trust(prob, choice, paired)
+    _warn_trust(prob, choice, paired, trust)
+    return _build(prob, choice, paired, trust, significance)
 
+
+# -- fit_nonlinear's stages ---------------------------------------------------------
+
+
+@dataclass
+class _Problem:
+    """The validated inputs of `fit_nonlinear`, in normalised coordinates."""
+
+    transform_type: str
+    degree: object  # int, 'auto' or None (projective)
+    src: np.ndarray
+    dst: np.ndarray
+    matrix: np.ndarray  # the linear start, 3x3
+    centre: np.ndarray
+    half: float  # half diagonal of the frame: the unit of ``uv``
+    uv: np.ndarray  # source points, normalised
+    frame: tuple  # (x0, x1, y0, y1), floats
+    frame_uv: tuple
+    # Scales the source centroid variance into the target frame: the linear
+    # start's area scale; the choice of a polynomial replaces it by the residual
+    # variance scale of its most flexible candidate, which the re-pairing of
+    # degree='auto' and the residual excess then use.
+    var_scale: float
+    e_src: np.ndarray
+    e_dst: np.ndarray
+    pairs: _Pairs
+    tolerance: float
+    min_tolerance: float
+    lin_params: np.ndarray  # the linear start as affine parameters (``_Poly(1)``)
+    top: int  # the highest degree offered while growing
+
+    def variance(self, si, dj):
+        return np.maximum(self.var_scale * self.e_src[si] ** 2 + self.e_dst[dj] ** 2, 1e-6)
+
+    def growth_model(self, n_pairs, cap=None):
+        """The most flexible model ``n_pairs`` pairs support while growing
+        (of degree ``cap`` at most)."""
+        if self.transform_type == "projective":
+            return _Projective() if n_pairs >= 4 * 8 else _Poly(1)
+        d = self.top if cap is None else cap
+        while d > 1 and n_pairs < 2 * WARN_STARS_PER_TERM * _n_terms(d):
+            d -= 1
+        return _Poly(d)
+
+    def fit_on(self, cand_new, cand_old, params_old, si, dj):
+        """Robust fit of ``cand_new`` to these pairs, started from the previous model."""
+        uv, dst = self.uv[si], self.dst[dj]
+        var = self.variance(si, dj)
+        start = None
+        if not cand_new.linear:
+            start = (params_old if not cand_old.linear
+                     else _projective_start(_fit_affine(uv, dst, var, params_old)))
+        return _robust_fit(cand_new, uv, dst, var, start)
+
+
+@dataclass
+class _Paired:
+    """The pairs kept by the refinement (after clipping)."""
+
+    si: np.ndarray
+    dj: np.ndarray
+    w: np.ndarray  # weights: 1 / total variance
+    fuv: np.ndarray  # their normalised source positions
+    fdst: np.ndarray  # their target positions
+    n_paired: int  # pairs before clipping
+    tol: float  # the final pairing radius
+
+
+@dataclass
+class _Choice:
+    """The chosen model in normalised coordinates, and the candidates compared."""
+
+    cand: object
+    params: np.ndarray
+    cov: np.ndarray
+    name: str
+    deg: object  # the degree (1 for a linear choice, None for projective)
+    candidates: list
+
+
+@dataclass
+class _Trust:
+    """How far the chosen model can be trusted."""
+
+    coverage: dict
+    pred_max: float
+    pred_rms: float
+    excess: float
+    tested: list
+
+
+def _prepare(src_pts, dst_pts, linear, *, transform_type, degree, source_errors,
+             target_errors, source_frame, tolerance, min_tolerance, pairs_given):
+    """Validate `fit_nonlinear`'s inputs and normalise them: a `_Problem`."""
     if not is_nonlinear(transform_type):
         raise ValueError(f"transform_type must be one of {list(NONLINEAR_TYPES)}; got "
                          f"{transform_type!r}.")
@@ -597,6 +709,21 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
                              "matrix or model to grow from.")
         linear = _consensus_affine(src, dst, tolerance)
     m = _as_matrix(linear)
+    frame, centre, half, uv, frame_uv = _normalise(src, source_frame)
+    e_src = np.full(len(src), 0.1) if source_errors is None else np.asarray(source_errors, float)
+    e_dst = np.full(len(dst), 0.1) if target_errors is None else np.asarray(target_errors, float)
+    lin_params = np.array([m[0, 2] + m[0, 0] * centre[0] + m[0, 1] * centre[1],
+                           m[0, 0] * half, m[0, 1] * half,
+                           m[1, 2] + m[1, 0] * centre[0] + m[1, 1] * centre[1],
+                           m[1, 0] * half, m[1, 1] * half])
+    top = 5 if degree == "auto" else (degree if degree is not None else 1)
+    return _Problem(transform_type, degree, src, dst, m, centre, half, uv, frame, frame_uv,
+                    abs(np.linalg.det(m[:2, :2])), e_src, e_dst, _Pairs(src, dst, pairs_given),
+                    tolerance, min_tolerance, lin_params, top)
+
+
+def _normalise(src, source_frame):
+    """(frame, centre, half diagonal, normalised source points, normalised frame)."""
     if source_frame is None:
         x0, y0 = src.min(axis=0) - 0.5
         x1, y1 = src.max(axis=0) + 0.5
@@ -607,53 +734,23 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     uv = (src - centre) / half
     frame_uv = ((x0 - centre[0]) / half, (x1 - centre[0]) / half,
                 (y0 - centre[1]) / half, (y1 - centre[1]) / half)
-    s2 = abs(np.linalg.det(m[:2, :2]))
-    e_src = np.full(len(src), 0.1) if source_errors is None else np.asarray(source_errors, float)
-    e_dst = np.full(len(dst), 0.1) if target_errors is None else np.asarray(target_errors, float)
-    pairs = _Pairs(src, dst, pairs_given)
+    return (x0, x1, y0, y1), centre, half, uv, frame_uv
 
-    def variance(si, dj):
-        return np.maximum(s2 * e_src[si] ** 2 + e_dst[dj] ** 2, 1e-6)
 
-    # The linear start, as affine parameters in normalised coordinates.
-    aff = _Poly(1)
-    lin_params = np.array([m[0, 2] + m[0, 0] * centre[0] + m[0, 1] * centre[1],
-                           m[0, 0] * half, m[0, 1] * half,
-                           m[1, 2] + m[1, 0] * centre[0] + m[1, 1] * centre[1],
-                           m[1, 0] * half, m[1, 1] * half])
-    top = 5 if degree == "auto" else (degree if degree is not None else 1)
-
-    def growth_model(n_pairs, cap=None):
-        """The most flexible model ``n_pairs`` pairs support while growing
-        (of degree ``cap`` at most)."""
-        if transform_type == "projective":
-            return _Projective() if n_pairs >= 4 * 8 else aff
-        d = top if cap is None else cap
-        while d > 1 and n_pairs < 2 * WARN_STARS_PER_TERM * _n_terms(d):
-            d -= 1
-        return _Poly(d)
-
-    cand, params = aff, lin_params
-
-    def fit_on(cand_new, cand_old, params_old, si, dj):
-        var = variance(si, dj)
-        start = None
-        if not cand_new.linear:
-            start = (params_old if not cand_old.linear
-                     else _projective_start(_fit_affine(uv[si], dst[dj], var, params_old)))
-        return _robust_fit(cand_new, uv[si], dst[dj], var, start)
-
-    # 1. Grow outwards from the linear match's stars.
-    all_idx = np.arange(len(src))
+def _grow(prob, seed_points):
+    """Grow the fit from the linear match's stars in discs of growing radius:
+    (candidate, parameters)."""
+    cand, params = _Poly(1), prob.lin_params
+    uv, all_idx = prob.uv, np.arange(len(prob.src))
     if seed_points is None or len(seed_points) == 0:
-        seed_si, _ = pairs.pair(_predict(aff, lin_params, uv), all_idx, tolerance)
+        seed_si, _ = prob.pairs.pair(_predict(cand, params, uv), all_idx, prob.tolerance)
         seed_uv = uv[seed_si]
     else:
-        seed_uv = (np.asarray(seed_points, float).reshape(-1, 2) - centre) / half
+        seed_uv = (np.asarray(seed_points, float).reshape(-1, 2) - prob.centre) / prob.half
     if len(seed_uv) < 3:
         raise TooFewSourcesError(
             f"only {len(seed_uv)} star(s) pair up under the linear transform within "
-            f"{tolerance:g} px; a distortion model needs many more. Pass more stars or a "
+            f"{prob.tolerance:g} px; a distortion model needs many more. Pass more stars or a "
             "larger tolerance.")
     seed_centre = seed_uv.mean(axis=0)
     dist = np.hypot(*(uv - seed_centre).T)
@@ -661,200 +758,248 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
     r_max = float(dist.max())
     while True:
         idx = all_idx[dist <= radius]
-        si, dj = pairs.pair(_predict(cand, params, uv[idx]), idx, tolerance)
-        new = growth_model(len(si))
-        fit = fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
+        si, dj = prob.pairs.pair(_predict(cand, params, uv[idx]), idx, prob.tolerance)
+        new = prob.growth_model(len(si))
+        fit = prob.fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
         if fit is not None:
             cand, params = new, fit[0]
         if radius >= r_max:
             break
         radius = min(radius * 1.4, r_max)
+    return cand, params
 
-    # 2. Refine over the whole frame with a shrinking pairing radius.
-    def refine(cand, params, cap=None):
-        tol = float(tolerance)
-        final = None
-        for _ in range(10):
-            si, dj = pairs.pair(_predict(cand, params, uv), all_idx, tol)
-            new = growth_model(len(si), cap)
-            fit = fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
-            if fit is None:
-                break
-            cand, params = new, fit[0]
-            _, _, keep, total = fit
-            final = (si, dj, keep, total)
-            new_tol = float(np.clip(5.0 * np.sqrt(np.median(total[keep])), min_tolerance, tol))
-            if new_tol == tol:
-                break
-            tol = new_tol
-        if final is None:
-            raise TooFewSourcesError(
-                f"too few stars pair up under the linear transform to fit a {transform_type} "
-                f"model; pass more stars (n_sources, nsigma) or use transform_type='affine'.")
-        return cand, params, final, tol
 
-    cand, params, final, tol = refine(cand, params)
+def _refine(prob, cand, params, cap=None):
+    """Pair over the whole frame, refit and clip with a shrinking pairing radius:
+    (candidate, parameters, (si, dj, keep, total variance), pairing radius)."""
+    all_idx = np.arange(len(prob.src))
+    tol = float(prob.tolerance)
+    final = None
+    for _ in range(10):
+        si, dj = prob.pairs.pair(_predict(cand, params, prob.uv), all_idx, tol)
+        new = prob.growth_model(len(si), cap)
+        fit = prob.fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
+        if fit is None:
+            break
+        cand, params = new, fit[0]
+        _, _, keep, total = fit
+        final = (si, dj, keep, total)
+        new_tol = float(np.clip(5.0 * np.sqrt(np.median(total[keep])), prob.min_tolerance, tol))
+        if new_tol == tol:
+            break
+        tol = new_tol
+    if final is None:
+        raise TooFewSourcesError(
+            f"too few stars pair up under the linear transform to fit a {prob.transform_type} "
+            f"model; pass more stars (n_sources, nsigma) or use transform_type='affine'.")
+    return cand, params, final, tol
+
+
+def _kept_pairs(prob, final, tol):
+    """The `_Paired` of a refinement's outcome."""
     si, dj, keep, total = final
     n_paired = len(si)
     si, dj, total = si[keep], dj[keep], total[keep]
-    w = 1.0 / total
-    fuv, fdst = uv[si], dst[dj]
+    return _Paired(si, dj, 1.0 / total, prob.uv[si], prob.dst[dj], n_paired, tol)
 
-    # 3. Choose (degree='auto') or check the requested model.
-    candidates = []
-    if transform_type == "projective":
-        # Too few pairs while growing leave the affine model of the growth
-        # stage (6 parameters): the homography starts from its equivalent.
-        start = params if isinstance(cand, _Projective) else _projective_start(
-            _fit_affine(fuv, fdst, 1.0 / w, params))
-        chosen, chosen_params, chosen_cov = _check_and_fit(
-            _Projective(), fuv, fdst, w, frame_uv, 1, strict=True, start=start,
-            what="a projective model")
-        name, deg = "projective", None
+
+def _choose_projective(prob, cand, params, p):
+    """Check the coverage and fit the homography to the kept pairs: a `_Choice`."""
+    # Too few pairs while growing leave the affine model of the growth
+    # stage (6 parameters): the homography starts from its equivalent.
+    start = params if isinstance(cand, _Projective) else _projective_start(
+        _fit_affine(p.fuv, p.fdst, 1.0 / p.w, params))
+    chosen, chosen_params, chosen_cov = _check_and_fit(
+        _Projective(), p.fuv, p.fdst, p.w, prob.frame_uv, 1, strict=True, start=start,
+        what="a projective model")
+    return _Choice(chosen, chosen_params, chosen_cov, "projective", None, [])
+
+
+def _choose_polynomial(prob, cand, p, significance, linear_type):
+    """The requested polynomial, checked, or (``'auto'``) the chosen candidate:
+    (`_Choice`, `_Paired`: re-paired when ``'auto'`` chose a lower degree)."""
+    fits = _fit_pool(_candidate_pool(prob, p, linear_type), p)
+    # The residual variance scale, from the most flexible candidate (as in
+    # the F-test): the BIC needs chi-squares in units of the actual scatter.
+    n_eq = 2 * len(p.fuv)
+    prob.var_scale = max(fits[-1][4] / max(n_eq - fits[-1][0].k, 1), 1e-300)
+    best, candidates = _select(prob, p, fits, significance)
+    c, d, label, _, _ = fits[best]
+    if prob.degree == "auto":
+        chosen, chosen_params, chosen_cov = c, *fits[best][3]
+        if d < prob.top and isinstance(cand, _Poly) and cand.degree > d:
+            # The pairs were paired and clipped by a model of higher degree:
+            # pair and clip again with the chosen one, as an explicit degree
+            # would have (a few pairs that only the discarded terms followed
+            # would otherwise stay).
+            _, _, final, tol = _refine(prob, c, chosen_params, cap=d)
+            p = _kept_pairs(prob, final, tol)
+            refit = _wls(c, p.fuv, p.fdst, p.w)
+            if refit is not None:
+                chosen_params, chosen_cov = refit
     else:
-        pool = []
-        if degree == "auto":
-            parity = 1 if np.linalg.det(m[:2, :2]) > 0 else -1
-            if linear_type in ("similarity", "euclidean", "translation"):
-                pool.append((_Similarity(parity), 1, "similarity"))
-            pool.append((_Poly(1), 1, "affine"))
-            for d in DEGREES:
-                cov_d = _coverage(fuv, frame_uv, d, _n_terms(d))
-                if _coverage_ok(cov_d, strict=True):
-                    pool.append((_Poly(d), d, "polynomial"))
-        else:
-            pool.append((_Poly(degree), degree, "polynomial"))
-        n_eq = 2 * len(fuv)
-        fits = []
-        for c, d, label in pool:
-            fit = _wls(c, fuv, fdst, w)
-            if fit is None:
-                continue
-            r = _predict(c, fit[0], fuv) - fdst
-            chi2 = float(np.sum(w * np.einsum("ij,ij->i", r, r)))
-            fits.append((c, d, label, fit, chi2))
-        if not fits:
-            raise PoorCoverageError(
-                f"the {len(fuv)} paired stars cannot constrain a polynomial model; use "
-                "transform_type='affine' or pass more stars.")
-        # The residual variance scale, from the most flexible candidate (as in
-        # the F-test): the BIC needs chi-squares in units of the actual scatter.
-        s2 = max(fits[-1][4] / max(n_eq - fits[-1][0].k, 1), 1e-300)
-        best, cv_cells, accepted = 0, [], [0]
-        for i, (c, d, label, fit, chi2) in enumerate(fits):
-            p = 1.0 if i == 0 else _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq)
-            bic = float(chi2 / s2 + c.k * np.log(n_eq))
-            cv, cells = (_blocked_cv(c, fuv, fdst, w, frame_uv) if degree == "auto"
-                         else (None, None))
-            cv_cells.append(cells)
-            candidates.append(dict(model=label, degree=d, n_parameters=c.k, chi2=chi2,
-                                   bic=bic, p_value=p, cv_chi2=cv))
-            # Both tests must agree: the F-test guards small samples, BIC (whose
-            # penalty grows with the number of stars) large ones, where centroid
-            # errors that are not quite Gaussian make tiny p-values cheap.
-            if i > 0 and p < significance and bic < candidates[best]["bic"]:
-                best = i
-                accepted.append(i)
-        if degree == "auto" and fits[best][1] > CV_FROM_DEGREE:
-            # With hundreds of stars the tests accept terms that only follow
-            # slightly systematic centroid errors; those terms extrapolate badly
-            # where stars are few.  Up to the cubic (a radial distortion, a
-            # tilt) the tests decide: with tens of stars held-out cells are too
-            # noisy to.  Beyond it, a degree the tests accept replaces the
-            # current one only if it also predicts the held-out cells (blocked
-            # cross-validation) meaningfully better.
-            last = best
-            best = max(i for i in accepted if fits[i][1] <= CV_FROM_DEGREE)
-            for i in range(best + 1, last + 1):
-                if _cv_better(cv_cells[i], candidates[i]["cv_chi2"], cv_cells[best],
-                              candidates[best]["cv_chi2"]):
-                    best = i
-        for i, entry in enumerate(candidates):
-            entry["chosen"] = i == best
-        c, d, label, _, _ = fits[best]
-        if degree == "auto":
-            chosen, chosen_params, chosen_cov = c, *fits[best][3]
-            if d < top and isinstance(cand, _Poly) and cand.degree > d:
-                # The pairs were paired and clipped by a model of higher degree:
-                # pair and clip again with the chosen one, as an explicit degree
-                # would have (a few pairs that only the discarded terms followed
-                # would otherwise stay).
-                _, _, final, tol = refine(c, chosen_params, cap=d)
-                si, dj, keep, total = final
-                n_paired = len(si)
-                si, dj, total = si[keep], dj[keep], total[keep]
-                w = 1.0 / total
-                fuv, fdst = uv[si], dst[dj]
-                refit = _wls(c, fuv, fdst, w)
-                if refit is not None:
-                    chosen_params, chosen_cov = refit
-        else:
-            chosen, chosen_params, chosen_cov = _check_and_fit(
-                c, fuv, fdst, w, frame_uv, d, strict=True, start=None,
-                what=f"a polynomial of degree {d}")
-        name, deg = label, (d if label == "polynomial" else 1)
+        chosen, chosen_params, chosen_cov = _check_and_fit(
+            c, p.fuv, p.fdst, p.w, prob.frame_uv, d, strict=True, start=None,
+            what=f"a polynomial of degree {d}")
+    deg = d if label == "polynomial" else 1
+    return _Choice(chosen, chosen_params, chosen_cov, label, deg, candidates), p
 
-    # 4. Trust: coverage and predicted error over the frame.
-    n_terms = chosen.k / 2.0
-    coverage = _coverage(fuv, frame_uv, deg or 1, n_terms)
-    r = _predict(chosen, chosen_params, fuv) - fdst
+
+def _candidate_pool(prob, p, linear_type):
+    """(candidate, degree, label) of the models to compare, fewest terms first."""
+    if prob.degree != "auto":
+        return [(_Poly(prob.degree), prob.degree, "polynomial")]
+    pool = []
+    parity = 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1
+    if linear_type in ("similarity", "euclidean", "translation"):
+        pool.append((_Similarity(parity), 1, "similarity"))
+    pool.append((_Poly(1), 1, "affine"))
+    for d in DEGREES:
+        cov_d = _coverage(p.fuv, prob.frame_uv, d, _n_terms(d))
+        if _coverage_ok(cov_d, strict=True):
+            pool.append((_Poly(d), d, "polynomial"))
+    return pool
+
+
+def _fit_pool(pool, p):
+    """(candidate, degree, label, (params, cov), chi-square) of each candidate that fits."""
+    fits = []
+    for c, d, label in pool:
+        fit = _wls(c, p.fuv, p.fdst, p.w)
+        if fit is None:
+            continue
+        r = _predict(c, fit[0], p.fuv) - p.fdst
+        chi2 = float(np.sum(p.w * np.einsum("ij,ij->i", r, r)))
+        fits.append((c, d, label, fit, chi2))
+    if not fits:
+        raise PoorCoverageError(
+            f"the {len(p.fuv)} paired stars cannot constrain a polynomial model; use "
+            "transform_type='affine' or pass more stars.")
+    return fits
+
+
+def _select(prob, p, fits, significance):
+    """Index of the chosen fit, and the candidates' entries of the quality dict."""
+    auto = prob.degree == "auto"
+    n_eq = 2 * len(p.fuv)
+    best, cv_cells, accepted, candidates = 0, [], [0], []
+    for i, (c, d, label, fit, chi2) in enumerate(fits):
+        p_value = (1.0 if i == 0 else
+                   _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq))
+        bic = float(chi2 / prob.var_scale + c.k * np.log(n_eq))
+        cv, cells = (_blocked_cv(c, p.fuv, p.fdst, p.w, prob.frame_uv) if auto
+                     else (None, None))
+        cv_cells.append(cells)
+        candidates.append(dict(model=label, degree=d, n_parameters=c.k, chi2=chi2,
+                               bic=bic, p_value=p_value, cv_chi2=cv))
+        # Both tests must agree: the F-test guards small samples, BIC (whose
+        # penalty grows with the number of stars) large ones, where centroid
+        # errors that are not quite Gaussian make tiny p-values cheap.
+        if i > 0 and p_value < significance and bic < candidates[best]["bic"]:
+            best = i
+            accepted.append(i)
+    if auto and fits[best][1] > CV_FROM_DEGREE:
+        best = _cv_choice(fits, candidates, cv_cells, accepted, best)
+    for i, entry in enumerate(candidates):
+        entry["chosen"] = i == best
+    return best, candidates
+
+
+def _cv_choice(fits, candidates, cv_cells, accepted, last):
+    """The choice among the accepted candidates above ``CV_FROM_DEGREE``."""
+    # With hundreds of stars the tests accept terms that only follow
+    # slightly systematic centroid errors; those terms extrapolate badly
+    # where stars are few.  Up to the cubic (a radial distortion, a
+    # tilt) the tests decide: with tens of stars held-out cells are too
+    # noisy to.  Beyond it, a degree the tests accept replaces the
+    # current one only if it also predicts the held-out cells (blocked
+    # cross-validation) meaningfully better.
+    best = max(i for i in accepted if fits[i][1] <= CV_FROM_DEGREE)
+    for i in range(best + 1, last + 1):
+        if _cv_better(cv_cells[i], candidates[i]["cv_chi2"], cv_cells[best],
+                      candidates[best]["cv_chi2"]):
+            best = i
+    return best
+
+
+def _trust(prob, choice, p):
+    """Coverage, predicted error over the frame and residual excess: a `_Trust`."""
+    chosen, fuv, frame_uv = choice.cand, p.fuv, prob.frame_uv
+    coverage = _coverage(fuv, frame_uv, choice.deg or 1, chosen.k / 2.0)
+    r = _predict(chosen, choice.params, fuv) - p.fdst
     r2 = np.einsum("ij,ij->i", r, r)
     dof = max(2 * len(fuv) - chosen.k, 1)
-    chi_red = float(np.sum(w * r2)) / dof
+    chi_red = float(np.sum(p.w * r2)) / dof
     # The residual scatter over what the centroid errors alone predict (the
     # weights above are scaled to the scatter; these are not).
-    excess = float(np.sqrt(np.sum(r2 / variance(si, dj)) / dof))
+    excess = float(np.sqrt(np.sum(r2 / prob.variance(p.si, p.dj)) / dof))
     gx = np.linspace(frame_uv[0], frame_uv[1], ERROR_GRID)
     gy = np.linspace(frame_uv[2], frame_uv[3], ERROR_GRID)
     grid = np.column_stack([a.ravel() for a in np.meshgrid(gx, gy)])
-    pv = _prediction_var(chosen, chosen_params, chosen_cov * max(chi_red, 1.0), grid)
-    pred_max, pred_rms = float(np.sqrt(pv.max())), float(np.sqrt(pv.mean()))
+    pv = _prediction_var(chosen, choice.params, choice.cov * max(chi_red, 1.0), grid)
+    tested = sorted({c["degree"] for c in choice.candidates})
+    return _Trust(coverage, float(np.sqrt(pv.max())), float(np.sqrt(pv.mean())), excess, tested)
+
+
+def _warn_trust(prob, choice, p, trust):
+    """The PoorFitWarnings of a fit: sparse coverage, excess residuals, uncertainty."""
+    name, n, coverage, excess = choice.name, len(p.fuv), trust.coverage, trust.excess
+    what = _label(name, choice.deg)
     if name in ("polynomial", "projective") and not _coverage_ok(coverage, strict=False):
-        warn(f"the {len(fuv)} stars fitting the {_label(name, deg)} cover "
+        warn(f"the {n} stars fitting the {what} cover "
              f"{coverage['occupancy']:.0%} of a {coverage['grid'][0]}x{coverage['grid'][1]} grid "
              f"over the frame with {coverage['stars_per_term']:.1f} stars per term (want "
              f"{WARN_OCCUPANCY:.0%} and {WARN_STARS_PER_TERM:g}); the model is poorly "
              "constrained where there are no stars. Use a lower degree (or degree='auto') or "
              "more stars (n_sources, nsigma).", PoorFitWarning)
-    tested = sorted({c["degree"] for c in candidates})
-    if degree == "auto" and name != "polynomial" and (excess > WARN_EXCESS or tested == [1]):
+    if (prob.degree == "auto" and name != "polynomial"
+            and (excess > WARN_EXCESS or trust.tested == [1])):
         why = (f"its residuals are {excess:.1f} times what the centroid errors predict"
                if excess > WARN_EXCESS else "no polynomial could be tested")
-        warn(f"degree='auto' chose the {_label(name, deg)}, but {why}: the {len(fuv)} stars it "
+        warn(f"degree='auto' chose the {what}, but {why}: the {n} stars it "
              f"fits (covering {coverage['occupancy']:.0%} of a {coverage['grid'][0]}x"
              f"{coverage['grid'][1]} grid) are too few to find or rule out a distortion, and "
              "away from them the mapping can be off by more than the residuals show. Pass "
              "more stars (n_sources, a lower nsigma) or check the registered frame's edges.",
              PoorFitWarning)
     elif excess > WARN_EXCESS:
-        warn(f"the {_label(name, deg)}'s residuals over its {len(fuv)} stars are {excess:.1f} "
+        warn(f"the {what}'s residuals over its {n} stars are {excess:.1f} "
              "times what their centroid errors predict: many pairs may be wrong (a crowded "
              "field) or the model does not follow the mapping. Check "
              "quality['model_selection'] and the registered frame; a lower degree, "
              "transform_type='affine', or a smaller tolerance may do better.", PoorFitWarning)
-    if pred_max > WARN_PREDICTED:
-        warn(f"the {_label(name, deg)} is uncertain: its covariance gives a 1-sigma position "
-             f"error of up to {pred_max:.2f} px over the frame (RMS {pred_rms:.2f} px, "
-             f"{len(fuv)} stars). Use a lower degree (or degree='auto') or more stars.",
+    if trust.pred_max > WARN_PREDICTED:
+        warn(f"the {what} is uncertain: its covariance gives a 1-sigma position "
+             f"error of up to {trust.pred_max:.2f} px over the frame (RMS {trust.pred_rms:.2f} "
+             f"px, {n} stars). Use a lower degree (or degree='auto') or more stars.",
              PoorFitWarning)
 
-    # The model object, through the same fitting function as the linear models.
-    s_pts, d_pts = src[si], dst[dj]
+
+def _build(prob, choice, p, trust, significance):
+    """The model object, through the same fitting function as the linear models,
+    and the `DistortionFit`."""
+    from .transforms import fit_transform
+
+    name, deg, degree = choice.name, choice.deg, prob.degree
+    s_pts, d_pts = prob.src[p.si], prob.dst[p.dj]
     if name == "polynomial":
-        model, cov, resid = _fit_polynomial(fit_transform, s_pts, d_pts, deg, w, centre,
-                                            source_frame)
+        model, cov, resid = _fit_polynomial(fit_transform, s_pts, d_pts, deg, p.w, prob.centre,
+                                            prob.frame)
     else:
         kind = {"similarity": "similarity", "affine": "affine", "projective": "projective"}[name]
-        kw = {"parity": 1 if np.linalg.det(m[:2, :2]) > 0 else -1} if kind == "similarity" else {}
-        model, cov, resid = fit_transform(s_pts, d_pts, kind, weights=w, **kw)
+        kw = ({"parity": 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1}
+              if kind == "similarity" else {})
+        model, cov, resid = fit_transform(s_pts, d_pts, kind, weights=p.w, **kw)
     info = dict(model=name, degree=deg, requested_degree=degree if name != "projective" else None,
                 selection=("F-test, BIC and blocked cross-validation" if degree == "auto"
                            else None), significance=significance,
-                candidates=candidates, coverage=coverage, predicted_error_max=pred_max,
-                predicted_error_rms=pred_rms, residual_excess=excess,
-                degrees_tested=tested if degree == "auto" else None, n_pairs=int(len(si)),
-                n_clipped=int(n_paired - len(si)), pairing_tolerance=float(tol))
-    return DistortionFit(model, cov, si, dj, resid, info)
+                candidates=choice.candidates, coverage=trust.coverage,
+                predicted_error_max=trust.pred_max, predicted_error_rms=trust.pred_rms,
+                residual_excess=trust.excess,
+                degrees_tested=trust.tested if degree == "auto" else None,
+                n_pairs=int(len(p.si)), n_clipped=int(p.n_paired - len(p.si)),
+                pairing_tolerance=float(p.tol))
+    return DistortionFit(model, cov, p.si, p.dj, resid, info)
 
 
 def _consensus_affine(src, dst, tolerance, n_trials=1000):
@@ -972,8 +1117,9 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
     -------
     `~astroalign_nd.matching.MatchResult`
         ``transform`` is the chosen model; the indices refer to the larger
-        star lists; ``extra['model_selection']`` holds `DistortionFit.info`
-        and ``extra['linear_transform']`` the linear match.
+        star lists; ``extra['model_selection']`` holds the ``info`` of the
+        `~astroalign_nd.model_selection.DistortionFit` and
+        ``extra['linear_transform']`` the linear match.
     """
     from .matching import MatchResult
 

@@ -260,6 +260,67 @@ def _split_options(options):
     return det, mat
 
 
+def _escalate(src, dst, plan, mat, options, user_nn, *, linear_type, nonlinear):
+    """
+    The search over the attempts of ``plan`` (more stars, then more neighbours):
+    (the first trusted match, its numbers of source and target control points,
+    the usual matching tolerance or None when the caller set one).  Raises the
+    last attempt's `TransformNotFoundError` when none is trusted.
+    """
+    trials, tried, k, last_exc, result = 0, set(), 0, None, None
+    grow_tolerance = None
+    while k < len(plan):
+        ns, nd, nn = plan[k]
+        k += 1
+        src_pts, src_err, src_frame = src.stars(ns)
+        dst_pts, dst_err, dst_frame = dst.stars(nd)
+        src_pts, dst_pts = check_points(src_pts, "source"), check_points(dst_pts, "target")
+        # An image with fewer stars than asked for makes steps repeat.
+        key = (min(ns, len(src_pts)), min(nd, len(dst_pts)), len(src_pts), len(dst_pts), nn)
+        if key not in tried:
+            tried.add(key)
+            if "tolerance" not in options:
+                mat["tolerance"] = grow_tolerance = _search_tolerance(dst.fwhm)
+                if nonlinear:  # a linear model is pixels off at the corners of a wide field
+                    mat["tolerance"] *= model_selection.SEARCH_TOLERANCE_FACTOR
+            log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "
+                      f"{key[1]} of {key[3]} target stars, {nn} neighbours per star")
+            try:
+                result = _attempt(src, dst, (ns, nd, nn), (src_pts, src_err, src_frame),
+                                  (dst_pts, dst_err, dst_frame), mat, trials,
+                                  linear_type=linear_type, nonlinear=nonlinear)
+                break
+            except TransformNotFoundError as exc:
+                # Earlier attempts count in the trials factor of later ones.
+                trials += getattr(exc, "n_hypotheses", 0)
+                last_exc = exc
+                log.debug(f"astroalign_nd: attempt {len(tried)} found no trusted match; "
+                          f"{trials} hypotheses so far")
+        if k == len(plan) and _widen(plan, src_pts, dst_pts, user_nn):
+            log.debug("astroalign_nd: escalating to more neighbours per star")
+    if result is None:
+        raise last_exc
+    log.debug(f"astroalign_nd: match found at attempt {len(tried)}: {result.n_matches} "
+              f"stars, RMS {result.rms:.3f} px")
+    return result, ns, nd, grow_tolerance
+
+
+def _attempt(src, dst, sizes, src_stars, dst_stars, mat, trials, *, linear_type, nonlinear):
+    """One attempt of the search: ``_match_points`` on ``sizes = (ns, nd, nn)``."""
+    ns, nd, nn = sizes
+    (src_pts, src_err, src_frame), (dst_pts, dst_err, dst_frame) = src_stars, dst_stars
+    with warnings.catch_warnings():
+        if nonlinear:  # the distortion model answers the linear fit's misfit
+            warnings.simplefilter("ignore", PoorFitWarning)
+        return _match_points(src_pts, dst_pts, transform_type=linear_type,
+                             source_frame=src_frame, target_frame=dst_frame,
+                             source_errors=src_err, target_errors=dst_err,
+                             n_control=(ns, nd), n_neighbors=nn,
+                             source_asterisms=src.asterisms(ns, nn),
+                             target_asterisms=dst.asterisms(nd, nn),
+                             prior_trials=trials, **mat)
+
+
 def find_match(source: Any, target: Any, *, transform_type: str | type = "similarity",
                n_sources: int = 50, max_sources: int = 200, hdu: int | str | None = None,
                degree: int | str | None = None, **options: Any) -> MatchResult:
@@ -303,47 +364,8 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
 
     user_nn = "n_neighbors" in mat
     plan = _attempt_plan(n_sources, max_sources, mat.pop("n_neighbors", 4))
-    trials, tried, k, last_exc, result = 0, set(), 0, None, None
-    while k < len(plan):
-        ns, nd, nn = plan[k]
-        k += 1
-        src_pts, src_err, src_frame = src.stars(ns)
-        dst_pts, dst_err, dst_frame = dst.stars(nd)
-        src_pts, dst_pts = check_points(src_pts, "source"), check_points(dst_pts, "target")
-        # An image with fewer stars than asked for makes steps repeat.
-        key = (min(ns, len(src_pts)), min(nd, len(dst_pts)), len(src_pts), len(dst_pts), nn)
-        if key not in tried:
-            tried.add(key)
-            if "tolerance" not in options:
-                mat["tolerance"] = grow_tolerance = _search_tolerance(dst.fwhm)
-                if nonlinear:  # a linear model is pixels off at the corners of a wide field
-                    mat["tolerance"] *= model_selection.SEARCH_TOLERANCE_FACTOR
-            log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "
-                      f"{key[1]} of {key[3]} target stars, {nn} neighbours per star")
-            try:
-                with warnings.catch_warnings():
-                    if nonlinear:  # the distortion model answers the linear fit's misfit
-                        warnings.simplefilter("ignore", PoorFitWarning)
-                    result = _match_points(src_pts, dst_pts, transform_type=linear_type,
-                                           source_frame=src_frame, target_frame=dst_frame,
-                                           source_errors=src_err, target_errors=dst_err,
-                                           n_control=(ns, nd), n_neighbors=nn,
-                                           source_asterisms=src.asterisms(ns, nn),
-                                           target_asterisms=dst.asterisms(nd, nn),
-                                           prior_trials=trials, **mat)
-                break
-            except TransformNotFoundError as exc:
-                # Earlier attempts count in the trials factor of later ones.
-                trials += getattr(exc, "n_hypotheses", 0)
-                last_exc = exc
-                log.debug(f"astroalign_nd: attempt {len(tried)} found no trusted match; "
-                          f"{trials} hypotheses so far")
-        if k == len(plan) and _widen(plan, src_pts, dst_pts, user_nn):
-            log.debug("astroalign_nd: escalating to more neighbours per star")
-    if result is None:
-        raise last_exc
-    log.debug(f"astroalign_nd: match found at attempt {len(tried)}: {result.n_matches} "
-              f"stars, RMS {result.rms:.3f} px")
+    result, ns, nd, grow_tolerance = _escalate(src, dst, plan, mat, options, user_nn,
+                                               linear_type=linear_type, nonlinear=nonlinear)
     result.n_sources_used = max(ns, nd)
     if nonlinear:
         kind = model_selection.nonlinear_name(transform_type)
