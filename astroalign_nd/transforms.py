@@ -615,10 +615,10 @@ class SimilarityTransform(LinearTransform2D):
     scale : float
         Magnification from source to target pixels.
     rotation : float or `~astropy.units.Quantity`
-        Counter-clockwise rotation in degrees (as in astropy's
-        `~astropy.modeling.rotations.Rotation2D`), or an angle Quantity.
+        As for `EuclideanTransform`: counter-clockwise, in degrees or as
+        an angle Quantity.
     translation_x, translation_y : float
-        Shift in target pixels.
+        Shift in target pixels, applied after the rotation and scaling.
     parity : {1, -1}
         -1 for a mirrored transform (the y axis is flipped before rotating
         and scaling).  Fixed, never fitted as a continuous parameter.
