@@ -615,8 +615,8 @@ class SimilarityTransform(LinearTransform2D):
     scale : float
         Magnification from source to target pixels.
     rotation : float or `~astropy.units.Quantity`
-        As for `EuclideanTransform`: counter-clockwise, in degrees or as
-        an angle Quantity.
+        As for `~astroalign_nd.transforms.EuclideanTransform`:
+        counter-clockwise, in degrees or as an angle Quantity.
     translation_x, translation_y : float
         Shift in target pixels, applied after the rotation and scaling.
     parity : {1, -1}
