@@ -765,16 +765,22 @@ class PolynomialTransform(Model):
 
 def _distortion(u, v, exps, coef_a, coef_b):
     """The SIP terms ``f = sum A_pq u^p v^q`` and ``g = sum B_pq u^p v^q``."""
+    # In place: resampling evaluates this on every output pixel (twice per
+    # Newton step), and temporaries per term cost more than the arithmetic.
     degree = max(p + q for p, q in exps)
-    upow = [np.ones_like(u), u]
-    vpow = [np.ones_like(v), v]
+    upow = [None, u]
+    vpow = [None, v]
     for _ in range(2, degree + 1):
         upow.append(upow[-1] * u)
         vpow.append(vpow[-1] * v)
-    f = np.zeros(np.broadcast(u, v).shape)
-    g = np.zeros_like(f)
+    shape = np.broadcast(u, v).shape
+    f, g = np.zeros(shape), np.zeros(shape)
+    mono, term = np.empty(shape), np.empty(shape)
     for (p, q), a, b in zip(exps, coef_a, coef_b):
-        mono = upow[p] * vpow[q]
-        f = f + a * mono
-        g = g + b * mono
+        if q == 0 or p == 0:
+            m = upow[p] if q == 0 else vpow[q]
+        else:
+            m = np.multiply(upow[p], vpow[q], out=mono)
+        f += np.multiply(m, a, out=term)
+        g += np.multiply(m, b, out=term)
     return f, g

@@ -29,6 +29,8 @@ import time
 
 import numpy as np
 
+from bench_speed import frame_error  # noqa: E402  (the same error as bench_speed's)
+
 HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
@@ -91,16 +93,6 @@ def run_cli(src, dst, out, pythonpath):
     res = subprocess.run([sys.executable, "-c", _CHILD, *cmd], capture_output=True, text=True,
                          env=env, cwd=pythonpath, timeout=900)
     return json.loads(res.stdout.strip().splitlines()[-1])
-
-
-def frame_error(matrix, truth, shape):
-    ny, nx = shape
-    yy, xx = np.mgrid[0:ny:max(1, ny // 32), 0:nx:max(1, nx // 32)]
-    p = np.column_stack([xx.ravel(), yy.ravel()]).astype(float)
-    inv = np.linalg.inv(truth)
-    q = p @ inv[:2, :2].T + inv[:2, 2]
-    r = q @ matrix[:2, :2].T + matrix[:2, 2]
-    return float(np.max(np.hypot(*(r - p).T)))
 
 
 def main(argv=None):

@@ -55,7 +55,7 @@ from scipy import ndimage
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from bench_real import DEFAULT_DATA, load, pair_specs, singles  # noqa: E402
+from bench_real import DEFAULT_DATA, fill_holes, load, pair_specs, singles  # noqa: E402
 
 GRID_STEP = 16
 METHODS = ("nd_affine", "nd_poly_auto", "nd_poly3", "nd_projective", "astroalign",
@@ -98,16 +98,7 @@ def distort(img, dtype, truth, seed):
         wbad = ndimage.map_coordinates(bad.astype(np.float32), [ty, tx], order=0,
                                        mode="constant", cval=0.0) > 0.5
         out[wbad] = np.nan
-    hole = ~np.isfinite(out)
-    if hole.any():
-        d = np.diff(img[::4].astype(np.float64), axis=1).ravel()
-        d = d[np.isfinite(d)]
-        sig = 1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2)
-        out[hole] = med + sig * np.random.default_rng(seed).standard_normal(hole.sum())
-    if np.dtype(dtype).kind in "iu":
-        info = np.iinfo(dtype)
-        out = np.clip(np.round(out), info.min, info.max)
-    return out.astype(np.float32)
+    return fill_holes(out, img, med, dtype, seed)
 
 
 # -- methods: each returns a callable (x, y) -> (x', y') and a note ------------------------

@@ -122,6 +122,11 @@ def warp(img, dtype, m, seed):
         wbad = ndimage.affine_transform(bad.astype(np.float32), mat, offset=off, order=0,
                                         mode="constant", cval=0.0) > 0.5
         out[wbad] = np.nan
+    return fill_holes(out, img, med, dtype, seed)
+
+
+def fill_holes(out, img, med, dtype, seed):
+    """Pixels from outside the frame (NaN): the sky plus noise of ``img``'s level, as float32."""
     hole = ~np.isfinite(out)
     if hole.any():
         d = np.diff(img[::4].astype(np.float64), axis=1).ravel()

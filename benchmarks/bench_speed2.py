@@ -46,18 +46,9 @@ import warnings
 
 import numpy as np
 
+from bench_speed import frame_error  # noqa: E402  (the same error as bench_speed's)
+
 warnings.simplefilter("ignore")
-
-
-def frame_error(matrix, truth, shape):
-    """Max over target pixels p of |T(T_true^-1(p)) - p|, in pixels."""
-    ny, nx = shape
-    yy, xx = np.mgrid[0:ny:max(1, ny // 32), 0:nx:max(1, nx // 32)]
-    p = np.column_stack([xx.ravel(), yy.ravel()]).astype(float)
-    inv = np.linalg.inv(truth)
-    q = p @ inv[:2, :2].T + inv[:2, 2]
-    r = q @ matrix[:2, :2].T + matrix[:2, 2]
-    return float(np.max(np.hypot(*(r - p).T)))
 
 
 def random_similarity(size, rng):

@@ -46,6 +46,9 @@ _HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path[:0] = [os.path.dirname(_HERE), _HERE]
 _DATA = Path(_HERE).parent.parent / "shared" / "data"
 
+# The same JSON comparison as the linear models' check.
+from compare_transforms import compare  # noqa: E402
+
 SIZE = 1024
 #: (name, simulate_pair keywords) of the simulated pairs.
 SIMULATED = [
@@ -204,29 +207,6 @@ def record(out, data):
     n_warn = sum(bool(v.get("warnings")) for v in results.values())
     print(f"{len(results)} inputs ({n_err} raised, {n_warn} warned) in "
           f"{time.perf_counter() - t0:.0f} s -> {out}")
-
-
-def compare(old, new):
-    with open(old) as f:
-        a = json.load(f)
-    with open(new) as f:
-        b = json.load(f)
-    diffs = 0
-    for name in sorted(set(a) | set(b)):
-        if name not in a or name not in b:
-            print(f"only in {'new' if name not in a else 'old'}: {name}")
-            diffs += 1
-            continue
-        keys = sorted(set(a[name]) | set(b[name]))
-        bad = [k for k in keys if a[name].get(k) != b[name].get(k)]
-        if bad:
-            diffs += 1
-            print(f"DIFFERENT {name}: {', '.join(bad)}")
-            for k in bad[:3]:
-                print(f"    old {k}: {str(a[name].get(k))[:300]}")
-                print(f"    new {k}: {str(b[name].get(k))[:300]}")
-    print(f"{len(set(a) | set(b))} inputs compared, {diffs} different")
-    return diffs
 
 
 def main(argv=None):
