@@ -207,6 +207,11 @@ def _no_detections_warning():
 def _too_few_advice(role, n, meta, nsigma, user_fwhm):
     """A TooFewSourcesError message whose advice fits what detection saw."""
     fwhm = meta.get("fwhm", float("nan"))
+    if not fwhm or not np.isfinite(fwhm):
+        # Nothing star-like at all: a blank, constant or all-NaN frame.
+        return (f"the {role} gave {n} usable source(s) at {nsigma:g} sigma, and at least 3 are "
+                "needed to find a transform: nothing in it looks like a star (is it blank, "
+                "constant or all NaN?). Pass the image with the stars, or a catalog of positions.")
     msg = (f"the {role} gave {n} usable source(s) at {nsigma:g} sigma with a stellar FWHM of "
            f"{fwhm:.1f} px; at least 3 are needed to find a transform. ")
     if user_fwhm:

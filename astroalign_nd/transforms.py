@@ -62,7 +62,11 @@ __all__ = [
 
 
 def _as_points(points, name):
-    pts = np.asarray(points, dtype=float)
+    try:
+        pts = np.asarray(points, dtype=float)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be an (N, 2) array of (x, y) positions (numbers); got "
+                        f"{type(points).__name__}.") from None
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise ValueError(
             f"{name} must be an (N, 2) array of (x, y) positions; got an array of shape "

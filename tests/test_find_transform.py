@@ -571,3 +571,11 @@ def test_transform_types_on_catalogs(transform_type, cls):
     t, _ = find_transform(src, _map(truth, src), transform_type=transform_type)
     assert type(t) is cls
     assert frame_error(t, truth, (400, 400)) < 1e-6
+
+
+def test_blank_image_message_does_not_invent_a_star_width(small_pair):
+    # A constant frame has no stellar width: the advice must not quote "0.0 px".
+    blank = np.full((256, 256), 100.0, dtype=np.float32)
+    with pytest.raises(TooFewSourcesError, match="looks like a star") as info:
+        find_transform(blank, small_pair.target)
+    assert "0.0 px" not in str(info.value)

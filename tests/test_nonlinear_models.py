@@ -291,3 +291,9 @@ def test_polynomial_bad_input():
     flat = np.column_stack([src[:, 0], np.zeros(40)])
     with pytest.raises(ValueError, match="singular"):
         PolynomialTransform.from_points(src, flat, degree=2)
+
+
+@pytest.mark.parametrize("cls", [ProjectiveTransform, PolynomialTransform])
+def test_from_points_refuses_text_with_a_type_error(cls):
+    with pytest.raises(TypeError, match=r"\(N, 2\) array"):
+        cls.from_points("abc", np.ones((12, 2)))
