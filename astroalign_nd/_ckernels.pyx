@@ -15,7 +15,7 @@ This is plain C once compiled: there is no JIT, nothing to cache, and
 nothing heavy to import.
 """
 
-from libc.math cimport isfinite, sqrt, INFINITY
+from libc.math cimport exp, fabs, isfinite, isnan, sqrt, INFINITY, NAN
 
 import numpy as np
 
@@ -59,6 +59,61 @@ cdef inline void _bin_despike_block(const real* d, const unsigned char* mk,
             o[i * nx + j] = <float>((total - p) * inv)
 
 
+cdef void _bin_despike_unmasked(const real* d, Py_ssize_t nx_in, Py_ssize_t b, double fill,
+                                float* o, Py_ssize_t nx, Py_ssize_t row0, Py_ssize_t row1,
+                                double* tot, double* t, double* p) noexcept nogil:
+    # `_bin_despike_block` without a mask, the same sums in the same order,
+    # but with the output columns innermost: their running sums are
+    # independent, so the adds no longer wait on each other.  A block with a
+    # non-finite pixel ends with a non-finite total (float pixels cannot
+    # overflow a double sum of a few hundred) and is redone by the general loop.
+    cdef Py_ssize_t i, j, di, dj
+    cdef const real* r
+    cdef double v
+    cdef double inv = 1.0 / (b * b - 1)
+    for i in range(row0, row1):
+        for j in range(nx):
+            tot[j] = 0.0
+            p[j] = -INFINITY
+        for di in range(b):
+            r = d + (i * b + di) * nx_in
+            for j in range(nx):
+                t[j] = 0.0
+            for dj in range(b):
+                for j in range(nx):
+                    v = r[j * b + dj]
+                    t[j] += v
+                    # An unconditional store: a max instruction, not a branch
+                    # that noise makes unpredictable.
+                    p[j] = v if v > p[j] else p[j]
+            for j in range(nx):
+                tot[j] += t[j]
+        for j in range(nx):
+            if isfinite(tot[j]):
+                o[i * nx + j] = <float>((tot[j] - p[j]) * inv)
+            else:
+                _bin_despike_one(d, nx_in, b, fill, o + i * nx + j, i, j)
+
+
+cdef void _bin_despike_one(const real* d, Py_ssize_t nx_in, Py_ssize_t b, double fill,
+                           float* o, Py_ssize_t i, Py_ssize_t j) noexcept nogil:
+    # One block of `_bin_despike_block` without a mask (non-finite pixels count as fill).
+    cdef Py_ssize_t di, dj, k
+    cdef double total = 0.0, t, v, p = -INFINITY
+    for di in range(b):
+        k = (i * b + di) * nx_in + j * b
+        t = 0.0
+        for dj in range(b):
+            v = d[k + dj]
+            if not isfinite(v):
+                v = fill
+            t += v
+            if v > p:
+                p = v
+        total += t
+    o[0] = <float>((total - p) * (1.0 / (b * b - 1)))
+
+
 def bin_despike_rows(const real[:, ::1] data, const unsigned char[:, ::1] mask,
                      bint use_mask, Py_ssize_t b, double fill, float[:, ::1] out,
                      Py_ssize_t row0, Py_ssize_t row1):
@@ -69,11 +124,15 @@ def bin_despike_rows(const real[:, ::1] data, const unsigned char[:, ::1] mask,
     cdef float* o = &out[0, 0]
     if use_mask and (mask.shape[0] != data.shape[0] or mask.shape[1] != data.shape[1]):
         raise ValueError("mask must have the data's shape.")
-    with nogil:
-        if use_mask:
+    cdef double[:, ::1] work
+    if use_mask:
+        with nogil:
             _bin_despike_block(d, mk, True, nx_in, b, fill, o, nx, row0, row1)
-        else:
-            _bin_despike_block(d, mk, False, nx_in, b, fill, o, nx, row0, row1)
+        return
+    work = np.empty((3, max(nx, 1)))
+    with nogil:
+        _bin_despike_unmasked(d, nx_in, b, fill, o, nx, row0, row1, &work[0, 0], &work[1, 0],
+                              &work[2, 0])
 
 
 def peaks(const float[:, ::1] img, double threshold, Py_ssize_t border):
@@ -121,6 +180,134 @@ def peaks(const float[:, ::1] img, double threshold, Py_ssize_t border):
                     sc[n] = s
                     n += 1
     return ys_arr[:n].copy(), xs_arr[:n].copy(), sc_arr[:n].copy()
+
+
+cdef void _window_sums(const double* im, Py_ssize_t size, const double* wx,
+                       const double* wy, const double* ex, const double* ey, int p,
+                       double* col, double* out) noexcept nogil:
+    # Sums of a Gaussian-windowed cutout, the window separable, with
+    # w = wy[i] * wx[j] and im[i, j] (row-major):
+    # out = [sum w, sum w*ex, sum w*ey**p, sum w*ex^2].  The rows are
+    # collapsed first into two column sums (weights wy and wy*ey**p): a
+    # loop without a reduction, which the compiler vectorises.
+    cdef Py_ssize_t i, j
+    cdef double a, c, t
+    cdef double* ca = col
+    cdef double* cc = col + size
+    cdef const double* r
+    for j in range(size):
+        ca[j] = 0.0
+        cc[j] = 0.0
+    for i in range(size):
+        a = wy[i]
+        c = a * ey[i] if p == 1 else a * (ey[i] * ey[i])
+        r = im + i * size
+        for j in range(size):
+            t = r[j]
+            ca[j] += a * t
+            cc[j] += c * t
+    out[0] = out[1] = out[2] = out[3] = 0.0
+    for j in range(size):
+        t = wx[j] * ex[j]
+        out[0] += wx[j] * ca[j]
+        out[1] += t * ca[j]
+        out[2] += wx[j] * cc[j]
+        out[3] += wx[j] * (ex[j] * ex[j]) * ca[j]
+
+
+cdef inline void _gauss_weights(double* w, const double* e, Py_ssize_t size,
+                                double sigma) noexcept nogil:
+    # w[j] = exp(-0.5 * (e[j] / sigma)**2) for offsets e[j] one pixel apart,
+    # with three exponentials instead of one per pixel: from the pixel
+    # nearest the centre outwards, each weight is the last times a ratio,
+    # and each ratio the last times exp(-1 / sigma**2).  Going outwards the
+    # weights only shrink, so none underflows before its true value would.
+    cdef Py_ssize_t j, jc = 0
+    cdef double inv = 1.0 / (sigma * sigma), t, r, q
+    for j in range(1, size):
+        if fabs(e[j]) < fabs(e[jc]):
+            jc = j
+    t = e[jc] / sigma
+    w[jc] = exp(-0.5 * (t * t))
+    q = exp(-inv)
+    r = exp(-(e[jc] + 0.5) * inv)
+    for j in range(jc + 1, size):
+        w[j] = w[j - 1] * r
+        r *= q
+    r = exp((e[jc] - 0.5) * inv)
+    for j in range(jc - 1, -1, -1):
+        w[j] = w[j + 1] * r
+        r *= q
+
+
+def windowed_centroid(const double[:, :, ::1] img, double[::1] x, double[::1] y,
+                      const double[::1] sigma, int n_iter):
+    """
+    Iterative Gaussian-windowed centroids (SExtractor's XWIN) of cutouts,
+    updating ``x`` and ``y`` (pixels in the cutouts) in place.
+
+    The iterations stop when no star moved by 1e-4 px or more, as in
+    `astroalign_nd._kernels.windowed_centroid`'s NumPy version.
+    """
+    cdef Py_ssize_t n = img.shape[0], size = img.shape[1], k, j, it
+    cdef double[:, ::1] buf = np.empty((7, size))
+    cdef double[::1] sx = np.empty(n), sy = np.empty(n)
+    cdef double s[4]
+    cdef bint moving
+    with nogil:
+        for it in range(n_iter):
+            moving = False
+            for k in range(n):
+                for j in range(size):
+                    buf[2, j] = j - x[k]
+                    buf[3, j] = j - y[k]
+                _gauss_weights(&buf[0, 0], &buf[2, 0], size, sigma[k])
+                _gauss_weights(&buf[1, 0], &buf[3, 0], size, sigma[k])
+                _window_sums(&img[k, 0, 0], size, &buf[0, 0], &buf[1, 0], &buf[2, 0],
+                             &buf[3, 0], 1, &buf[4, 0], s)
+                # The factor 2 is the XWIN update for a Gaussian window.
+                sx[k] = 2.0 * s[1] / s[0] if s[0] > 0 else 0.0
+                sy[k] = 2.0 * s[2] / s[0] if s[0] > 0 else 0.0
+            for k in range(n):
+                if not (fabs(sx[k]) < 1e-4 and fabs(sy[k]) < 1e-4):
+                    moving = True
+                x[k] += -1.0 if sx[k] < -1.0 else (1.0 if sx[k] > 1.0 else sx[k])
+                y[k] += -1.0 if sy[k] < -1.0 else (1.0 if sy[k] > 1.0 else sy[k])
+            if not moving:
+                break
+
+
+def adaptive_sigma(const double[:, :, ::1] img, const double[::1] dx, const double[::1] dy,
+                   double sigma0, int n_iter):
+    """
+    Gaussian sigma of each cutout's star from Gaussian-weighted second
+    moments, iterating the window's width to the star's (NaN where the
+    moments fail); `astroalign_nd._kernels.adaptive_fwhm` converts it.
+    """
+    cdef Py_ssize_t n = img.shape[0], size = img.shape[1], half = size // 2, k, j, it
+    cdef double[:, ::1] buf = np.empty((7, size))
+    cdef double[::1] out = np.empty(n)
+    cdef double s[4]
+    cdef double sw, sig, s2, inv, hi = half / 3.0
+    with nogil:
+        for k in range(n):
+            sw = sigma0
+            sig = sw
+            for j in range(size):
+                buf[2, j] = (j - half) - dx[k]
+                buf[3, j] = (j - half) - dy[k]
+            for it in range(n_iter):
+                _gauss_weights(&buf[0, 0], &buf[2, 0], size, sw)
+                _gauss_weights(&buf[1, 0], &buf[3, 0], size, sw)
+                _window_sums(&img[k, 0, 0], size, &buf[0, 0], &buf[1, 0], &buf[2, 0],
+                             &buf[3, 0], 2, &buf[4, 0], s)
+                s2 = 0.5 * (s[3] + s[2]) / s[0]
+                inv = 1.0 / s2 - 1.0 / (sw * sw)
+                sig = 1.0 / sqrt(fabs(inv)) if (s[0] > 0 and inv > 0) else NAN
+                sw = hi if isnan(sig) else sig
+                sw = 0.5 if sw < 0.5 else (hi if sw > hi else sw)
+            out[k] = sig
+    return np.asarray(out)
 
 
 def count_nonfinite(const real[::1] flat, Py_ssize_t start, Py_ssize_t stop):

@@ -31,11 +31,14 @@ import warnings
 
 import numpy as np
 from astropy.table import Table
+from numpy.lib.stride_tricks import sliding_window_view
 from astropy.utils.exceptions import AstropyWarning
 
 from ._input import image_and_mask
 from ._kernels import GAUSS_SIGMA_TO_FWHM as _GAUSS_SIGMA_TO_FWHM
+from ._kernels import adaptive_fwhm as _adaptive_fwhm
 from ._kernels import bin_despike, peak_candidates
+from ._kernels import windowed_centroid as _windowed_centroid
 
 __all__ = ["find_sources", "estimate_noise", "estimate_fwhm"]
 
@@ -47,6 +50,8 @@ def _median(a, axis=None):
     numpy's median partitions around two elements for even lengths, which
     is slow along an axis (~8 ms for 1500 cutouts of 300 pixels); one
     partition plus the maximum of the lower half gives the same values.
+    Long 1-D samples (a whole-image noise sample) are first narrowed to a
+    bracket around the middle (`_middle_pair`).
     NaNs are not propagated: callers pass finite values only.
     """
     a = np.asarray(a)
@@ -54,6 +59,9 @@ def _median(a, axis=None):
         a, axis = a.ravel(), 0
     n = a.shape[axis]
     k = n // 2
+    if a.ndim == 1 and n >= _BRACKET_MIN and a.dtype.kind == "f":
+        lo, hi = _middle_pair(a, k)
+        return hi if n % 2 else np.mean(np.stack([lo, hi]), axis=0)
     part = np.partition(a, k, axis=axis)
     hi = part.take(k, axis=axis)
     if n % 2:
@@ -61,6 +69,37 @@ def _median(a, axis=None):
     lower = (slice(None),) * axis + (slice(0, k),)  # a view, not a copy
     lo = np.max(part[lower], axis=axis)
     return np.mean(np.stack([lo, hi]), axis=0)
+
+
+#: 1-D samples at least this long are narrowed before selection (`_middle_pair`).
+_BRACKET_MIN = 16384
+
+
+def _middle_pair(x, k):
+    """
+    The (k-1)-th and k-th smallest values of a 1-D float array, exactly.
+
+    A sorted subsample brackets them (with a margin of about 5 sigma of the
+    subsample's rank scatter), and only the values inside the bracket,
+    a sixth of the sample or less, are partitioned.  If the bracket misses
+    (strongly clustered values), the whole sample is.  The values returned
+    are the order statistics themselves: the same as a full partition's.
+    """
+    n = x.size
+    sample = np.sort(x[:: max(1, n // 1024)])
+    ns = sample.size
+    centre = k / n * (ns - 1)
+    margin = int(2.5 * np.sqrt(ns)) + 2  # 5 sigma: sqrt(ns / 4) per sigma
+    lo_edge = sample[max(0, int(np.floor(centre)) - margin)]
+    hi_edge = sample[min(ns - 1, int(np.ceil(centre)) + margin)]
+    below = int(np.count_nonzero(x < lo_edge))
+    inside = x[(x >= lo_edge) & (x <= hi_edge)]
+    if below <= k - 1 and below + inside.size > k:
+        j = k - below
+        part = np.partition(inside, (j - 1, j))
+        return part[j - 1], part[j]
+    part = np.partition(x, (k - 1, k))
+    return part[k - 1], part[k]
 
 
 def estimate_noise(data, mask=None, *, max_samples=50_000):
@@ -125,21 +164,20 @@ def _diff_sigma(rows, mrows, lag):
     return float(sigma)
 
 
-def _interp_matrix(n_out, n_blocks, block):
-    """(n_out, n_blocks) bilinear weights from block centres to pixels."""
+def _interp_weights(n_out, n_blocks, block):
+    """
+    Bilinear weights from block centres to pixels: for each output pixel,
+    the lower block ``k`` and the weights of blocks ``k`` and ``k + 1``.
+    """
+    if n_blocks == 1:
+        return np.zeros(n_out, int), np.ones(n_out), np.zeros(n_out)
     centres = (np.arange(n_blocks) + 0.5) * block - 0.5
     # Beyond the outer block centres the sky is extrapolated linearly, so
     # that a steep gradient leaves no ramp along the frame's edges.
     pos = np.arange(n_out, dtype=float)
-    w = np.zeros((n_out, n_blocks))
-    if n_blocks == 1:
-        w[:, 0] = 1.0
-        return w
     k = np.clip(np.searchsorted(centres, pos, side="right") - 1, 0, n_blocks - 2)
     f = (pos - centres[k]) / (centres[k + 1] - centres[k])
-    w[np.arange(n_out), k] = 1.0 - f
-    w[np.arange(n_out), k + 1] = f
-    return w
+    return k, 1.0 - f, f
 
 
 def _background_map(binned, box):
@@ -147,7 +185,7 @@ def _background_map(binned, box):
     Coarse block-median background, bilinearly expanded to ``binned``.
 
     Medians of ``box`` x ``box`` blocks follow gradients while ignoring
-    stars; the expansion is two small matrix products.
+    stars; the expansion is separable, two blocks per pixel along each axis.
     """
     ny, nx = binned.shape
     by, bx = max(1, ny // box), max(1, nx // box)
@@ -155,12 +193,21 @@ def _background_map(binned, box):
     blocks = binned[: by * cy, : bx * cx].reshape(by, cy, bx, cx)
     blocks = np.moveaxis(blocks, 2, 1).reshape(by, bx, cy * cx)
     bkg = _median(blocks, axis=2)
-    wy = _interp_matrix(ny, by, cy)
-    wx = _interp_matrix(nx, bx, cx)
-    # einsum, not ``@``: matrix products this size wake OpenBLAS's threads,
-    # which then spin and take the cores from the compiled kernels that follow
-    # (it doubled the time of a 1024x1024 registration on two cores).
-    return np.einsum("ik,lk->il", np.einsum("ij,jk->ik", wy, bkg), wx).astype(np.float32), bkg
+    ky, wy0, wy1 = _interp_weights(ny, by, cy)
+    kx, wx0, wx1 = _interp_weights(nx, bx, cx)
+    # Two products per pixel (not matrix products: those wake OpenBLAS's
+    # threads, which then spin and take the cores from the compiled kernels
+    # that follow).
+    b64 = bkg.astype(float)
+    if by == 1:
+        rows = np.broadcast_to(b64[0], (ny, bx))
+    else:
+        rows = wy0[:, None] * b64[ky] + wy1[:, None] * b64[ky + 1]
+    if bx == 1:
+        return np.broadcast_to(rows[:, :1], (ny, nx)).astype(np.float32), bkg
+    full = wx0 * rows[:, kx]
+    full += wx1 * rows[:, kx + 1]
+    return full.astype(np.float32), bkg
 
 
 def _extract_cutouts(data, mask, xc, yc, half, fill):
@@ -168,21 +215,33 @@ def _extract_cutouts(data, mask, xc, yc, half, fill):
     size = 2 * half + 1
     ny, nx = data.shape
     n = len(xc)
-    offs = np.arange(-half, half + 1)
-    iy = yc[:, None] + offs[None, :]
-    ix = xc[:, None] + offs[None, :]
-    vy = (iy >= 0) & (iy < ny)
-    vx = (ix >= 0) & (ix < nx)
-    iyc = np.clip(iy, 0, ny - 1)
-    ixc = np.clip(ix, 0, nx - 1)
-    cut = data[iyc[:, :, None], ixc[:, None, :]].astype(np.float64)
-    bad = ~(vy[:, :, None] & vx[:, None, :])
-    if mask is not None:
-        bad |= mask[iyc[:, :, None], ixc[:, None, :]]
+    cut = np.empty((n, size, size))
+    bad = np.zeros((n, size, size), dtype=bool)
+    inner = (xc >= half) & (xc < nx - half) & (yc >= half) & (yc < ny - half)
+    if inner.any():
+        # Cutouts inside the frame (almost all): block copies from a
+        # sliding-window view, not an index per pixel.
+        x0, y0 = xc[inner] - half, yc[inner] - half
+        cut[inner] = sliding_window_view(data, (size, size))[y0, x0]
+        if mask is not None:
+            bad[inner] = sliding_window_view(mask, (size, size))[y0, x0]
+    if not inner.all():
+        edge = ~inner
+        offs = np.arange(-half, half + 1)
+        iy = yc[edge, None] + offs[None, :]
+        ix = xc[edge, None] + offs[None, :]
+        vy = (iy >= 0) & (iy < ny)
+        vx = (ix >= 0) & (ix < nx)
+        iyc = np.clip(iy, 0, ny - 1)
+        ixc = np.clip(ix, 0, nx - 1)
+        cut[edge] = data[iyc[:, :, None], ixc[:, None, :]]
+        bad_edge = ~(vy[:, :, None] & vx[:, None, :])
+        if mask is not None:
+            bad_edge |= mask[iyc[:, :, None], ixc[:, None, :]]
+        bad[edge] = bad_edge
     bad |= ~np.isfinite(cut)
     cut[bad] = fill if np.isscalar(fill) else np.broadcast_to(
         np.asarray(fill)[:, None, None], cut.shape)[bad]
-    assert cut.shape == (n, size, size)
     return cut, bad
 
 
@@ -199,41 +258,6 @@ def _local_background(cut, bad, r_in):
         good = vals[i][~badv[i]]
         bkg[i] = np.median(good) if good.size else 0.0
     return bkg
-
-
-def _adaptive_fwhm(cut, bad, dx, dy, sigma0=1.5, n_iter=8):
-    """
-    FWHM per cutout from Gaussian-weighted ("adaptive") second moments.
-
-    A Gaussian window of width ``sigma_w`` measures a weighted variance
-    ``s2`` of a Gaussian star of width ``sigma`` with
-    ``1/s2 = 1/sigma^2 + 1/sigma_w^2``; iterating ``sigma_w = sigma``
-    converges without the noise bias of unweighted moments.
-    """
-    n, size, _ = cut.shape
-    half = size // 2
-    g = np.arange(size) - half
-    img = np.where(bad, 0.0, cut)
-    sig_w = np.full(n, float(sigma0))
-    ex = g[None, :] - dx[:, None]
-    ey = g[None, :] - dy[:, None]
-    sig = sig_w
-    for _ in range(n_iter):
-        wx = np.exp(-0.5 * (ex / sig_w[:, None]) ** 2)
-        wy = np.exp(-0.5 * (ey / sig_w[:, None]) ** 2)
-        col = np.matmul(wy[:, None, :], img)[:, 0, :]  # separable window, as above
-        row = np.matmul(img, wx[:, :, None])[:, :, 0]
-        tot = np.einsum("nj,nj->n", col, wx)
-        mxx = np.einsum("nj,nj->n", col, wx * ex**2)
-        myy = np.einsum("ni,ni->n", row, wy * ey**2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            s2 = 0.5 * (mxx + myy) / tot
-            inv = 1.0 / s2 - 1.0 / sig_w**2
-            sig = np.where((tot > 0) & (inv > 0), 1.0 / np.sqrt(np.abs(inv)), np.nan)
-        sig_w = np.clip(np.nan_to_num(sig, nan=half / 3.0), 0.5, half / 3.0)
-    # Remove the pixel-integration term (1/12 px^2 per axis).
-    with np.errstate(invalid="ignore"):
-        return _GAUSS_SIGMA_TO_FWHM * np.sqrt(np.clip(sig**2 - 1.0 / 12.0, 0.0, None))
 
 
 def estimate_fwhm(data, *, mask=None, n_stars=30):
@@ -343,37 +367,6 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
     return {"x": x * b + (b - 1) / 2.0, "y": y * b + (b - 1) / 2.0,
             "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b),
             "snr": score / (3.0 * noise_b)}
-
-
-def _windowed_centroid(cut, bad, x0, y0, sigma, n_iter=8):
-    """Iterative Gaussian-windowed centroid (SExtractor XWIN), vectorised."""
-    n, size, _ = cut.shape
-    g = np.arange(size, dtype=float)
-    x, y = x0.copy(), y0.copy()
-    w_img = np.where(bad, 0.0, cut)
-    for _ in range(n_iter):
-        dx = g[None, :] - x[:, None]
-        dy = g[None, :] - y[:, None]
-        wx = np.exp(-0.5 * (dx / sigma[:, None]) ** 2)
-        wy = np.exp(-0.5 * (dy / sigma[:, None]) ** 2)
-        # The window is separable: collapse one axis at a time instead of
-        # forming the (n, size, size) weighted stack.
-        col = np.matmul(wy[:, None, :], w_img)[:, 0, :]  # sum over rows
-        row = np.matmul(w_img, wx[:, :, None])[:, :, 0]  # sum over columns
-        tot = np.einsum("nj,nj->n", col, wx)
-        ok = tot > 0
-        sx = np.einsum("nj,nj->n", col, wx * dx)
-        sy = np.einsum("ni,ni->n", row, wy * dy)
-        # The factor 2 is the XWIN update for a Gaussian window.
-        step_x = np.where(ok, 2.0 * sx / np.where(ok, tot, 1.0), 0.0)
-        step_y = np.where(ok, 2.0 * sy / np.where(ok, tot, 1.0), 0.0)
-        step_x = np.clip(step_x, -1.0, 1.0)
-        step_y = np.clip(step_y, -1.0, 1.0)
-        x += step_x
-        y += step_y
-        if np.max(np.abs(step_x), initial=0) < 1e-4 and np.max(np.abs(step_y), initial=0) < 1e-4:
-            break
-    return x, y
 
 
 def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,

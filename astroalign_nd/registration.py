@@ -274,6 +274,7 @@ def _escalate(src, dst, plan, mat, options, user_nn, *, linear_type, nonlinear):
     """
     trials, tried, k, last_exc, result = 0, set(), 0, None, None
     grow_tolerance = None
+    _detect_both(src, plan[0][0], dst, plan[0][1])
     while k < len(plan):
         ns, nd, nn = plan[k]
         k += 1
@@ -308,6 +309,39 @@ def _escalate(src, dst, plan, mat, options, user_nn, *, linear_type, nonlinear):
     log.debug(f"astroalign_nd: match found at attempt {len(tried)}: {result.n_matches} "
               f"stars, RMS {result.rms:.3f} px")
     return result, ns, nd, grow_tolerance
+
+
+def _detect_both(src, ns, dst, nd):
+    """
+    Detect the stars of both images of the first attempt at once, the
+    target's in a second thread (when `~astroalign_nd.conf` allows two).
+
+    Detection is most of a small frame's registration, and much of it runs
+    in NumPy and compiled code that releases the GIL: two frames at once
+    take about 0.8 of the time of one after the other.  The results are the
+    same (each frame is detected alone, from its own data); errors are
+    raised in the sequential order (the source's first).
+    """
+    todo = [ref for ref, n in ((src, ns), (dst, nd))
+            if not ref._parsed.is_catalog and n not in ref._stars]
+    if len(todo) < 2 or num_threads() < 2:
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    # Both detections ignore the same warnings; one block here restores the
+    # caller's filters, which the threads' own (not thread-safe) blocks
+    # could otherwise leave changed.
+    with warnings.catch_warnings(), ThreadPoolExecutor(1) as pool:
+        warnings.simplefilter("ignore", _no_detections_warning())
+        from astropy.utils.exceptions import AstropyWarning
+        warnings.simplefilter("ignore", AstropyWarning)
+        later = pool.submit(dst.stars, nd)
+        try:
+            src.stars(ns)
+        finally:
+            error = later.exception()
+    if error is not None:
+        raise error
 
 
 def _attempt(src, dst, sizes, src_stars, dst_stars, mat, trials, *, linear_type, nonlinear):

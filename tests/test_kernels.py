@@ -130,7 +130,8 @@ def _resample_in_child(img):
 
 
 @pytest.mark.parametrize("shape, axis", [((49, 1849), 1), ((150, 300), 1), ((300, 150), 0),
-                                         ((5000,), 0), ((5001,), None), ((7, 7, 48), 2)])
+                                         ((5000,), 0), ((5001,), None), ((7, 7, 48), 2),
+                                         ((50001,), None), ((50000,), 0)])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_fast_median_is_numpy_median(shape, axis, dtype):
     from astroalign_nd.detection import _median
@@ -143,3 +144,26 @@ def test_fast_median_is_numpy_median(shape, axis, dtype):
     assert np.asarray(got).dtype == np.asarray(expected).dtype
     assert_array_equal(got, expected)
     assert_array_equal(x, before)
+
+
+@pytest.mark.parametrize("case", ["clustered", "ties", "two_levels", "tiny_spread"])
+def test_fast_median_bracket_edge_cases(case):
+    # Samples long enough for the bracketed selection, with values that
+    # defeat a subsample's bracket: the result must still be numpy's.
+    from astroalign_nd.detection import _median
+
+    rng = np.random.default_rng(3)
+    n = 20_001 if case == "ties" else 20_000
+    if case == "clustered":  # half the values equal, the rest far on both sides
+        x = np.concatenate([np.full(n // 2, 5.0), rng.normal(0, 100, n // 2)])
+        rng.shuffle(x)
+    elif case == "ties":
+        x = rng.integers(0, 3, n).astype(float)
+    elif case == "two_levels":  # the middle pair straddles a gap
+        x = np.concatenate([np.zeros(n // 2), np.ones(n // 2)])[rng.permutation(n)]
+    else:
+        x = 1.0 + rng.normal(0, 1e-7, n)
+    for a in (x, x[::-1], np.sort(x), x.astype(np.float32)):
+        got = _median(a)
+        assert np.asarray(got).dtype == a.dtype
+        assert_array_equal(got, np.median(a))
