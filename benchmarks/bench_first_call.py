@@ -40,6 +40,10 @@ installed; the header line says whether each tree has its bytecode.
 astropy.wcs and scipy.sparse) is a cost no change inside astroalign_nd can
 remove.
 
+``--breakdown`` then times, in fresh processes again, the first call's
+imports one package at a time in the order the call meets them, the call
+itself once they are done, and a second call (ndarray input).
+
 The transforms are compared too: the largest distance, over the target
 frame, between where astroalign_nd and astroalign send a pixel (there is no
 ground truth for a real pair).
@@ -50,6 +54,7 @@ Usage::
     python benchmarks/bench_first_call.py --repeats 11
     python benchmarks/bench_first_call.py --before /path/to/old/tree
     python benchmarks/bench_first_call.py --variant ccddata --compile --floor
+    python benchmarks/bench_first_call.py --compile --breakdown
 
 ``--before`` adds a third tool: astroalign_nd imported from another source
 tree (a checkout of an older commit), to measure a change in one run.
@@ -111,6 +116,71 @@ print(json.dumps(dict(read=t1 - t0, imp=t2 - t1, register=t3 - t2, second=t4 - t
 """
 
 
+# --breakdown: the first register's imports one package at a time, in the order the call
+# meets them, then the call itself (every import done) and a second call.
+_BREAKDOWN_CHILD = r"""
+import sys, time, json, warnings
+warnings.filterwarnings("ignore")
+from astropy.io import fits
+a = fits.getdata(sys.argv[2])
+b = fits.getdata(sys.argv[3])
+stages = []
+t = time.perf_counter()
+def lap(name):
+    global t
+    now = time.perf_counter()
+    stages.append((name, now - t))
+    t = now
+if sys.argv[1] == "astroalign":
+    import scipy.spatial; lap("scipy.spatial")
+    import scipy.ndimage; lap("scipy.ndimage")
+    import skimage.transform; skimage.transform.warp; lap("skimage.transform")
+    import sep; lap("sep")
+    import astroalign as mod; lap("astroalign")
+else:
+    import scipy.spatial; lap("scipy.spatial")
+    import astropy.modeling; lap("astropy.modeling (+nddata, table, coordinates, wcs)")
+    import scipy.ndimage; lap("scipy.ndimage")
+    import astroalign_nd as mod
+    from astroalign_nd import ccddata, registration, model_selection
+    lap("astroalign_nd modules")
+    from astroalign_nd.detection import _import_photutils
+    _import_photutils()
+    import photutils.detection; lap("photutils.detection")
+mod.register(a, b); lap("first register, imports done")
+mod.register(a, b); lap("second register")
+print(json.dumps(stages))
+"""
+
+
+def run_breakdown(tool, src, dst, pythonpath):
+    env = dict(os.environ)
+    env["PYTHONPATH"] = pythonpath
+    res = subprocess.run([sys.executable, "-c", _BREAKDOWN_CHILD, tool, src, dst],
+                         capture_output=True, text=True, timeout=300, env=env, cwd=pythonpath)
+    lines = [ln for ln in res.stdout.splitlines() if ln.startswith("[")]
+    if not lines:
+        raise RuntimeError(f"{tool} breakdown child failed:\n{res.stderr[-2000:]}")
+    return json.loads(lines[-1])
+
+
+def breakdown(src, dst, repeats):
+    """Print the median and least time of each stage of the first call, both tools."""
+    rows = {"astroalign_nd": [], "astroalign": []}
+    for r in range(repeats):
+        for tool in (("astroalign_nd", "astroalign") if r % 2 == 0
+                     else ("astroalign", "astroalign_nd")):
+            rows[tool].append(run_breakdown(tool, src, dst, HERE))
+    print("\nbreakdown of the first call, after the read (s):")
+    for tool, runs in rows.items():
+        print(f"  {tool}{'':<40} median      min")
+        for i, (name, _) in enumerate(runs[0]):
+            v = [run[i][1] for run in runs]
+            print(f"    {name:<52} {np.median(v):6.3f}   {min(v):6.3f}")
+        tot = [sum(x for _, x in run[:-1]) for run in runs]
+        print(f"    {'imports + first register':<52} {np.median(tot):6.3f}   {min(tot):6.3f}")
+
+
 def bytecode_state(tree):
     """'compiled' if every astroalign_nd module of ``tree`` has a current .pyc, else a count."""
     import importlib.util
@@ -162,6 +232,8 @@ def main(argv=None):
                     help="compile the measured trees' bytecode first, as an install would")
     ap.add_argument("--floor", action="store_true",
                     help="add a child that only imports astropy.modeling after the read")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="also time the first call's imports package by package (ndarray)")
     args = ap.parse_args(argv)
     if not os.path.isdir(DATA):
         sys.exit(f"the HAT-P-32 frames are not in {DATA}")
@@ -223,6 +295,8 @@ def main(argv=None):
         d = frame_distance(np.array(rows["astroalign_nd"][0]["matrix"]),
                            np.array(rows["before"][0]["matrix"]), shape)
         print(f"transform agreement with 'before': max {d:.2e} px over the target frame")
+    if args.breakdown:
+        breakdown(src, dst, args.repeats)
 
 
 if __name__ == "__main__":
