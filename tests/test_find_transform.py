@@ -579,3 +579,27 @@ def test_blank_image_message_does_not_invent_a_star_width(small_pair):
     with pytest.raises(TooFewSourcesError, match="looks like a star") as info:
         find_transform(blank, small_pair.target)
     assert "0.0 px" not in str(info.value)
+
+
+@pytest.mark.parametrize("n_threads", [1, 2])
+def test_both_frames_detected_at_once_same_result_and_errors(small_pair, n_threads):
+    # With two threads the target's stars are detected beside the source's:
+    # the transform must be the same to the bit, errors must name the frame
+    # that failed (the source first, as when detecting one after the other),
+    # and the caller's warning filters must be left as they were.
+    import warnings
+
+    with astroalign_nd.conf.set_temp("num_threads", 1):
+        ref, _ = find_transform(small_pair.source, small_pair.target)
+    filters = list(warnings.filters)
+    with astroalign_nd.conf.set_temp("num_threads", n_threads):
+        t, _ = find_transform(small_pair.source, small_pair.target)
+        assert warnings.filters == filters
+        np.testing.assert_array_equal(t.matrix, ref.matrix)
+        assert frame_error(t, small_pair.truth_matrix, small_pair.target.shape) < 0.1
+        blank = np.full((256, 256), 100.0, dtype=np.float32)
+        for src, dst, role in ((blank, small_pair.target, "source"),
+                               (small_pair.source, blank, "target"), (blank, blank, "source")):
+            with pytest.raises(TooFewSourcesError, match=f"the {role} gave"):
+                find_transform(src, dst)
+        assert warnings.filters == filters
