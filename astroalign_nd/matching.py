@@ -273,25 +273,43 @@ def hypothesis_matrices(src_ast, dst_ast, pairs):
     >>> bool(np.allclose(matrices[0], truth)), bool(rms[0] < 1e-9), float(parity[0])
     (True, True, 1.0)
     """
-    s = src_ast.points[src_ast.triangles[pairs[:, 0]]]  # (K, 3, 2)
-    d = dst_ast.points[dst_ast.triangles[pairs[:, 1]]]
-    parity = src_ast.orientation[pairs[:, 0]] * dst_ast.orientation[pairs[:, 1]]
-    sp = s.copy()
-    sp[..., 1] *= parity[:, None]
-    ms, md = sp.mean(axis=1), d.mean(axis=1)
-    sc, dc = sp - ms[:, None], d - md[:, None]
-    den = np.sum(sc**2, axis=(1, 2))
-    a = np.sum(sc[..., 0] * dc[..., 0] + sc[..., 1] * dc[..., 1], axis=1) / den
-    b = np.sum(sc[..., 0] * dc[..., 1] - sc[..., 1] * dc[..., 0], axis=1) / den
-    k = len(pairs)
-    m = np.zeros((k, 3, 3))
-    m[:, 0, 0], m[:, 0, 1] = a, -b * parity
-    m[:, 1, 0], m[:, 1, 1] = b, a * parity
-    m[:, :2, 2] = md - np.einsum("kij,kj->ki", m[:, :2, :2], s.mean(axis=1))
-    m[:, 2, 2] = 1.0
-    pred = np.einsum("kij,knj->kni", m[:, :2, :2], s) + m[:, None, :2, 2]
-    rms = np.sqrt(np.mean(np.sum((pred - d) ** 2, axis=2), axis=1))
+    i, j = pairs[:, 0], pairs[:, 1]
+    ts, td = src_ast.triangles[i], dst_ast.triangles[j]
+    parity = src_ast.orientation[i] * dst_ast.orientation[j]
+    # Coordinates as (K, 3) planes, the arithmetic written out term by term:
+    # small einsums and reductions over axes of length 2 and 3 cost more than
+    # the arithmetic.  Sums run left to right, in the order NumPy's
+    # reductions over those axes add them, so the numbers are the same.
+    sx, sy = src_ast.points[ts, 0], src_ast.points[ts, 1]
+    dx, dy = dst_ast.points[td, 0], dst_ast.points[td, 1]
+    spy = sy * parity[:, None]
+    scx, scy = sx - _mean3(sx)[:, None], spy - _mean3(spy)[:, None]
+    dcx, dcy = dx - _mean3(dx)[:, None], dy - _mean3(dy)[:, None]
+    den = scx[:, 0]**2 + scy[:, 0]**2 + scx[:, 1]**2 + scy[:, 1]**2 + scx[:, 2]**2 \
+        + scy[:, 2]**2
+    a = _sum3(scx * dcx + scy * dcy) / den
+    b = _sum3(scx * dcy - scy * dcx) / den
+    m = np.zeros((len(pairs), 3, 3))
+    m00, m01, m10, m11 = a, -b * parity, b, a * parity
+    m[:, 0, 0], m[:, 0, 1], m[:, 1, 0], m[:, 1, 1] = m00, m01, m10, m11
+    mx, my = _mean3(sx), _mean3(sy)
+    tx = _mean3(dx) - (m00 * mx + m01 * my)
+    ty = _mean3(dy) - (m10 * mx + m11 * my)
+    m[:, 0, 2], m[:, 1, 2], m[:, 2, 2] = tx, ty, 1.0
+    ex = m00[:, None] * sx + m01[:, None] * sy + tx[:, None] - dx
+    ey = m10[:, None] * sx + m11[:, None] * sy + ty[:, None] - dy
+    rms = np.sqrt(_sum3(ex**2 + ey**2) / 3)
     return m, rms, parity
+
+
+def _sum3(v):
+    """Row sums of a (K, 3) array, added left to right."""
+    return v[:, 0] + v[:, 1] + v[:, 2]
+
+
+def _mean3(v):
+    """Row means of a (K, 3) array, as ``v.mean(axis=1)`` computes them."""
+    return _sum3(v) / 3
 
 
 def _mutual_matches(pred, dst_pts, dst_tree, tol):
@@ -709,7 +727,7 @@ def _match_points(src_pts, dst_pts, *, n_control=None, source_asterisms=None,
             f"{len(s.dst_pts)}, but no triangle matched between them (best inlier count 0). "
             "The images may not overlap, or too few stars are in common; try more sources "
             "(n_sources) or a larger invariant_radius."))
-    hyp = _filter_hypotheses(src_ast, dst_ast, pairs, s)
+    hyp = _Hypotheses(src_ast, dst_ast, pairs, s)
     s.dst_tree, s.grid = cKDTree(s.dst_pts), PointGrid(s.dst_pts, s.tolerance)
     progress = _score_batches(s, hyp)
     if not progress.accepted:
@@ -800,20 +818,52 @@ def _prepare(src_pts, dst_pts, settings, n_control, prior_trials):
         max_predicted=tolerance / 3.0 if cls.n_dof > 4 else np.inf)
 
 
-@dataclass
 class _Hypotheses:
-    """The triangle-pair hypotheses that pass the filters, best invariant match first."""
+    """
+    The triangle-pair hypotheses that pass the filters, best invariant match
+    first: ``mats`` (H, 3, 3) source -> target, ``tri_rms`` (how well each
+    fits its own triangle's vertices), ``parity`` (-1 for mirrored),
+    ``pairs`` (H, 2) source and target triangle indices, ``tri_size`` (the
+    target triangle's size) and ``src_ast`` (the source triangles, for the
+    refinement's seed).
 
-    mats: np.ndarray      # (H, 3, 3) source -> target
-    tri_rms: np.ndarray   # how well each fits its own triangle's vertices
-    parity: np.ndarray    # -1 for mirrored
-    pairs: np.ndarray     # (H, 2) source and target triangle indices
-    tri_size: np.ndarray  # the target triangle's size
-    src_ast: object       # the source triangles (for the refinement's seed)
+    They are made as the search reaches them (`grow`): a match is usually
+    accepted in the first batch, and the matrices of the thousands of
+    pairs after it would be made for nothing.
+    """
+
+    def __init__(self, src_ast, dst_ast, pairs, s):
+        self.src_ast, self._dst_ast, self._all_pairs, self._s = src_ast, dst_ast, pairs, s
+        self._used = 0  # triangle pairs turned into hypotheses so far
+        (self.mats, self.tri_rms, self.parity, self.pairs,
+         self.tri_size) = _filter_hypotheses(src_ast, dst_ast, pairs[:0], s)
+
+    @property
+    def n_pairs(self):
+        """The triangle pairs: at most one hypothesis each."""
+        return len(self._all_pairs)
+
+    def __len__(self):
+        return len(self.mats)
+
+    def grow(self, n):
+        """Make hypotheses until ``n`` are held or every pair is used; return how many are."""
+        parts = [(self.mats, self.tri_rms, self.parity, self.pairs, self.tri_size)]
+        have = len(self.mats)
+        while have < n and self._used < len(self._all_pairs):
+            chunk = self._all_pairs[self._used:self._used + max(n - have, 256)]
+            self._used += len(chunk)
+            parts.append(_filter_hypotheses(self.src_ast, self._dst_ast, chunk, self._s))
+            have += len(parts[-1][0])
+        if len(parts) > 1:
+            (self.mats, self.tri_rms, self.parity, self.pairs,
+             self.tri_size) = (np.concatenate(col) for col in zip(*parts))
+        return have
 
 
 def _filter_hypotheses(src_ast, dst_ast, pairs, s):
-    """Hypotheses of the triangle pairs, less those the settings exclude."""
+    """Hypotheses of the triangle pairs, less those the settings exclude: (mats,
+    tri_rms, parity, pairs, tri_size) as `_Hypotheses` holds them."""
     mats, tri_rms, parity = hypothesis_matrices(src_ast, dst_ast, pairs)
     ok = np.ones(len(mats), bool)
     if not s.allow_mirror:
@@ -827,7 +877,7 @@ def _filter_hypotheses(src_ast, dst_ast, pairs, s):
     sel = np.flatnonzero(ok)
     mats, tri_rms, parity, pairs = mats[sel], tri_rms[sel], parity[sel], pairs[sel]
     tri_size = dst_ast.size[pairs[:, 1]] if len(pairs) else np.empty(0)
-    return _Hypotheses(mats, tri_rms, parity, pairs, tri_size, src_ast)
+    return mats, tri_rms, parity, pairs, tri_size
 
 
 @dataclass
@@ -899,10 +949,12 @@ class _Progress:
 
 def _score_batches(s, hyp):
     """Score the hypotheses batch by batch, refining the best few of each."""
-    progress = _Progress(counts=np.zeros(len(hyp.mats), int))
-    counts, refined_max = progress.counts, 0
-    for start in range(0, len(hyp.mats), s.batch_size):
-        stop = min(start + s.batch_size, len(hyp.mats))
+    counts = np.zeros(hyp.n_pairs, int)  # the hypotheses' (at most one per pair)
+    progress = _Progress(counts=counts[:0])
+    refined_max, start = 0, 0
+    while hyp.grow(start + s.batch_size) > start:
+        stop = min(start + s.batch_size, len(hyp))
+        progress.counts = counts[:stop]
         # Control points of the source against every target star: a true
         # match also counts stars that are not among the target's brightest.
         counts[start:stop] = count_inliers(hyp.mats[start:stop], s.src_ctl, s.grid)
@@ -928,6 +980,7 @@ def _score_batches(s, hyp):
                 # matched more stars without reaching accept_at inliers.
                 progress.accepted = True
                 return progress
+        start = stop
     return progress
 
 
