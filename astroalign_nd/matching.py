@@ -425,8 +425,8 @@ def _inflation(r2, var):
 
 def _prediction_variance(cls, fit_src, fit_w, parity, pts):
     """Per-axis variance of the fitted model's prediction at ``pts``."""
-    _, d_fit = cls.fit_matrix(fit_src, fit_src, fit_w, parity)
-    _, d_all = cls.fit_matrix(pts, pts, np.ones(len(pts)), parity)
+    d_fit = cls._design(fit_src, fit_w, parity)
+    d_all = cls._design(pts, np.ones(len(pts)), parity)
     cov = np.linalg.pinv(d_fit.T @ (d_fit * np.repeat(fit_w, 2)[:, None]))
     rows = d_all.reshape(len(pts), 2, -1)
     return np.einsum("nij,jk,nik->n", rows, cov, rows) / 2.0

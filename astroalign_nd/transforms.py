@@ -325,6 +325,16 @@ class LinearTransform2D(Model):
         return matrix, design
 
     @classmethod
+    def _design(cls, src, weights, parity=1):
+        """
+        The design matrix `fit_matrix` returns for ``src``, weights and
+        parity, as if fitting ``src`` onto itself (it does not depend on the
+        target for the models linear in their parameters, which override
+        this to skip the fit).
+        """
+        return cls._linear_fit(src, src, weights, parity)[1]
+
+    @classmethod
     def _fit(cls, src, dst, *, weights=None, parity=None):
         """Fit and also return the linear parameter covariance and residuals."""
         src = _as_points(src, "src")
@@ -478,8 +488,11 @@ class TranslationTransform(LinearTransform2D):
         shift = np.sum(w[:, None] * (dst - src), axis=0) / np.sum(w)
         m = np.eye(3)
         m[:2, 2] = shift
-        design = np.tile(np.eye(2), (len(src), 1))
-        return m, design, shift
+        return m, cls._design(src, w, parity), shift
+
+    @classmethod
+    def _design(cls, src, weights, parity=1):
+        return np.tile(np.eye(2), (len(src), 1))
 
 
 def _rotation_matrix(angle, parity):
@@ -668,14 +681,18 @@ class SimilarityTransform(LinearTransform2D):
     def _linear_fit(cls, src, dst, w, parity):
         # Linear in (a, b, tx, ty): x' = a x - b p y + tx ; y' = b x + a p y + ty.
         _check_parity(parity)
-        x, y = src[:, 0], float(parity) * src[:, 1]
-        n = len(src)
-        design = np.zeros((2 * n, 4))
-        design[0::2] = np.column_stack([x, -y, np.ones(n), np.zeros(n)])
-        design[1::2] = np.column_stack([y, x, np.zeros(n), np.ones(n)])
+        design = cls._design(src, w, parity)
         a, b, tx, ty = _weighted_lstsq(design, dst.ravel(), w)
         m = np.array([[a, -b * parity, tx], [b, a * parity, ty], [0.0, 0.0, 1.0]])
         return m, design, np.array([a, b, tx, ty])
+
+    @classmethod
+    def _design(cls, src, weights, parity=1):
+        x, y = src[:, 0], float(parity) * src[:, 1]
+        design = np.zeros((2 * len(src), 4))
+        design[0::2, 0], design[0::2, 1], design[0::2, 2] = x, -y, 1.0
+        design[1::2, 0], design[1::2, 1], design[1::2, 3] = y, x, 1.0
+        return design
 
 
 class AffineTransform(LinearTransform2D):
@@ -749,15 +766,19 @@ class AffineTransform(LinearTransform2D):
 
     @classmethod
     def _linear_fit(cls, src, dst, w, parity):
-        n = len(src)
-        design = np.zeros((2 * n, 6))
+        design = cls._design(src, w, parity)
+        a11, a12, a21, a22, tx, ty = _weighted_lstsq(design, dst.ravel(), w)
+        m = np.array([[a11, a12, tx], [a21, a22, ty], [0.0, 0.0, 1.0]])
+        return m, design, np.array([a11, a12, a21, a22, tx, ty])
+
+    @classmethod
+    def _design(cls, src, weights, parity=1):
+        design = np.zeros((2 * len(src), 6))
         design[0::2, 0:2] = src
         design[0::2, 4] = 1.0
         design[1::2, 2:4] = src
         design[1::2, 5] = 1.0
-        a11, a12, a21, a22, tx, ty = _weighted_lstsq(design, dst.ravel(), w)
-        m = np.array([[a11, a12, tx], [a21, a22, ty], [0.0, 0.0, 1.0]])
-        return m, design, np.array([a11, a12, a21, a22, tx, ty])
+        return design
 
 
 # The non-linear models need the helpers above; they import them when called.
