@@ -213,7 +213,8 @@ def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
         counts = dst_ast.tree.query_ball_point(sample, r, return_length=True)
         return float(np.sum(counts)) * len(src_ast) / len(sample)
 
-    if n_pairs(radius) > budget:
+    # (No count is needed when even every pair would fit.)
+    if len(src_ast) * len(dst_ast) > budget and n_pairs(radius) > budget:
         # Shrink the radius (the pairs kept are the closest ones anyway).
         for r in radius * np.geomspace(1.0, 1e-6, 25)[1:]:
             if n_pairs(r) <= budget / 2:
@@ -234,11 +235,16 @@ def match_triangles(src_ast, dst_ast, radius, *, max_matches=None):
 
 
 def _sorted_pairs(i, j, d, max_matches):
-    # lexsort keeps equal distances in a fixed order: bit-identical results.
-    order = np.lexsort((j, i, d))
+    # By distance, equal distances in (i, j) order: bit-identical results.
+    # (The pairs are distinct: one stable sort by distance of the pairs put
+    # in (i, j) order is np.lexsort((j, i, d)) at a third of its cost.)
+    by_ij = np.argsort(i * (int(j.max(initial=0)) + 1) + j, kind="stable")
+    order = by_ij[np.argsort(d[by_ij], kind="stable")]
     if max_matches is not None:
         order = order[:max_matches]
-    return np.column_stack([i[order], j[order]]).astype(int), d[order]
+    pairs = np.empty((len(order), 2), int)
+    pairs[:, 0], pairs[:, 1] = i[order], j[order]
+    return pairs, d[order]
 
 
 def hypothesis_matrices(src_ast, dst_ast, pairs):
