@@ -325,6 +325,8 @@ def _mutual_matches(pred, dst_pts, dst_tree, tol):
     if ok.size == 0:
         return ok, ok
     j = j[ok]
+    if np.bincount(j).max() == 1:  # (usually) no target claimed twice
+        return ok, j
     # Resolve several sources claiming one target: keep the closest.
     order = np.lexsort((ok, d[ok]))
     _, first = np.unique(j[order], return_index=True)
@@ -553,7 +555,7 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
         m_new, _ = cls.fit_matrix(src_pts[si], dst_pts[dj], 1.0 / total, fit_parity)
         prev = (src_pts[si], 1.0 / total)
         last = (si, dj, total, cur_tol)
-        new_tol = float(np.clip(5.0 * np.sqrt(np.median(total)), min_tol, tol))
+        new_tol = float(min(max(5.0 * np.sqrt(np.median(total)), min_tol), tol))  # (np.clip)
         converged = np.max(np.abs(m_new - m)) < 1e-10 and new_tol == cur_tol
         m, cur_tol = m_new, new_tol
         if converged:
@@ -1080,7 +1082,8 @@ def _predicted_error(model, cov, frame):
     propagated from the parameter covariance.
     """
     cov = np.asarray(cov, float)
-    free = [n for n in model.param_names if not model.fixed[n]]
+    fixed = model.fixed  # (a new dict at each access)
+    free = [n for n in model.param_names if not fixed[n]]
     if cov.shape != (len(free), len(free)) or not np.all(np.isfinite(cov)):
         return 0.0
     x0, x1, y0, y1 = frame

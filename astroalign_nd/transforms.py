@@ -922,7 +922,8 @@ def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "
 
 
 def _free_params(model):
-    return [n for n in model.param_names if not model.fixed[n]]
+    fixed = model.fixed  # (a new dict at each access)
+    return [n for n in model.param_names if not fixed[n]]
 
 
 def _covariance(model, design, resid, weights):
