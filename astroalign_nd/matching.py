@@ -19,6 +19,7 @@ Stage 3 of the method: match triangles, verify, refine.
    every hypothesis tried, in the spirit of astrometry.net's odds test).
 """
 
+import functools
 import inspect
 from collections.abc import MutableMapping
 from dataclasses import dataclass, field
@@ -334,14 +335,26 @@ def _mutual_matches(pred, dst_pts, dst_tree, tol):
     return ok[keep], j[keep]
 
 
+@functools.lru_cache(maxsize=32)
+def _grid_points(frame, n_grid):
+    """An ``n_grid`` x ``n_grid`` grid of points over a frame (read-only, kept:
+    a search asks for the same few grids again and again)."""
+    x0, x1, y0, y1 = frame
+    xx, yy = np.meshgrid(np.linspace(x0, x1, n_grid), np.linspace(y0, y1, n_grid))
+    grid = np.column_stack([xx.ravel(), yy.ravel()])
+    grid.flags.writeable = False
+    return grid
+
+
+def _frame_grid(frame, n_grid):
+    return _grid_points(tuple(float(v) for v in frame), n_grid)
+
+
 def _frame_area_fraction(m, src_frame, dst_frame, n_grid=48):
     """Overlap of the source frame mapped into the target frame (fraction, area)."""
     (x0, x1, y0, y1) = dst_frame
-    gx = np.linspace(x0, x1, n_grid)
-    gy = np.linspace(y0, y1, n_grid)
-    xx, yy = np.meshgrid(gx, gy)
     inv = np.linalg.inv(m)
-    q = _apply(inv, np.column_stack([xx.ravel(), yy.ravel()]))
+    q = _apply(inv, _frame_grid(dst_frame, n_grid))
     sx0, sx1, sy0, sy1 = src_frame
     inside = (q[:, 0] >= sx0) & (q[:, 0] <= sx1) & (q[:, 1] >= sy0) & (q[:, 1] <= sy1)
     frac = inside.mean()
@@ -350,9 +363,7 @@ def _frame_area_fraction(m, src_frame, dst_frame, n_grid=48):
 
 def _overlap_box(m, src_frame, dst_frame, n_grid=24):
     """Bounding box (x0, x1, y0, y1) in the target of the source frame's footprint there."""
-    x0, x1, y0, y1 = dst_frame
-    xx, yy = np.meshgrid(np.linspace(x0, x1, n_grid), np.linspace(y0, y1, n_grid))
-    grid = np.column_stack([xx.ravel(), yy.ravel()])
+    grid = _frame_grid(dst_frame, n_grid)
     inside = grid[_in_frame(_apply(np.linalg.inv(m), grid), src_frame)]
     if len(inside) == 0:
         return dst_frame
@@ -410,9 +421,11 @@ def _jitter(r2, var, dof):
     if dof <= 0 or np.sum(r2 / var) <= dof:
         return 0.0
     lo, hi = 0.0, float(np.max(r2)) + 1e-12
+    chi = np.empty(np.broadcast_shapes(np.shape(r2), np.shape(var)))
     for _ in range(40):  # bisection: chi2 decreases monotonically in j2
         mid = 0.5 * (lo + hi)
-        if np.sum(r2 / (var + mid)) > dof:
+        np.divide(r2, np.add(var, mid, out=chi), out=chi)  # r2 / (var + mid)
+        if chi.sum() > dof:
             lo = mid
         else:
             hi = mid
