@@ -303,8 +303,10 @@ def transform_to_header(model: Model, header: fits.Header | Mapping | None = Non
                 "header must be an astropy.io.fits.Header, a dict-like of keywords or None; "
                 f"got {type(header).__name__} ({exc})."
             ) from None
+    present = set(out.keys())  # (looking up all ~100 keywords costs more)
     for key in _keywords(prefix):
-        out.remove(key, ignore_missing=True, remove_all=True)
+        if key in present:
+            out.remove(key, remove_all=True)
 
     out[prefix + "TYPE"] = (type_name, "astroalign_nd transform class")
     indices = _MATRIX_INDICES + (_PROJECTIVE_INDICES if type_name == "projective" else ())
