@@ -746,8 +746,8 @@ def _match_points(src_pts, dst_pts, *, n_control=None, source_asterisms=None,
         The keyword arguments of `match_points` (its defaults otherwise).
 
     The stages: `_prepare` (checks, frames, control points), triangles and
-    `_filter_hypotheses`, `_score_batches` (early acceptance), `_final_pass`
-    and `_failure_message`.
+    their `_Hypotheses` (made batch by batch, through `_filter_hypotheses`),
+    `_score_batches` (early acceptance), `_final_pass` and `_failure_message`.
     """
     unknown = set(settings) - set(_SETTINGS)
     if unknown:
