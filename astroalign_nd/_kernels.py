@@ -105,6 +105,26 @@ def _pool(n):
         return _POOL
 
 
+_SIDE_POOL = None
+_SIDE_PID = None
+
+
+def side_pool():
+    """
+    A one-thread pool for whole tasks run beside the caller (the target's
+    detection in `~astroalign_nd.register`), kept between calls.
+
+    Separate from the compiled loops' pool: a task here may itself split
+    its loops over that pool, which must then have its threads free.
+    """
+    global _SIDE_POOL, _SIDE_PID
+    with _POOL_LOCK:
+        if _SIDE_PID != os.getpid():  # not a forked parent's (dead) thread
+            _SIDE_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="astroalign_nd_side")
+            _SIDE_PID = os.getpid()
+        return _SIDE_POOL
+
+
 def run_split(fn, n, args, min_per_thread=1, parallel=True, start=0):
     """
     Call ``fn(*args, start, stop)`` over ``range(start, start + n)`` split

@@ -23,7 +23,7 @@ from astropy import log
 from ._input import parse_input
 from .detection import _control_sources, find_sources
 from .exceptions import TooFewSourcesError, TransformNotFoundError
-from ._kernels import num_threads
+from ._kernels import num_threads, side_pool
 from ._validate import check_option, check_options, check_points
 from .asterisms import build_asterisms, check_triangle_budget
 from .matching import _match_points, _search_tolerance, match_points
@@ -326,16 +326,15 @@ def _detect_both(src, ns, dst, nd):
             if not ref._parsed.is_catalog and n not in ref._stars]
     if len(todo) < 2 or num_threads() < 2:
         return
-    from concurrent.futures import ThreadPoolExecutor
+    from astropy.utils.exceptions import AstropyWarning
 
     # Both detections ignore the same warnings; one block here restores the
     # caller's filters, which the threads' own (not thread-safe) blocks
     # could otherwise leave changed.
-    with warnings.catch_warnings(), ThreadPoolExecutor(1) as pool:
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore", _no_detections_warning())
-        from astropy.utils.exceptions import AstropyWarning
         warnings.simplefilter("ignore", AstropyWarning)
-        later = pool.submit(dst.stars, nd)
+        later = side_pool().submit(dst.stars, nd)
         try:
             src.stars(ns)
         finally:
