@@ -183,7 +183,47 @@ def compare(old, new):
                 print(f"    old {k}: {str(a[name].get(k))[:300]}")
                 print(f"    new {k}: {str(b[name].get(k))[:300]}")
     print(f"{len(set(a) | set(b))} inputs compared, {diffs} different")
+    _summarize(a, b)
     return diffs
+
+
+def _hex_values(entry):
+    return np.array([float.fromhex(h) for h in entry["hex"]])
+
+
+def _summarize(a, b):
+    """
+    How large the differences are: the inputs whose outcome differs (the
+    fields other than floating-point arrays: errors, warnings, counts, array
+    shapes), and per numeric field the largest difference (absolute for
+    matrices and points, which are pixels; otherwise relative to the
+    array's largest value).
+    """
+    outcome, worst = [], {}
+    for name in sorted(set(a) & set(b)):
+        for key in sorted(set(a[name]) | set(b[name])):
+            x, y = a[name].get(key), b[name].get(key)
+            pairs = [(key, x, y)]
+            if isinstance(x, dict) and isinstance(y, dict) and "hex" not in x:
+                pairs = [(f"{key}.{k}", x.get(k), y.get(k)) for k in sorted(set(x) | set(y))]
+            for field, u, v in pairs:
+                if u == v:
+                    continue
+                numeric = all(isinstance(w, dict) and "hex" in w for w in (u, v))
+                if not numeric or u.get("shape") != v.get("shape"):
+                    outcome.append(f"{name}: {field}")
+                    continue
+                du, dv = _hex_values(u), _hex_values(v)
+                d = np.abs(du - dv)
+                if field not in ("matrix", "source_points", "target_points"):
+                    d = d / max(float(np.max(np.abs(du), initial=0.0)), 1e-300)
+                worst[field] = max(worst.get(field, 0.0), float(np.max(d, initial=0.0)))
+    print(f"inputs whose outcome differs (errors, warnings, counts, shapes): {len(outcome)}")
+    for line in outcome[:20]:
+        print(f"    {line}")
+    for field, d in sorted(worst.items()):
+        kind = "px" if field in ("matrix", "source_points", "target_points") else "relative"
+        print(f"    largest difference in {field}: {d:.2e} {kind}")
 
 
 def main(argv=None):
