@@ -324,7 +324,7 @@ def _detect_both(src, ns, dst, nd):
     """
     todo = [ref for ref, n in ((src, ns), (dst, nd))
             if not ref._parsed.is_catalog and n not in ref._stars]
-    if len(todo) < 2 or num_threads() < 2:
+    if len(todo) < 2 or src is dst or num_threads() < 2:
         return
     from astropy.utils.exceptions import AstropyWarning
 
