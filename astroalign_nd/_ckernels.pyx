@@ -15,7 +15,7 @@ This is plain C once compiled: there is no JIT, nothing to cache, and
 nothing heavy to import.
 """
 
-from libc.math cimport exp, fabs, isfinite, isnan, sqrt, INFINITY, NAN
+from libc.math cimport exp, fabs, isfinite, isnan, sqrt, sqrtf, INFINITY, NAN
 
 import numpy as np
 
@@ -32,12 +32,24 @@ cdef inline double _floor(double u) noexcept nogil:
 
 # -- detection -------------------------------------------------------------------
 
+cdef inline bint _any_set(const unsigned char* p, Py_ssize_t n) noexcept nogil:
+    """Whether any of the ``n`` bytes at ``p`` is nonzero (a byte OR, vectorised)."""
+    cdef unsigned char acc = 0
+    cdef Py_ssize_t i
+    for i in range(n):
+        acc |= p[i]
+    return acc != 0
+
+
 cdef inline void _bin_despike_block(const real* d, const unsigned char* mk,
                                     const bint use_mask, Py_ssize_t nx_in, Py_ssize_t b,
                                     double fill, float* o, Py_ssize_t nx,
                                     Py_ssize_t row0, Py_ssize_t row1) noexcept nogil:
     # Called with a literal ``use_mask``: without a mask the loop reads no
-    # mask byte and has no branch for it.
+    # mask byte and has no branch for it.  With one, each block row's mask
+    # bytes are tested at once (a few vector ORs), and only a row with a
+    # masked pixel takes the per-pixel test: the same values in the same
+    # order, so the same sums.
     cdef Py_ssize_t i, j, di, dj, k
     cdef double inv = 1.0 / (b * b - 1)
     cdef double total, t, p, v
@@ -48,13 +60,22 @@ cdef inline void _bin_despike_block(const real* d, const unsigned char* mk,
             for di in range(b):
                 k = (i * b + di) * nx_in + j * b
                 t = 0.0
-                for dj in range(b):
-                    v = d[k + dj]
-                    if not isfinite(v) or (use_mask and mk[k + dj]):
-                        v = fill
-                    t += v
-                    if v > p:
-                        p = v
+                if use_mask and _any_set(mk + k, b):
+                    for dj in range(b):
+                        v = d[k + dj]
+                        if not isfinite(v) or mk[k + dj]:
+                            v = fill
+                        t += v
+                        if v > p:
+                            p = v
+                else:
+                    for dj in range(b):
+                        v = d[k + dj]
+                        if not isfinite(v):
+                            v = fill
+                        t += v
+                        if v > p:
+                            p = v
                 total += t
             o[i * nx + j] = <float>((total - p) * inv)
 
@@ -482,7 +503,12 @@ cdef inline void _store(Py_ssize_t k, bint good, double acc, double accv, bint h
         if has_var:
             var = <real>(accv * sv)
             if out_kind == 1:
-                ov[k] = <real>sqrt(var)
+                # sqrtf for float32: correctly rounded, as NumPy's float32 sqrt
+                # (and as the double root rounded to float); the cheaper instruction.
+                if real is float:
+                    ov[k] = sqrtf(var)
+                else:
+                    ov[k] = sqrt(var)
             elif out_kind == 2:
                 ov[k] = <real>(1.0 / var)
             else:
