@@ -344,7 +344,7 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
         good = data[::4, ::4]
         good = good[np.isfinite(good)] if mask is None else good[
             np.isfinite(good) & ~mask[::4, ::4]]
-        fill = float(np.median(good)) if good.size else 0.0
+        fill = float(_median(good)) if good.size else 0.0  # np.median, bit for bit
     if b > 1:
         binned = bin_despike(data, b, mask, fill)
         # Mean of b*b - 1 pixels: the noise drops by about that square root.

@@ -52,6 +52,22 @@ def test_bin_despike_matches_numpy(numpy_only, threads, dtype, b):
     assert_array_equal(img, before)  # the input is not touched
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("b", [2, 5, 26])
+def test_bin_despike_mask_is_fill(threads, dtype, b):
+    # A masked pixel counts exactly as a pixel holding ``fill`` (the compiled
+    # loop tests a block row's mask bytes at once, then pixel by pixel).
+    rng = np.random.default_rng(3)
+    img = rng.normal(100, 10, (260, 313)).astype(dtype)
+    img[rng.random(img.shape) < 0.01] = np.nan
+    mask = rng.random(img.shape) < 0.003
+    mask[40:45, 7:190] = True
+    mask[:, -1] = True  # in the cropped edge only
+    filled = np.where(mask, dtype(-7.5), img)
+    assert_array_equal(k.bin_despike(img, b, mask=mask, fill=-7.5),
+                       k.bin_despike(filled, b, fill=-7.5))
+
+
 def test_bin_despike_read_only_and_strided_input():
     img = np.arange(64 * 64, dtype=np.float64).reshape(64, 64)
     view = img[::2, ::2]  # not contiguous
