@@ -19,11 +19,23 @@ Cases:
 The cases alternate over ``--repeats`` rounds; medians are reported, and
 the transform error of each output against the simulator's truth.
 
+On a virtual machine whose host takes back the guest's free memory (free
+page reporting, as on this project's machines) the first write to a page
+the host took back costs a host fault: about 3 ms per MB here, against
+about 0.1 ms for a page the guest kernel still holds.  Whether the call's
+output pages are of one kind or the other depends on what the machine did
+in the seconds before, so the fresh-process time mostly counts new pages
+(1.85 times as many for CCDData, its uncertainty plane).  ``--prewarm MB``
+touches and frees that much memory in each process just before the timed
+call, so that both cases get pages the guest holds, as on a machine
+without that reclaim.
+
 Usage::
 
     python benchmarks/bench_ccddata_memory.py                  # 8192^2, 3 rounds
     python benchmarks/bench_ccddata_memory.py --size 4096 --repeats 5
     python benchmarks/bench_ccddata_memory.py --before /path/to/old/tree
+    python benchmarks/bench_ccddata_memory.py --prewarm 1024
 """
 
 import argparse
