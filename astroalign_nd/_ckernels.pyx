@@ -41,53 +41,18 @@ cdef inline bint _any_set(const unsigned char* p, Py_ssize_t n) noexcept nogil:
     return acc != 0
 
 
-cdef inline void _bin_despike_block(const real* d, const unsigned char* mk,
-                                    const bint use_mask, Py_ssize_t nx_in, Py_ssize_t b,
-                                    double fill, float* o, Py_ssize_t nx,
-                                    Py_ssize_t row0, Py_ssize_t row1) noexcept nogil:
-    # Called with a literal ``use_mask``: without a mask the loop reads no
-    # mask byte and has no branch for it.  With one, each block row's mask
-    # bytes are tested at once (a few vector ORs), and only a row with a
-    # masked pixel takes the per-pixel test: the same values in the same
-    # order, so the same sums.
-    cdef Py_ssize_t i, j, di, dj, k
-    cdef double inv = 1.0 / (b * b - 1)
-    cdef double total, t, p, v
-    for i in range(row0, row1):
-        for j in range(nx):
-            total = 0.0
-            p = -INFINITY
-            for di in range(b):
-                k = (i * b + di) * nx_in + j * b
-                t = 0.0
-                if use_mask and _any_set(mk + k, b):
-                    for dj in range(b):
-                        v = d[k + dj]
-                        if not isfinite(v) or mk[k + dj]:
-                            v = fill
-                        t += v
-                        if v > p:
-                            p = v
-                else:
-                    for dj in range(b):
-                        v = d[k + dj]
-                        if not isfinite(v):
-                            v = fill
-                        t += v
-                        if v > p:
-                            p = v
-                total += t
-            o[i * nx + j] = <float>((total - p) * inv)
-
-
-cdef void _bin_despike_unmasked(const real* d, Py_ssize_t nx_in, Py_ssize_t b, double fill,
-                                float* o, Py_ssize_t nx, Py_ssize_t row0, Py_ssize_t row1,
-                                double* tot, double* t, double* p) noexcept nogil:
-    # `_bin_despike_block` without a mask, the same sums in the same order,
-    # but with the output columns innermost: their running sums are
-    # independent, so the adds no longer wait on each other.  A block with a
-    # non-finite pixel ends with a non-finite total (float pixels cannot
-    # overflow a double sum of a few hundred) and is redone by the general loop.
+cdef void _bin_despike_rows(const real* d, const unsigned char* mk, Py_ssize_t nx_in,
+                            Py_ssize_t b, double fill, float* o, Py_ssize_t nx,
+                            Py_ssize_t row0, Py_ssize_t row1, double* tot, double* t,
+                            double* p, unsigned char* hit) noexcept nogil:
+    # `_bin_despike_one` for every block of output rows ``row0:row1``, the
+    # same sums in the same order, but with the output columns innermost:
+    # their running sums are independent, so the adds no longer wait on each
+    # other.  A block with a non-finite pixel ends with a non-finite total
+    # (float pixels cannot overflow a double sum of a few hundred) and is
+    # redone by `_bin_despike_one`; so is a block with a masked pixel (``mk``
+    # not NULL: ``hit`` collects each block's mask bytes, a few vector ORs
+    # per block row).
     cdef Py_ssize_t i, j, di, dj
     cdef const real* r
     cdef double v
@@ -96,8 +61,12 @@ cdef void _bin_despike_unmasked(const real* d, Py_ssize_t nx_in, Py_ssize_t b, d
         for j in range(nx):
             tot[j] = 0.0
             p[j] = -INFINITY
+            hit[j] = 0
         for di in range(b):
             r = d + (i * b + di) * nx_in
+            if mk != NULL:
+                for j in range(nx):
+                    hit[j] |= _any_set(mk + (i * b + di) * nx_in + j * b, b)
             for j in range(nx):
                 t[j] = 0.0
             for dj in range(b):
@@ -110,15 +79,18 @@ cdef void _bin_despike_unmasked(const real* d, Py_ssize_t nx_in, Py_ssize_t b, d
             for j in range(nx):
                 tot[j] += t[j]
         for j in range(nx):
-            if isfinite(tot[j]):
+            if isfinite(tot[j]) and not hit[j]:
                 o[i * nx + j] = <float>((tot[j] - p[j]) * inv)
             else:
-                _bin_despike_one(d, nx_in, b, fill, o + i * nx + j, i, j)
+                _bin_despike_one(d, mk, nx_in, b, fill, o + i * nx + j, i, j)
 
 
-cdef void _bin_despike_one(const real* d, Py_ssize_t nx_in, Py_ssize_t b, double fill,
-                           float* o, Py_ssize_t i, Py_ssize_t j) noexcept nogil:
-    # One block of `_bin_despike_block` without a mask (non-finite pixels count as fill).
+cdef void _bin_despike_one(const real* d, const unsigned char* mk, Py_ssize_t nx_in,
+                           Py_ssize_t b, double fill, float* o, Py_ssize_t i,
+                           Py_ssize_t j) noexcept nogil:
+    # One block of `astroalign_nd._kernels.bin_despike`: its pixels summed
+    # row by row, in order, and the maximum dropped.  Non-finite pixels, and
+    # masked ones when ``mk`` is not NULL, count as fill.
     cdef Py_ssize_t di, dj, k
     cdef double total = 0.0, t, v, p = -INFINITY
     for di in range(b):
@@ -126,7 +98,7 @@ cdef void _bin_despike_one(const real* d, Py_ssize_t nx_in, Py_ssize_t b, double
         t = 0.0
         for dj in range(b):
             v = d[k + dj]
-            if not isfinite(v):
+            if not isfinite(v) or (mk != NULL and mk[k + dj]):
                 v = fill
             t += v
             if v > p:
@@ -145,15 +117,11 @@ def bin_despike_rows(const real[:, ::1] data, const unsigned char[:, ::1] mask,
     cdef float* o = &out[0, 0]
     if use_mask and (mask.shape[0] != data.shape[0] or mask.shape[1] != data.shape[1]):
         raise ValueError("mask must have the data's shape.")
-    cdef double[:, ::1] work
-    if use_mask:
-        with nogil:
-            _bin_despike_block(d, mk, True, nx_in, b, fill, o, nx, row0, row1)
-        return
-    work = np.empty((3, max(nx, 1)))
+    cdef double[:, ::1] work = np.empty((3, max(nx, 1)))
+    cdef unsigned char[::1] hit = np.empty(max(nx, 1), np.uint8)
     with nogil:
-        _bin_despike_unmasked(d, nx_in, b, fill, o, nx, row0, row1, &work[0, 0], &work[1, 0],
-                              &work[2, 0])
+        _bin_despike_rows(d, mk if use_mask else NULL, nx_in, b, fill, o, nx, row0, row1,
+                          &work[0, 0], &work[1, 0], &work[2, 0], &hit[0])
 
 
 def peaks(const float[:, ::1] img, double threshold, Py_ssize_t border):
