@@ -16,6 +16,7 @@ nothing heavy to import.
 """
 
 from libc.math cimport exp, fabs, isfinite, isnan, sqrt, sqrtf, INFINITY, NAN
+from libc.string cimport memcpy
 
 import numpy as np
 
@@ -32,54 +33,66 @@ cdef inline double _floor(double u) noexcept nogil:
 
 # -- detection -------------------------------------------------------------------
 
-cdef inline bint _any_set(const unsigned char* p, Py_ssize_t n) noexcept nogil:
-    """Whether any of the ``n`` bytes at ``p`` is nonzero (a byte OR, vectorised)."""
-    cdef unsigned char acc = 0
-    cdef Py_ssize_t i
-    for i in range(n):
-        acc |= p[i]
-    return acc != 0
+cdef inline bint _any_set(const unsigned char* row, Py_ssize_t n) noexcept nogil:
+    """Whether any byte of ``row[:n]`` is nonzero, read 32 bytes at a time."""
+    cdef Py_ssize_t q = 0, k
+    cdef unsigned long long w[4]
+    while q + 32 <= n:
+        memcpy(w, row + q, 32)
+        if (w[0] | w[1] | w[2] | w[3]) != 0:
+            return True
+        q += 32
+    for k in range(q, n):
+        if row[k]:
+            return True
+    return False
 
 
 cdef void _bin_despike_rows(const real* d, const unsigned char* mk, Py_ssize_t nx_in,
                             Py_ssize_t b, double fill, float* o, Py_ssize_t nx,
                             Py_ssize_t row0, Py_ssize_t row1, double* tot, double* t,
-                            double* p, unsigned char* hit) noexcept nogil:
+                            double* p) noexcept nogil:
     # `_bin_despike_one` for every block of output rows ``row0:row1``, the
     # same sums in the same order, but with the output columns innermost:
     # their running sums are independent, so the adds no longer wait on each
-    # other.  A block with a non-finite pixel ends with a non-finite total
-    # (float pixels cannot overflow a double sum of a few hundred) and is
-    # redone by `_bin_despike_one`; so is a block with a masked pixel (``mk``
-    # not NULL: ``hit`` collects each block's mask bytes, a few vector ORs
-    # per block row).
+    # other.  A masked pixel (``mk`` not NULL) is read as ``fill`` (a select,
+    # not a branch; only in image rows that have one).  A block with a
+    # non-finite unmasked pixel ends with a non-finite total (float pixels
+    # cannot overflow a double sum of a few hundred) and is redone by
+    # `_bin_despike_one`.
     cdef Py_ssize_t i, j, di, dj
     cdef const real* r
+    cdef const unsigned char* mr
     cdef double v
     cdef double inv = 1.0 / (b * b - 1)
     for i in range(row0, row1):
         for j in range(nx):
             tot[j] = 0.0
             p[j] = -INFINITY
-            hit[j] = 0
         for di in range(b):
             r = d + (i * b + di) * nx_in
-            if mk != NULL:
-                for j in range(nx):
-                    hit[j] |= _any_set(mk + (i * b + di) * nx_in + j * b, b)
             for j in range(nx):
                 t[j] = 0.0
-            for dj in range(b):
-                for j in range(nx):
-                    v = r[j * b + dj]
-                    t[j] += v
-                    # An unconditional store: a max instruction, not a branch
-                    # that noise makes unpredictable.
-                    p[j] = v if v > p[j] else p[j]
+            if mk != NULL and _any_set(mk + (i * b + di) * nx_in, nx * b):
+                mr = mk + (i * b + di) * nx_in
+                for dj in range(b):
+                    for j in range(nx):
+                        v = r[j * b + dj]
+                        v = fill if mr[j * b + dj] else v
+                        t[j] += v
+                        p[j] = v if v > p[j] else p[j]
+            else:
+                for dj in range(b):
+                    for j in range(nx):
+                        v = r[j * b + dj]
+                        t[j] += v
+                        # An unconditional store: a max instruction, not a branch
+                        # that noise makes unpredictable.
+                        p[j] = v if v > p[j] else p[j]
             for j in range(nx):
                 tot[j] += t[j]
         for j in range(nx):
-            if isfinite(tot[j]) and not hit[j]:
+            if isfinite(tot[j]):
                 o[i * nx + j] = <float>((tot[j] - p[j]) * inv)
             else:
                 _bin_despike_one(d, mk, nx_in, b, fill, o + i * nx + j, i, j)
@@ -118,10 +131,9 @@ def bin_despike_rows(const real[:, ::1] data, const unsigned char[:, ::1] mask,
     if use_mask and (mask.shape[0] != data.shape[0] or mask.shape[1] != data.shape[1]):
         raise ValueError("mask must have the data's shape.")
     cdef double[:, ::1] work = np.empty((3, max(nx, 1)))
-    cdef unsigned char[::1] hit = np.empty(max(nx, 1), np.uint8)
     with nogil:
         _bin_despike_rows(d, mk if use_mask else NULL, nx_in, b, fill, o, nx, row0, row1,
-                          &work[0, 0], &work[1, 0], &work[2, 0], &hit[0])
+                          &work[0, 0], &work[1, 0], &work[2, 0])
 
 
 def peaks(const float[:, ::1] img, double threshold, Py_ssize_t border):
