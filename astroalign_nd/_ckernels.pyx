@@ -321,6 +321,24 @@ def count_nonfinite(const real[::1] flat, Py_ssize_t start, Py_ssize_t stop):
     return n
 
 
+def bracket(const real[::1] x, double lo, double hi, real[::1] inside):
+    """
+    One pass of an exact median: the number of values of ``x`` below
+    ``lo``, and the values in ``[lo, hi]`` copied, in order, to the start
+    of ``inside`` (as long as ``x``); returns ``(below, n_inside)``.
+    """
+    cdef Py_ssize_t i, below = 0, k = 0
+    cdef real v
+    with nogil:
+        for i in range(x.shape[0]):
+            # Without branches: half the values are below, at random.
+            v = x[i]
+            below += v < lo
+            inside[k] = v  # k <= i: always inside the buffer
+            k += (v >= lo) & (v <= hi)
+    return below, k
+
+
 # -- matching --------------------------------------------------------------------
 
 def count_inliers_range(const double[:, :, ::1] mats, const double[:, ::1] src,

@@ -36,6 +36,7 @@ from astropy.utils.exceptions import AstropyWarning
 
 from ._input import image_and_mask
 from ._kernels import GAUSS_SIGMA_TO_FWHM as _GAUSS_SIGMA_TO_FWHM
+from ._kernels import _ckernels, _compiled
 from ._kernels import adaptive_fwhm as _adaptive_fwhm
 from ._kernels import bin_despike, peak_candidates
 from ._kernels import windowed_centroid as _windowed_centroid
@@ -71,6 +72,16 @@ def _median(a, axis=None):
     return np.mean(np.stack([lo, hi]), axis=0)
 
 
+def _bracket(x, lo, hi):
+    """(number of values of ``x`` below ``lo``, the values in ``[lo, hi]`` in order)."""
+    if _compiled() and x.dtype in (np.float32, np.float64):
+        x = np.ascontiguousarray(x)
+        inside = np.empty_like(x)
+        below, k = _ckernels.bracket(x, float(lo), float(hi), inside)
+        return int(below), inside[:k]
+    return int(np.count_nonzero(x < lo)), x[(x >= lo) & (x <= hi)]
+
+
 #: 1-D samples at least this long are narrowed before selection (`_middle_pair`).
 _BRACKET_MIN = 16384
 
@@ -86,14 +97,14 @@ def _middle_pair(x, k):
     are the order statistics themselves: the same as a full partition's.
     """
     n = x.size
-    sample = np.sort(x[:: max(1, n // 1024)])
+    # A larger subsample for a larger sample: a narrower bracket to partition.
+    sample = np.sort(x[:: max(1, n // int(np.clip(n // 64, 1024, 16384)))])
     ns = sample.size
     centre = k / n * (ns - 1)
     margin = int(2.5 * np.sqrt(ns)) + 2  # 5 sigma: sqrt(ns / 4) per sigma
     lo_edge = sample[max(0, int(np.floor(centre)) - margin)]
     hi_edge = sample[min(ns - 1, int(np.ceil(centre)) + margin)]
-    below = int(np.count_nonzero(x < lo_edge))
-    inside = x[(x >= lo_edge) & (x <= hi_edge)]
+    below, inside = _bracket(x, lo_edge, hi_edge)
     if below <= k - 1 and below + inside.size > k:
         j = k - below
         part = np.partition(inside, (j - 1, j))
