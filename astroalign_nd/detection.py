@@ -72,13 +72,17 @@ def _median(a, axis=None):
     return np.mean(np.stack([lo, hi]), axis=0)
 
 
-def _bracket(x, lo, hi):
-    """(number of values of ``x`` below ``lo``, the values in ``[lo, hi]`` in order)."""
+def _bracket(x, lo, hi, expected):
+    """
+    (number of values of ``x`` below ``lo``, the values in ``[lo, hi]`` in
+    order); ``expected`` is about how many there are in ``[lo, hi]``.
+    """
     if _compiled() and x.dtype in (np.float32, np.float64):
         x = np.ascontiguousarray(x)
-        inside = np.empty_like(x)
+        inside = np.empty(min(x.size, 2 * int(expected) + 1024), x.dtype)
         below, k = _ckernels.bracket(x, float(lo), float(hi), inside)
-        return int(below), inside[:k]
+        if k < inside.size:  # all of them fitted
+            return int(below), inside[:k]
     return int(np.count_nonzero(x < lo)), x[(x >= lo) & (x <= hi)]
 
 
@@ -102,9 +106,9 @@ def _middle_pair(x, k):
     ns = sample.size
     centre = k / n * (ns - 1)
     margin = int(2.5 * np.sqrt(ns)) + 2  # 5 sigma: sqrt(ns / 4) per sigma
-    lo_edge = sample[max(0, int(np.floor(centre)) - margin)]
-    hi_edge = sample[min(ns - 1, int(np.ceil(centre)) + margin)]
-    below, inside = _bracket(x, lo_edge, hi_edge)
+    i0 = max(0, int(np.floor(centre)) - margin)
+    i1 = min(ns - 1, int(np.ceil(centre)) + margin)
+    below, inside = _bracket(x, sample[i0], sample[i1], n * (i1 - i0 + 1) / ns)
     if below <= k - 1 and below + inside.size > k:
         j = k - below
         part = np.partition(inside, (j - 1, j))
