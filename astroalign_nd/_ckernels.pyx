@@ -321,6 +321,29 @@ def count_nonfinite(const real[::1] flat, Py_ssize_t start, Py_ssize_t stop):
     return n
 
 
+def finite_sample(const real[:, :] data, const unsigned char[:, :] mask, bint use_mask,
+                  Py_ssize_t step, real[::1] out):
+    """
+    The finite (and, with ``use_mask``, unmasked) pixels of
+    ``data[::step, ::step]`` in row-major order, copied to the start of
+    ``out``; returns how many.
+    """
+    cdef Py_ssize_t i, j, k = 0, ny = data.shape[0], nx = data.shape[1]
+    cdef Py_ssize_t nyo = (ny + step - 1) // step, nxo = (nx + step - 1) // step
+    cdef real v
+    if step < 1 or (use_mask and (mask.shape[0] != ny or mask.shape[1] != nx)):
+        raise ValueError("step must be positive and mask must have the data's shape.")
+    if out.shape[0] < nyo * nxo:
+        raise ValueError("out must hold every sampled pixel.")
+    with nogil:
+        for i in range(nyo):
+            for j in range(nxo):
+                v = data[i * step, j * step]
+                out[k] = v
+                k += isfinite(v) and not (use_mask and mask[i * step, j * step])
+    return k
+
+
 def bracket(const real[::1] x, double lo, double hi, real[::1] inside):
     """
     One pass of an exact median: the number of values of ``x`` below

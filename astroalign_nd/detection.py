@@ -72,6 +72,21 @@ def _median(a, axis=None):
     return np.mean(np.stack([lo, hi]), axis=0)
 
 
+def _finite_sample(data, mask, step):
+    """The finite, unmasked pixels of ``data[::step, ::step]``, row by row."""
+    if _compiled() and data.dtype in (np.float32, np.float64):
+        ny, nx = -(-data.shape[0] // step), -(-data.shape[1] // step)
+        out = np.empty(ny * nx + 1, data.dtype)  # +1: the loop's last store
+        m = np.zeros((1, 1), np.uint8) if mask is None else mask.view(np.uint8)
+        k = _ckernels.finite_sample(data, m, mask is not None, int(step), out)
+        return out[:k]
+    good = data[::step, ::step]
+    ok = np.isfinite(good)
+    if mask is not None:
+        ok &= ~mask[::step, ::step]
+    return good[ok]
+
+
 def _bracket(x, lo, hi, expected):
     """
     (number of values of ``x`` below ``lo``, the values in ``[lo, hi]`` in
@@ -356,9 +371,7 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
     """
     fill = 0.0
     if mask is not None or not np.all(np.isfinite(data[:: max(1, data.shape[0] // 64)])):
-        good = data[::4, ::4]
-        good = good[np.isfinite(good)] if mask is None else good[
-            np.isfinite(good) & ~mask[::4, ::4]]
+        good = _finite_sample(data, mask, 4)
         fill = float(_median(good)) if good.size else 0.0  # np.median, bit for bit
     if b > 1:
         binned = bin_despike(data, b, mask, fill)

@@ -183,3 +183,28 @@ def test_fast_median_bracket_edge_cases(case):
         got = _median(a)
         assert np.asarray(got).dtype == a.dtype
         assert_array_equal(got, np.median(a))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_finite_sample_compiled_matches_numpy(dtype):
+    # The fill value's sample of a masked or NaN frame: the finite, unmasked
+    # pixels of data[::step, ::step], in order, from the compiled loop and
+    # from NumPy, on contiguous and strided arrays.
+    import astroalign_nd
+    from astroalign_nd.detection import _finite_sample
+
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(61, 47)).astype(dtype)
+    d.flat[rng.integers(0, d.size, 40)] = np.nan
+    d.flat[rng.integers(0, d.size, 5)] = np.inf
+    m = rng.random(d.shape) < 0.05
+    for arr, mask in ((d, None), (d, m), (d[:, ::-1], m[:, ::-1]), (d.T, m.T)):
+        for step in (1, 3, 4):
+            got = _finite_sample(arr, mask, step)
+            with astroalign_nd.conf.set_temp("use_compiled", False):
+                ref = _finite_sample(arr, mask, step)
+            assert got.dtype == arr.dtype
+            assert_array_equal(got, ref)
+            assert np.isfinite(got).all()
+            if mask is not None:
+                assert got.size <= np.count_nonzero(~mask[::step, ::step])
