@@ -36,100 +36,12 @@ from astropy.utils.exceptions import AstropyWarning
 
 from ._input import image_and_mask
 from ._kernels import GAUSS_SIGMA_TO_FWHM as _GAUSS_SIGMA_TO_FWHM
-from ._kernels import _ckernels, _compiled
 from ._kernels import adaptive_fwhm as _adaptive_fwhm
-from ._kernels import bin_despike, peak_candidates
+from ._kernels import bin_despike, finite_sample, peak_candidates
+from ._kernels import median as _median
 from ._kernels import windowed_centroid as _windowed_centroid
 
 __all__ = ["find_sources", "estimate_noise", "estimate_fwhm"]
-
-
-def _median(a, axis=None):
-    """
-    `numpy.median` of finite data, bit for bit, several times faster.
-
-    numpy's median partitions around two elements for even lengths, which
-    is slow along an axis (~8 ms for 1500 cutouts of 300 pixels); one
-    partition plus the maximum of the lower half gives the same values.
-    Long 1-D samples (a whole-image noise sample) are first narrowed to a
-    bracket around the middle (`_middle_pair`).
-    NaNs are not propagated: callers pass finite values only.
-    """
-    a = np.asarray(a)
-    if axis is None:
-        a, axis = a.ravel(), 0
-    n = a.shape[axis]
-    k = n // 2
-    if a.ndim == 1 and n >= _BRACKET_MIN and a.dtype.kind == "f":
-        lo, hi = _middle_pair(a, k)
-        return hi if n % 2 else np.mean(np.stack([lo, hi]), axis=0)
-    part = np.partition(a, k, axis=axis)
-    hi = part.take(k, axis=axis)
-    if n % 2:
-        return hi
-    lower = (slice(None),) * axis + (slice(0, k),)  # a view, not a copy
-    lo = np.max(part[lower], axis=axis)
-    return np.mean(np.stack([lo, hi]), axis=0)
-
-
-def _finite_sample(data, mask, step):
-    """The finite, unmasked pixels of ``data[::step, ::step]``, row by row."""
-    if _compiled() and data.dtype in (np.float32, np.float64):
-        ny, nx = -(-data.shape[0] // step), -(-data.shape[1] // step)
-        out = np.empty(ny * nx + 1, data.dtype)  # +1: the loop's last store
-        m = np.zeros((1, 1), np.uint8) if mask is None else mask.view(np.uint8)
-        k = _ckernels.finite_sample(data, m, mask is not None, int(step), out)
-        return out[:k]
-    good = data[::step, ::step]
-    ok = np.isfinite(good)
-    if mask is not None:
-        ok &= ~mask[::step, ::step]
-    return good[ok]
-
-
-def _bracket(x, lo, hi, expected):
-    """
-    (number of values of ``x`` below ``lo``, the values in ``[lo, hi]`` in
-    order); ``expected`` is about how many there are in ``[lo, hi]``.
-    """
-    if _compiled() and x.dtype in (np.float32, np.float64):
-        x = np.ascontiguousarray(x)
-        inside = np.empty(min(x.size, 2 * int(expected) + 1024), x.dtype)
-        below, k = _ckernels.bracket(x, float(lo), float(hi), inside)
-        if k < inside.size:  # all of them fitted
-            return int(below), inside[:k]
-    return int(np.count_nonzero(x < lo)), x[(x >= lo) & (x <= hi)]
-
-
-#: 1-D samples at least this long are narrowed before selection (`_middle_pair`).
-_BRACKET_MIN = 16384
-
-
-def _middle_pair(x, k):
-    """
-    The (k-1)-th and k-th smallest values of a 1-D float array, exactly.
-
-    A sorted subsample brackets them (with a margin of about 5 sigma of the
-    subsample's rank scatter), and only the values inside the bracket,
-    a sixth of the sample or less, are partitioned.  If the bracket misses
-    (strongly clustered values), the whole sample is.  The values returned
-    are the order statistics themselves: the same as a full partition's.
-    """
-    n = x.size
-    # A larger subsample for a larger sample: a narrower bracket to partition.
-    sample = np.sort(x[:: max(1, n // int(np.clip(n // 64, 1024, 16384)))])
-    ns = sample.size
-    centre = k / n * (ns - 1)
-    margin = int(2.5 * np.sqrt(ns)) + 2  # 5 sigma: sqrt(ns / 4) per sigma
-    i0 = max(0, int(np.floor(centre)) - margin)
-    i1 = min(ns - 1, int(np.ceil(centre)) + margin)
-    below, inside = _bracket(x, sample[i0], sample[i1], n * (i1 - i0 + 1) / ns)
-    if below <= k - 1 and below + inside.size > k:
-        j = k - below
-        part = np.partition(inside, (j - 1, j))
-        return part[j - 1], part[j]
-    part = np.partition(x, (k - 1, k))
-    return part[k - 1], part[k]
 
 
 def estimate_noise(data, mask=None, *, max_samples=50_000):
@@ -371,7 +283,7 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
     """
     fill = 0.0
     if mask is not None or not np.all(np.isfinite(data[:: max(1, data.shape[0] // 64)])):
-        good = _finite_sample(data, mask, 4)
+        good = finite_sample(data, mask, 4)
         fill = float(_median(good)) if good.size else 0.0  # np.median, bit for bit
     if b > 1:
         binned = bin_despike(data, b, mask, fill)

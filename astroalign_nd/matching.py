@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 from scipy.special import betainc
 
 from ._kernels import PointGrid, count_inliers
+from ._kernels import median as _median
 from ._validate import OPTIONS, check_options, check_points
 from .asterisms import build_asterisms
 from .exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
@@ -430,23 +431,6 @@ def _jitter(r2, var, dof):
         else:
             hi = mid
     return hi
-
-
-def _median(a):
-    """
-    ``np.median`` of a non-empty 1-D float64 array, the same number at a
-    fifth of the cost (the refinement takes a dozen medians per attempt).
-    """
-    n = a.size
-    k = n // 2
-    if n % 2:
-        part = np.partition(a, (k, n - 1))
-        mid = part[k]
-    else:
-        part = np.partition(a, (k - 1, k, n - 1))
-        mid = (part[k - 1] + part[k]) / 2  # as np.mean of the two adds and divides
-    # NaN sorts last, and makes the median NaN, as np.median has it.
-    return np.float64(np.nan) if np.isnan(part[-1]) else mid
 
 
 def _inflation(r2, var):

@@ -150,7 +150,7 @@ def _resample_in_child(img):
                                          ((50001,), None), ((50000,), 0)])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_fast_median_is_numpy_median(shape, axis, dtype):
-    from astroalign_nd.detection import _median
+    from astroalign_nd._kernels import median as _median
 
     x = np.random.default_rng(7).normal(size=shape).astype(dtype)
     x.flat[::17] = 3.0  # ties
@@ -166,7 +166,7 @@ def test_fast_median_is_numpy_median(shape, axis, dtype):
 def test_fast_median_bracket_edge_cases(case):
     # Samples long enough for the bracketed selection, with values that
     # defeat a subsample's bracket: the result must still be numpy's.
-    from astroalign_nd.detection import _median
+    from astroalign_nd._kernels import median as _median
 
     rng = np.random.default_rng(3)
     n = 20_001 if case == "ties" else 20_000
@@ -191,7 +191,7 @@ def test_finite_sample_compiled_matches_numpy(dtype):
     # pixels of data[::step, ::step], in order, from the compiled loop and
     # from NumPy, on contiguous and strided arrays.
     import astroalign_nd
-    from astroalign_nd.detection import _finite_sample
+    from astroalign_nd._kernels import finite_sample as _finite_sample
 
     rng = np.random.default_rng(5)
     d = rng.normal(size=(61, 47)).astype(dtype)
@@ -208,3 +208,23 @@ def test_finite_sample_compiled_matches_numpy(dtype):
             assert np.isfinite(got).all()
             if mask is not None:
                 assert got.size <= np.count_nonzero(~mask[::step, ::step])
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 1000, 20_000, 20_001])
+@pytest.mark.parametrize("compiled", [True, False])
+def test_median_nan_and_small_samples_as_numpy(n, compiled):
+    # The one median of detection and matching: numpy's value for short and
+    # long 1-D samples, a NaN anywhere making it NaN, as np.median does.
+    import astroalign_nd
+    from astroalign_nd._kernels import median
+
+    x = np.random.default_rng(n).normal(size=n)
+    with astroalign_nd.conf.set_temp("use_compiled", compiled):
+        for a in (x, x.astype(np.float32)):
+            got = median(a)
+            assert np.asarray(got).dtype == a.dtype
+            assert_array_equal(got, np.median(a))
+            b = a.copy()
+            b[n // 3] = np.nan
+            assert np.isnan(median(b)) and np.isnan(np.median(b))
+            assert_array_equal(a, x.astype(a.dtype))  # input untouched
