@@ -4,11 +4,12 @@ astroalign_nd: register astronomical images by matching star triangles,
 natively in astropy (NDData/CCDData in, CCDData out, transforms as astropy
 models).
 
-The pipeline, one module per stage: `~astroalign_nd.detection` (sources)
--> `~astroalign_nd.asterisms` (triangles) -> `~astroalign_nd.matching`
-(match, verify, refine) -> `~astroalign_nd.transforms` (models) ->
-`~astroalign_nd.resample` (pixels) -> `~astroalign_nd.ccddata` (CCDData).
-`~astroalign_nd.registration` strings them together.
+The pipeline, one subpackage per stage: `~astroalign_nd.detection` (sources)
+-> `~astroalign_nd.matching` (triangles; match, verify, refine) ->
+`~astroalign_nd.transforms` (models, fits, model selection) ->
+`~astroalign_nd.resample` (pixels, and CCDData in and out).
+`~astroalign_nd.registration` strings them together; `~astroalign_nd.io`
+reads and writes, `~astroalign_nd.batch` runs many frames.
 
 Code written for astroalign 2.6 runs on this package's engine with
 ``from astroalign_nd import compat as aa`` (`astroalign_nd.compat`).
@@ -34,7 +35,7 @@ _LAZY = {
     "find_match": "registration",
     "register": "registration",
     "Reference": "registration",
-    "apply_transform": "ccddata",
+    "apply_transform": "resample",
     "register_batch": "batch",
     "LinearTransform2D": "transforms",
     "TranslationTransform": "transforms",

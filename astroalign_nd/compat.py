@@ -382,8 +382,9 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
 
     Raises `MaxIterError` (or the engine's `TooFewSourcesError`) otherwise.
     """
-    from .matching import _bbox, _in_frame, _match_points, _search_tolerance
-    from .transforms import _apply
+    from .matching.geometry import _bbox, _in_frame
+    from .matching.search import _match_points, _search_tolerance
+    from .transforms._matrix import _apply
 
     lists = []
     for inp, ref in zip(inputs, refs):
@@ -436,7 +437,7 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
 
 def _snapped_matrix(transform):
     """The 3x3 matrix of any transform, entries within 1e-12 of an integer rounded."""
-    from .transforms import as_matrix
+    from .transforms.convert import as_matrix
 
     m = np.array(as_matrix(transform), dtype=float)
     r = np.round(m)
@@ -496,7 +497,7 @@ def apply_transform(transform: Any, source: Any, target: Any, fill_value: float 
     >>> footprint[0]
     array([ True, False, False, False])
     """
-    from .resample import resample
+    from .resample.core import resample
 
     m = _snapped_matrix(transform)
     data = np.asarray(_data(source))

@@ -3,11 +3,11 @@
 The high-level API, top to bottom as the method goes:
 
 ``find_transform`` = parse inputs -> detect (`~astroalign_nd.detection`)
--> triangles (`~astroalign_nd.asterisms`) -> match and verify
+-> triangles (`~astroalign_nd.matching`) -> match and verify
 (`~astroalign_nd.matching`) -> model (`~astroalign_nd.transforms`).
 
 ``apply_transform`` = resample (`~astroalign_nd.resample`) -> CCDData
-(`~astroalign_nd.ccddata`).  ``register`` = find, then apply.
+(``astroalign_nd.resample.nddata``).  ``register`` = find, then apply.
 """
 
 from __future__ import annotations
@@ -21,21 +21,21 @@ import numpy as np
 from astropy import log
 
 from ._input import parse_input
-from .detection import _control_sources, find_sources
+from .detection.daofind import _control_sources, find_sources
 from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads, side_pool
 from ._validate import check_option, check_options, check_points
-from .asterisms import build_asterisms, check_triangle_budget
-from .matching import _match_points, _search_tolerance, match_points
-from . import model_selection
+from .matching.asterisms import build_asterisms, check_triangle_budget
+from .matching.search import _match_points, _search_tolerance, match_points
+from .transforms import selection as model_selection
 from .exceptions import PoorFitWarning
-from .transforms import transform_class
+from .transforms.registry import transform_class
 
 if TYPE_CHECKING:
     from astropy.nddata import CCDData
 
-    from .matching import MatchResult
-    from .transforms import LinearTransform2D
+    from .matching.result import MatchResult
+    from .transforms.linear import LinearTransform2D
 
 __all__ = ["find_transform", "find_match", "register", "Reference"]
 
@@ -194,7 +194,7 @@ class Reference:
 
 
 def _no_detections_warning():
-    from .detection import _import_photutils
+    from .detection.daofind import _import_photutils
 
     _import_photutils()  # without photutils' slow metadata scan
     try:
@@ -479,7 +479,7 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
         mirrored or not).  'projective' (a homography) and 'polynomial'
         (distortion in the SIP form) are for wide fields: they start from
         the similarity match of the brightest stars and grow the fit over
-        up to 2000 stars per image (`~astroalign_nd.model_selection`).
+        up to 2000 stars per image (``astroalign_nd.transforms.selection``).
     n_sources : int, optional
         Brightest sources used as control points (default 50).
     max_sources : int, optional
@@ -604,7 +604,7 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
     >>> ccd.shape, ccd.mask.dtype
     ((256, 256), dtype('bool'))
     """
-    from .ccddata import apply_transform
+    from .resample.nddata import apply_transform
 
     src, dst, transform, quality = _find_for_apply(
         source, target, dict(options, transform_type=transform_type, n_sources=n_sources,

@@ -37,12 +37,8 @@ from astropy.table import Table
 from scipy.special import erf
 
 from astroalign_nd._kernels import GAUSS_SIGMA_TO_FWHM
-from astroalign_nd.transforms import (
-    LinearTransform2D,
-    SimilarityTransform,
-    as_matrix,
-    from_matrix,
-)
+from astroalign_nd.transforms.linear import LinearTransform2D, SimilarityTransform
+from astroalign_nd.transforms.convert import as_matrix, from_matrix
 
 __all__ = [
     "SimulatedPair",

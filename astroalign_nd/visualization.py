@@ -215,7 +215,7 @@ def _label(ax, title, frame=""):
 
 
 def _invariant_ratios(points, n_neighbors):
-    from .asterisms import build_asterisms
+    from .matching.asterisms import build_asterisms
 
     ast = build_asterisms(points, n_neighbors=n_neighbors)
     # The asterisms keep log(L2/L1), log(L1/L0); the paper plots the ratios.
@@ -236,7 +236,7 @@ def plot_invariants(source_points, target_points=None, *, ax=None, n_neighbors=4
     ----------
     source_points : (N, 2) array-like
         Star positions; their nearest-neighbour triangles are built as the
-        method builds them (`~astroalign_nd.asterisms.build_asterisms`).
+        method builds them (`~astroalign_nd.matching.build_asterisms`).
     target_points : (M, 2) array-like, optional
         A second set (the target's), drawn with another marker.  With the
         matched points of `~astroalign_nd.find_transform`, each triangle of
@@ -487,7 +487,7 @@ def plot_registration(source, target, transform=None, points=None, aligned=None,
     7
     """
     from ._input import parse_input
-    from .ccddata import apply_transform
+    from .resample.nddata import apply_transform
     from .registration import find_transform
 
     apply_options = {k: options.pop(k) for k in _APPLY_KEYS if k in options}

@@ -183,7 +183,7 @@ def stage_breakdown(size, n_stars, repeats):
     import astroalign_nd
     from astroalign_nd._input import parse_input
     from astroalign_nd.ccddata import apply_transform
-    from astroalign_nd.matching import _match_points, _search_tolerance
+    from astroalign_nd.matching.search import _match_points, _search_tolerance
     from astroalign_nd.registration import Reference
     from astroalign_nd.resample import resample
 

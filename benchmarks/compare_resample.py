@@ -137,7 +137,7 @@ def run(out):
     numpy_cases = [(k, a, kw) for k, a, kw in cases
                    if k.startswith("map_") or k.startswith("float64_2_")]
     for compiled, group in ((True, cases), (False, numpy_cases)):
-        rs._USE_COMPILED = compiled
+        getattr(rs, "core", rs)._USE_COMPILED = compiled  # the module that holds the switch
         for key, (d, m, order), kw in group:
             kw = dict(kw)
             o = resample(d, m, kw.pop("shape_out", (290, 310)), order=order, **kw)
@@ -145,7 +145,7 @@ def run(out):
             res[key + "_d"], res[key + "_m"] = o[0], o[2]
             if o[1] is not None:
                 res[key + "_v"] = o[1]
-    rs._USE_COMPILED = True
+    getattr(rs, "core", rs)._USE_COMPILED = True
     for key, (tf, ccd, target), kw in _ccd_cases():
         o = apply_transform(tf, ccd, target, **kw)
         res[key + "_d"], res[key + "_m"] = o.data, o.mask

@@ -276,7 +276,7 @@ def test_callback_streams_and_table(tmp_path, night):
 
 def test_reference_detection_options_reach_the_frames(night, monkeypatch):
     ref, paths, shifts = night
-    import astroalign_nd.detection as detection
+    import astroalign_nd.detection.daofind as detection
 
     calls = []
     real = detection.find_sources
@@ -408,7 +408,7 @@ def test_write_ccddata_gzip(tmp_path):
 
 
 def test_union_canvas_refuses_absurd_size(night, monkeypatch):
-    import astroalign_nd.batch as batch
+    import astroalign_nd.batch.canvas as batch
 
     ref, paths, _ = night
     monkeypatch.setattr(batch, "_MAX_CANVAS_PIXELS", 200 * 200)
@@ -568,7 +568,7 @@ def test_add_keyword_false_in_a_batch(tmp_path, night):
 
 def test_valid_margin_follows_the_resampler_order_names():
     """One parser: any case, names or integers, as apply_transform accepts them."""
-    from astroalign_nd.batch import _valid_margin
+    from astroalign_nd.batch.canvas import _valid_margin
 
     assert [_valid_margin(o) for o in ("nearest-neighbor", 1, "BiQuadratic", "Bicubic")] == [
         -0.5, 0.0, 0.5, 1.0]

@@ -38,7 +38,7 @@ def files(tmp_path_factory):
 
 def test_batch_streams_lines_as_frames_finish(files, tmp_path, capsys, monkeypatch):
     """Frame 1's line is on stdout before frame 2 is even started."""
-    import astroalign_nd.batch as batch
+    import astroalign_nd.batch.runners as batch
 
     ref, srcs, _ = files
     seen_when_starting = []
@@ -120,7 +120,7 @@ def test_batch_union_canvas_and_workers(files, tmp_path, capsys):
 
 
 def test_detection_options_are_forwarded(files, tmp_path, monkeypatch, capsys):
-    import astroalign_nd.detection as detection
+    import astroalign_nd.detection.daofind as detection
 
     ref, srcs, _ = files
     calls = []

@@ -12,7 +12,7 @@ from astropy.config import ConfigNamespace
 import astroalign_nd
 from astroalign_nd import _kernels, conf, find_transform
 from astroalign_nd._config import Conf
-from astroalign_nd.batch import _init_worker
+from astroalign_nd.batch.runners import _init_worker
 from astroalign_nd.simulate import simulate_pair
 
 from _helpers import frame_error

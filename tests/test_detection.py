@@ -402,7 +402,7 @@ def test_photutils_import_without_metadata_scan_is_the_same_photutils():
         "import importlib.metadata as md, json, sys\n"
         "scan = md.packages_distributions\n"
         "if sys.argv[1] == 'ours':\n"
-        "    from astroalign_nd.detection import _import_photutils\n"
+        "    from astroalign_nd.detection.daofind import _import_photutils\n"
         "    _import_photutils()\n"
         "import photutils.utils._optional_deps as o\n"
         "from photutils.detection import DAOStarFinder\n"

@@ -6,7 +6,7 @@ import pytest
 
 from astroalign_nd.asterisms import build_asterisms
 from astroalign_nd.detection import estimate_fwhm
-from astroalign_nd.matching import _log10_false_alarm, _model_misfit
+from astroalign_nd.matching.verify import _log10_false_alarm, _model_misfit
 from astroalign_nd.simulate import simulate_field
 from astroalign_nd.transforms import SimilarityTransform, fit_transform
 

@@ -242,7 +242,7 @@ def test_dtypes(noise_image):
 @pytest.mark.parametrize("order", ALL_ORDERS)
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_threads_match_serial(monkeypatch, noise_image, order, dtype):
-    monkeypatch.setattr(rs, "_MIN_PIXELS_PER_THREAD", 1)  # small images normally use one
+    monkeypatch.setattr(rs.core, "_MIN_PIXELS_PER_THREAD", 1)  # small images normally use one
     monkeypatch.setattr(conf, "num_threads", 3)  # uneven chunks of 61 rows
     img = noise_image.astype(dtype)
     m = similarity(1.01, 0.2, 3.3, -1.7)
@@ -314,7 +314,7 @@ def test_numpy_fallback_matches_compiled(monkeypatch, noise_image, order):
     var = np.abs(img)
     m = similarity(1.03, 0.25, 2.0, 1.0)
     fast = run(img, m, (50, 50), order=order, variance=var, mask=mask, fill_value=-5)
-    monkeypatch.setattr(rs, "_USE_COMPILED", False)
+    monkeypatch.setattr(rs.core, "_USE_COMPILED", False)
     slow = run(img, m, (50, 50), order=order, variance=var, mask=mask, fill_value=-5)
     # Same positions, weights and summation order: the same bits.
     assert_array_equal(fast[2], slow[2])
@@ -326,7 +326,7 @@ def test_numpy_fallback_multichannel(monkeypatch, noise_image):
     rgb = np.stack([noise_image, -noise_image], axis=-1).astype(np.float32)
     m = similarity(0.8, -0.3, 12.0, 0.0)
     fast = run(rgb, m, (40, 40), order=1, variance=np.abs(rgb))
-    monkeypatch.setattr(rs, "_USE_COMPILED", False)
+    monkeypatch.setattr(rs.core, "_USE_COMPILED", False)
     slow = run(rgb, m, (40, 40), order=1, variance=np.abs(rgb))
     assert slow[0].dtype == np.float32
     assert_array_equal(fast[2], slow[2])
@@ -466,11 +466,12 @@ def test_banded_working_planes_match_whole_frame(monkeypatch, order, dtype):
     th = np.deg2rad(33.0)
     m = np.array([[1.1 * np.cos(th), -1.1 * np.sin(th), 60.0],
                   [1.1 * np.sin(th), 1.1 * np.cos(th), -20.0], [0, 0, 1]])
-    monkeypatch.setattr(rs, "_BAND_PIXELS", 1 << 30)
+    monkeypatch.setattr(rs.core, "_BAND_PIXELS", 1 << 30)
     ref = resample(data, m, (100, 95), order=order, variance=std.astype(float) ** 2, mask=bad)
     assert ref[2].any() and not ref[2].all()
-    monkeypatch.setattr(rs, "_BAND_PIXELS", 700)  # bands of 16 rows
-    assert len(rs._bands(rs._inverse_coefficients(m)[0], (100, 95), 90, order)) > 5
+    monkeypatch.setattr(rs.core, "_BAND_PIXELS", 700)  # bands of 16 rows
+    coefficients = rs.coordinate_map._inverse_coefficients(m)[0]
+    assert len(rs.core._bands(coefficients, (100, 95), 90, order)) > 5
     rtol = 1e-6 if dtype == np.float32 else 1e-12
     for kind, var in (("stddev", std), ("variance", std.astype(float) ** 2),
                       ("inverse", 1 / std.astype(float) ** 2)):

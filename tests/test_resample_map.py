@@ -229,10 +229,10 @@ def test_multichannel_and_numpy_path_agree(model, monkeypatch):
             one = resample(data[..., c], model, (200, 210), order=order, variance=var,
                            mask=mask, conserve_flux=True)
             assert_array_equal(one[0][~ref[2]], ref[0][..., c][~ref[2]])
-        monkeypatch.setattr(rs, "_USE_COMPILED", False)
+        monkeypatch.setattr(rs.core, "_USE_COMPILED", False)
         slow = resample(data, model, (200, 210), order=order, variance=var, mask=mask,
                         conserve_flux=True)
-        monkeypatch.setattr(rs, "_USE_COMPILED", True)
+        monkeypatch.setattr(rs.core, "_USE_COMPILED", True)
         assert_array_equal(slow[2], ref[2])
         assert_allclose(slow[0], ref[0], rtol=1e-5, atol=1e-6)
         assert_allclose(slow[1], ref[1], rtol=1e-5)
@@ -244,7 +244,7 @@ def test_parallel_and_band_size_do_not_change_result(model, monkeypatch):
     got = resample(data, model, SHAPE, order=3, conserve_flux=True, parallel=True)
     for a, b in zip(got, ref):
         assert_array_equal(a, b)  # threads: the same bits
-    monkeypatch.setattr(rs, "_MAP_BAND_PIXELS", 1000)  # bands of 3 rows
+    monkeypatch.setattr(rs.coordinate_map, "_MAP_BAND_PIXELS", 1000)  # bands of 3 rows
     got = resample(data, model, SHAPE, order=3, conserve_flux=True, parallel=True)
     # (Band edges change the first Newton step's Jacobian: round-off only.)
     assert_array_equal(got[2], ref[2])
@@ -438,7 +438,7 @@ def test_output_kind_same_bits_as_numpy(model, monkeypatch, dtype):
     bad = rng.random((90, 100)) < 0.01
     m = np.array([[0.98, 0.1, 4.5], [-0.1, 0.98, -3.2], [0, 0, 1]])
     for compiled in (True, False):
-        monkeypatch.setattr(rs, "_USE_COMPILED", compiled)
+        monkeypatch.setattr(rs.core, "_USE_COMPILED", compiled)
         for t in (m, model):
             for order in range(4):
                 for plane in (data, data[..., 0]):

@@ -68,17 +68,13 @@ from astropy.modeling import Model
 from astropy.utils.exceptions import AstropyUserWarning
 
 from ..exceptions import warn
-from ..nonlinear import DEGREES, PolynomialTransform, ProjectiveTransform, _exponents
-from ..transforms import (
-    TRANSFORM_TYPES,
-    AffineTransform,
-    EuclideanTransform,
-    LinearTransform2D,
-    SimilarityTransform,
-    _check_invertible,
-    as_matrix,
-    transform_class,
-)
+from ..transforms.polynomial import DEGREES, PolynomialTransform, _exponents
+from ..transforms.projective import ProjectiveTransform
+from ..transforms.registry import TRANSFORM_TYPES, transform_class
+from ..transforms.linear import (AffineTransform, EuclideanTransform, LinearTransform2D,
+                                 SimilarityTransform)
+from ..transforms._matrix import _check_invertible
+from ..transforms.convert import as_matrix
 
 __all__ = ["transform_to_header", "transform_from_header", "add_provenance",
            "QUALITY_KEYWORDS", "header_from_meta", "header_without_wcs", "fits_text",

@@ -87,7 +87,7 @@ def _check_linear(values, tag):
 
 
 def _check_projective(values, tag):
-    from astroalign_nd.nonlinear import _check_homography
+    from astroalign_nd.transforms.projective import _check_homography
 
     h = [values[f"h{i}{j}"] for i in (1, 2, 3) for j in (1, 2, 3) if (i, j) != (3, 3)]
     try:
@@ -105,7 +105,7 @@ class TransformConverter(Converter):
     ----------
     class_path : str
         Fully qualified name of the model class, e.g.
-        ``'astroalign_nd.transforms.AffineTransform'``; the module is
+        ``'astroalign_nd.transforms.linear.AffineTransform'``; the module is
         imported only when a model is read or written.
     tag_name : str
         The tag's name, e.g. ``'affine_transform'`` (every ``1.*`` version
@@ -282,7 +282,7 @@ class TransformConverter(Converter):
 
     @staticmethod
     def _read_degree(node, tag):
-        from astroalign_nd.nonlinear import DEGREES
+        from astroalign_nd.transforms.polynomial import DEGREES
 
         degree = node["degree"]
         if isinstance(degree, (bool, np.bool_)) or not isinstance(
@@ -304,12 +304,15 @@ class TransformConverter(Converter):
 
 #: One converter per model class: (class, tag name, check of the values read).
 _TABLE = (
-    ("astroalign_nd.transforms.TranslationTransform", "translation_transform", _check_linear),
-    ("astroalign_nd.transforms.EuclideanTransform", "euclidean_transform", _check_linear),
-    ("astroalign_nd.transforms.SimilarityTransform", "similarity_transform", _check_linear),
-    ("astroalign_nd.transforms.AffineTransform", "affine_transform", _check_linear),
-    ("astroalign_nd.nonlinear.ProjectiveTransform", "projective_transform", _check_projective),
-    ("astroalign_nd.nonlinear.PolynomialTransform", "polynomial_transform", _check_linear),
+    ("astroalign_nd.transforms.linear.TranslationTransform", "translation_transform",
+     _check_linear),
+    ("astroalign_nd.transforms.linear.EuclideanTransform", "euclidean_transform", _check_linear),
+    ("astroalign_nd.transforms.linear.SimilarityTransform", "similarity_transform", _check_linear),
+    ("astroalign_nd.transforms.linear.AffineTransform", "affine_transform", _check_linear),
+    ("astroalign_nd.transforms.projective.ProjectiveTransform", "projective_transform",
+     _check_projective),
+    ("astroalign_nd.transforms.polynomial.PolynomialTransform", "polynomial_transform",
+     _check_linear),
 )
 
 #: The converters of the extension, built from the table above.

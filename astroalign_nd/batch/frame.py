@@ -1,0 +1,147 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""One frame of a batch: register it, write it, report it."""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, replace
+from .._input import parse_input
+from ..exceptions import warn
+from ..io.write import write_ccddata
+from ..registration import _find_for_apply
+from .results import FrameResult
+from .planning import _CANVAS_KEYS, _SOURCE_SHAPE_KEYS, _is_path, _skip_or_refuse
+
+__all__ = []
+
+# -- the work on one frame (runs on workers) -------------------------------------------------
+
+
+@dataclass
+class _Config:
+    """What every frame needs: shipped to each worker once, with the reference."""
+
+    reference: object
+    options: dict
+    apply_options: dict
+    overwrite: bool
+    skip_existing: bool
+    union: bool
+    hdu: object = None  # the HDU to read from the frames' files
+    unit: object = None  # the unit of frames without one
+    add_keyword: bool = True  # record the registration (and canvas) in each header
+
+
+@dataclass
+class _Job:
+    index: int
+    source: object
+    name: str
+    output: str = None
+    stage: str = "full"  # 'full': find and apply; 'find' / 'apply': the two union passes
+    transform: object = None
+    quality: dict = None
+    canvas: tuple = None  # (shape, (x0, y0), wcs) for the 'apply' stage
+    source_shape: tuple = None
+
+
+def _failed(job, exc, t0, src_path=None):
+    if src_path is None and _is_path(job.source):
+        src_path = os.fspath(job.source)
+    return FrameResult(name=job.name, status="failed", error=f"{type(exc).__name__}: {exc}",
+                       seconds=time.perf_counter() - t0, output=None, source=src_path)
+
+
+def _run(job, cfg):
+    """Process one frame; never raises (a batch must go on)."""
+    t0 = time.perf_counter()
+    src_path = os.fspath(job.source) if _is_path(job.source) else None
+    try:
+        if job.stage == "apply":
+            return _apply_stage(job, cfg, t0, src_path)
+        done = _skip_or_refuse(job, cfg)
+        if done is not None:
+            transform = done["transform"]
+            if cfg.union:  # back to reference pixels, for the canvas computation
+                transform = _shifted(transform, done["offset"], sign=+1)
+            return FrameResult(name=job.name, status="skipped", transform=transform,
+                               quality=done["quality"], output=job.output, source=src_path,
+                               seconds=time.perf_counter() - t0, shape=done["source_shape"],
+                               _grid=(done["shape"], done["offset"]))
+        # Read (parsed) once, here on the worker, for both stages.
+        src, _, transform, quality = _find_for_apply(job.source, cfg.reference, cfg.options,
+                                                     hdu=cfg.hdu, unit=cfg.unit)
+        if job.stage == "find":
+            return FrameResult(name=job.name, status="registered", transform=transform,
+                               quality=quality, source=src_path, output=job.output,
+                               shape=src.shape, seconds=time.perf_counter() - t0)
+        # A copy: the caller's job list must not keep the frame's pixels alive.
+        job = replace(job, source=src, transform=transform, quality=quality,
+                      canvas=None, source_shape=src.shape)
+        return _apply_stage(job, cfg, t0, src_path)
+    except Exception as exc:  # noqa: BLE001 - report every failure, keep going
+        return _failed(job, exc, t0, src_path)
+
+
+def _apply_stage(job, cfg, t0, src_path=None):
+    from ..resample.nddata import apply_transform
+
+    # Already parsed in the 'full' stage (a Reference); read here in 'apply'.
+    src = parse_input(job.source, "source", hdu=cfg.hdu, unit=cfg.unit)
+    if job.canvas is None:
+        ccd = apply_transform(job.transform, src, cfg.reference,
+                              quality=job.quality, **cfg.apply_options)
+    else:
+        shape, offset, wcs = job.canvas
+        ccd = apply_transform(job.transform, src, tuple(shape), quality=job.quality,
+                              **cfg.apply_options)
+        if wcs is not None:
+            ccd.wcs = wcs
+        if cfg.add_keyword:
+            ccd.meta[_CANVAS_KEYS[0]] = (int(offset[0]), "canvas x0 [reference px]")
+            ccd.meta[_CANVAS_KEYS[1]] = (int(offset[1]), "canvas y0 [reference px]")
+    src_shape = job.source_shape or src.shape
+    if cfg.add_keyword:  # what a resumed run needs to find this frame's grid again
+        ccd.meta[_SOURCE_SHAPE_KEYS[0]] = (int(src_shape[1]), "source frame width [px]")
+        ccd.meta[_SOURCE_SHAPE_KEYS[1]] = (int(src_shape[0]), "source frame height [px]")
+    if job.output is not None:
+        # FLAGS as an extension, so that CCDData.read(..., hdu_flags='FLAGS') reads it back.
+        write_ccddata(ccd, job.output, overwrite=cfg.overwrite, hdu_flags="FLAGS")
+        ccd = None  # memory stays flat: nothing of the frame is kept
+    return FrameResult(name=job.name, status="registered", transform=job.transform,
+                       quality=job.quality, output=job.output, ccd=ccd, source=src_path,
+                       seconds=time.perf_counter() - t0)
+
+# -- the union canvas ------------------------------------------------------------------------
+
+
+def _shifted(transform, offset, sign):
+    """``transform`` followed by a shift of ``sign * offset`` pixels."""
+    from ..transforms.convert import as_matrix, from_matrix
+
+    m = as_matrix(transform).copy()
+    m[0, 2] += sign * offset[0]
+    m[1, 2] += sign * offset[1]
+    out = from_matrix(m, transform_type=_type_of(transform))
+    out.meta.update(getattr(transform, "meta", {}) or {})
+    return out
+
+
+def _type_of(transform):
+    from ..transforms.registry import TRANSFORM_TYPES
+
+    for name, cls in TRANSFORM_TYPES.items():
+        if type(transform) is cls:
+            return name
+    return None
+
+
+def _stream_jobs(items, namer):
+    """Jobs of a generator's frames, named as they arrive; nothing of earlier frames kept."""
+    for i, (frame, label) in enumerate(items):
+        name, output, renamed = namer(i, frame, label)
+        if renamed is not None:
+            warn(f"output names collide; renamed: {name} -> {renamed[1]} ({renamed[0]} "
+                 "is taken)")
+        yield _Job(i, frame, name, output, stage="full")

@@ -1,0 +1,270 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""Output planning and resume: the output name of each frame, and which outputs are already done."""
+
+from __future__ import annotations
+
+import os
+import warnings
+import numpy as np
+from .._input import batch_frames
+from ..io.write import FITS_EXTENSIONS
+
+__all__ = ['plan_outputs']
+
+#: Header keywords recording where a "union" canvas lies in reference pixels.
+_CANVAS_KEYS = ("AACNVX0", "AACNVY0")
+
+#: Header keywords recording the source frame's shape (a resumed union needs it).
+_SOURCE_SHAPE_KEYS = ("AASRCNX", "AASRCNY")
+
+_INPUT_EXTENSIONS = (*FITS_EXTENSIONS, ".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp",
+                     ".gif")
+
+# -- output names ----------------------------------------------------------------------------
+
+
+def _is_path(src):
+    return isinstance(src, (str, os.PathLike))
+
+
+def _stem(name):
+    low = name.lower()
+    for ext in sorted(_INPUT_EXTENSIONS, key=len, reverse=True):
+        if low.endswith(ext):
+            return name[: -len(ext)]
+    return name
+
+
+def _base(label, i):
+    """A frame's short name: its file name, or ``frame<i>`` in memory."""
+    return os.path.basename(label) if label is not None else f"frame{i}"
+
+
+def _in_folder(path, folder_real):
+    """True when ``path`` (as given) names a file directly inside ``folder_real``."""
+    return os.path.realpath(os.path.dirname(os.path.abspath(path))) == folder_real
+
+
+def _located(frame, label):
+    """The input file a frame was read from, when known (it must never be written to)."""
+    if _is_path(frame):
+        return os.fspath(frame)
+    if label is not None and os.path.dirname(label):  # a pair's file name with its folder
+        return label
+    return None
+
+
+def _display_names(items):
+    """Basenames, or the label as given where two inputs share a basename."""
+    base = [_base(label, i) for i, (_, label) in enumerate(items)]
+    counts = {}
+    for b in base:
+        counts[b] = counts.get(b, 0) + 1
+    names = [label if label is not None and counts[b] > 1 else b
+             for (_, label), b in zip(items, base)]
+    seen, out = {}, []
+    for n in names:  # the same path given twice
+        k = seen.get(n, 0)
+        seen[n] = k + 1
+        out.append(n if k == 0 else f"{n}#{k + 1}")
+    return out
+
+
+def plan_outputs(sources, output_dir, suffix="_aligned", protected=()):
+    """
+    Output file of each frame, unique by construction.
+
+    A frame's natural output is ``<stem><suffix>.fits``, where ``stem`` is
+    its file name without the extension (``frame<i>`` in memory; the file
+    name of a ``(frame, file name)`` pair).  When two frames would share it
+    (``in/a.fits`` and ``in2/a.fits``, ``a.fits`` and ``a.fit``, or names
+    differing only in case, which collide on macOS and Windows), or when it
+    would replace an input file, the later frame in input order gets
+    ``<stem>_2<suffix>.fits`` (``_3``...), skipping every name that another
+    frame uses naturally.  The same input list always gives the same names,
+    so a resumed run finds its outputs again.
+
+    Parameters
+    ----------
+    sources : list or `~ccdproc.ImageFileCollection`
+        The frames, as given to `register_batch`.
+    output_dir : str
+    suffix : str, optional
+    protected : iterable of str, optional
+        Further input paths that must never be written to (the target).
+
+    Returns
+    -------
+    paths : list of str
+        One output path per frame.
+    renamed : list of (int, str, str)
+        ``(index, natural name, name used)`` for each frame renamed.
+
+    Examples
+    --------
+    Two inputs named ``m31.fits`` in different folders:
+
+    >>> import os
+    >>> from astroalign_nd.batch import plan_outputs
+    >>> paths, renamed = plan_outputs(
+    ...     ["night1/m31.fits", "night2/m31.fits", "m33.fit"], "out")
+    >>> [os.path.basename(p) for p in paths]
+    ['m31_aligned.fits', 'm31_2_aligned.fits', 'm33_aligned.fits']
+    >>> renamed
+    [(1, 'm31_aligned.fits', 'm31_2_aligned.fits')]
+    """
+    items, _ = batch_frames(sources)
+    return _plan_outputs(list(items), output_dir, suffix, protected)
+
+
+def _plan_outputs(items, output_dir, suffix, protected):
+    stems = [_stem(_base(label, i)) for i, (_, label) in enumerate(items)]
+    natural = [f"{s}{suffix}.fits" for s in stems]
+    out_real = os.path.realpath(output_dir)
+    located = [_located(frame, label) for frame, label in items]
+    inputs = {os.path.basename(os.fspath(p)).casefold()
+              for p in [*located, *protected] if p is not None and _in_folder(p, out_real)}
+    reserved = {n.casefold() for n in natural}
+    used, paths, renamed = set(), [], []
+    for i, (stem, nat) in enumerate(zip(stems, natural)):
+        chosen = nat
+        if nat.casefold() in used or nat.casefold() in inputs:
+            k = 2
+            while True:
+                chosen = f"{stem}_{k}{suffix}.fits"
+                key = chosen.casefold()
+                if key not in used and key not in reserved and key not in inputs:
+                    break
+                k += 1
+            renamed.append((i, nat, chosen))
+        used.add(chosen.casefold())
+        paths.append(os.path.join(output_dir, chosen))
+    return paths, renamed
+
+
+class _StreamNamer:
+    """
+    Names and outputs of a generator's frames, decided as each frame arrives.
+
+    A generator cannot be looked ahead, so the rule is `plan_outputs`'s
+    without the reservation of later frames' natural names: a frame whose
+    natural output is already used in this run, or is an input file seen
+    so far (or the target), gets the next free ``_2``, ``_3``... name, and
+    a display name already shown gets ``#2``, ``#3``...  Deterministic: the
+    same sequence of frames always gives the same names.
+    """
+
+    def __init__(self, output_dir, suffix, protected):
+        self.output_dir, self.suffix = output_dir, suffix
+        self.out_real = os.path.realpath(output_dir) if output_dir is not None else None
+        self.inputs = {os.path.basename(os.fspath(p)).casefold() for p in protected
+                       if self.out_real is not None and _in_folder(p, self.out_real)}
+        self.used, self.shown = set(), set()
+
+    def __call__(self, i, frame, label):
+        """``(display name, output path or None, renamed (natural, used) or None)``."""
+        base = name = _base(label, i)
+        k = 2
+        while name in self.shown:
+            name, k = f"{base}#{k}", k + 1
+        self.shown.add(name)
+        if self.output_dir is None:
+            return name, None, None
+        here = _located(frame, label)
+        if here is not None and _in_folder(here, self.out_real):
+            self.inputs.add(os.path.basename(here).casefold())
+        stem = _stem(base)
+        natural = chosen = f"{stem}{self.suffix}.fits"
+        k = 2
+        while chosen.casefold() in self.used or chosen.casefold() in self.inputs:
+            chosen, k = f"{stem}_{k}{self.suffix}.fits", k + 1
+        self.used.add(chosen.casefold())
+        return name, os.path.join(self.output_dir, chosen), (
+            None if chosen == natural else (natural, chosen))
+
+# -- resuming --------------------------------------------------------------------------------
+
+
+def _read_done(path):
+    """
+    The transform, quality, shape and canvas origin recorded in a complete
+    registered frame, or a reason why ``path`` is not one.
+    """
+    from astropy.io import fits
+
+    from ..io.header import transform_from_header
+
+    try:
+        # A warning ("file may have been truncated") counts as incomplete.  It
+        # is recorded, not raised: raised inside fits.open it would leave the
+        # file open; here the file is ours to close, whatever happens.
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with open(path, "rb") as fh, fits.open(
+                    fh, memmap=not path.lower().endswith(".gz")) as hdul:
+                hdul.readall()
+                for hdu in hdul:  # every data block is there, in full
+                    if hdu.data is not None:
+                        np.asarray(hdu.data).ravel()[-1:].copy()
+                header = hdul[0].header
+                shape = hdul[0].data.shape[:2] if hdul[0].data is not None else None
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is not complete
+        return None, f"it is incomplete or unreadable ({type(exc).__name__}: {exc})"
+    if caught:
+        w = caught[0]
+        return None, (f"it is incomplete or unreadable ({w.category.__name__}: "
+                      f"{w.message})")
+    if shape is None or "AATTYPE" not in header:
+        return None, "it is not a frame registered by astroalign_nd"
+    try:
+        transform = transform_from_header(header)
+    except Exception as exc:  # noqa: BLE001
+        return None, f"its transform keywords cannot be read ({exc})"
+    quality = {}
+    for key, name in (("AATNMAT", "n_matches"), ("AATRMS", "rms"),
+                      ("AATLFA", "log10_false_alarm")):
+        if key in header:
+            quality[name] = header[key]
+    offset = tuple(int(header[k]) for k in _CANVAS_KEYS) if all(
+        k in header for k in _CANVAS_KEYS) else (0, 0)
+    source_shape = (int(header[_SOURCE_SHAPE_KEYS[1]]), int(header[_SOURCE_SHAPE_KEYS[0]])) \
+        if all(k in header for k in _SOURCE_SHAPE_KEYS) else None
+    return dict(transform=transform, quality=quality, shape=tuple(shape), offset=offset,
+                source_shape=source_shape), None
+
+
+def _skip_or_refuse(job, cfg):
+    """A complete output to keep (dict), or None to (re)do the frame; raises if refused."""
+    if job.output is None or not os.path.lexists(job.output):
+        return None
+    if cfg.skip_existing:
+        done, why = _read_done(job.output)
+        if done is not None:
+            return _same_grid(done, job, cfg)
+        if not cfg.overwrite:
+            raise FileExistsError(f"{job.output} exists but {why}; pass overwrite=True (or "
+                                  "--overwrite) to redo this frame.")
+        return None
+    if not cfg.overwrite:
+        raise FileExistsError(f"{job.output} exists; pass overwrite=True (or --overwrite) to "
+                              "replace it, or skip_existing=True (--skip-existing) to keep "
+                              "complete outputs.")
+    return None
+
+
+def _same_grid(done, job, cfg):
+    """A kept output ``done`` if this run can keep it, None to redo it; raises if refused."""
+    if not cfg.union and (tuple(done["offset"]) != (0, 0)
+                          or tuple(done["shape"]) != cfg.reference.shape):
+        if not cfg.overwrite:
+            raise FileExistsError(f"{job.output} was registered onto another grid (a "
+                                  "'union' canvas); pass overwrite=True (or --overwrite) "
+                                  "to redo it.")
+        done = None
+    if done is not None and cfg.union and done["source_shape"] is None:
+        if not cfg.overwrite:
+            raise FileExistsError(f"{job.output} does not record its source's shape, "
+                                  "needed for a 'union' canvas; pass overwrite=True (or "
+                                  "--overwrite) to redo it.")
+        done = None
+    return done

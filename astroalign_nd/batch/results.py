@@ -1,0 +1,168 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""The results of a batch: one FrameResult per frame and their BatchResult."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import numpy as np
+from astropy.table import Table
+
+__all__ = ['FrameResult', 'BatchResult']
+
+#: Status of a frame in a `BatchResult`.
+_STATUSES = ("registered", "skipped", "failed")
+
+
+@dataclass
+class FrameResult:
+    """
+    The outcome for one frame of a batch.
+
+    Attributes
+    ----------
+    name : str
+        File name (the path as given when two inputs of a list share a file
+        name; ``<name>#2``, ``#3``... for a generator's repeated names), the
+        file name of a ``(frame, file name)`` pair, or ``frame<i>`` for
+        in-memory inputs.
+    status : {'registered', 'skipped', 'failed'}
+        'skipped': a complete output was already there (``skip_existing``);
+        its transform and quality are read back from that file's header.
+    transform : model or None
+        The transform applied: source to reference pixels, or source to
+        canvas pixels with ``canvas='union'``.
+    quality : dict or None
+        As in ``transform.meta['quality']``.
+    output : str or None
+        The FITS file written (or kept), if ``output_dir`` was given.
+    error : str or None
+        ``'<ExceptionType>: message'`` for a failed frame.
+    seconds : float
+        Time spent on this frame (both passes with ``canvas='union'``).
+    ccd : `~astropy.nddata.CCDData` or None
+        The registered frame, when no ``output_dir`` was given.
+    source : str or None
+        The input path as given, None for in-memory inputs.
+    shape : tuple or None
+        The source frame's ``(ny, nx)``, where it was needed (``canvas='union'``).
+
+    Examples
+    --------
+    >>> from astroalign_nd.batch import register_batch
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> frame = register_batch([pair.source], pair.target).frames[0]
+    >>> frame.name, frame.status, frame.ok
+    ('frame0', 'registered', True)
+    >>> bool(frame.quality["rms"] < 1.0), frame.ccd.shape
+    (True, (256, 256))
+    """
+
+    name: str
+    status: str
+    transform: object = None
+    quality: dict = None
+    output: str = None
+    error: str = None
+    seconds: float = 0.0
+    ccd: object = field(default=None, repr=False)
+    source: str = None
+    shape: tuple = field(default=None, repr=False)  # the source frame's (ny, nx)
+    _grid: tuple = field(default=None, repr=False)  # (shape, offset) of a kept output
+
+    @property
+    def ok(self):
+        """True when the frame's registered image exists (registered or skipped)."""
+        return self.status != "failed"
+
+
+@dataclass
+class BatchResult:
+    """
+    All frames of a batch, in input order.
+
+    Attributes
+    ----------
+    frames : list of `FrameResult`
+    canvas_shape : tuple or None
+        ``(ny, nx)`` of the output grid.
+    canvas_offset : tuple or None
+        ``(x0, y0)``: reference pixel coordinates of the output grid's pixel
+        ``(0, 0)``; ``(0, 0)`` for ``canvas='reference'``.
+
+    Examples
+    --------
+    A batch of one good frame and one without stars:
+
+    >>> import numpy as np
+    >>> from astroalign_nd.batch import register_batch
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> result = register_batch([pair.source, np.zeros((64, 64))], pair.target)
+    >>> print(result.summary())
+    1 of 2 frames registered, 1 failed
+      FAILED frame1: TooFewSourcesError: ...
+    >>> [f.name for f in result.succeeded], [f.name for f in result.failed]
+    (['frame0'], ['frame1'])
+    >>> result.to_table()["status"].tolist(), result.canvas_shape
+    (['registered', 'failed'], (256, 256))
+    """
+
+    frames: list
+    canvas_shape: tuple = None
+    canvas_offset: tuple = (0, 0)
+
+    @property
+    def succeeded(self):
+        """The frames registered in this run."""
+        return [f for f in self.frames if f.status == "registered"]
+
+    @property
+    def skipped(self):
+        """The frames whose complete output was already there (``skip_existing``)."""
+        return [f for f in self.frames if f.status == "skipped"]
+
+    @property
+    def failed(self):
+        """The frames that could not be registered (see their ``error``)."""
+        return [f for f in self.frames if f.status == "failed"]
+
+    def to_table(self):
+        """
+        One row per frame, in input order.
+
+        Columns: ``name``, ``status``, ``ok`` (registered or skipped:
+        the output is there), ``n_matches``, ``rms`` (px),
+        ``log10_false_alarm``, ``seconds``, ``error``, ``output`` and
+        ``source``.  Write it with ``result.to_table().write('night.ecsv')``.
+        """
+        rows = []
+        for f in self.frames:
+            q = f.quality or {}
+            rows.append((f.name, f.status, f.ok, int(q.get("n_matches", 0)),
+                         float(q.get("rms", np.nan)),
+                         float(q.get("log10_false_alarm", np.nan)), float(f.seconds),
+                         f.error or "", f.output or "", f.source or ""))
+        t = Table(rows=rows or None,
+                  names=("name", "status", "ok", "n_matches", "rms", "log10_false_alarm",
+                         "seconds", "error", "output", "source"),
+                  dtype=(str, str, bool, int, float, float, float, str, str, str))
+        t["rms"].unit = "pix"
+        t["seconds"].unit = "s"
+        if self.canvas_shape is not None:
+            t.meta["canvas_shape"] = list(self.canvas_shape)
+            t.meta["canvas_offset"] = list(self.canvas_offset)
+        return t
+
+    def summary(self):
+        """A short human-readable report."""
+        n = len(self.frames)
+        line = f"{len(self.succeeded)} of {n} frames registered"
+        if self.skipped:
+            line += f", {len(self.skipped)} skipped (complete output already there)"
+        if self.failed:
+            line += f", {len(self.failed)} failed"
+        lines = [line]
+        for f in self.failed:
+            lines.append(f"  FAILED {f.name}: {f.error}")
+        return "\n".join(lines)

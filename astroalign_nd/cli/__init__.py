@@ -1,0 +1,27 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+
+"""The ``astroalign-nd`` command-line tool.
+
+Subcommands
+-----------
+``register SOURCE TARGET -o OUT.fits``
+    Register one image onto another and write the aligned image.
+``batch SOURCES... -r TARGET --output-dir DIR``
+    Register several images onto one target, going on past failures
+    (``batch TARGET SOURCES...``, the older form, still works).
+``demo --output-dir DIR``
+    Simulate a star-field pair with a known transform, register it and
+    report how close the recovered transform is to the truth.
+
+Exit codes: 0 on success (frames skipped by ``--skip-existing`` included), 1
+when some frames of a ``batch`` failed, 2 on a usage or registration error or
+any other error, out of memory included (one line on standard error, without
+a traceback).
+
+The package itself is imported lazily, inside the subcommands, so that
+``astroalign-nd --help`` stays fast.
+"""
+
+from .main import main
+
+__all__ = ['main']

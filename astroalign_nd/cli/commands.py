@@ -1,0 +1,277 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""The commands: register, batch and demo."""
+
+import os
+import sys
+from .errors import _CLIError
+from .options import _registration_kwargs
+
+__all__ = []
+
+
+def _check_writable(path, overwrite):
+    """Refuse, before any work, a path that cannot take the output."""
+    from astroalign_nd.io.write import check_output_path
+
+    try:
+        check_output_path(path, overwrite)
+    except FileExistsError:
+        raise _CLIError(f"output file {path!r} already exists; pass --overwrite to replace "
+                        "it.") from None
+
+
+def _check_output_dir(path):
+    from astroalign_nd.io.write import _check_writable_dir
+
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise _CLIError(f"--output-dir {path!r} is a file, not a folder.")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as exc:
+        raise _CLIError(f"cannot create output folder {path!r}: {exc.strerror or exc}.") from None
+    _check_writable_dir(path)
+
+
+def _check_input(path):
+    if not os.path.isfile(path):
+        raise _CLIError(f"input file {path!r} does not exist or is not a file.")
+    return path
+
+
+def _describe(transform):
+    """One-line summary of a transform model."""
+    import numpy as np
+
+    parts = [type(transform).__name__]
+    scale = getattr(transform, "scale", None)
+    rotation = getattr(transform, "rotation", None)
+    translation = getattr(transform, "translation", None)
+    try:
+        if rotation is not None:
+            # Parameters hold degrees (astropy's convention); float() of a
+            # Parameter raises on astropy 8, so read its value.
+            value = getattr(rotation, "value", rotation)
+            parts.append(f"rotation={float(np.squeeze(value)):.4f} deg")
+        if scale is not None:
+            s = np.atleast_1d(np.squeeze(np.asarray(getattr(scale, "value", scale),
+                                                    dtype=float)))
+            parts.append("scale=" + ", ".join(f"{v:.5f}" for v in s))
+        if translation is not None:
+            t = np.ravel(np.asarray(translation, dtype=float))
+            parts.append("translation=(" + ", ".join(f"{v:.3f}" for v in t) + ") px")
+    except (TypeError, ValueError):
+        return repr(transform)
+    if len(parts) == 1:
+        return repr(transform)
+    return " ".join(parts)
+
+
+def _max_corner_error(recovered, truth, shape):
+    """Largest distance (px) between two transforms evaluated at the frame corners."""
+    import numpy as np
+
+    ny, nx = shape
+    x = np.array([0.0, nx - 1.0, 0.0, nx - 1.0])
+    y = np.array([0.0, 0.0, ny - 1.0, ny - 1.0])
+    xr, yr = recovered(x, y)
+    xt, yt = truth(x, y)
+    return float(np.max(np.hypot(np.asarray(xr) - xt, np.asarray(yr) - yt)))
+
+# -- subcommands -----------------------------------------------------------------------------
+
+
+def _cmd_register(args):
+    import astroalign_nd
+    from astroalign_nd.io.write import write_ccddata
+
+    _check_writable(args.output, args.overwrite)
+    if args.plot:  # before the work: matplotlib missing or PLOT existing stops here
+        from astroalign_nd.visualization import _check_plot_path, save_diagnostic_figure
+
+        _check_plot_path(args.plot, args.overwrite)
+    aligned = astroalign_nd.register(_check_input(args.source), _check_input(args.target),
+                                     unit=args.unit, **_registration_kwargs(args))
+    write_ccddata(aligned, args.output, overwrite=args.overwrite, hdu_flags="FLAGS")
+    q = aligned.meta
+    print(f"{_describe(astroalign_nd.transform_from_header(q))}; {q['AATNMAT']} matched "
+          f"stars, RMS {q['AATRMS']:.3f} px")
+    print(f"wrote {args.output}")
+    if args.plot:
+        print("wrote " + save_diagnostic_figure(args.plot, args.source, args.target, aligned,
+                                                overwrite=args.overwrite,
+                                                **_registration_kwargs(args)))
+    return 0
+
+
+def _frame_line(f):
+    if f.status == "failed":
+        return f"{f.name}: FAILED ({f.error})"
+    q = f.quality or {}
+    fig = []
+    if "n_matches" in q:
+        fig.append(f"{q['n_matches']} stars")
+    if "rms" in q:
+        fig.append(f"RMS {q['rms']:.3f} px")
+    if "log10_false_alarm" in q:
+        fig.append(f"log10 FA {q['log10_false_alarm']:.1f}")
+    what = "ok" if f.status == "registered" else "skipped (complete output there)"
+    return f"{f.name}: {what} -> {f.output} ({', '.join(fig)}; {f.seconds:.1f} s)"
+
+
+def _batch_frames(args):
+    """``(target, sources)`` of ``batch``, from -r/--reference or the older form."""
+    if args.reference is not None:
+        target, sources = args.reference, list(args.images)
+    else:
+        if len(args.images) < 2:
+            raise _CLIError("give the target with -r/--reference TARGET, or as the first of "
+                            "at least two images ('batch TARGET SOURCES...').")
+        target, sources = args.images[0], list(args.images[1:])
+    _check_input(target)
+    for src in sources:
+        _check_input(src)
+    return target, sources
+
+
+def _check_batch_options(args):
+    """Refuse, before any work, options that cannot run or outputs that cannot be written."""
+    if args.workers < 0:
+        raise _CLIError(f"--workers must be 0 or more; got {args.workers}.")
+    if args.scheduler and args.workers:
+        raise _CLIError("give --workers (local processes) or --scheduler (a dask.distributed "
+                        "cluster), not both.")
+    _check_output_dir(args.output_dir)
+    if args.summary is not None:
+        from astroalign_nd.io.write import check_output_path
+
+        try:
+            check_output_path(args.summary, args.overwrite or args.skip_existing,
+                              extensions=(".ecsv", ".csv"))
+        except FileExistsError:
+            raise _CLIError(f"summary file {args.summary!r} already exists; pass --overwrite "
+                            "(or --skip-existing) to replace it.") from None
+
+
+def _dask_client_class():
+    try:
+        from dask.distributed import Client
+    except ImportError:
+        raise _CLIError("--scheduler needs dask.distributed: "
+                        "pip install 'astroalign_nd[dask]'") from None
+    return Client
+
+
+def _frame_reporter(n, bar):
+    """The batch's callback: print each frame's line as it finishes (above the bar, if any)."""
+    done = []
+
+    def report(f):
+        # Printed as each frame finishes; a night's log is useful while it runs.
+        done.append(f)
+        line = f"[{len(done)}/{n}] {_frame_line(f)}"
+        if bar is not None:
+            bar.write(line, file=sys.stdout)
+            sys.stdout.flush()
+            bar.update(1)
+        else:
+            print(line, flush=True)
+
+    return report
+
+
+def _write_summary(result, path):
+    """The per-frame table of a batch, as ECSV (or CSV by the extension)."""
+    from astroalign_nd.io.write import atomic_write
+
+    fmt = "ascii.ecsv" if path.lower().endswith(".ecsv") else "ascii.csv"
+    with atomic_write(path, overwrite=True) as tmp:
+        result.to_table().write(tmp, format=fmt, overwrite=True)
+    print(f"wrote {path}")
+
+
+def _cmd_batch(args):
+    import astroalign_nd
+
+    target, sources = _batch_frames(args)
+    _check_batch_options(args)
+    progress = args.progress if args.progress is not None else sys.stderr.isatty()
+    client = None
+    client_class = _dask_client_class() if args.scheduler else None
+
+    n = len(sources)
+    if args.canvas == "union":
+        print(f"union canvas: finding the {n} transforms first, then resampling", flush=True)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n, unit="frame", file=sys.stderr)
+    try:
+        if args.scheduler:
+            client = client_class(args.scheduler)
+        result = astroalign_nd.register_batch(
+            sources, target, output_dir=args.output_dir, overwrite=args.overwrite,
+            skip_existing=args.skip_existing, canvas=args.canvas, client=client,
+            workers=args.workers or None, callback=_frame_reporter(n, bar), unit=args.unit,
+            **_registration_kwargs(args))
+    finally:
+        if bar is not None:
+            bar.close()
+        if client is not None:
+            client.close()
+    if args.canvas == "union":
+        ny, nx = result.canvas_shape
+        print(f"canvas: {nx}x{ny} px, pixel (0, 0) at reference pixel "
+              f"{tuple(int(v) for v in result.canvas_offset)}")
+    print(result.summary())
+    if args.summary is not None:
+        _write_summary(result, args.summary)
+    return 1 if result.failed else 0
+
+
+def _cmd_demo(args):
+    import astropy.units as u
+    from astropy.nddata import CCDData
+
+    import astroalign_nd
+    from astroalign_nd.io.write import write_ccddata
+    from astroalign_nd.simulate import simulate_pair
+
+    out_dir = args.output_dir
+    paths = {name: os.path.join(out_dir, f"{name}.fits")
+             for name in ("source", "target", "aligned")}
+    _check_output_dir(out_dir)
+    for path in paths.values():
+        _check_writable(path, args.overwrite)
+
+    pair = simulate_pair(
+        shape=(512, 512),
+        n_stars=300,
+        rotation=17.0,
+        scale=1.05,
+        translation=(12.3, -7.7),
+        seed=args.seed,
+    )
+    source = CCDData(pair.source, unit=u.adu)
+    target = CCDData(pair.target, unit=u.adu)
+    write_ccddata(source, paths["source"], overwrite=args.overwrite)
+    write_ccddata(target, paths["target"], overwrite=args.overwrite)
+
+    aligned = astroalign_nd.register(source, target)
+    write_ccddata(aligned, paths["aligned"], overwrite=args.overwrite)
+
+    # The registered frame records how it was made: rebuild the transform.
+    recovered = astroalign_nd.transform_from_header(aligned.meta)
+    error = _max_corner_error(recovered, pair.transform, source.shape)
+
+    print(f"true transform:      {_describe(pair.transform)}")
+    print(f"recovered transform: {_describe(recovered)}")
+    print(f"max position error over the {source.shape[1]}x{source.shape[0]} frame: "
+          f"{error:.4f} px")
+    if not error < 1.0:
+        print("WARNING: the recovered transform is more than 1 px off the truth somewhere "
+              "in the frame.")
+    print(f"wrote {paths['source']}")
+    print(f"wrote {paths['target']}")
+    print(f"wrote {paths['aligned']}")
+    return 0

@@ -1,0 +1,145 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""Candidate peaks on a (binned) image, and cutouts around them."""
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+from .._kernels import GAUSS_SIGMA_TO_FWHM as _GAUSS_SIGMA_TO_FWHM
+from .._kernels import bin_despike, finite_sample, peak_candidates
+from .._kernels import median as _median
+from .._kernels import windowed_centroid as _windowed_centroid
+from .background import _background_map
+
+__all__ = []
+
+
+def _extract_cutouts(data, mask, xc, yc, half, fill):
+    """Stack of (2*half+1)^2 cutouts centred on integer pixels (xc, yc)."""
+    size = 2 * half + 1
+    ny, nx = data.shape
+    n = len(xc)
+    cut = np.empty((n, size, size))
+    bad = np.zeros((n, size, size), dtype=bool)
+    inner = (xc >= half) & (xc < nx - half) & (yc >= half) & (yc < ny - half)
+    if inner.any():
+        # Cutouts inside the frame (almost all): block copies from a
+        # sliding-window view, not an index per pixel.
+        x0, y0 = xc[inner] - half, yc[inner] - half
+        cut[inner] = sliding_window_view(data, (size, size))[y0, x0]
+        if mask is not None:
+            bad[inner] = sliding_window_view(mask, (size, size))[y0, x0]
+    if not inner.all():
+        edge = ~inner
+        offs = np.arange(-half, half + 1)
+        iy = yc[edge, None] + offs[None, :]
+        ix = xc[edge, None] + offs[None, :]
+        vy = (iy >= 0) & (iy < ny)
+        vx = (ix >= 0) & (ix < nx)
+        iyc = np.clip(iy, 0, ny - 1)
+        ixc = np.clip(ix, 0, nx - 1)
+        cut[edge] = data[iyc[:, :, None], ixc[:, None, :]]
+        bad_edge = ~(vy[:, :, None] & vx[:, None, :])
+        if mask is not None:
+            bad_edge |= mask[iyc[:, :, None], ixc[:, None, :]]
+        bad[edge] = bad_edge
+    bad |= ~np.isfinite(cut)
+    cut[bad] = fill if np.isscalar(fill) else np.broadcast_to(
+        np.asarray(fill)[:, None, None], cut.shape)[bad]
+    return cut, bad
+
+
+def _auto_bin(shape):
+    # Aim for a binned image of ~300 px on its long side: DAOStarFinder's
+    # cost scales with the pixel count, and candidates are refined later.
+    # At least 2, because the binning also removes hot pixels.
+    return int(max(2, round(max(shape) / 320.0)))
+
+
+def _as_image(data, mask):
+    arr = np.asarray(data)
+    if arr.ndim != 2:
+        raise ValueError(
+            f"find_sources needs a 2-D image; got an array with shape {arr.shape}. For "
+            "multichannel images pass the channel mean (or use register, which does it)."
+        )
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(f"image data must be numeric; got dtype {arr.dtype}.")
+    if min(arr.shape) < 8:
+        raise ValueError(f"image is too small to detect stars in: shape {arr.shape}.")
+    if arr.dtype != np.float32 and arr.dtype != np.float64:
+        arr = arr.astype(np.float32)
+    # Non-finite pixels are not collected here (a full-frame pass): every
+    # step that reads pixels (noise samples, binning, cutouts) skips them.
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != arr.shape:
+            raise ValueError(
+                f"mask shape {mask.shape} does not match the image shape {arr.shape}."
+            )
+        if not mask.any():
+            mask = None
+    return arr, mask
+
+
+def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
+    """
+    Stage 1: candidate peaks on the binned, background-subtracted image.
+
+    Binning drops each block's brightest pixel (hot pixels and cosmic rays
+    go), and candidates are ranked by the flux around the peak.  Positions
+    are good to about a binned pixel; stage 2 measures them properly.
+    """
+    fill = 0.0
+    if mask is not None or not np.all(np.isfinite(data[:: max(1, data.shape[0] // 64)])):
+        good = finite_sample(data, mask, 4)
+        fill = float(_median(good)) if good.size else 0.0  # np.median, bit for bit
+    if b > 1:
+        binned = bin_despike(data, b, mask, fill)
+        # Mean of b*b - 1 pixels: the noise drops by about that square root.
+        noise_b = noise / np.sqrt(b * b - 1)
+    else:  # no binning (tiny images, or an already binned copy)
+        bad = ~np.isfinite(data) if mask is None else (~np.isfinite(data) | mask)
+        binned = np.where(bad, fill, data).astype(np.float32)
+        noise_b = noise
+    # Sky boxes of ~128 full-resolution pixels follow gradients, and stay
+    # few enough for the expansion to be cheap.
+    box = max(4, int(round(128 / b)))
+    bkg_map, _ = _background_map(binned, box)
+    resid = binned - bkg_map
+    y, x, score = peak_candidates(resid, nsigma * noise_b, n_candidates)
+    if len(x) == 0:
+        return {"x": np.empty(0), "y": np.empty(0), "bkg": np.empty(0), "flux": np.empty(0),
+                "snr": np.empty(0)}
+    # Binned pixel i covers full-res pixels [i*b, i*b + b - 1].  The score
+    # is a 3x3 sum, whose noise is 3 binned-pixel sigmas.
+    return {"x": x * b + (b - 1) / 2.0, "y": y * b + (b - 1) / 2.0,
+            "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b),
+            "snr": score / (3.0 * noise_b)}
+
+
+def _recenter(data, mask, cand, b, fwhm):
+    """
+    Recentre the coarse candidates at full resolution.
+
+    The brightest 3x3 sum in the block around each binned peak (a sum, so
+    that a lone hot pixel does not win), then a few windowed-centroid steps.
+    """
+    rc = int(np.ceil(b + 3))
+    xc = np.round(cand["x"]).astype(int)
+    yc = np.round(cand["y"]).astype(int)
+    cut, bad = _extract_cutouts(data, mask, xc, yc, rc, 0.0)
+    cut -= cand["bkg"][:, None, None]
+    cut[bad] = 0.0
+    box = np.zeros_like(cut)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            box[:, 1:-1, 1:-1] += cut[:, 1 + dy:cut.shape[1] - 1 + dy,
+                                      1 + dx:cut.shape[2] - 1 + dx]
+    peak = box.reshape(len(xc), -1).argmax(axis=1)
+    py, px = np.divmod(peak, cut.shape[2])
+    sig0 = np.full(len(xc), max(1.0, (fwhm or 3.0) / _GAUSS_SIGMA_TO_FWHM))
+    lx, ly = _windowed_centroid(np.clip(cut, 0, None), bad, px.astype(float),
+                                py.astype(float), sig0, n_iter=4)
+    out = dict(cand)
+    out["x"] = xc - rc + lx
+    out["y"] = yc - rc + ly
+    return out

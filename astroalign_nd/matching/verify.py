@@ -1,0 +1,314 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""Verification of a hypothesis: its false-alarm probability, growth, refit and misfit checks."""
+
+import numpy as np
+from scipy.special import betainc
+from .._kernels import median as _median
+from ..transforms.linear import AffineTransform
+from ..transforms._matrix import _apply
+from ..transforms.fitting import fit_transform
+from ..transforms.registry import transform_class
+from .geometry import _bbox, _frame_area_fraction, _in_frame
+from .pairing import _mutual_matches
+
+__all__ = []
+
+
+def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame,
+                       n_trials, tri_rms, tri_size, inv_radius, n_dof=4):
+    """
+    log10 probability that ``n_matched`` stars agree by chance.
+
+    Under the null hypothesis (unrelated fields), each source star that
+    lands in the overlap falls within ``tol`` of one of the ``m_o`` target
+    stars there with probability ``p = m_o * pi * tol^2 / area``.  The 3
+    stars of the proposing triangle match by construction, so the binomial
+    tail is taken over the others, and the defining triangle contributes
+    the chance that random triangles agree as closely as it does.  The
+    trials factor counts every hypothesis examined.
+    """
+    frac, area = _frame_area_fraction(m, src_frame, dst_frame)
+    if area <= 0:
+        return 0.0
+    n_s = int(np.sum(_in_frame(_apply(m, src_pts), dst_frame)))
+    m_o = int(np.sum(_in_frame(_apply(np.linalg.inv(m), dst_pts), src_frame)))
+    p = min(1.0, max(m_o, 1) * np.pi * tol**2 / area)
+    k_extra = max(n_matched - 3, 0)
+    n_extra = max(n_s - 3, k_extra)
+    if k_extra > 0:
+        # P(X >= k) for X ~ Binomial(n, p) is the regularised incomplete beta
+        # function I_p(k, n - k + 1) (scipy.special: no scipy.stats import).
+        tail = betainc(k_extra, n_extra - k_extra + 1, p) if p < 1 else 1.0
+        log_tail = np.log10(tail) if tail > 0 else -300.0
+    else:
+        log_tail = 0.0
+    # Chance that a random triangle pair within the invariant radius fits
+    # its own three vertices as well as this one does: the 6 coordinates of
+    # the 3 vertex pairs less the model's free parameters (2 spare for a
+    # similarity; none for an affine model, which fits any 3 pairs exactly).
+    spare = max(0, 6 - max(n_dof, 4))
+    spread = max(inv_radius * tri_size, 1e-9)
+    log_tri = spare * np.log10(min(1.0, max(tri_rms, 1e-3) / spread))
+    # Below 1e-300 the number means "certain"; keep it finite (FITS headers
+    # cannot hold -inf).
+    return float(max(np.log10(max(n_trials, 1)) + log_tail + log_tri, -300.0))
+
+
+def _jitter(r2, var, dof):
+    """Extra variance ``j2`` so that ``sum(r2 / (var + j2)) = dof`` (0 if none needed)."""
+    if dof <= 0 or np.sum(r2 / var) <= dof:
+        return 0.0
+    lo, hi = 0.0, float(np.max(r2)) + 1e-12
+    chi = np.empty(np.broadcast_shapes(np.shape(r2), np.shape(var)))
+    for _ in range(40):  # bisection: chi2 decreases monotonically in j2
+        mid = 0.5 * (lo + hi)
+        np.divide(r2, np.add(var, mid, out=chi), out=chi)  # r2 / (var + mid)
+        if chi.sum() > dof:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def _inflation(r2, var):
+    """
+    Factor by which the predicted variances must grow so that the median
+    of ``r2 / (f var)`` is that of a chi-square with 2 degrees of freedom.
+
+    A median is not inflated by the few wrong pairs the cut after it must
+    remove, and a factor (unlike an added "jitter") keeps the bright,
+    well-measured stars' weight above the faint ones'.
+    """
+    return max(1.0, float(_median(r2 / var)) / (2.0 * np.log(2.0)))
+
+
+def _prediction_variance(cls, fit_src, fit_w, parity, pts):
+    """Per-axis variance of the fitted model's prediction at ``pts``."""
+    d_fit = cls._design(fit_src, fit_w, parity)
+    d_all = cls._design(pts, np.ones(len(pts)), parity)
+    cov = np.linalg.pinv(d_fit.T @ (d_fit * np.repeat(fit_w, 2)[:, None]))
+    rows = d_all.reshape(len(pts), 2, -1)
+    return np.einsum("nij,jk,nik->n", rows, cov, rows) / 2.0
+
+
+def _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol):
+    """
+    Extend a local solution outwards from its seed triangle.
+
+    A similarity proposed by one triangle is right near that triangle and
+    increasingly wrong away from it when the true transform has shear or
+    anisotropic scale.  Fitting the model to the stars within a radius of
+    the triangle, then doubling the radius, lets the solution follow the
+    field instead of locking onto wrong pairs far away.
+    """
+    center, radius = seed
+    dist = np.hypot(*(src_pts - center).T)
+    r_max = dist.max()
+    radius = max(radius, 1.0)
+    need = max(cls.min_points, 4)
+    for _ in range(128):  # radius grows by 1.5 up to r_max (< 1.5**128 px)
+        inside = np.flatnonzero(dist <= radius)
+        for _ in range(3):
+            # Match, fit, drop the pairs far off the fit (chance pairs pull a
+            # local fit away from the field), refit; repeat with the new model.
+            si, dj = _mutual_matches(_apply(m, src_pts[inside]), dst_pts, dst_tree, tol)
+            if len(si) < need:
+                break
+            s_in, d_in = src_pts[inside[si]], dst_pts[dj]
+            m_new, _ = cls.fit_matrix(s_in, d_in, np.ones(len(si)), 1)
+            r = np.hypot(*(_apply(m_new, s_in) - d_in).T)
+            good = r <= max(3.0 * _median(r), 0.1 * tol)
+            if need <= good.sum() < len(si):
+                m_new, _ = cls.fit_matrix(s_in[good], d_in[good], np.ones(good.sum()), 1)
+            converged = np.max(np.abs(m_new - m)) < 1e-9
+            m = m_new
+            if converged:
+                break
+        if radius >= r_max:
+            break
+        radius *= 1.5
+    return m
+
+
+def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol,
+            src_err=None, dst_err=None, n_iter=8, seed=None):
+    """
+    Iterative cross-match and weighted least-squares fit from a matrix.
+
+    Stages: grow a local solution over the field (`_grow_region`, for the
+    models with shear), iterate match, weigh, cut and fit
+    (`_iterate_fit`), refuse a random set of pairs (`_random_pairs`), and
+    fit the model with its covariance (`_final_fit`).  Returns ``(model,
+    si, dj, resid, cov, tolerance used)``, or None.
+    """
+    cls = transform_class(transform_type)
+    fit_parity = parity if transform_type in ("similarity", "euclidean") else 1
+    m = m0
+    if seed is not None and cls.n_dof > 4:
+        m = _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol)
+    last = _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol,
+                        src_err, dst_err, n_iter)
+    if last is None or _random_pairs(last, src_pts, dst_pts, tol):
+        return None
+    return _final_fit(last, cls, fit_parity, src_pts, dst_pts)
+
+
+def _pair_variances(m, src, dst, src_err, dst_err):
+    """
+    Squared residuals of matched pairs under ``m`` and their expected values.
+
+    Each pair's expected squared residual is ``f (s^2 e_src^2 + e_dst^2)``
+    (``s`` the scale, ``e`` the detection's centroid errors; 0.01 px^2
+    without errors), where the factor ``f >= 1`` (`_inflation`) makes the
+    median normalised residual that of a Gaussian: it absorbs what the
+    centroid errors do not predict (undersampling, blends) while outliers
+    cannot inflate it.
+    """
+    scale2 = abs(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0])
+    if src_err is not None and dst_err is not None:
+        var = scale2 * src_err ** 2 + dst_err ** 2
+    else:
+        var = np.full(len(src), 0.01)
+    resid = _apply(m, src) - dst
+    r2 = np.einsum("ij,ij->i", resid, resid)
+    return r2, var * _inflation(r2, var)
+
+
+def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, src_err,
+                 dst_err, n_iter):
+    """
+    Match, weigh, cut and fit until the matrix and the radius settle.
+
+    Pairs whose chi-square, counting the current model's own prediction
+    variance, is above 16 are rejected, and the matching radius shrinks to
+    5 sigma.  Returns the last fit's ``(si, dj, total variance, radius)``,
+    or None when too few pairs matched.
+    """
+    need = max(cls.min_points, 3)
+    cur_tol = tol
+    last = prev = None
+    for _ in range(n_iter):
+        si, dj = _mutual_matches(_apply(m, src_pts), dst_pts, dst_tree, cur_tol)
+        if len(si) < need:
+            break
+        r2, total = _pair_variances(m, src_pts[si], dst_pts[dj],
+                                    None if src_err is None else src_err[si],
+                                    None if dst_err is None else dst_err[dj])
+        # The current model is itself uncertain (early on it rests on the
+        # faint majority): its prediction variance enters the cut, so that
+        # the brightest stars are not rejected for the model's error.
+        pv = _prediction_variance(cls, *prev, fit_parity, src_pts[si]) if prev else 0.0
+        # chi2 with 2 dof above 16 happens with probability 3e-4.
+        keep = r2 / (total + pv) <= 16.0 if len(si) > cls.n_dof else np.ones(len(si), bool)
+        if keep.sum() >= need:
+            si, dj, total = si[keep], dj[keep], total[keep]
+        # Matrix-level fit: building astropy models here would dominate.
+        m_new, _ = cls.fit_matrix(src_pts[si], dst_pts[dj], 1.0 / total, fit_parity)
+        prev = (src_pts[si], 1.0 / total)
+        last = (si, dj, total, cur_tol)
+        new_tol = float(min(max(5.0 * np.sqrt(_median(total)), min_tol), tol))  # (np.clip)
+        converged = np.max(np.abs(m_new - m)) < 1e-10 and new_tol == cur_tol
+        m, cur_tol = m_new, new_tol
+        if converged:
+            break
+    return last
+
+
+def _random_pairs(last, src_pts, dst_pts, tol):
+    """
+    True when the pairs' scatter fills the capture radius even under the
+    most flexible model: a random set, however many (a wrong local
+    optimum), not to be returned.  If only the requested model leaves a
+    large scatter, the pairs are real and the model inadequate, which the
+    caller reports (PoorFitWarning).
+    """
+    si, dj, total, _ = last
+    if 4.0 * np.sqrt(_median(total)) > tol and len(si) >= 4:
+        aff, _ = AffineTransform.fit_matrix(src_pts[si], dst_pts[dj], 1.0 / total, 1)
+        r = _apply(aff, src_pts[si]) - dst_pts[dj]
+        return bool(4.0 * np.sqrt(_median(np.einsum("ij,ij->i", r, r)) / 1.386) > tol)
+    return False
+
+
+def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
+    """The model, with its covariance and residuals, on the last fit's pairs; or None."""
+    si, dj, total, used_tol = last
+    try:
+        model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls,
+                                          parity=fit_parity if cls.n_dof in (3, 4) else None,
+                                          weights=1.0 / total)
+    except ValueError:  # collinear or coincident stars: no transform to trust
+        return None
+    return model, si, dj, resid, cov, used_tol
+
+
+def _model_misfit(model, src, dst, src_err, dst_err, frame):
+    """
+    How far the fitted model is from an affine fit of the same stars.
+
+    Returns the largest difference (target pixels) between the two models
+    over the target frame, if the affine fit is significantly better
+    (F-test, p < 1e-6), else 0.  A rotation-like model that leaves
+    systematic residuals (shear, anisotropic scale, field distortion) shows
+    up here instead of being returned silently.
+    """
+    n = len(src)
+    k_model, k_aff = type(model).n_dof, 6
+    if k_model >= k_aff or 2 * n <= k_aff + 2:
+        return 0.0
+    if src_err is not None and dst_err is not None:
+        s2 = abs(np.linalg.det(model.matrix[:2, :2]))
+        var = s2 * src_err**2 + dst_err**2
+    else:
+        var = np.full(n, 0.01)
+    aff, _ = AffineTransform.fit_matrix(src, dst, 1.0 / var, 1)
+    r_aff = _apply(aff, src) - dst
+    r2_aff = np.einsum("ij,ij->i", r_aff, r_aff)
+    # Weights from the better (affine) model, with its own jitter.
+    var = var + _jitter(r2_aff / 2.0, var, n - k_aff / 2.0)
+    r_mod = _apply(model.matrix, src) - dst
+    chi_mod = np.sum(np.einsum("ij,ij->i", r_mod, r_mod) / var)
+    chi_aff = np.sum(r2_aff / var)
+    dof_aff = 2 * n - k_aff
+    f_stat = ((chi_mod - chi_aff) / (k_aff - k_model)) / max(chi_aff / dof_aff, 1e-300)
+    # Survival function of F(d1, d2): I_x(d2/2, d1/2) with x = d2 / (d2 + d1 F).
+    d1, d2 = k_aff - k_model, dof_aff
+    if f_stat <= 0 or betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f_stat)) >= 1e-6:
+        return 0.0
+    x0, x1, y0, y1 = frame if frame is not None else _bbox(dst)
+    corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
+    inv_aff = np.linalg.inv(aff)
+    pre = _apply(inv_aff, corners)
+    return float(np.max(np.hypot(*(_apply(model.matrix, pre) - corners).T)))
+
+
+def _predicted_error(model, cov, frame):
+    """
+    Largest 1-sigma position error (target px) over the frame's corners,
+    propagated from the parameter covariance.
+    """
+    cov = np.asarray(cov, float)
+    fixed = model.fixed  # (a new dict at each access)
+    free = [n for n in model.param_names if not fixed[n]]
+    if cov.shape != (len(free), len(free)) or not np.all(np.isfinite(cov)):
+        return 0.0
+    x0, x1, y0, y1 = frame
+    # Errors are largest at the frame's corners, in target pixels; map them
+    # back to source pixels, where the model's parameters act.
+    inv = np.linalg.inv(model.matrix)
+    corners = _apply(inv, np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]]))
+    # Finite differences through the model's static ``evaluate`` with perturbed
+    # parameter values (copying an astropy model costs ~2 ms each).
+    values = {n: float(getattr(model, n).value) for n in model.param_names}
+
+    def at(vals):
+        return np.array(model.evaluate(corners[:, 0], corners[:, 1],
+                                       *[vals[n] for n in model.param_names]), dtype=float)
+
+    base = at(values)
+    jac = np.zeros((2 * len(corners), len(free)))
+    for k, name in enumerate(free):
+        step = 1e-6 * max(1.0, abs(values[name]))
+        jac[:, k] = ((at({**values, name: values[name] + step}) - base) / step).T.ravel()
+    var = np.einsum("ik,kl,il->i", jac, cov, jac).reshape(len(corners), 2)
+    return float(np.sqrt(np.max(var.sum(axis=1))))

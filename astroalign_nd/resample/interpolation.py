@@ -1,0 +1,118 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""Interpolation orders and the NumPy interpolation kernels (the compiled ones' fallback)."""
+
+import numbers
+import numpy as np
+
+__all__ = ['ORDERS']
+
+#: Interpolation orders by name (the names reproject and ccdproc use).
+ORDERS = {"nearest-neighbor": 0, "bilinear": 1, "biquadratic": 2, "bicubic": 3}
+
+# Output pixels per block of the NumPy path: keeps its temporaries to tens of MB.
+_NUMPY_BLOCK_PIXELS = 1 << 18
+
+# -- kernel weights (NumPy path; the compiled kernels in _ckernels.pyx are the same) --
+
+
+def _linear_weights(f):
+    return 1.0 - f, f, 0.0 * f, 0.0 * f
+
+
+def _quadratic_weights(t):
+    # Dodgson's interpolating quadratic, taps c-1, c, c+1 with t = x - c in [-0.5, 0.5).
+    return t * (t - 0.5), 1.0 - 2.0 * t * t, t * (t + 0.5), 0.0 * t
+
+
+def _keys_weights(f):
+    # Keys cubic convolution, a = -0.5, taps floor(x)-1 .. floor(x)+2, f = x - floor(x).
+    return (
+        ((-0.5 * f + 1.0) * f - 0.5) * f,
+        (1.5 * f - 2.5) * f * f + 1.0,
+        ((-1.5 * f + 2.0) * f + 0.5) * f,
+        (0.5 * f - 0.5) * f * f,
+    )
+
+
+_WEIGHT_FUNCS = (None, _linear_weights, _quadratic_weights, _keys_weights)
+
+# -- NumPy fallback ------------------------------------------------------------------
+
+
+def _axis_taps_numpy(u, n, order):
+    """Vectorised `_axis_taps`: first tap index, validity and the 4 weights."""
+    if order == 0:
+        ok = (u >= -0.5) & (u <= n - 0.5)
+        i0 = np.clip(np.floor(np.where(ok, u, 0.0) + 0.5), 0, n - 1).astype(np.intp)
+        one, zero = np.ones_like(u), np.zeros_like(u)
+        return i0, ok, (one, zero, zero, zero)
+    ok = (u > -3.0) & (u < n + 2.0)
+    u = np.where(ok, u, 0.0)
+    if order == 2:
+        c = np.floor(u + 0.5)
+        w = _WEIGHT_FUNCS[2](u - c)
+        i0 = c - 1
+    else:
+        fl = np.floor(u)
+        w = _WEIGHT_FUNCS[order](u - fl)
+        i0 = fl if order == 1 else fl - 1
+    i0 = i0.astype(np.intp)
+    for k in range(order + 1):
+        # Only taps with nonzero weight must lie inside the image.
+        ok &= (w[k] == 0.0) | ((i0 + k >= 0) & (i0 + k <= n - 1))
+    return i0, ok, w
+
+
+def _interp_numpy(data, var, has_var, u, v, fill, sd, sv, out, out_var, out_mask, order):
+    """The compiled kernel's interpolation at source positions ``(u, v)`` (NaN: outside)."""
+    ny, nx = data.shape
+    jx, okx, wx = _axis_taps_numpy(u, nx, order)
+    jy, oky, wy = _axis_taps_numpy(v, ny, order)
+    inside = okx & oky
+    acc = np.zeros(inside.shape)
+    accv = np.zeros(inside.shape)
+    for ky in range(order + 1):
+        rows = np.clip(jy + ky, 0, ny - 1)
+        for kx in range(order + 1):
+            cols = np.clip(jx + kx, 0, nx - 1)
+            # Taps with zero weight along an axis are not used (the compiled
+            # kernel skips them), so their NaNs must not leak in.
+            use = inside & (wy[ky] != 0.0) & (wx[kx] != 0.0)
+            w = wy[ky] * wx[kx]
+            acc += np.where(use, w * data[rows, cols], 0.0)
+            if has_var:
+                accv += np.where(use, w * w * var[rows, cols], 0.0)
+    good = inside & np.isfinite(acc) & np.isfinite(accv)
+    out[...] = np.where(good, acc * sd, fill)
+    if has_var:
+        out_var[...] = np.where(good, accv * sv, np.inf)
+    out_mask[...] = ~good
+
+
+def _resample_numpy(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask, *, order):
+    """Same result as the compiled kernel, with NumPy gathers over blocks of rows."""
+    ny_out, nx_out = out.shape
+    block = max(1, _NUMPY_BLOCK_PIXELS // max(nx_out, 1))
+    xo = np.arange(nx_out, dtype=float)[None, :]
+    for y0 in range(0, ny_out, block):
+        yo = np.arange(y0, min(y0 + block, ny_out), dtype=float)[:, None]
+        sl = slice(y0, y0 + len(yo))
+        u = m[0] * xo + (m[1] * yo + m[2])
+        v = m[3] * xo + (m[4] * yo + m[5])
+        _interp_numpy(data, var, has_var, u, v, fill, sd, sv, out[sl],
+                      out_var[sl] if has_var else None, out_mask[sl], order)
+
+# -- input checking --------------------------------------------------------------
+
+
+def _parse_order(order):
+    if isinstance(order, str):
+        key = order.lower()
+        if key in ORDERS:
+            return ORDERS[key]
+    elif isinstance(order, numbers.Integral) and not isinstance(order, bool):
+        if 0 <= int(order) <= 3:
+            return int(order)
+    raise ValueError(
+        f"order must be one of {list(ORDERS)} or an integer 0-3; got {order!r}."
+    )

@@ -1,0 +1,158 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""Matrix and point helpers shared by every transform model.
+
+A leaf module: it imports no other module of the package.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from astropy import units as u
+from astropy.modeling import Parameter
+
+__all__ = []
+
+
+def _as_points(points, name):
+    try:
+        pts = np.asarray(points, dtype=float)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be an (N, 2) array of (x, y) positions (numbers); got "
+                        f"{type(points).__name__}.") from None
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(
+            f"{name} must be an (N, 2) array of (x, y) positions; got an array of shape "
+            f"{pts.shape}."
+        )
+    if not np.all(np.isfinite(pts)):
+        raise ValueError(f"{name} contains NaN or infinite positions; remove them first.")
+    return pts
+
+
+def _as_degrees(value, name="rotation"):
+    """An angle in degrees from a number (degrees) or an angle Quantity."""
+    if isinstance(value, Parameter):
+        value = value.quantity if value.unit is not None else value.value
+    if isinstance(value, u.Quantity):
+        try:
+            return value.to_value(u.deg)
+        except u.UnitsError:
+            raise u.UnitsError(
+                f"{name} must be an angle (a number of degrees or an angle Quantity); got "
+                f"a Quantity in {value.unit}."
+            ) from None
+    return value
+
+
+def _check_parity_value(parity):
+    values = np.ravel(np.asarray(parity.value if isinstance(parity, Parameter) else parity,
+                                 dtype=float))
+    if not np.all(np.isin(values, (1.0, -1.0))):
+        raise ValueError(
+            f"parity must be +1 (proper) or -1 (mirrored); got {parity!r}. A mirrored "
+            "transform is parity=-1 with the rotation that follows the flip of the y axis."
+        )
+
+
+def _as_3x3(matrix):
+    """A finite 3x3 float matrix from a 3x3 or 2x3 (affine) array-like."""
+    m = np.asarray(matrix, dtype=float)
+    if m.shape == (2, 3):
+        m = np.vstack([m, [0.0, 0.0, 1.0]])
+    if m.shape != (3, 3):
+        raise ValueError(f"matrix must have shape (3, 3) or (2, 3); got {m.shape}.")
+    if not np.all(np.isfinite(m)):
+        raise ValueError("matrix contains NaN or infinite values.")
+    return m
+
+
+def _apply(matrix, pts):
+    return pts @ matrix[:2, :2].T + matrix[:2, 2]
+
+
+def _check_spread(cls, pts, name):
+    """
+    Refuse point sets that do not determine the model.
+
+    Two coincident points fix no rotation or scale; collinear points fix
+    no affine transform across their line.
+    """
+    if cls.n_dof <= 2 or len(pts) == 0:
+        return
+    centred = pts - pts.mean(axis=0)
+    sv = np.linalg.svd(centred, compute_uv=False)
+    size = max(float(np.max(np.abs(pts))), 1.0)
+    if sv[0] <= 1e-12 * size:
+        raise ValueError(
+            f"the {name} points all coincide; a {cls.__name__} needs at least 2 distinct "
+            "points (3 not on one line for an AffineTransform).")
+    if cls.n_dof >= 6 and (len(sv) < 2 or sv[1] <= 1e-9 * sv[0]):
+        raise ValueError(
+            f"the {name} points are collinear; an {cls.__name__} is undetermined across "
+            "their line. Give points that span an area, or fit a SimilarityTransform.")
+
+
+def _check_invertible(matrix, name, fitted=False):
+    """Refuse a singular linear part (zero scale, or points squashed onto a line)."""
+    lin = np.asarray(matrix, float)[:2, :2]
+    with np.errstate(over="ignore", invalid="ignore"):
+        det = float(np.linalg.det(lin))
+        norm2 = float(np.sum(lin**2))
+    if not (np.isfinite(det) and np.isfinite(norm2)) or abs(det) <= 1e-12 * max(norm2, 1e-300):
+        why = ("the dst points are collinear or coincide, so the fit squashes the plane "
+               "onto a line" if fitted else "its scale is zero or its matrix singular")
+        raise ValueError(f"the {name} is singular ({why}); it has no inverse and cannot "
+                         "register an image.")
+
+
+def _weighted_lstsq(a, b, w):
+    sw = np.sqrt(np.repeat(w, a.shape[0] // len(w)))
+    theta, *_ = np.linalg.lstsq(a * sw[:, None], b * sw, rcond=None)
+    return theta
+
+
+def _rotation_matrix(angle, parity):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s * parity], [s, c * parity]])
+
+
+def _rotation_parameters(m, det, scale, message):
+    """
+    Rotation (degrees), shift and parity of a matrix whose linear part is
+    ``scale`` times a rotation, mirrored if ``det < 0``; else ValueError(message).
+    """
+    parity = 1.0 if det >= 0 else -1.0
+    r = m[:2, :2] @ np.diag([1.0, parity])
+    if not np.allclose(r.T @ r, scale**2 * np.eye(2), rtol=0.0, atol=1e-9 * scale**2):
+        raise ValueError(message)
+    return dict(rotation=np.degrees(np.arctan2(r[1, 0], r[0, 0])), translation_x=m[0, 2],
+                translation_y=m[1, 2], parity=parity)
+
+
+def _check_parity(parity):
+    if parity not in (1, -1, 1.0, -1.0):
+        raise ValueError(f"parity must be +1 (proper) or -1 (mirrored); got {parity!r}.")
+
+
+def _radians(rotation):
+    """The evaluate()-time rotation (degrees, or an angle Quantity) in radians."""
+    if isinstance(rotation, u.Quantity):
+        return rotation.to_value(u.rad)
+    return np.deg2rad(rotation)
+
+
+def _rotation_shift_parameters():
+    """
+    New ``rotation``, ``translation_x``, ``translation_y`` and ``parity``
+    Parameters, in that order: the Euclidean and similarity models' own.
+    """
+    return (Parameter(default=0.0, description="Rotation (degrees, counter-clockwise)"),
+            Parameter(default=0.0, description="Shift along x (pixels)"),
+            Parameter(default=0.0, description="Shift along y (pixels)"),
+            Parameter(default=1.0, fixed=True, description="+1 proper, -1 mirrored"))
+
+
+def _rotate_shift(x, y, c, s, translation_x, translation_y, parity):
+    """``[[c, -s], [s, c]] @ (x, parity * y) + (tx, ty)``: the rotating models' evaluate."""
+    yp = parity * y
+    return c * x - s * yp + translation_x, s * x + c * yp + translation_y

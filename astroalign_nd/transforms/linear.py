@@ -1,0 +1,595 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+The linear models: translation, Euclidean, similarity and affine.
+
+Each is an `astropy.modeling.Model` with two inputs and two outputs; see
+`astroalign_nd.transforms` for the conventions they share.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from astropy.modeling import Model, Parameter
+from numpy.typing import ArrayLike
+from ._matrix import (_apply, _as_3x3, _as_degrees, _as_points, _check_invertible, _check_parity,
+                      _check_parity_value, _check_spread, _radians, _rotate_shift,
+                      _rotation_matrix, _rotation_parameters, _rotation_shift_parameters,
+                      _weighted_lstsq)
+
+__all__ = ['LinearTransform2D', 'TranslationTransform', 'EuclideanTransform',
+           'SimilarityTransform', 'AffineTransform']
+
+
+class LinearTransform2D(Model):
+    """
+    Base class of the package's 2-D linear (affine-family) transforms.
+
+    Subclasses define their parameters, ``evaluate`` and the two class
+    methods ``_from_matrix`` and ``_linear_fit``; everything else (``matrix``,
+    ``inverse``, ``from_points``, skimage-style attributes) is shared.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms import LinearTransform2D, EuclideanTransform
+    >>> t = EuclideanTransform(rotation=90.0, translation_x=2.0, translation_y=0.0)
+    >>> isinstance(t, LinearTransform2D)
+    True
+    >>> t.matrix.round(12)
+    array([[ 0., -1.,  2.],
+           [ 1.,  0.,  0.],
+           [ 0.,  0.,  1.]])
+    >>> t.translation, t.mirrored
+    (array([2., 0.]), False)
+    """
+
+    n_inputs = 2
+    n_outputs = 2
+    _separable = False
+    fittable = False
+    linear = False
+
+    #: Minimum number of point pairs that determine the transform.
+    min_points = 3
+
+    def __init__(self, *args, **kwargs):
+        if "rotation" in kwargs:
+            kwargs["rotation"] = _as_degrees(kwargs["rotation"])
+        if "parity" in kwargs:
+            _check_parity_value(kwargs["parity"])
+        super().__init__(*args, **kwargs)
+        self.inputs = ("x", "y")
+        self.outputs = ("x", "y")
+
+    def __setattr__(self, name, value):
+        # Keep the conventions when a parameter is set after construction.
+        if name == "rotation" and "rotation" in getattr(type(self), "param_names", ()):
+            value = _as_degrees(value)
+        elif name == "parity" and "parity" in getattr(type(self), "param_names", ()):
+            _check_parity_value(value)
+        super().__setattr__(name, value)
+    #: Degrees of freedom (number of free parameters).
+    n_dof = 6
+
+    # -- matrix representation -------------------------------------------------
+    @property
+    def matrix(self):
+        """The 3x3 homogeneous matrix ``[[a, b, tx], [c, d, ty], [0, 0, 1]]``."""
+        lin, shift = self._linear_part()
+        m = np.eye(3)
+        m[:2, :2] = lin
+        m[:2, 2] = shift
+        return m
+
+    @property
+    def params(self):
+        """Alias of `matrix`, the name scikit-image transforms use."""
+        return self.matrix
+
+    @property
+    def translation(self):
+        """The translation ``(tx, ty)`` in target pixels."""
+        return self.matrix[:2, 2].copy()
+
+    @property
+    def rotation_deg(self):
+        """The rotation in degrees (counter-clockwise), as a float."""
+        rotation = self.rotation
+        return float(np.ravel(getattr(rotation, "value", rotation))[0])
+
+    @property
+    def mirrored(self):
+        """True if the transform contains a reflection (negative determinant)."""
+        return bool(np.linalg.det(self.matrix[:2, :2]) < 0)
+
+    def _linear_part(self):
+        # Evaluate the model on the unit basis: works for every subclass.  The
+        # translation parameters are zeroed for that and used directly as the
+        # shift, so that the matrix is exact (differencing ``A e + t`` and ``t``
+        # loses the low bits of ``A`` when the shift is much larger).
+        values = {
+            name: float(np.asarray(getattr(self, name).value).ravel()[0])
+            for name in self.param_names
+        }
+        shift = None
+        if "translation_x" in values and "translation_y" in values:
+            shift = np.array([values["translation_x"], values["translation_y"]])
+            values["translation_x"] = values["translation_y"] = 0.0
+        x = np.array([0.0, 1.0, 0.0])
+        y = np.array([0.0, 0.0, 1.0])
+        xo, yo = self.evaluate(x, y, *[values[name] for name in self.param_names])
+        if shift is None:
+            shift = np.array([xo[0], yo[0]])
+        lin = np.array([[xo[1] - xo[0], xo[2] - xo[0]], [yo[1] - yo[0], yo[2] - yo[0]]])
+        return lin, shift
+
+    @property
+    def parameters_list(self):
+        """Parameter values in ``param_names`` order."""
+        return [getattr(self, name).value for name in self.param_names]
+
+    @property
+    def inverse(self):
+        """The analytic inverse, a model of the same class (target -> source)."""
+        m = self.matrix
+        _check_invertible(m, type(self).__name__)
+        return type(self).from_matrix(np.linalg.inv(m))
+
+    # -- construction ----------------------------------------------------------
+    @classmethod
+    def from_matrix(cls, matrix: ArrayLike) -> LinearTransform2D:
+        """
+        Build the transform from a 2x3 or 3x3 homogeneous matrix.
+
+        Raises
+        ------
+        ValueError
+            If the matrix cannot be represented by this class (for example a
+            sheared matrix given to `SimilarityTransform`).
+        """
+        m = _as_3x3(matrix)
+        if not np.allclose(m[2], [0.0, 0.0, 1.0]):
+            raise ValueError(
+                "matrix is projective (last row is not [0, 0, 1]); only affine-family "
+                "transforms are supported."
+            )
+        return cls._from_matrix(m)
+
+    @classmethod
+    def from_points(cls, src: ArrayLike, dst: ArrayLike, *, weights: ArrayLike | None = None,
+                    parity: int | None = None) -> LinearTransform2D:
+        """
+        Least-squares transform that maps ``src`` onto ``dst``.
+
+        Parameters
+        ----------
+        src, dst : (N, 2) array-like
+            Corresponding (x, y) positions in the source and target frames.
+        weights : (N,) array-like, optional
+            Non-negative weights of the point pairs, e.g. inverse variances
+            ``1 / sigma**2`` of the positions; pairs with weight 0 are left
+            out.  Equal weights by default.
+        parity : {None, 1, -1}, optional
+            For rotation-like transforms: force a proper (+1) or mirrored
+            (-1) solution.  `None` (default) picks whichever fits better.
+
+        Returns
+        -------
+        transform : `LinearTransform2D`
+            An instance of the class it is called on.
+
+        Notes
+        -----
+        This is how to refit a transform on a matched catalog of your own:
+        astropy's fitters (`~astropy.modeling.fitting`) fit models with one
+        output only.  For the parameter covariance as well, use
+        `fit_transform`.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from astroalign_nd import SimilarityTransform
+        >>> truth = SimilarityTransform(scale=1.02, rotation=30.0, translation_x=5.0,
+        ...                             translation_y=-2.0)
+        >>> src = np.random.default_rng(0).uniform(0, 500, (40, 2))
+        >>> dst = np.column_stack(truth(*src.T))
+        >>> dst[0] += 50.0  # a bad match...
+        >>> weights = np.ones(40)
+        >>> weights[0] = 0.0  # ...left out
+        >>> t = SimilarityTransform.from_points(src, dst, weights=weights)
+        >>> round(t.rotation_deg, 6), round(float(t.scale.value), 6)
+        (30.0, 1.02)
+        """
+        model, _, _ = cls._fit(src, dst, weights=weights, parity=parity)
+        return model
+
+    @classmethod
+    def fit_matrix(cls, src, dst, weights, parity=1):
+        """
+        Weighted least-squares fit as a matrix, without checks (the fast path).
+
+        What `from_points` does after its checks, for one parity, without
+        building a model: for loops that fit thousands of times (the
+        matching's refinement).  Inputs are not validated: give finite
+        ``(N, 2)`` float arrays and ``N`` non-negative weights, with enough
+        points for the model (``cls.min_points``).
+
+        Parameters
+        ----------
+        src, dst : (N, 2) ndarray
+            Matched positions.
+        weights : (N,) ndarray
+            Per-pair weights (inverse variances).
+        parity : {1, -1}, optional
+            Mirrored (-1) or not; used by the models with a parity.
+
+        Returns
+        -------
+        matrix : (3, 3) ndarray
+            The fitted homogeneous matrix (source to target).
+        design : (2N, k) ndarray
+            The fit's design matrix (rows x, y per pair) in the model's
+            ``k`` linear parameters, for their covariance.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from astroalign_nd.transforms import TranslationTransform
+        >>> src = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+        >>> m, _ = TranslationTransform.fit_matrix(src, src + [2.0, -1.0], np.ones(3))
+        >>> m[:2, 2]
+        array([ 2., -1.])
+        """
+        matrix, design, _ = cls._linear_fit(src, dst, weights, parity)
+        return matrix, design
+
+    @classmethod
+    def _design(cls, src, weights, parity=1):
+        """
+        The design matrix `fit_matrix` returns for ``src``, weights and
+        parity, as if fitting ``src`` onto itself (it does not depend on the
+        target for the models linear in their parameters, which override
+        this to skip the fit).
+        """
+        return cls._linear_fit(src, src, weights, parity)[1]
+
+    @classmethod
+    def _fit(cls, src, dst, *, weights=None, parity=None):
+        """Fit and also return the linear parameter covariance and residuals."""
+        src = _as_points(src, "src")
+        dst = _as_points(dst, "dst")
+        if len(src) != len(dst):
+            raise ValueError(
+                f"src and dst must have the same length; got {len(src)} and {len(dst)}."
+            )
+        need = cls.min_points
+        if len(src) < need:
+            raise ValueError(
+                f"{cls.__name__} needs at least {need} point pairs; got {len(src)}."
+            )
+        w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=float)
+        if w.shape != (len(src),) or np.any(w < 0) or not np.all(np.isfinite(w)):
+            raise ValueError(
+                f"weights must be a finite, non-negative array of shape ({len(src)},), one "
+                f"per point pair; got shape {w.shape}."
+            )
+        if np.count_nonzero(w) < need:
+            raise ValueError(
+                f"{cls.__name__} needs at least {need} point pairs with non-zero weight; got "
+                f"{np.count_nonzero(w)}."
+            )
+        if parity is not None:
+            _check_parity(parity)
+        parities = [parity] if parity is not None else cls._parities
+        best = None
+        for p in parities:
+            matrix, design, theta = cls._linear_fit(src, dst, w, p)
+            resid = _apply(matrix, src) - dst
+            sse = float(np.sum(w * np.sum(resid**2, axis=1)))
+            if best is None or sse < best[0] - 1e-12 * max(1.0, best[0]):
+                best = (sse, matrix, design, resid)
+        sse, matrix, design, resid = best
+        _check_spread(cls, src[w > 0], "src")
+        _check_invertible(matrix, cls.__name__, fitted=True)
+        return cls._from_matrix(matrix), design, resid
+
+    _parities = (1,)
+
+
+class TranslationTransform(LinearTransform2D):
+    """
+    A pure shift: ``x' = x + tx``, ``y' = y + ty``.
+
+    Parameters
+    ----------
+    translation_x, translation_y : float
+        The shift in target pixels.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms import TranslationTransform
+    >>> t = TranslationTransform(translation_x=3.0, translation_y=-1.5)
+    >>> t(10.0, 20.0)
+    (13.0, 18.5)
+    >>> t.inverse(13.0, 18.5)
+    (10.0, 20.0)
+    >>> t.scale, t.rotation
+    (1.0, 0.0)
+    """
+
+    translation_x = Parameter(default=0.0, description="Shift along x (pixels)")
+    translation_y = Parameter(default=0.0, description="Shift along y (pixels)")
+    min_points = 1
+    n_dof = 2
+
+    @staticmethod
+    def evaluate(x, y, translation_x, translation_y):
+        return x + translation_x, y + translation_y
+
+    @property
+    def scale(self):
+        """Always 1."""
+        return 1.0
+
+    @property
+    def rotation(self):
+        """Always 0 (degrees)."""
+        return 0.0
+
+    @classmethod
+    def _from_matrix(cls, m):
+        if not np.allclose(m[:2, :2], np.eye(2), rtol=0.0, atol=1e-9):
+            raise ValueError(
+                "matrix has a rotation, scale or shear part; use SimilarityTransform or "
+                "AffineTransform instead of TranslationTransform."
+            )
+        return cls(translation_x=m[0, 2], translation_y=m[1, 2])
+
+    @classmethod
+    def _linear_fit(cls, src, dst, w, parity):
+        shift = np.sum(w[:, None] * (dst - src), axis=0) / np.sum(w)
+        m = np.eye(3)
+        m[:2, 2] = shift
+        return m, cls._design(src, w, parity), shift
+
+    @classmethod
+    def _design(cls, src, weights, parity=1):
+        return np.tile(np.eye(2), (len(src), 1))
+
+
+class EuclideanTransform(LinearTransform2D):
+    """
+    Rotation plus shift (rigid motion), optionally mirrored.
+
+    ``(x', y') = R(rotation) @ diag(1, parity) @ (x, y) + (tx, ty)``
+
+    Parameters
+    ----------
+    rotation : float or `~astropy.units.Quantity`
+        Counter-clockwise rotation in degrees (as in astropy's
+        `~astropy.modeling.rotations.Rotation2D`), or an angle Quantity.
+    translation_x, translation_y : float
+        Shift in target pixels.
+    parity : {1, -1}
+        -1 for a mirrored transform (the y axis is flipped before rotating).
+        Fixed, never fitted as a continuous parameter.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import EuclideanTransform
+    >>> t = EuclideanTransform(rotation=90.0, translation_x=1.0, translation_y=2.0)
+    >>> np.round(t(1.0, 0.0), 12)
+    array([1., 3.])
+    >>> m = EuclideanTransform(rotation=0.0, parity=-1)  # mirrored: y -> -y
+    >>> np.round(m(1.0, 5.0), 12), m.mirrored
+    (array([ 1., -5.]), True)
+    """
+
+    rotation, translation_x, translation_y, parity = _rotation_shift_parameters()
+    min_points = 2
+    n_dof = 3
+    _parities = (1, -1)
+
+    @staticmethod
+    def evaluate(x, y, rotation, translation_x, translation_y, parity):
+        theta = _radians(rotation)
+        return _rotate_shift(x, y, np.cos(theta), np.sin(theta), translation_x, translation_y,
+                             parity)
+
+    @property
+    def scale(self):
+        """Always 1."""
+        return 1.0
+
+    @classmethod
+    def _from_matrix(cls, m):
+        det = np.linalg.det(m[:2, :2])
+        return cls(**_rotation_parameters(
+            m, det, 1.0, "matrix has a scale or shear part; use SimilarityTransform or "
+            "AffineTransform instead of EuclideanTransform."))
+
+    @classmethod
+    def _linear_fit(cls, src, dst, w, parity):
+        # Weighted Procrustes (Kabsch) with the reflection fixed by ``parity``.
+        _check_parity(parity)
+        flip = np.diag([1.0, float(parity)])
+        s = src @ flip
+        ws = w / np.sum(w)
+        ms, md = ws @ s, ws @ dst
+        cov = ((dst - md) * ws[:, None]).T @ (s - ms)
+        angle = np.arctan2(cov[1, 0] - cov[0, 1], cov[0, 0] + cov[1, 1])
+        rot = _rotation_matrix(angle, 1.0)
+        m = np.eye(3)
+        m[:2, :2] = rot @ flip
+        m[:2, 2] = md - rot @ ms
+        # Linearised design for the covariance: d(angle), d(tx), d(ty).
+        n = len(src)
+        design = np.zeros((2 * n, 3))
+        design[0::2, 0] = -(s @ rot.T)[:, 1]
+        design[1::2, 0] = (s @ rot.T)[:, 0]
+        design[0::2, 1] = 1.0
+        design[1::2, 2] = 1.0
+        return m, design, np.array([angle, *m[:2, 2]])
+
+
+class SimilarityTransform(LinearTransform2D):
+    """
+    Uniform scale, rotation and shift, optionally mirrored.
+
+    ``(x', y') = scale * R(rotation) @ diag(1, parity) @ (x, y) + (tx, ty)``
+
+    This is the default model of `~astroalign_nd.find_transform`, and the
+    transform of the astroalign paper.
+
+    Parameters
+    ----------
+    scale : float
+        Magnification from source to target pixels.
+    rotation : float or `~astropy.units.Quantity`
+        As for `~astroalign_nd.transforms.EuclideanTransform`:
+        counter-clockwise, in degrees or as an angle Quantity.
+    translation_x, translation_y : float
+        Shift in target pixels, applied after the rotation and scaling.
+    parity : {1, -1}
+        -1 for a mirrored transform (the y axis is flipped before rotating
+        and scaling).  Fixed, never fitted as a continuous parameter.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd import SimilarityTransform
+    >>> t = SimilarityTransform(scale=2.0, rotation=90.0,
+    ...                         translation_x=10.0, translation_y=0.0)
+    >>> np.round(t(1.0, 0.0), 12)
+    array([10.,  2.])
+    >>> float(t.rotation.value)  # degrees, as in astropy's Rotation2D
+    90.0
+    >>> np.allclose(t.inverse(*t(3.0, 4.0)), (3.0, 4.0))
+    True
+    """
+
+    scale = Parameter(default=1.0, description="Scale factor")
+    rotation, translation_x, translation_y, parity = _rotation_shift_parameters()
+    min_points = 2
+    n_dof = 4
+    _parities = (1, -1)
+
+    @staticmethod
+    def evaluate(x, y, scale, rotation, translation_x, translation_y, parity):
+        theta = _radians(rotation)
+        return _rotate_shift(x, y, scale * np.cos(theta), scale * np.sin(theta), translation_x,
+                             translation_y, parity)
+
+    @classmethod
+    def _from_matrix(cls, m):
+        lin = m[:2, :2]
+        det = np.linalg.det(lin)
+        if det == 0:
+            raise ValueError("matrix is singular; it cannot be a similarity transform.")
+        scale = np.sqrt(abs(det))
+        return cls(scale=scale, **_rotation_parameters(
+            m, det, scale, "matrix has a shear or anisotropic scale; use AffineTransform "
+            "instead of SimilarityTransform."))
+
+    @classmethod
+    def _linear_fit(cls, src, dst, w, parity):
+        # Linear in (a, b, tx, ty): x' = a x - b p y + tx ; y' = b x + a p y + ty.
+        _check_parity(parity)
+        design = cls._design(src, w, parity)
+        a, b, tx, ty = _weighted_lstsq(design, dst.ravel(), w)
+        m = np.array([[a, -b * parity, tx], [b, a * parity, ty], [0.0, 0.0, 1.0]])
+        return m, design, np.array([a, b, tx, ty])
+
+    @classmethod
+    def _design(cls, src, weights, parity=1):
+        x, y = src[:, 0], float(parity) * src[:, 1]
+        design = np.zeros((2 * len(src), 4))
+        design[0::2, 0], design[0::2, 1], design[0::2, 2] = x, -y, 1.0
+        design[1::2, 0], design[1::2, 1], design[1::2, 3] = y, x, 1.0
+        return design
+
+
+class AffineTransform(LinearTransform2D):
+    """
+    General affine transform: ``(x', y') = A @ (x, y) + (tx, ty)``.
+
+    Parameters
+    ----------
+    a11, a12, a21, a22 : float
+        The elements of the 2x2 linear part ``A``.
+    translation_x, translation_y : float
+        Shift in target pixels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import AffineTransform
+    >>> t = AffineTransform(a11=2.0, a12=0.5, a21=0.0, a22=1.0,
+    ...                     translation_x=1.0, translation_y=-1.0)
+    >>> t(1.0, 2.0)
+    (4.0, 1.0)
+    >>> np.allclose(t.inverse(*t(3.0, 4.0)), (3.0, 4.0))
+    True
+    >>> src = np.random.default_rng(0).uniform(0, 100, (10, 2))
+    >>> fit = AffineTransform.from_points(src, np.column_stack(t(*src.T)))
+    >>> bool(np.allclose(fit.matrix, t.matrix))
+    True
+    """
+
+    a11 = Parameter(default=1.0)
+    a12 = Parameter(default=0.0)
+    a21 = Parameter(default=0.0)
+    a22 = Parameter(default=1.0)
+    translation_x = Parameter(default=0.0, description="Shift along x (pixels)")
+    translation_y = Parameter(default=0.0, description="Shift along y (pixels)")
+    min_points = 3
+    n_dof = 6
+
+    @staticmethod
+    def evaluate(x, y, a11, a12, a21, a22, translation_x, translation_y):
+        return a11 * x + a12 * y + translation_x, a21 * x + a22 * y + translation_y
+
+    @property
+    def scale(self):
+        """Scale along the two axes ``(sx, sy)``, as scikit-image defines it."""
+        lin = self.matrix[:2, :2]
+        # scikit-image: sy is the length of the second column times |cos(shear)|.
+        return np.array([
+            np.hypot(lin[0, 0], lin[1, 0]),
+            np.hypot(lin[0, 1], lin[1, 1]) * abs(np.cos(np.deg2rad(self.shear))),
+        ])
+
+    @property
+    def rotation(self):
+        """Rotation of the x axis, degrees (scikit-image's definition, in degrees)."""
+        lin = self.matrix[:2, :2]
+        return float(np.degrees(np.arctan2(lin[1, 0], lin[0, 0])))
+
+    @property
+    def shear(self):
+        """Shear angle in degrees (scikit-image's definition, in degrees)."""
+        lin = self.matrix[:2, :2]
+        return float(np.degrees(np.arctan2(-lin[0, 1], lin[1, 1]))) - self.rotation
+
+    @classmethod
+    def _from_matrix(cls, m):
+        return cls(
+            a11=m[0, 0], a12=m[0, 1], a21=m[1, 0], a22=m[1, 1],
+            translation_x=m[0, 2], translation_y=m[1, 2],
+        )
+
+    @classmethod
+    def _linear_fit(cls, src, dst, w, parity):
+        design = cls._design(src, w, parity)
+        a11, a12, a21, a22, tx, ty = _weighted_lstsq(design, dst.ravel(), w)
+        m = np.array([[a11, a12, tx], [a21, a22, ty], [0.0, 0.0, 1.0]])
+        return m, design, np.array([a11, a12, a21, a22, tx, ty])
+
+    @classmethod
+    def _design(cls, src, weights, parity=1):
+        design = np.zeros((2 * len(src), 6))
+        design[0::2, 0:2] = src
+        design[0::2, 4] = 1.0
+        design[1::2, 2:4] = src
+        design[1::2, 5] = 1.0
+        return design

@@ -1,0 +1,1213 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Stage 4 (for wide fields): non-linear models grown from the linear match.
+
+Wide-field optics (camera lenses, small refractors, all-sky cameras) leave
+several pixels of residual at the corners under any linear model.  This
+stage takes the trusted linear match of `~astroalign_nd.matching` (found on
+the brightest stars) and extends it to a projective (homography) or
+polynomial-distortion model over all detected stars:
+
+1. **Grow.** Starting from the linear model, the fit is extended outwards
+   from the matched stars in discs of growing radius: predict every star of
+   the disc with the current model, pair it with the nearest target star
+   within ``tolerance`` (mutual nearest neighbours), refit, clip.  Near the
+   matched stars the linear model is right; each larger disc is predicted
+   by a model fitted on the previous one, so the pairing follows the
+   distortion instead of locking onto chance pairs at the corners.  The
+   degree used while growing is capped by the number of paired stars.
+2. **Refine.** Over the whole frame, the pairing radius shrinks to five
+   times the residual scatter and pairs more than 4 sigma off the model
+   (chi-square of 16, counting the model's own prediction variance) are
+   clipped, as in the linear refinement.  Wrong pairs (30% and more) do not
+   survive: they are far off a model fitted to the majority.
+3. **Choose.** With ``degree='auto'`` the candidate models (the linear one
+   of the match, affine, polynomial degrees 2 to 5) are fitted to the same
+   pairs with the same weights.  A candidate with more terms replaces the
+   current choice if an F-test (p < ``significance``) and the Bayesian
+   information criterion (BIC) both call for its extra terms; degrees 4
+   and 5 must also predict held-out stars meaningfully better, in a
+   spatially blocked cross-validation (each cell of a 4x4 grid predicted
+   by the fit to the others): with hundreds of real stars, whose centroid
+   errors are slightly systematic, the tests alone accept terms that swing
+   away where stars are few.  From ``CV_ALL_DEGREES_PAIRS`` pairs on, every
+   degree must also not raise the held-out error of the one before.  The
+   pairs are then paired and clipped again with the chosen model.
+4. **Trust.** The stars must cover the frame well enough for the model's
+   terms: the occupancy of a grid of ``(degree + 1)**2`` cells and the
+   number of stars per coefficient.  Too little coverage is refused
+   (`~astroalign_nd.exceptions.PoorCoverageError`), borderline coverage
+   warned about (`~astroalign_nd.exceptions.PoorFitWarning`).  The
+   parameter covariance gives the predicted 1-sigma error of the mapping on
+   a grid over the frame (largest and RMS), reported in the quality dict.
+
+The fitting is done here on numpy design matrices (coordinates normalised
+to the half diagonal of the frame, for conditioning); the returned models
+are built by `~astroalign_nd.transforms.fit_transform` on the final pairs,
+like the linear ones.
+"""
+
+import numbers
+from dataclasses import dataclass
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.special import betainc
+from ..exceptions import PoorCoverageError, PoorFitWarning, TooFewSourcesError, warn
+
+__all__ = ['NONLINEAR_TYPES', 'check_degree', 'fit_nonlinear', 'extend_match', 'DistortionFit']
+
+#: The transform types handled by this stage.
+NONLINEAR_TYPES = ("projective", "polynomial")
+
+#: Polynomial degrees offered (the SIP convention's useful range).
+DEGREES = (2, 3, 4, 5)
+
+#: Chi-square (2 degrees of freedom) above which a pair is clipped: p = 3e-4.
+CLIP_CHI2 = 16.0
+
+#: Coverage refused below these (explicit degree) ...
+MIN_OCCUPANCY = 0.6
+
+MIN_STARS_PER_TERM = 3.0
+
+#: ... and warned about below these.
+WARN_OCCUPANCY = 0.85
+
+WARN_STARS_PER_TERM = 6.0
+
+#: Predicted 1-sigma error (px) above which the fit is reported as uncertain.
+WARN_PREDICTED = 0.3
+
+#: degree='auto' warns when a linear choice leaves residuals this many times
+#: larger than the centroid errors predict.
+WARN_EXCESS = 3.0
+
+#: Grid (per axis) on which the predicted error is evaluated.
+ERROR_GRID = 33
+
+#: degree='auto': blocks per axis of the spatially blocked cross-validation
+#: (each block is held out in turn, so a model is scored where it extrapolates) ...
+CV_BLOCKS = 4
+
+#: ... for the degrees above this one (the tests alone decide up to it) ...
+CV_FROM_DEGREE = 3
+
+#: ... and a candidate with more terms must lower the held-out error by more
+#: than this factor (and by twice its standard error over the cells).
+CV_MARGIN = 1.1
+
+#: From this many pairs (a dozen per held-out cell), ``degree='auto'`` also
+#: asks every degree, not only those above ``CV_FROM_DEGREE``, not to raise the
+#: held-out error.
+CV_ALL_DEGREES_PAIRS = 200
+
+#: The linear search's matching radius is this many times the usual one when a
+#: distortion model follows: a tilted or distorted wide field is several
+#: pixels off any linear model away from the centre.
+SEARCH_TOLERANCE_FACTOR = 2.5
+
+
+def check_degree(transform_type, degree):
+    """
+    The validated ``degree`` for ``transform_type``.
+
+    Parameters
+    ----------
+    transform_type : str or type
+        The requested transform type.
+    degree : int, 'auto' or None
+        Polynomial degree (2 to 5) or ``'auto'``; only for
+        ``transform_type='polynomial'`` (None there means 3).
+
+    Returns
+    -------
+    degree : int, 'auto' or None
+
+    Raises
+    ------
+    ValueError, TypeError
+        For a degree out of range, or given with another transform type.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms import check_degree
+    >>> check_degree("polynomial", None), check_degree("polynomial", "auto")
+    (3, 'auto')
+    >>> check_degree("similarity", None) is None
+    True
+    """
+    is_poly = nonlinear_name(transform_type) == "polynomial"
+    if degree is None:
+        return 3 if is_poly else None
+    if not is_poly:
+        raise ValueError(
+            f"degree={degree!r} applies to transform_type='polynomial' only; got "
+            f"transform_type={transform_type!r}. Pass transform_type='polynomial' or drop "
+            "degree.")
+    if isinstance(degree, str):
+        if degree.lower() == "auto":
+            return "auto"
+        if degree.strip().isdigit():
+            degree = int(degree)
+    if isinstance(degree, (bool, np.bool_)) or not isinstance(degree, numbers.Integral):
+        raise TypeError(f"degree must be an integer from 2 to 5 or 'auto'; got {degree!r}.")
+    if int(degree) not in DEGREES:
+        raise ValueError(f"degree must be an integer from 2 to 5 or 'auto'; got {degree!r}. "
+                         "(Degree 1 is transform_type='affine'.)")
+    return int(degree)
+
+
+def nonlinear_name(transform_type):
+    """'projective' or 'polynomial' for this stage's types (names or classes), else None."""
+    if isinstance(transform_type, str):
+        name = transform_type.lower()
+        return name if name in NONLINEAR_TYPES else None
+    if isinstance(transform_type, type):
+        from .polynomial import PolynomialTransform
+        from .projective import ProjectiveTransform
+
+        if issubclass(transform_type, ProjectiveTransform):
+            return "projective"
+        if issubclass(transform_type, PolynomialTransform):
+            return "polynomial"
+    return None
+
+
+def is_nonlinear(transform_type):
+    """True for the transform types of this stage ('projective', 'polynomial')."""
+    return nonlinear_name(transform_type) is not None
+
+# -- the candidate models, as design matrices ---------------------------------------
+
+
+def _n_terms(degree):
+    return (degree + 1) * (degree + 2) // 2
+
+
+def _terms(degree):
+    """Exponents (p, q) of u**p v**q, total degree 0 to ``degree``."""
+    return [(n - q, q) for n in range(degree + 1) for q in range(n + 1)]
+
+
+class _Poly:
+    """A full polynomial of total degree ``degree`` per axis (degree 1: affine)."""
+
+    def __init__(self, degree):
+        self.degree = degree
+        self.terms = _terms(degree)
+        self.k = 2 * len(self.terms)
+        self.name = "affine" if degree == 1 else f"polynomial degree {degree}"
+        self.linear = True
+
+    def design(self, uv, params=None):
+        """(N, 2, k) derivatives of (x', y') with respect to the parameters."""
+        base = np.column_stack([uv[:, 0] ** p * uv[:, 1] ** q for p, q in self.terms])
+        t = len(self.terms)
+        d = np.zeros((len(uv), 2, self.k))
+        d[:, 0, :t] = base
+        d[:, 1, t:] = base
+        return d
+
+
+class _Similarity:
+    """Scale, rotation, shift (mirrored when ``parity`` is -1): 4 parameters."""
+
+    def __init__(self, parity):
+        self.parity = parity
+        self.k = 4
+        self.name = "similarity"
+        self.linear = True
+
+    def design(self, uv, params=None):
+        u, v = uv[:, 0], self.parity * uv[:, 1]
+        d = np.zeros((len(uv), 2, 4))
+        one = np.ones(len(uv))
+        d[:, 0, 0], d[:, 0, 1], d[:, 0, 2] = u, -v, one
+        d[:, 1, 0], d[:, 1, 1], d[:, 1, 3] = v, u, one
+        return d
+
+
+class _Projective:
+    """Homography h1..h8 (h9 = 1) in normalised coordinates: non-linear, Gauss-Newton."""
+
+    def __init__(self):
+        self.k = 8
+        self.name = "projective"
+        self.linear = False
+
+    @staticmethod
+    def predict(params, uv):
+        h = params
+        w = h[6] * uv[:, 0] + h[7] * uv[:, 1] + 1.0
+        x = (h[0] * uv[:, 0] + h[1] * uv[:, 1] + h[2]) / w
+        y = (h[3] * uv[:, 0] + h[4] * uv[:, 1] + h[5]) / w
+        return np.column_stack([x, y])
+
+    def design(self, uv, params):
+        u, v = uv[:, 0], uv[:, 1]
+        h = params
+        w = h[6] * u + h[7] * v + 1.0
+        xy = self.predict(params, uv)
+        d = np.zeros((len(uv), 2, 8))
+        d[:, 0, 0], d[:, 0, 1], d[:, 0, 2] = u / w, v / w, 1.0 / w
+        d[:, 1, 3], d[:, 1, 4], d[:, 1, 5] = u / w, v / w, 1.0 / w
+        d[:, 0, 6], d[:, 0, 7] = -u * xy[:, 0] / w, -v * xy[:, 0] / w
+        d[:, 1, 6], d[:, 1, 7] = -u * xy[:, 1] / w, -v * xy[:, 1] / w
+        return d
+
+
+def _predict(cand, params, uv):
+    if cand.linear:
+        return np.einsum("nik,k->ni", cand.design(uv), params)
+    return cand.predict(params, uv)
+
+
+def _solve(a, b):
+    """Least squares through the normal equations (well conditioned: coordinates are
+    normalised); (solution, inverse normal matrix), or None if rank deficient."""
+    n = a.T @ a
+    d = np.sqrt(np.diag(n))
+    if not np.all(d > 0):
+        return None
+    ns = n / np.outer(d, d)  # unit diagonal: the condition number is meaningful
+    if np.linalg.cond(ns) > 1e12:
+        return None
+    inv = np.linalg.inv(ns) / np.outer(d, d)
+    return inv @ (a.T @ b), inv
+
+
+def _wls(cand, uv, dst, w, start=None):
+    """Weighted least squares: (params, unscaled covariance), or None if degenerate."""
+    sw = np.sqrt(np.repeat(w, 2))
+    if cand.linear:
+        a = cand.design(uv).reshape(-1, cand.k) * sw[:, None]
+        sol = _solve(a, dst.reshape(-1) * sw)
+        return sol
+    params = np.array(start, float)
+    for _ in range(20):  # Gauss-Newton; converges in a few steps from an affine start
+        a = cand.design(uv, params).reshape(-1, cand.k) * sw[:, None]
+        r = (dst - cand.predict(params, uv)).reshape(-1) * sw
+        sol = _solve(a, r)
+        if sol is None:
+            return None
+        params = params + sol[0]
+        if np.max(np.abs(sol[0])) < 1e-13:
+            break
+    a = cand.design(uv, params).reshape(-1, cand.k) * sw[:, None]
+    sol = _solve(a, np.zeros(len(a)))
+    return None if sol is None else (params, sol[1])
+
+
+def _prediction_var(cand, params, cov, uv):
+    """Variance (x plus y, px^2) of the fitted mapping at ``uv``."""
+    d = cand.design(uv, params)
+    return np.einsum("nik,kl,nil->n", d, cov, d)
+
+
+def _projective_start(aff_params):
+    """The homography equal to an affine fit (``_Poly(1)`` parameter order)."""
+    c = aff_params  # x: 1, u, v ; y: 1, u, v
+    return np.array([c[1], c[2], c[0], c[4], c[5], c[3], 0.0, 0.0])
+
+# -- pairing ------------------------------------------------------------------------
+
+
+def _mutual(pred, dst_pts, tree, tol):
+    """Mutual nearest neighbours within ``tol``: (source indices, target indices)."""
+    if len(pred) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    d, j = tree.query(pred, distance_upper_bound=tol)
+    ok = np.isfinite(d)
+    si, dj = np.flatnonzero(ok), j[ok]
+    if len(si) == 0:
+        return si, dj
+    # Keep, for each target star, only its nearest predicted source star.
+    order = np.lexsort((d[si], dj))
+    first = np.r_[True, dj[order][1:] != dj[order][:-1]]
+    keep = order[first]
+    return si[keep], dj[keep]
+
+
+class _Pairs:
+    """How source and target stars are paired: by position, or as given."""
+
+    def __init__(self, src, dst, given):
+        self.src, self.dst, self.given = src, dst, given
+        self.tree = None if given else cKDTree(dst)
+
+    def pair(self, pred, idx, tol):
+        """Pairs among source stars ``idx`` whose prediction lies within ``tol``."""
+        if self.given:
+            r = np.hypot(*(pred - self.dst[idx]).T)
+            ok = r <= tol
+            return idx[ok], idx[ok]
+        si, dj = _mutual(pred, self.dst, self.tree, tol)
+        return idx[si], dj
+
+# -- the robust fit -----------------------------------------------------------------
+
+
+def _robust_fit(cand, uv, dst, var, start=None, keep=None):
+    """
+    Fit, clip pairs above ``CLIP_CHI2`` (residual over expected variance,
+    scaled so that the median is Gaussian, plus the prediction variance),
+    refit, until the kept set is stable.  Returns (params, cov, keep,
+    total variance) or None.
+    """
+    n = len(uv)
+    keep = np.ones(n, bool) if keep is None else keep.copy()
+    out = None
+    for _ in range(12):
+        if keep.sum() * 2 <= cand.k:
+            return out
+        fit = _wls(cand, uv[keep], dst[keep], 1.0 / var[keep], start)
+        if fit is None:
+            return out
+        params, cov = fit
+        r = _predict(cand, params, uv) - dst
+        r2 = np.einsum("ij,ij->i", r, r)
+        # A median is not moved by the wrong pairs the cut must remove.
+        infl = max(1.0, float(np.median(r2[keep] / var[keep])) / (2.0 * np.log(2.0)))
+        total = var * infl
+        pv = _prediction_var(cand, params, cov * infl, uv)
+        new = r2 / (total + pv) <= CLIP_CHI2
+        out = (params, cov * infl, keep, total)
+        if new.sum() * 2 <= cand.k or np.array_equal(new, keep):
+            break
+        keep = new
+        if not cand.linear:
+            start = params
+    return out
+
+
+def _occupancy(uv, frame_uv, degree):
+    """Fraction of the ``(degree + 1)**2`` cells of the frame holding a star."""
+    g = degree + 1
+    x0, x1, y0, y1 = frame_uv
+    ix = np.clip(((uv[:, 0] - x0) / (x1 - x0) * g).astype(int), 0, g - 1)
+    iy = np.clip(((uv[:, 1] - y0) / (y1 - y0) * g).astype(int), 0, g - 1)
+    return len(np.unique(iy * g + ix)) / float(g * g), g
+
+
+def _coverage(uv, frame_uv, degree, n_terms):
+    occ, g = _occupancy(uv, frame_uv, degree)
+    return dict(grid=(g, g), occupancy=occ, n_stars=int(len(uv)),
+                stars_per_term=len(uv) / float(n_terms))
+
+
+def _coverage_ok(cov, strict):
+    occ_min = MIN_OCCUPANCY if strict else WARN_OCCUPANCY
+    per_min = MIN_STARS_PER_TERM if strict else WARN_STARS_PER_TERM
+    return cov["occupancy"] >= occ_min and cov["stars_per_term"] >= per_min
+
+
+def _blocked_cv(cand, uv, dst, w, frame_uv, blocks=CV_BLOCKS):
+    """
+    Spatially blocked cross-validation: the frame is cut into ``blocks x
+    blocks`` cells; each cell's pairs are predicted by the model fitted to
+    all the others.  Returns the mean held-out chi-square per pair (inf when
+    a training set cannot constrain the model).
+
+    A fit to the stars of one region is judged where it has none: terms that
+    only follow the noise (or slightly systematic centroid errors) of
+    thousands of stars lower the in-sample chi-square, and the F-test and BIC
+    accept them, but they swing away from the stars towards the corners,
+    which the held-out cells expose.
+    """
+    x0, x1, y0, y1 = frame_uv
+    ix = np.clip(((uv[:, 0] - x0) / (x1 - x0) * blocks).astype(int), 0, blocks - 1)
+    iy = np.clip(((uv[:, 1] - y0) / (y1 - y0) * blocks).astype(int), 0, blocks - 1)
+    cell = iy * blocks + ix
+    sw = np.sqrt(np.repeat(w, 2))
+    a = cand.design(uv).reshape(-1, cand.k) * sw[:, None]
+    b = dst.reshape(-1) * sw
+    per_cell = np.full(blocks * blocks, np.nan)
+    for c in np.unique(cell):
+        out = cell == c
+        rows = np.repeat(~out, 2)
+        sol = _solve(a[rows], b[rows])
+        if sol is None:
+            return np.inf, None
+        r = a[~rows] @ sol[0] - b[~rows]
+        per_cell[c] = float(r @ r)
+    return float(np.nansum(per_cell)) / len(uv), per_cell / len(uv)
+
+
+def _cv_better(cells_new, cv_new, cells_old, cv_old):
+    """
+    True if the held-out error ``cv_new`` improves on ``cv_old`` meaningfully:
+    by more than a fraction ``CV_MARGIN - 1`` of it, and either by half or by
+    more than twice the standard error of the per-cell differences (a model
+    that wins a little, in a single held-out cell, is not better).
+    """
+    if not np.isfinite(cv_new):
+        return False
+    if not np.isfinite(cv_old):
+        return True
+    gain = cv_old - cv_new
+    if gain <= (CV_MARGIN - 1.0) * cv_new:
+        return False
+    if cv_new * 2.0 < cv_old:  # halved: no doubt, however it spreads over the cells
+        return True
+    ok = np.isfinite(cells_new) & np.isfinite(cells_old)
+    diff = (cells_old - cells_new)[ok] * ok.sum()  # per-cell contributions to the mean
+    se = float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else np.inf
+    return gain > 2.0 * se
+
+
+def _f_pvalue(chi_small, k_small, chi_big, k_big, n_eq):
+    """P-value of the F-test that the ``k_big - k_small`` extra terms are needed."""
+    d1, d2 = k_big - k_small, n_eq - k_big
+    if d1 <= 0 or d2 <= 0:
+        return 1.0
+    f = ((chi_small - chi_big) / d1) / max(chi_big / d2, 1e-300)
+    if f <= 0:
+        return 1.0
+    return float(betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f)))
+
+# -- the stage ----------------------------------------------------------------------
+
+
+class DistortionFit:
+    """
+    The outcome of `fit_nonlinear`.
+
+    Attributes
+    ----------
+    transform : astropy Model
+        The chosen source-to-target model: a
+        `~astroalign_nd.transforms.ProjectiveTransform`, a
+        `~astroalign_nd.transforms.PolynomialTransform`, or a linear model
+        when ``degree='auto'`` found no distortion.
+    covariance : ndarray
+        Covariance of the model's free parameters (from
+        `~astroalign_nd.transforms.fit_transform`).
+    source_index, target_index : ndarray of int
+        The pairs used in the final fit (indices into the point lists).
+    residuals : (K, 2) ndarray
+        ``transform(source) - target`` for them, pixels.
+    rms : float
+        Their RMS distance, pixels.
+    info : dict
+        How the model was chosen and how far it can be trusted: ``model``,
+        ``degree``, ``requested_degree``, ``candidates`` (name, number of
+        parameters, chi-square, BIC and F-test p-value of each model
+        compared), ``coverage`` (grid, occupancy, stars per term),
+        ``predicted_error_max`` and ``predicted_error_rms`` (1-sigma
+        position error of the mapping in pixels on a grid over the source
+        frame, from the covariance), ``residual_excess`` (residual scatter
+        over what the centroid errors predict), ``n_pairs`` and
+        ``n_clipped``; with ``degree='auto'``, each candidate's
+        ``cv_chi2`` (held-out chi-square per star) and ``degrees_tested``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import DistortionFit, fit_nonlinear
+    >>> rng = np.random.default_rng(0)
+    >>> src = rng.uniform(0, 1000, (200, 2))
+    >>> fit = fit_nonlinear(src, src + 2.0, np.eye(3), transform_type="projective",
+    ...                     pairs_given=True)
+    >>> isinstance(fit, DistortionFit), type(fit.transform).__name__
+    (True, 'ProjectiveTransform')
+    """
+
+    def __init__(self, transform, covariance, source_index, target_index, residuals, info):
+        self.transform = transform
+        self.covariance = covariance
+        self.source_index = source_index
+        self.target_index = target_index
+        self.residuals = residuals
+        self.rms = float(np.sqrt(np.mean(np.sum(residuals ** 2, axis=1))))
+        self.info = info
+
+    def __repr__(self):
+        return (f"<DistortionFit {type(self.transform).__name__} {self.info.get('model')} "
+                f"degree={self.info.get('degree')} n={len(self.source_index)} "
+                f"rms={self.rms:.3f} px>")
+
+
+def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degree=3,
+                  seed_points=None, source_errors=None, target_errors=None, source_frame=None,
+                  tolerance=3.0, min_tolerance=0.3, significance=1e-4, pairs_given=False,
+                  linear_type=None):
+    """
+    Grow a linear match into a projective or polynomial model over all stars.
+
+    Parameters
+    ----------
+    src_pts, dst_pts : (N, 2), (M, 2) array-like
+        Source and target star positions (pixels).  With ``pairs_given``,
+        two arrays of the same length whose rows are candidate pairs (some
+        may be wrong).
+    linear : (3, 3) array-like, linear model or None
+        The linear source-to-target transform to start from (the matched
+        similarity or affine transform).  None, with ``pairs_given``: the
+        affine transform that the most pairs agree with, to ``tolerance``
+        (a deterministic consensus over 1000 triples of pairs).
+    transform_type : {'polynomial', 'projective'}, optional
+    degree : int or 'auto', optional
+        Polynomial degree, 2 to 5, or 'auto' to choose it (linear
+        included): a candidate with more terms is chosen only if an F-test
+        (p < ``significance``) and the BIC both prefer it, and, for degrees
+        4 and 5, its held-out error in a spatially blocked cross-validation
+        is meaningfully lower.
+    seed_points : (K, 2) array-like, optional
+        Source positions of the stars matched by the linear stage: the
+        growth starts around them (by default around the stars the linear
+        model pairs within ``tolerance``).
+    source_errors, target_errors : (N,), (M,) array-like, optional
+        Expected centroid errors (pixels); 0.1 px when not given.
+    source_frame : (x0, x1, y0, y1), optional
+        The source image's extent; the source stars' bounding box by default.
+        Coverage and the predicted error are evaluated over it.
+    tolerance : float, optional
+        Pairing radius (pixels) while growing.
+    min_tolerance : float, optional
+        Smallest pairing radius of the final refinement.
+    significance : float, optional
+        F-test p-value below which extra terms are accepted (``'auto'``).
+    pairs_given : bool, optional
+        Treat rows of ``src_pts`` and ``dst_pts`` as given pairs instead of
+        pairing stars by position.
+    linear_type : str, optional
+        The linear candidate of ``degree='auto'`` ('similarity' includes a
+        similarity before the affine model; default: affine only).
+
+    Returns
+    -------
+    `DistortionFit`
+
+    Raises
+    ------
+    PoorCoverageError
+        If the paired stars do not cover the frame well enough for the
+        requested degree (or any projective model).
+    TooFewSourcesError
+        If too few stars pair up to fit even an affine model.
+
+    Examples
+    --------
+    Stars of a 4096-pixel frame through a barrel distortion of 10 px at
+    the corners, and 30% of the pairs wrong:
+
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import fit_nonlinear
+    >>> rng = np.random.default_rng(0)
+    >>> src = rng.uniform(0, 4095, (600, 2))
+    >>> u = (src - 2047.5) / 2896.0
+    >>> dst = src + (u * -0.0035 * (u ** 2).sum(1)[:, None]) * 2896.0
+    >>> dst[:180] = rng.uniform(0, 4095, (180, 2))       # wrong pairs
+    >>> fit = fit_nonlinear(src, dst, np.eye(3), degree="auto", pairs_given=True,
+    ...                     tolerance=15.0, source_frame=(-0.5, 4095.5, -0.5, 4095.5))
+    >>> fit.info["model"], fit.info["degree"], fit.info["n_pairs"]
+    ('polynomial', 3, 420)
+    >>> bool(fit.rms < 0.01)
+    True
+    """
+    prob = _prepare(src_pts, dst_pts, linear, transform_type=transform_type, degree=degree,
+                    source_errors=source_errors, target_errors=target_errors,
+                    source_frame=source_frame, tolerance=tolerance,
+                    min_tolerance=min_tolerance, pairs_given=pairs_given)
+    # 1. Grow outwards from the linear match's stars.
+    cand, params = _grow(prob, seed_points)
+    # 2. Refine over the whole frame with a shrinking pairing radius.
+    cand, params, final, tol = _refine(prob, cand, params)
+    paired = _kept_pairs(prob, final, tol)
+    # 3. Choose (degree='auto') or check the requested model.
+    if prob.transform_type == "projective":
+        choice = _choose_projective(prob, cand, params, paired)
+    else:
+        choice, paired = _choose_polynomial(prob, cand, paired, significance, linear_type)
+    # 4. Trust: coverage and predicted error over the frame.
+    trust = _trust(prob, choice, paired)
+    _warn_trust(prob, choice, paired, trust)
+    return _build(prob, choice, paired, trust, significance)
+
+# -- fit_nonlinear's stages ---------------------------------------------------------
+
+
+@dataclass
+class _Problem:
+    """The validated inputs of `fit_nonlinear`, in normalised coordinates."""
+
+    transform_type: str
+    degree: object  # int, 'auto' or None (projective)
+    src: np.ndarray
+    dst: np.ndarray
+    matrix: np.ndarray  # the linear start, 3x3
+    centre: np.ndarray
+    half: float  # half diagonal of the frame: the unit of ``uv``
+    uv: np.ndarray  # source points, normalised
+    frame: tuple  # (x0, x1, y0, y1), floats
+    frame_uv: tuple
+    # Scales the source centroid variance into the target frame: the linear
+    # start's area scale; the choice of a polynomial replaces it by the residual
+    # variance scale of its most flexible candidate, which the re-pairing of
+    # degree='auto' and the residual excess then use.
+    var_scale: float
+    e_src: np.ndarray
+    e_dst: np.ndarray
+    pairs: _Pairs
+    tolerance: float
+    min_tolerance: float
+    lin_params: np.ndarray  # the linear start as affine parameters (``_Poly(1)``)
+    top: int  # the highest degree offered while growing
+
+    def variance(self, si, dj):
+        return np.maximum(self.var_scale * self.e_src[si] ** 2 + self.e_dst[dj] ** 2, 1e-6)
+
+    def growth_model(self, n_pairs, cap=None):
+        """The most flexible model ``n_pairs`` pairs support while growing
+        (of degree ``cap`` at most)."""
+        if self.transform_type == "projective":
+            return _Projective() if n_pairs >= 4 * 8 else _Poly(1)
+        d = self.top if cap is None else cap
+        while d > 1 and n_pairs < 2 * WARN_STARS_PER_TERM * _n_terms(d):
+            d -= 1
+        return _Poly(d)
+
+    def fit_on(self, cand_new, cand_old, params_old, si, dj):
+        """Robust fit of ``cand_new`` to these pairs, started from the previous model."""
+        uv, dst = self.uv[si], self.dst[dj]
+        var = self.variance(si, dj)
+        start = None
+        if not cand_new.linear:
+            start = (params_old if not cand_old.linear
+                     else _projective_start(_fit_affine(uv, dst, var, params_old)))
+        return _robust_fit(cand_new, uv, dst, var, start)
+
+
+@dataclass
+class _Paired:
+    """The pairs kept by the refinement (after clipping)."""
+
+    si: np.ndarray
+    dj: np.ndarray
+    w: np.ndarray  # weights: 1 / total variance
+    fuv: np.ndarray  # their normalised source positions
+    fdst: np.ndarray  # their target positions
+    n_paired: int  # pairs before clipping
+    tol: float  # the final pairing radius
+
+
+@dataclass
+class _Choice:
+    """The chosen model in normalised coordinates, and the candidates compared."""
+
+    cand: object
+    params: np.ndarray
+    cov: np.ndarray
+    name: str
+    deg: object  # the degree (1 for a linear choice, None for projective)
+    candidates: list
+
+
+@dataclass
+class _Trust:
+    """How far the chosen model can be trusted."""
+
+    coverage: dict
+    pred_max: float
+    pred_rms: float
+    excess: float
+    tested: list
+
+
+def _prepare(src_pts, dst_pts, linear, *, transform_type, degree, source_errors,
+             target_errors, source_frame, tolerance, min_tolerance, pairs_given):
+    """Validate `fit_nonlinear`'s inputs and normalise them: a `_Problem`."""
+    if not is_nonlinear(transform_type):
+        raise ValueError(f"transform_type must be one of {list(NONLINEAR_TYPES)}; got "
+                         f"{transform_type!r}.")
+    transform_type = nonlinear_name(transform_type)
+    degree = check_degree("polynomial", degree) if transform_type == "polynomial" else None
+    src = np.asarray(src_pts, float).reshape(-1, 2)
+    dst = np.asarray(dst_pts, float).reshape(-1, 2)
+    if pairs_given and len(src) != len(dst):
+        raise ValueError(f"pairs_given needs as many source as target points; got {len(src)} "
+                         f"and {len(dst)}.")
+    if linear is None:
+        if not pairs_given:
+            raise ValueError("linear=None needs pairs_given=True; pass the linear match's "
+                             "matrix or model to grow from.")
+        linear = _consensus_affine(src, dst, tolerance)
+    m = _as_matrix(linear)
+    frame, centre, half, uv, frame_uv = _normalise(src, source_frame)
+    e_src = np.full(len(src), 0.1) if source_errors is None else np.asarray(source_errors, float)
+    e_dst = np.full(len(dst), 0.1) if target_errors is None else np.asarray(target_errors, float)
+    lin_params = np.array([m[0, 2] + m[0, 0] * centre[0] + m[0, 1] * centre[1],
+                           m[0, 0] * half, m[0, 1] * half,
+                           m[1, 2] + m[1, 0] * centre[0] + m[1, 1] * centre[1],
+                           m[1, 0] * half, m[1, 1] * half])
+    top = 5 if degree == "auto" else (degree if degree is not None else 1)
+    return _Problem(transform_type, degree, src, dst, m, centre, half, uv, frame, frame_uv,
+                    abs(np.linalg.det(m[:2, :2])), e_src, e_dst, _Pairs(src, dst, pairs_given),
+                    tolerance, min_tolerance, lin_params, top)
+
+
+def _normalise(src, source_frame):
+    """(frame, centre, half diagonal, normalised source points, normalised frame)."""
+    if source_frame is None:
+        x0, y0 = src.min(axis=0) - 0.5
+        x1, y1 = src.max(axis=0) + 0.5
+        source_frame = (x0, x1, y0, y1)
+    x0, x1, y0, y1 = (float(v) for v in source_frame)
+    centre = np.array([(x0 + x1) / 2.0, (y0 + y1) / 2.0])
+    half = 0.5 * float(np.hypot(x1 - x0, y1 - y0))
+    uv = (src - centre) / half
+    frame_uv = ((x0 - centre[0]) / half, (x1 - centre[0]) / half,
+                (y0 - centre[1]) / half, (y1 - centre[1]) / half)
+    return (x0, x1, y0, y1), centre, half, uv, frame_uv
+
+
+def _grow(prob, seed_points):
+    """Grow the fit from the linear match's stars in discs of growing radius:
+    (candidate, parameters)."""
+    cand, params = _Poly(1), prob.lin_params
+    uv, all_idx = prob.uv, np.arange(len(prob.src))
+    if seed_points is None or len(seed_points) == 0:
+        seed_si, _ = prob.pairs.pair(_predict(cand, params, uv), all_idx, prob.tolerance)
+        seed_uv = uv[seed_si]
+    else:
+        seed_uv = (np.asarray(seed_points, float).reshape(-1, 2) - prob.centre) / prob.half
+    if len(seed_uv) < 3:
+        raise TooFewSourcesError(
+            f"only {len(seed_uv)} star(s) pair up under the linear transform within "
+            f"{prob.tolerance:g} px; a distortion model needs many more. Pass more stars or a "
+            "larger tolerance.")
+    seed_centre = seed_uv.mean(axis=0)
+    dist = np.hypot(*(uv - seed_centre).T)
+    radius = max(float(np.median(np.hypot(*(seed_uv - seed_centre).T))), 1e-3)
+    r_max = float(dist.max())
+    while True:
+        idx = all_idx[dist <= radius]
+        si, dj = prob.pairs.pair(_predict(cand, params, uv[idx]), idx, prob.tolerance)
+        new = prob.growth_model(len(si))
+        fit = prob.fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
+        if fit is not None:
+            cand, params = new, fit[0]
+        if radius >= r_max:
+            break
+        radius = min(radius * 1.4, r_max)
+    return cand, params
+
+
+def _refine(prob, cand, params, cap=None):
+    """Pair over the whole frame, refit and clip with a shrinking pairing radius:
+    (candidate, parameters, (si, dj, keep, total variance), pairing radius)."""
+    all_idx = np.arange(len(prob.src))
+    tol = float(prob.tolerance)
+    final = None
+    for _ in range(10):
+        si, dj = prob.pairs.pair(_predict(cand, params, prob.uv), all_idx, tol)
+        new = prob.growth_model(len(si), cap)
+        fit = prob.fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
+        if fit is None:
+            break
+        cand, params = new, fit[0]
+        _, _, keep, total = fit
+        final = (si, dj, keep, total)
+        new_tol = float(np.clip(5.0 * np.sqrt(np.median(total[keep])), prob.min_tolerance, tol))
+        if new_tol == tol:
+            break
+        tol = new_tol
+    if final is None:
+        raise TooFewSourcesError(
+            f"too few stars pair up under the linear transform to fit a {prob.transform_type} "
+            f"model; pass more stars (n_sources, nsigma) or use transform_type='affine'.")
+    return cand, params, final, tol
+
+
+def _kept_pairs(prob, final, tol):
+    """The `_Paired` of a refinement's outcome."""
+    si, dj, keep, total = final
+    n_paired = len(si)
+    si, dj, total = si[keep], dj[keep], total[keep]
+    return _Paired(si, dj, 1.0 / total, prob.uv[si], prob.dst[dj], n_paired, tol)
+
+
+def _choose_projective(prob, cand, params, p):
+    """Check the coverage and fit the homography to the kept pairs: a `_Choice`."""
+    # Too few pairs while growing leave the affine model of the growth
+    # stage (6 parameters): the homography starts from its equivalent.
+    start = params if isinstance(cand, _Projective) else _projective_start(
+        _fit_affine(p.fuv, p.fdst, 1.0 / p.w, params))
+    chosen, chosen_params, chosen_cov = _check_and_fit(
+        _Projective(), p.fuv, p.fdst, p.w, prob.frame_uv, 1, strict=True, start=start,
+        what="a projective model")
+    return _Choice(chosen, chosen_params, chosen_cov, "projective", None, [])
+
+
+def _choose_polynomial(prob, cand, p, significance, linear_type):
+    """The requested polynomial, checked, or (``'auto'``) the chosen candidate:
+    (`_Choice`, `_Paired`: re-paired when ``'auto'`` chose a lower degree)."""
+    fits = _fit_pool(_candidate_pool(prob, p, linear_type), p)
+    # The residual variance scale, from the most flexible candidate (as in
+    # the F-test): the BIC needs chi-squares in units of the actual scatter.
+    n_eq = 2 * len(p.fuv)
+    prob.var_scale = max(fits[-1][4] / max(n_eq - fits[-1][0].k, 1), 1e-300)
+    best, candidates = _select(prob, p, fits, significance)
+    c, d, label, _, _ = fits[best]
+    if prob.degree == "auto":
+        chosen, chosen_params, chosen_cov = c, *fits[best][3]
+        if d < prob.top and isinstance(cand, _Poly) and cand.degree > d:
+            # The pairs were paired and clipped by a model of higher degree:
+            # pair and clip again with the chosen one, as an explicit degree
+            # would have (a few pairs that only the discarded terms followed
+            # would otherwise stay).
+            _, _, final, tol = _refine(prob, c, chosen_params, cap=d)
+            p = _kept_pairs(prob, final, tol)
+            refit = _wls(c, p.fuv, p.fdst, p.w)
+            if refit is not None:
+                chosen_params, chosen_cov = refit
+    else:
+        chosen, chosen_params, chosen_cov = _check_and_fit(
+            c, p.fuv, p.fdst, p.w, prob.frame_uv, d, strict=True, start=None,
+            what=f"a polynomial of degree {d}")
+    deg = d if label == "polynomial" else 1
+    return _Choice(chosen, chosen_params, chosen_cov, label, deg, candidates), p
+
+
+def _candidate_pool(prob, p, linear_type):
+    """(candidate, degree, label) of the models to compare, fewest terms first."""
+    if prob.degree != "auto":
+        return [(_Poly(prob.degree), prob.degree, "polynomial")]
+    pool = []
+    parity = 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1
+    if linear_type in ("similarity", "euclidean", "translation"):
+        pool.append((_Similarity(parity), 1, "similarity"))
+    pool.append((_Poly(1), 1, "affine"))
+    for d in DEGREES:
+        cov_d = _coverage(p.fuv, prob.frame_uv, d, _n_terms(d))
+        if _coverage_ok(cov_d, strict=True):
+            pool.append((_Poly(d), d, "polynomial"))
+    return pool
+
+
+def _fit_pool(pool, p):
+    """(candidate, degree, label, (params, cov), chi-square) of each candidate that fits."""
+    fits = []
+    for c, d, label in pool:
+        fit = _wls(c, p.fuv, p.fdst, p.w)
+        if fit is None:
+            continue
+        r = _predict(c, fit[0], p.fuv) - p.fdst
+        chi2 = float(np.sum(p.w * np.einsum("ij,ij->i", r, r)))
+        fits.append((c, d, label, fit, chi2))
+    if not fits:
+        raise PoorCoverageError(
+            f"the {len(p.fuv)} paired stars cannot constrain a polynomial model; use "
+            "transform_type='affine' or pass more stars.")
+    return fits
+
+
+def _select(prob, p, fits, significance):
+    """Index of the chosen fit, and the candidates' entries of the quality dict."""
+    auto = prob.degree == "auto"
+    n_eq = 2 * len(p.fuv)
+    best, cv_cells, accepted, candidates = 0, [], [0], []
+    for i, (c, d, label, fit, chi2) in enumerate(fits):
+        p_value = (1.0 if i == 0 else
+                   _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq))
+        bic = float(chi2 / prob.var_scale + c.k * np.log(n_eq))
+        cv, cells = (_blocked_cv(c, p.fuv, p.fdst, p.w, prob.frame_uv) if auto
+                     else (None, None))
+        cv_cells.append(cells)
+        candidates.append(dict(model=label, degree=d, n_parameters=c.k, chi2=chi2,
+                               bic=bic, p_value=p_value, cv_chi2=cv))
+        # Both tests must agree: the F-test guards small samples, BIC (whose
+        # penalty grows with the number of stars) large ones, where centroid
+        # errors that are not quite Gaussian make tiny p-values cheap.
+        if i > 0 and p_value < significance and bic < candidates[best]["bic"]:
+            best = i
+            accepted.append(i)
+    if auto and len(p.fuv) >= CV_ALL_DEGREES_PAIRS:
+        best = _cv_walk(accepted, candidates)
+    if auto and fits[best][1] > CV_FROM_DEGREE:
+        best = _cv_choice(fits, candidates, cv_cells, accepted, best)
+    for i, entry in enumerate(candidates):
+        entry["chosen"] = i == best
+    return best, candidates
+
+
+def _cv_walk(accepted, candidates):
+    """The last accepted candidate that also lowers the held-out error of the one before."""
+    # With hundreds of stars every cell holds enough of them for its held-out
+    # error to judge: terms the tests accept but that predict held-out cells
+    # worse follow centroid systematics (a night's frames drifting over the
+    # detector chose degrees 2 to 4; the held-out error said affine).
+    best = accepted[0]
+    for i in accepted[1:]:
+        if candidates[i]["cv_chi2"] < candidates[best]["cv_chi2"]:
+            best = i
+    return best
+
+
+def _cv_choice(fits, candidates, cv_cells, accepted, last):
+    """The choice among the accepted candidates above ``CV_FROM_DEGREE``."""
+    # With hundreds of stars the tests accept terms that only follow
+    # slightly systematic centroid errors; those terms extrapolate badly
+    # where stars are few.  Up to the cubic (a radial distortion, a
+    # tilt) the tests decide: with tens of stars held-out cells are too
+    # noisy to.  Beyond it, a degree the tests accept replaces the
+    # current one only if it also predicts the held-out cells (blocked
+    # cross-validation) meaningfully better.
+    best = max(i for i in accepted if fits[i][1] <= CV_FROM_DEGREE)
+    for i in range(best + 1, last + 1):
+        if _cv_better(cv_cells[i], candidates[i]["cv_chi2"], cv_cells[best],
+                      candidates[best]["cv_chi2"]):
+            best = i
+    return best
+
+
+def _trust(prob, choice, p):
+    """Coverage, predicted error over the frame and residual excess: a `_Trust`."""
+    chosen, fuv, frame_uv = choice.cand, p.fuv, prob.frame_uv
+    coverage = _coverage(fuv, frame_uv, choice.deg or 1, chosen.k / 2.0)
+    r = _predict(chosen, choice.params, fuv) - p.fdst
+    r2 = np.einsum("ij,ij->i", r, r)
+    dof = max(2 * len(fuv) - chosen.k, 1)
+    chi_red = float(np.sum(p.w * r2)) / dof
+    # The residual scatter over what the centroid errors alone predict (the
+    # weights above are scaled to the scatter; these are not).
+    excess = float(np.sqrt(np.sum(r2 / prob.variance(p.si, p.dj)) / dof))
+    gx = np.linspace(frame_uv[0], frame_uv[1], ERROR_GRID)
+    gy = np.linspace(frame_uv[2], frame_uv[3], ERROR_GRID)
+    grid = np.column_stack([a.ravel() for a in np.meshgrid(gx, gy)])
+    pv = _prediction_var(chosen, choice.params, choice.cov * max(chi_red, 1.0), grid)
+    tested = sorted({c["degree"] for c in choice.candidates})
+    return _Trust(coverage, float(np.sqrt(pv.max())), float(np.sqrt(pv.mean())), excess, tested)
+
+
+def _warn_trust(prob, choice, p, trust):
+    """The PoorFitWarnings of a fit: sparse coverage, excess residuals, uncertainty."""
+    name, n, coverage, excess = choice.name, len(p.fuv), trust.coverage, trust.excess
+    what = _label(name, choice.deg)
+    if name in ("polynomial", "projective") and not _coverage_ok(coverage, strict=False):
+        warn(f"the {n} stars fitting the {what} cover "
+             f"{coverage['occupancy']:.0%} of a {coverage['grid'][0]}x{coverage['grid'][1]} grid "
+             f"over the frame with {coverage['stars_per_term']:.1f} stars per term (want "
+             f"{WARN_OCCUPANCY:.0%} and {WARN_STARS_PER_TERM:g}); the model is poorly "
+             "constrained where there are no stars. Use a lower degree (or degree='auto') or "
+             "more stars (n_sources, nsigma).", PoorFitWarning)
+    if (prob.degree == "auto" and name != "polynomial"
+            and (excess > WARN_EXCESS or trust.tested == [1])):
+        why = (f"its residuals are {excess:.1f} times what the centroid errors predict"
+               if excess > WARN_EXCESS else "no polynomial could be tested")
+        warn(f"degree='auto' chose the {what}, but {why}: the {n} stars it "
+             f"fits (covering {coverage['occupancy']:.0%} of a {coverage['grid'][0]}x"
+             f"{coverage['grid'][1]} grid) are too few to find or rule out a distortion, and "
+             "away from them the mapping can be off by more than the residuals show. Pass "
+             "more stars (n_sources, a lower nsigma) or check the registered frame's edges.",
+             PoorFitWarning)
+    elif excess > WARN_EXCESS:
+        warn(f"the {what}'s residuals over its {n} stars are {excess:.1f} "
+             "times what their centroid errors predict: many pairs may be wrong (a crowded "
+             "field) or the model does not follow the mapping. Check "
+             "quality['model_selection'] and the registered frame; a lower degree, "
+             "transform_type='affine', or a smaller tolerance may do better.", PoorFitWarning)
+    if trust.pred_max > WARN_PREDICTED:
+        warn(f"the {what} is uncertain: its covariance gives a 1-sigma position "
+             f"error of up to {trust.pred_max:.2f} px over the frame (RMS {trust.pred_rms:.2f} "
+             f"px, {n} stars). Use a lower degree (or degree='auto') or more stars.",
+             PoorFitWarning)
+
+
+def _build(prob, choice, p, trust, significance):
+    """The model object, through the same fitting function as the linear models,
+    and the `DistortionFit`."""
+    from .fitting import fit_transform
+
+    name, deg, degree = choice.name, choice.deg, prob.degree
+    s_pts, d_pts = prob.src[p.si], prob.dst[p.dj]
+    if name == "polynomial":
+        model, cov, resid = _fit_polynomial(fit_transform, s_pts, d_pts, deg, p.w, prob.centre,
+                                            prob.frame)
+    else:
+        kind = {"similarity": "similarity", "affine": "affine", "projective": "projective"}[name]
+        kw = ({"parity": 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1}
+              if kind == "similarity" else {})
+        model, cov, resid = fit_transform(s_pts, d_pts, kind, weights=p.w, **kw)
+    info = dict(model=name, degree=deg, requested_degree=degree if name != "projective" else None,
+                selection=("F-test, BIC and blocked cross-validation" if degree == "auto"
+                           else None), significance=significance,
+                candidates=choice.candidates, coverage=trust.coverage,
+                predicted_error_max=trust.pred_max, predicted_error_rms=trust.pred_rms,
+                residual_excess=trust.excess,
+                degrees_tested=trust.tested if degree == "auto" else None,
+                n_pairs=int(len(p.si)), n_clipped=int(p.n_paired - len(p.si)),
+                pairing_tolerance=float(p.tol))
+    return DistortionFit(model, cov, p.si, p.dj, resid, info)
+
+
+def _consensus_affine(src, dst, tolerance, n_trials=1000):
+    """
+    The affine transform of the triple of given pairs that the most pairs
+    agree with (within ``tolerance``), refitted to them: a start that wrong
+    pairs cannot pull away.  Deterministic (a fixed seed).
+    """
+    n = len(src)
+    if n < 3:
+        raise TooFewSourcesError(f"{n} pair(s) given; at least 3 are needed.")
+    rng = np.random.default_rng(0)
+    tri = np.array([rng.choice(n, 3, replace=False) for _ in range(n_trials)])
+    ones = np.ones((n_trials, 3, 1))
+    a = np.concatenate([src[tri], ones], axis=2)  # (T, 3, 3)
+    ok = np.abs(np.linalg.det(a)) > 1e-6 * np.ptp(src) ** 2
+    if not ok.any():
+        raise TooFewSourcesError("the given pairs are collinear; no affine start exists.")
+    coef = np.linalg.solve(a[ok], dst[tri[ok]])  # (T, 3, 2): x' = [x y 1] @ coef
+    full = np.concatenate([src, np.ones((n, 1))], axis=1)
+    pred = np.einsum("nk,tkj->tnj", full, coef)
+    votes = (np.hypot(*(pred - dst).transpose(2, 0, 1)) <= tolerance).sum(axis=1)
+    best = coef[np.argmax(votes)]
+    inl = np.hypot(*(full @ best - dst).T) <= tolerance
+    if inl.sum() >= 3:
+        best, *_ = np.linalg.lstsq(full[inl], dst[inl], rcond=None)
+    m = np.eye(3)
+    m[:2, :] = best.T
+    return m
+
+
+def _label(name, degree):
+    return f"polynomial model of degree {degree}" if name == "polynomial" else f"{name} model"
+
+
+def _fit_affine(uv, dst, var, params):
+    """Affine parameters (``_Poly(1)``) of these pairs (``params`` if degenerate)."""
+    fit = _wls(_Poly(1), uv, dst, 1.0 / var)
+    return params if fit is None else fit[0]
+
+
+def _check_and_fit(cand, uv, dst, w, frame_uv, degree, *, strict, start, what):
+    """Refuse too little coverage for ``cand``, then fit it: (cand, params, cov)."""
+    n_terms = cand.k / 2.0
+    cov = _coverage(uv, frame_uv, degree, n_terms)
+    if not _coverage_ok(cov, strict=True):
+        raise PoorCoverageError(
+            f"the {len(uv)} paired stars do not cover the frame well enough for {what}: they "
+            f"fill {cov['occupancy']:.0%} of a {cov['grid'][0]}x{cov['grid'][1]} grid of cells "
+            f"(need {MIN_OCCUPANCY:.0%}) with {cov['stars_per_term']:.1f} stars per term (need "
+            f"{MIN_STARS_PER_TERM:g}). Pass a lower degree or degree='auto', "
+            "transform_type='affine', or more stars (n_sources, nsigma).")
+    fit = _wls(cand, uv, dst, w, start)
+    if fit is None:
+        raise PoorCoverageError(f"the paired stars cannot constrain {what} (degenerate "
+                                "geometry); use a lower degree or transform_type='affine'.")
+    return cand, fit[0], fit[1]
+
+
+def _fit_polynomial(fit_transform, src, dst, degree, w, centre, frame):
+    """The PolynomialTransform of the final pairs, about the frame centre."""
+    return fit_transform(src, dst, "polynomial", degree=degree, weights=w,
+                         crpix=(float(centre[0]), float(centre[1])),
+                         domain=tuple(float(v) for v in frame))
+
+
+def _as_matrix(linear):
+    from .convert import as_matrix
+
+    m = np.asarray(as_matrix(linear), float)
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+        raise ValueError("linear must be a finite 3x3 matrix or a linear transform model.")
+    return m
+
+
+#: Stars of each image used to grow a distortion model: ``Reference.stars``
+#: detects twice this many (brightest first).
+FIT_SOURCES = 1000
+
+#: Stellar widths of the two frames (at the same scale) that differ by less than
+#: this factor are taken as consistent measurements.
+FWHM_AGREEMENT = 1.25
+
+
+def _fwhm_mismatch(fwhm_src, fwhm_dst, scale):
+    """|log| of the target FWHM over the source FWHM mapped to the target scale."""
+    return abs(float(np.log(fwhm_dst / (scale * fwhm_src))))
+
+
+def extend_match(result, source, target, *, transform_type, degree=3, tolerance=3.0,
+                 significance=1e-4, n_fit=FIT_SOURCES, n_control=None):
+    """
+    Grow the linear `~astroalign_nd.matching.MatchResult` of
+    `~astroalign_nd.find_match` into a non-linear one over many more stars.
+
+    Parameters
+    ----------
+    result : `~astroalign_nd.matching.MatchResult`
+        The trusted linear match.
+    source, target : `~astroalign_nd.Reference`
+        The two frames (their detections are cached and reused).
+    transform_type, degree, tolerance, significance
+        See `fit_nonlinear`.
+    n_fit : int, optional
+        Detect up to ``2 * n_fit`` stars per image for the fit.
+    n_control : (int, int), optional
+        The control points of each frame in the linear match (by default
+        ``result.n_sources_used`` for both).  When the larger star lists'
+        detections found stellar widths that disagree between the frames
+        (by more than ``FWHM_AGREEMENT``, at the match's scale) and the
+        control points' widths agree better, the larger lists are detected
+        again at the control points' widths, so that both frames are
+        measured consistently.
+
+    Returns
+    -------
+    `~astroalign_nd.matching.MatchResult`
+        ``transform`` is the chosen model; the indices refer to the larger
+        star lists; ``extra['model_selection']`` holds the ``info`` of the
+        `~astroalign_nd.transforms.DistortionFit` and
+        ``extra['linear_transform']`` the linear match.
+
+    Examples
+    --------
+    >>> from astroalign_nd import Reference, find_match
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> from astroalign_nd.transforms import extend_match
+    >>> pair = simulate_pair((512, 512), n_stars=300, rotation=30.0, seed=1)
+    >>> source, target = Reference(pair.source), Reference(pair.target)
+    >>> linear = find_match(source, target)
+    >>> grown = extend_match(linear, source, target, transform_type="polynomial", degree=2)
+    >>> type(grown.transform).__name__, len(grown.source_index) > len(linear.source_index)
+    ('PolynomialTransform', True)
+    """
+    from ..matching.result import MatchResult
+
+    n = max(int(n_fit), int(result.n_sources_used or 0))
+    if n_control is None:
+        n_control = (result.n_sources_used, result.n_sources_used)
+    src_pts, src_err, src_frame = source.stars(n)
+    dst_pts, dst_err, _ = target.stars(n)
+    # Asking for many more stars can make detection search other scales and
+    # choose a very different width in one frame only; centroids of asymmetric
+    # stars (plate scans) then shift between the frames by a good fraction of
+    # a pixel.  If the control points' widths agreed better, detect again at them.
+    scale = float(np.sqrt(abs(np.linalg.det(result.transform.matrix[:2, :2]))))
+    free = (source.detection_fwhm(n), target.detection_fwhm(n))
+    ctrl = (source.detection_fwhm(n_control[0]), target.detection_fwhm(n_control[1]))
+    if (None not in free + ctrl and _fwhm_mismatch(*free, scale) > np.log(FWHM_AGREEMENT)
+            and _fwhm_mismatch(*ctrl, scale) < _fwhm_mismatch(*free, scale)):
+        if free[0] != ctrl[0]:
+            src_pts, src_err, src_frame = source.stars(n, fwhm=ctrl[0])
+        if free[1] != ctrl[1]:
+            dst_pts, dst_err, _ = target.stars(n, fwhm=ctrl[1])
+    fit = fit_nonlinear(src_pts, dst_pts, result.transform.matrix, transform_type=transform_type,
+                        degree=degree, seed_points=result.source_points,
+                        source_errors=src_err, target_errors=dst_err, source_frame=src_frame,
+                        tolerance=tolerance, significance=significance,
+                        linear_type=type(result.transform).__name__.replace(
+                            "Transform", "").lower())
+    out = MatchResult(
+        transform=fit.transform, source_index=fit.source_index, target_index=fit.target_index,
+        residuals=fit.residuals, rms=fit.rms, covariance=fit.covariance,
+        log10_false_alarm=result.log10_false_alarm, n_source=len(src_pts),
+        n_target=len(dst_pts), n_triangle_matches=result.n_triangle_matches,
+        n_hypotheses=result.n_hypotheses, model_misfit=0.0,
+        predicted_error=fit.info["predicted_error_max"],
+        source_points=src_pts[fit.source_index], target_points=dst_pts[fit.target_index],
+        n_sources_used=result.n_sources_used)
+    out.extra["model_selection"] = fit.info
+    out.extra["linear_transform"] = result.transform
+    return out
