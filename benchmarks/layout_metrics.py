@@ -39,9 +39,12 @@ def _resolve(module, is_package, level, name):
     return ".".join(base + ([name] if name else []))
 
 
-def _subpackage(module):
+def _subpackage(module, modules):
+    """The subpackage a module belongs to ("" for the package's own top-level modules)."""
     parts = module.split(".")
-    return parts[1] if len(parts) > 1 else ""
+    if len(parts) > 2 or (len(parts) == 2 and any(m.startswith(module + ".") for m in modules)):
+        return parts[1]
+    return ""
 
 
 def _code_lines(node, source_lines):
@@ -74,6 +77,7 @@ def analyse(root, max_lines):
     names = set(modules)
     edges = {m: set() for m in modules}
     internal = inner = 0
+    statements = inner_statements = 0
     optional_inner = []
     private = []
     long_functions = []
@@ -99,6 +103,9 @@ def analyse(root, max_lines):
             else:
                 continue
             in_function = any(a <= node.lineno <= b for a, b in func_ranges)
+            if any(b.split(".")[0] == root.name for b, _ in targets):
+                statements += 1
+                inner_statements += in_function
             for base, name in targets:
                 top = base.split(".")[0]
                 if top in OPTIONAL:
@@ -116,10 +123,11 @@ def analyse(root, max_lines):
                 inner += in_function
                 edges[mod].add(target)
                 if name and name.startswith("_") and not name.startswith("__") \
-                        and _subpackage(target) != _subpackage(mod) and target in names:
+                        and _subpackage(target, names) != _subpackage(mod, names) and target in names:
                     private.append(f"{mod} <- {target}.{name}")
     cycles = _cycles(edges)
-    return dict(modules=len(modules), internal=internal, inner=inner,
+    return dict(modules=len(modules), internal=internal, inner=inner, statements=statements,
+                inner_statements=inner_statements,
                 optional_inner=optional_inner, private=private, cycles=cycles,
                 long_functions=sorted(long_functions, reverse=True))
 
@@ -167,8 +175,10 @@ def main(argv=None):
     r = analyse(args.root, args.max_lines)
     share = r["inner"] / max(r["internal"], 1)
     print(f"{r['modules']} modules; internal imports inside functions: {r['inner']} of "
-          f"{r['internal']} ({share:.0%}); lazy optional dependencies: "
-          f"{len(r['optional_inner'])}")
+          f"{r['internal']} imported names ({share:.0%}), {r['inner_statements']} of "
+          f"{r['statements']} import statements "
+          f"({r['inner_statements'] / max(r['statements'], 1):.0%}); lazy optional "
+          f"dependencies: {len(r['optional_inner'])}")
     print(f"private names imported across subpackages: {len(r['private'])}")
     if args.verbose:
         for p in r["private"]:
