@@ -47,6 +47,8 @@ _LAZY = {
     "transform_to_header": "io",
     "transform_from_header": "io",
     "conf": "_config",
+    # True when the optional compiled kernels are built (False: their NumPy versions run).
+    "HAVE_COMPILED": "_kernels",
 }
 
 __all__ = [

@@ -24,9 +24,14 @@ try:
     from . import _ckernels
 
     HAVE_COMPILED = True
-except ImportError:  # pragma: no cover - an unbuilt source tree
+except ImportError:  # pragma: no cover - installed without a C compiler, or an unbuilt tree
     _ckernels = None
     HAVE_COMPILED = False
+    # Said once, when the kernels are first imported; ``astroalign_nd.HAVE_COMPILED`` tells too.
+    from astropy import log as _log
+
+    _log.debug("astroalign_nd: the compiled kernels are not built; using their NumPy versions "
+               "(the same results, slower).")
 
 __all__ = ["bin_despike", "peak_candidates", "median", "finite_sample", "windowed_centroid",
            "adaptive_fwhm", "PointGrid",

@@ -194,9 +194,6 @@ class Reference:
 
 
 def _no_detections_warning():
-    from .detection.daofind import _import_photutils
-
-    _import_photutils()  # without photutils' slow metadata scan
     try:
         from photutils.utils.exceptions import NoDetectionsWarning
     except ImportError:  # moved in a future photutils: its base class then

@@ -144,8 +144,6 @@ else:
     import astroalign_nd as mod
     from astroalign_nd import ccddata, registration, model_selection
     lap("astroalign_nd modules")
-    from astroalign_nd.detection import _import_photutils
-    _import_photutils()
     import photutils.detection; lap("photutils.detection")
 mod.register(a, b); lap("first register, imports done")
 mod.register(a, b); lap("second register")

@@ -37,6 +37,7 @@ Usage::
 """
 
 import argparse
+import contextlib
 import functools
 import importlib
 import os
@@ -164,6 +165,36 @@ class StageTimer:
         return out
 
 
+class NumpyKernels:
+    """
+    astroalign_nd with every compiled loop turned off (detection, matching and resampling):
+    what an install without a C compiler runs.
+    """
+
+    def __init__(self, mod):
+        self.mod = mod
+        self.__name__ = mod.__name__
+
+    @contextlib.contextmanager
+    def _off(self):
+        resample = importlib.import_module(self.mod.__name__ + ".resample")
+        old = resample._USE_COMPILED
+        resample._USE_COMPILED = False
+        try:
+            with self.mod.conf.set_temp("use_compiled", False):
+                yield
+        finally:
+            resample._USE_COMPILED = old
+
+    def register(self, *args, **kwargs):
+        with self._off():
+            return self.mod.register(*args, **kwargs)
+
+    def find_transform(self, *args, **kwargs):
+        with self._off():
+            return self.mod.find_transform(*args, **kwargs)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=5)
@@ -171,6 +202,8 @@ def main(argv=None):
     ap.add_argument("--workloads", nargs="+", default=list(WORKLOADS))
     ap.add_argument("--old", help="folder holding astroalign_nd_old/ (an older copy)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--numpy-kernels", action="store_true",
+                    help="also time astroalign_nd with its NumPy kernels (no compiled loops)")
     args = ap.parse_args(argv)
 
     import astroalign
@@ -180,6 +213,8 @@ def main(argv=None):
     if args.old:
         sys.path.insert(0, args.old)
         tools["old"] = importlib.import_module("astroalign_nd_old")
+    if args.numpy_kernels:
+        tools["numpy"] = NumpyKernels(astroalign_nd)
     timers = {k: StageTimer(m.__name__) for k, m in tools.items()}
     print(f"astroalign_nd from {os.path.dirname(astroalign_nd.__file__)}; "
           f"astroalign {astroalign.__version__}; {os.cpu_count()} CPUs; "

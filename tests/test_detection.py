@@ -389,27 +389,3 @@ def test_fully_masked_image(frame3):
 def test_bad_options(frame3, kwargs, exc):
     with pytest.raises(exc):
         find_sources(frame3[0], **kwargs)
-
-
-def test_photutils_import_without_metadata_scan_is_the_same_photutils():
-    # _import_photutils skips photutils' scan of every installed distribution
-    # (a fifth of a second in a fresh process): photutils must end up exactly
-    # as a plain import leaves it, and importlib.metadata untouched.
-    import subprocess
-    import sys
-
-    code = (
-        "import importlib.metadata as md, json, sys\n"
-        "scan = md.packages_distributions\n"
-        "if sys.argv[1] == 'ours':\n"
-        "    from astroalign_nd.detection.daofind import _import_photutils\n"
-        "    _import_photutils()\n"
-        "import photutils.utils._optional_deps as o\n"
-        "from photutils.detection import DAOStarFinder\n"
-        "print(json.dumps([o._pkg_dist_name, o.__all__, md.packages_distributions is scan]))\n"
-    )
-    out = [subprocess.run([sys.executable, "-c", code, how], capture_output=True, text=True,
-                          check=True).stdout.strip().splitlines()[-1]
-           for how in ("ours", "plain")]
-    assert out[0] == out[1]
-    assert '"photutils"' in out[0] and out[0].endswith("true]")

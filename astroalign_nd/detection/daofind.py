@@ -1,7 +1,6 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """The DAOStarFinder pipeline: find, measure and filter the frame's stars."""
 
-import sys
 import warnings
 import numpy as np
 from astropy.table import Table
@@ -279,7 +278,6 @@ def _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts):
     # Imported here: photutils' import is the largest part of a fresh
     # process's first call, and a bare ``import astroalign_nd.detection``
     # (or a catalog-only run) does not need it.
-    _import_photutils()
     from photutils.detection import DAOStarFinder
 
     finder = DAOStarFinder(
@@ -480,37 +478,6 @@ def _empty_table(fwhm, noise, b):
                      "roundness1", "roundness2"], dtype=[float] * 9)
     t.meta.update(fwhm=float(fwhm), noise=float(noise), bin_factor=int(b))
     return t
-
-
-def _import_photutils():
-    """
-    Import photutils without its scan of every installed package's metadata.
-
-    On import, photutils looks up its own distribution name with
-    `importlib.metadata.packages_distributions`, which reads the file list of
-    every installed distribution: 0.15-0.2 s of a fresh process's first
-    call, a third of it.  Its distribution is named ``photutils``, which is
-    what the scan would return; that answer is given for the duration of the
-    import.  Nothing else changes (photutils still reads its own metadata for
-    its optional dependencies).
-    """
-    if "photutils.utils._optional_deps" in sys.modules:
-        return
-    import importlib.metadata as metadata
-
-    scan = metadata.packages_distributions
-    metadata.packages_distributions = _photutils_distribution
-    try:
-        import photutils.utils._optional_deps  # noqa: F401 - imports photutils
-    except ImportError:  # a photutils without that module: a plain import
-        pass
-    finally:
-        metadata.packages_distributions = scan
-
-
-def _photutils_distribution():
-    """`importlib.metadata.packages_distributions`, as photutils' import uses it."""
-    return {"photutils": ["photutils"]}
 
 
 def _check_positive_int(value, name):

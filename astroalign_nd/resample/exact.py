@@ -111,7 +111,11 @@ def resample_exact(data, matrix, shape_out, *, variance=None, mask=None,
     >>> out.shape, out.dtype, var is None
     ((4, 4), dtype('float64'), True)
     """
-    from reproject import reproject_exact
+    try:
+        from reproject import reproject_exact
+    except ImportError:  # an optional dependency: say how to get it
+        raise ImportError('resample_exact needs reproject: pip install "astroalign_nd[exact]" '
+                          "(or conda install -c conda-forge reproject).") from None
 
     m = _parse_matrix(matrix, "resample_exact")
     data_cf, var_cf, bad, shape, multichannel, dtype = _prepare(data, variance, mask,
