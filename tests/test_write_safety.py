@@ -124,3 +124,40 @@ def test_atomic_open_failure_leaves_nothing(tmp_path):
             f.write(b"half")
             raise RuntimeError("boom")
     assert os.listdir(tmp_path) == []
+
+
+def _files(tmp_path):
+    from astroalign_nd.simulate import simulate_pair
+
+    pair = simulate_pair((128, 128), n_stars=60, rotation=10.0, seed=3)
+    src, dst = tmp_path / "s.fits", tmp_path / "t.fits"
+    CCDData(pair.source, unit="adu").write(src)
+    CCDData(pair.target, unit="adu").write(dst)
+    return src, dst
+
+
+@pytest.mark.parametrize("which", ["target", "source", "target-via-link"])
+def test_register_refuses_an_input_as_output(tmp_path, capsys, which):
+    from astroalign_nd.cli import main
+
+    src, dst = _files(tmp_path)
+    before = {p: p.read_bytes() for p in (src, dst)}
+    out = {"target": dst, "source": src}.get(which)
+    if which == "target-via-link":
+        (tmp_path / "sub").mkdir()
+        out = tmp_path / "sub" / ".." / "t.fits"
+    code = main(["register", str(src), str(dst), "-o", str(out), "--overwrite"])
+    assert code == 2
+    assert "would destroy that input" in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in (src, dst)} == before
+
+
+def test_plot_refuses_an_input(tmp_path):
+    pytest.importorskip("matplotlib")
+    from astroalign_nd.visualization import save_diagnostic_figure
+
+    src, dst = _files(tmp_path)
+    before = src.read_bytes()
+    with pytest.raises(ValueError, match="would destroy that input"):
+        save_diagnostic_figure(str(src), str(src), str(dst), overwrite=True)
+    assert src.read_bytes() == before

@@ -23,7 +23,8 @@ import os
 import stat
 import tempfile
 
-__all__ = ["atomic_write", "atomic_open", "write_ccddata", "check_output_path", "FITS_EXTENSIONS"]
+__all__ = ["atomic_write", "atomic_open", "write_ccddata", "check_output_path",
+           "check_not_input", "FITS_EXTENSIONS"]
 
 #: File name endings taken as FITS by `write_ccddata` and the command line.
 FITS_EXTENSIONS = (".fits", ".fit", ".fts", ".fits.gz", ".fit.gz", ".fts.gz")
@@ -360,6 +361,58 @@ def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):
         raise FileExistsError(f"output file {path!r} already exists; pass --overwrite "
                               "(overwrite=True) to replace it.")
     _check_writable_dir(os.path.dirname(os.path.abspath(path)))
+
+
+def _same_file(a, b):
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)  # hard links, case-insensitive file systems
+    except OSError:
+        return False
+
+
+def check_not_input(output, inputs):
+    """
+    Refuse an output path that is one of the inputs (compared by real path).
+
+    Writing the result over an input would destroy it, with or without
+    ``overwrite``: the source or the reference frame may be the only copy
+    of a night's data.
+
+    Parameters
+    ----------
+    output : str or path-like
+        The output file name.
+    inputs : iterable of str or path-like
+        The input file names (other kinds of input are ignored).
+
+    Raises
+    ------
+    ValueError
+        If ``output`` names the same file as one of ``inputs`` (through a
+        link, a ``..`` or a hard link too).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.io.write import check_not_input
+    >>> with tempfile.TemporaryDirectory() as folder:  # doctest: +ELLIPSIS
+    ...     target = os.path.join(folder, "target.fits")
+    ...     open(target, "wb").close()
+    ...     check_not_input(os.path.join(folder, "aligned.fits"), [target])  # fine
+    ...     try:
+    ...         check_not_input(os.path.join(folder, ".", "target.fits"), [target])
+    ...     except ValueError as exc:
+    ...         print(exc)
+    output ...target.fits is the input ...target.fits: writing it would destroy that input;
+    give another output name.
+    """
+    output = os.fspath(output)
+    for item in inputs:
+        if isinstance(item, (str, os.PathLike)) and _same_file(output, os.fspath(item)):
+            raise ValueError(f"output {output} is the input {os.fspath(item)}: writing it "
+                             "would destroy that input; give another output name.")
 
 
 def _check_writable_dir(folder):
