@@ -1,0 +1,52 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""Inputs that used to give a wrong or unclear answer: byte order, truncated files."""
+
+import numpy as np
+import pytest
+from astropy.nddata import CCDData, StdDevUncertainty
+
+from astroalign_nd import find_transform, register, register_batch
+from astroalign_nd.simulate import simulate_pair
+
+
+@pytest.fixture(scope="module")
+def pair():
+    return simulate_pair((256, 256), n_stars=150, rotation=20.0, seed=2)
+
+
+def test_big_endian_input_gives_bit_identical_results(pair):
+    s = pair.source.astype(np.float64)
+    t = pair.target.astype(np.float64)
+    std = np.sqrt(np.abs(s)) + 1.0
+    native = register(CCDData(s, unit="adu", uncertainty=StdDevUncertainty(std)), t)
+    big = CCDData(s.astype(">f8"), unit="adu", uncertainty=StdDevUncertainty(std.astype(">f8")))
+    swapped = register(big, t.astype(">f8"))
+    assert np.array_equal(native.data, swapped.data, equal_nan=True)
+    assert np.array_equal(native.uncertainty.array, swapped.uncertainty.array, equal_nan=True)
+    assert np.array_equal(native.mask, swapped.mask)
+    m1, _ = find_transform(s, t)
+    m2, _ = find_transform(s.astype(">f8"), t.astype(">f8"))
+    assert np.array_equal(m1.matrix, m2.matrix)
+    assert big.data.dtype.byteorder == ">"  # the caller's array is not changed
+
+
+def _truncated(tmp_path, pair):
+    path = tmp_path / "cut.fits"
+    CCDData(pair.source.astype(np.float32), unit="adu").write(path)
+    raw = path.read_bytes()
+    path.write_bytes(raw[: len(raw) // 2])
+    return path
+
+
+def test_truncated_fits_names_the_file(tmp_path, pair):
+    path = _truncated(tmp_path, pair)
+    with pytest.raises(ValueError, match=r"cut\.fits.*truncated"):
+        register(str(path), pair.target)
+
+
+def test_truncated_fits_in_a_batch_is_reported_by_name(tmp_path, pair):
+    path = _truncated(tmp_path, pair)
+    result = register_batch([str(path)], pair.target, output_dir=tmp_path / "out")
+    frame = result.frames[0]
+    assert frame.status == "failed"
+    assert "truncated" in frame.error and "cut.fits" in frame.error
