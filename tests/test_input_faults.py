@@ -50,3 +50,51 @@ def test_truncated_fits_in_a_batch_is_reported_by_name(tmp_path, pair):
     frame = result.frames[0]
     assert frame.status == "failed"
     assert "truncated" in frame.error and "cut.fits" in frame.error
+
+
+def _aligned(pair, uncertainty, **kw):
+    from astroalign_nd import AstroalignWarning, apply_transform
+
+    s = pair.source.astype(np.float32)
+    ccd = CCDData(s, unit="adu", uncertainty=uncertainty)
+    transform, _ = find_transform(s, pair.target)
+    plain = apply_transform(transform, CCDData(s, unit="adu"), pair.target, **kw)
+    if uncertainty is None:
+        return plain, None
+    with pytest.warns(AstroalignWarning, match="pixels of the source's uncertainty"):
+        out = apply_transform(transform, ccd, pair.target, **kw)
+    return plain, out
+
+
+def _bad_uncertainties(shape):
+    from astropy.nddata import InverseVariance, VarianceUncertainty
+
+    nan = np.full(shape, np.nan, np.float32)
+    every_other = np.ones(shape, np.float32)
+    every_other[:, ::2] = np.nan
+    negative = np.ones(shape, np.float32)
+    negative[100:110, 100:110] = -4.0
+    zeros = np.ones(shape, np.float32)
+    zeros[50, 60] = 0.0
+    return {"all-nan stddev": StdDevUncertainty(nan),
+            "nan every other column": StdDevUncertainty(every_other),
+            "negative variance": VarianceUncertainty(negative),
+            "infinite variance": VarianceUncertainty(np.where(negative < 0, np.inf, 1.0)),
+            "zero inverse variance": InverseVariance(zeros)}
+
+
+@pytest.mark.parametrize("case", list(_bad_uncertainties((200, 200))))
+@pytest.mark.parametrize("order", ["bilinear", "bicubic"])
+def test_bad_uncertainty_never_touches_data_or_mask(pair, case, order):
+    unc = _bad_uncertainties(pair.source.shape)[case]
+    plain, out = _aligned(pair, unc, order=order)
+    assert np.array_equal(out.data, plain.data, equal_nan=True)
+    assert np.array_equal(out.mask, plain.mask)
+    var = out.uncertainty.array[~out.mask]
+    if case in ("all-nan stddev", "nan every other column"):
+        # every output pixel reaches a bad uncertainty pixel: its uncertainty is unknown
+        assert np.isnan(var).all()
+    else:
+        # a few bad pixels: the output uncertainty is unknown near them only
+        assert 0 < np.isnan(var).sum() < 0.01 * var.size
+    assert type(out.uncertainty) is type(unc)

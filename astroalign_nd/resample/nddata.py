@@ -32,6 +32,7 @@ from astropy import units as u
 from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUncertainty,
                             VarianceUncertainty)
 from .._input import parse_input
+from ..exceptions import AstroalignWarning, warn
 from ..io.header import add_provenance, check_quality, header_from_meta, header_without_wcs
 from .coordinate_map import _MAP_BAND_PIXELS, _CoordinateMap, _parse_matrix
 from .interpolation import ORDERS
@@ -260,6 +261,48 @@ def _source_variance(src, method):
     return variance, kind
 
 
+def _usable_variance(variance, kind):
+    """
+    ``(plane, kind, bad)``: the uncertainty plane with its unusable pixels (NaN, infinite,
+    negative; an inverse variance of 0 or less) set to a variance of 0, so that they touch
+    neither the data nor the mask; ``bad`` marks them (None if there are none).
+
+    The resampler treats a non-finite variance as a bad pixel, which would spread one bad
+    uncertainty value over the data and the mask of its neighbours, or blank a whole frame
+    whose uncertainty is all NaN.  A bad uncertainty must never destroy good data: only the
+    output uncertainty it reaches is unknown (NaN, see `_blank_uncertainty`).
+    """
+    if variance is None:
+        return None, kind, None
+    low, high = np.min(variance), np.max(variance)  # NaN propagates: two fast reductions
+    floor_ok = low > 0 if kind == "inverse" else low >= 0
+    if np.isfinite(low) and np.isfinite(high) and floor_ok:
+        return variance, kind, None
+    plane = np.asarray(variance, dtype=np.float64 if variance.dtype.itemsize > 4 else None)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        var = (np.square(plane) if kind == "stddev" else
+               1.0 / plane if kind == "inverse" else np.array(plane, copy=True))
+        bad = ~np.isfinite(var) | (var < 0) | ~np.isfinite(plane) | (plane < 0)
+    var[bad] = 0.0
+    warn(f"{int(bad.sum())} pixels of the source's uncertainty are NaN, infinite or "
+         "negative: they are left out of the output's data and mask, and its uncertainty is "
+         "NaN where they contribute.", AstroalignWarning)
+    return var, "variance", bad
+
+
+def _blank_uncertainty(var_out, mask_out, bad, m, shape_out, method, order, parallel):
+    """In place: NaN output uncertainty wherever an unusable input uncertainty contributes."""
+    indicator = bad.astype(np.float32)
+    if method == "exact":
+        reached, _, _ = resample_exact(indicator, m, shape_out, fill_value=0.0)
+    else:
+        reached, _, _ = resample(indicator, m, shape_out, order=order, fill_value=0.0,
+                                 parallel=parallel)
+    reached = reached != 0
+    valid = ~mask_out if reached.ndim == 2 else ~mask_out[..., None]
+    var_out[reached & valid] = np.nan
+
+
 def _output_header(src, dst, transform, m, quality, add_keyword, **names):
     """The source's header as FITS cards, without its WCS, and the registration's keywords."""
     # Non-FITS keys become HIERARCH cards; the WCS cards describe the old grid.
@@ -387,7 +430,8 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     if method == "exact" and isinstance(m, _CoordinateMap):
         _parse_matrix(m, "resample_exact")  # raises: say what to use instead
     shape_out, dst = _target_grid(target, hdu)
-    variance, kind = _source_variance(src, method)
+    variance, out_kind = _source_variance(src, method)
+    variance, kind, bad_unc = _usable_variance(variance, out_kind)
     if method == "exact":
         out, var_out, mask_out = resample_exact(src.data, m, shape_out, variance=variance,
                                                 mask=src.mask, fill_value=fill_value,
@@ -398,9 +442,11 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
                                           variance=variance, mask=src.mask,
                                           fill_value=fill_value, conserve_flux=conserve_flux,
                                           parallel=parallel, _variance_kind=kind,
-                                          _output_kind=kind)
+                                          _output_kind=out_kind)
         order_name = order if isinstance(order, str) else {v: k for k, v in ORDERS.items()}[
             int(order)]
+    if bad_unc is not None:
+        _blank_uncertainty(var_out, mask_out, bad_unc, m, shape_out, method, order, parallel)
 
     out_unit = src.unit if src.unit is not None else u.Unit(unit if unit is not None else "adu")
     uncertainty = None
