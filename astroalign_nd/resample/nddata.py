@@ -29,6 +29,7 @@ from __future__ import annotations
 from typing import Any
 import numpy as np
 from astropy import units as u
+from astropy.wcs import Sip
 from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUncertainty,
                             VarianceUncertainty)
 from .._input import parse_input
@@ -99,7 +100,16 @@ def _uncertainty_like(template, variance, unit, converted=False):
 
 
 def _carry_wcs(wcs, matrix, shape_out):
-    """The source's WCS expressed on the target's pixel grid."""
+    """
+    The source's WCS expressed on the target's pixel grid.
+
+    Output pixel ``q = A p + t`` for source pixel ``p``: the new ``CRPIX`` is
+    the old one mapped, ``CD`` becomes ``CD A^-1``, and SIP distortion ``f``
+    (forward and inverse) becomes ``A f(A^-1 v)``, re-expanded exactly (a
+    polynomial of a linear map is a polynomial of the same degree).  Lookup-table
+    distortions cannot be re-expressed: they are dropped with a warning that
+    says how far, in pixels, sky positions then move.
+    """
     w = wcs.deepcopy()
     lin = matrix[:2, :2]
     inv = np.linalg.inv(lin)
@@ -109,12 +119,60 @@ def _carry_wcs(wcs, matrix, shape_out):
         w.wcs.cd = np.asarray(w.wcs.cd) @ inv
     else:
         w.wcs.pc = np.asarray(w.wcs.get_pc()) @ inv
-    # SIP distortion belongs to the source's pixel grid: it cannot follow.
     if w.sip is not None:
-        w.sip = None
-        w.wcs.ctype = [c.replace("-SIP", "") for c in w.wcs.ctype]
+        sip = w.sip
+        a, b = _sip_through(sip.a, sip.b, lin, inv)
+        ap, bp = (_sip_through(sip.ap, sip.bp, lin, inv) if sip.ap is not None
+                  else (None, None))
+        w.sip = Sip(a, b, ap, bp, w.wcs.crpix)
+    _drop_lookup_tables(wcs, w, lin, matrix[:2, 2])
     w.pixel_shape = (shape_out[1], shape_out[0])
     return w
+
+
+def _poly_product(p, q):
+    """Product of two polynomials in (x, y) given as coefficient arrays ``c[i, j]`` of x^i y^j."""
+    out = np.zeros((p.shape[0] + q.shape[0] - 1, p.shape[1] + q.shape[1] - 1))
+    for i, j in zip(*np.nonzero(p)):
+        out[i:i + q.shape[0], j:j + q.shape[1]] += p[i, j] * q
+    return out
+
+
+def _sip_through(a, b, lin, inv):
+    """SIP terms ``(a, b)`` of ``u`` rewritten as those of ``v = lin u``: ``lin f(inv v)``."""
+    order = a.shape[0] - 1
+    # u1 and u2 as polynomials of v: the rows of ``inv``.
+    u1 = np.array([[0.0, inv[0, 1]], [inv[0, 0], 0.0]])
+    u2 = np.array([[0.0, inv[1, 1]], [inv[1, 0], 0.0]])
+    pow1, pow2 = [np.ones((1, 1))], [np.ones((1, 1))]
+    for _ in range(order):
+        pow1.append(_poly_product(pow1[-1], u1))
+        pow2.append(_poly_product(pow2[-1], u2))
+    f1 = np.zeros((order + 1, order + 1))
+    f2 = np.zeros((order + 1, order + 1))
+    for i, j in zip(*np.nonzero((a != 0) | (b != 0))):
+        term = _poly_product(pow1[i], pow2[j])[:order + 1, :order + 1]
+        f1[:term.shape[0], :term.shape[1]] += a[i, j] * term
+        f2[:term.shape[0], :term.shape[1]] += b[i, j] * term
+    return lin[0, 0] * f1 + lin[0, 1] * f2, lin[1, 0] * f1 + lin[1, 1] * f2
+
+
+def _drop_lookup_tables(old, new, lin, shift):
+    """Remove lookup-table distortions from ``new``, warning how far sky positions move."""
+    tables = ("cpdis1", "cpdis2", "det2im1", "det2im2")
+    if all(getattr(old, t, None) is None for t in tables):
+        return
+    for t in tables:
+        setattr(new, t, None)
+    ny, nx = old.pixel_shape[::-1] if old.pixel_shape else (1024, 1024)
+    yy, xx = np.mgrid[0:ny:17j, 0:nx:17j]
+    sky_old = old.all_pix2world(np.column_stack([xx.ravel(), yy.ravel()]), 0)
+    q = np.column_stack([xx.ravel(), yy.ravel()]) @ lin.T + shift
+    back = new.all_world2pix(sky_old, 0)
+    off = float(np.max(np.hypot(*(back - q).T)))
+    warn(f"the source's WCS has lookup-table distortion, which cannot follow the transform: "
+         f"the output's WCS is without it, so its sky positions are off by up to {off:.2f} px.",
+         AstroalignWarning)
 
 
 def _resample_flags(flags, matrix, shape_out):
