@@ -98,3 +98,13 @@ def test_bad_uncertainty_never_touches_data_or_mask(pair, case, order):
         # a few bad pixels: the output uncertainty is unknown near them only
         assert 0 < np.isnan(var).sum() < 0.01 * var.size
     assert type(out.uncertainty) is type(unc)
+
+
+def test_large_meta_is_kept_whole(pair):
+    meta = {f"KEY{i:05d}": i for i in range(3000)}
+    meta["object"] = "M31"  # lower case: one OBJECT card
+    meta["OBJECT"] = "M33"
+    out = register(CCDData(pair.source, unit="adu", meta=meta), pair.target)
+    assert all(out.meta[f"KEY{i:05d}"] == i for i in range(0, 3000, 97))
+    assert list(out.meta.keys()).count("OBJECT") == 1 and out.meta["OBJECT"] == "M33"
+    assert "AATTYPE" in out.meta
