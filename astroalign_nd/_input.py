@@ -261,12 +261,20 @@ def _read_fits(path, name, hdu, unit):
     try:
         # Our own file object: fits.open leaves its file open when a damaged
         # header (e.g. NAXIS = 3 without NAXIS3) fails while it is read.
-        with open(path, "rb") as fh, fits.open(fh) as hdul:
-            index = _image_hdu_index(hdul, hdu, name, repr(path))
-            header = hdul[index].header
-            primary = hdul[0].header.copy() if index != 0 and hdu is None else None
-            file_unit = _header_unit(header, name)
-            ext_names = {h.name for h in hdul}
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with open(path, "rb") as fh, fits.open(fh) as hdul:
+                index = _image_hdu_index(hdul, hdu, name, repr(path))
+                header = hdul[index].header
+                primary = hdul[0].header.copy() if index != 0 and hdu is None else None
+                file_unit = _header_unit(header, name)
+                ext_names = {h.name for h in hdul}
+        _reraise_warnings(caught, path, name)
+    except TypeError as exc:  # numpy: "buffer is too small for requested array"
+        raise ValueError(
+            f"{name}: could not read the data of {path!r}: the file is truncated or its "
+            f"header does not match its data ({exc}). Copy the file again from its source, "
+            "or pass another frame.") from None
     except OSError as exc:
         raise ValueError(
             f"{name}: could not read {path!r} as FITS ({exc}). Pass a FITS, JPEG, PNG or TIFF "
@@ -297,6 +305,17 @@ def _read_fits(path, name, hdu, unit):
     p.unit = file_unit if file_unit is not None else _as_unit(unit)
     p.kind = "fits"
     return p
+
+
+def _reraise_warnings(caught, path, name):
+    """Turn astropy's "may have been truncated" into an error; pass the other warnings on."""
+    for w in caught:
+        if "truncated" in str(w.message):
+            raise ValueError(
+                f"{name}: could not read the data of {path!r}: the file is truncated "
+                f"({w.message}). Copy the file again from its source, or pass another frame.")
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 def _native_in_place(arr):
@@ -430,12 +449,42 @@ def parse_input(obj: Any, name: str = "input", *, hdu: int | str | tuple | None 
     TypeError, ValueError
         With a message that says what was wrong and what to pass instead.
     """
-    if obj is None:
-        raise TypeError(f"{name} is None; pass an image, NDData/CCDData, FITS path or catalog.")
     if isinstance(obj, ParsedInput):
         return obj
     if isinstance(getattr(obj, "_parsed", None), ParsedInput):  # a Reference
         return obj._parsed
+    return _in_native_order(_parse(obj, name, hdu, unit))
+
+
+def _native_copy(arr):
+    """``arr`` in native byte order: itself if it already is, else a converted copy."""
+    if not isinstance(arr, np.ndarray) or arr.dtype.isnative or arr.dtype.byteorder == "|":
+        return arr
+    return arr.astype(arr.dtype.newbyteorder("="))
+
+
+def _in_native_order(p):
+    """
+    ``p`` with its pixel arrays in native byte order (big-endian arrays are copied).
+
+    Every computation then sees the same numbers whatever the caller's byte
+    order: the compiled kernels need native order, and the NumPy paths sum
+    in a different order on swapped arrays.  The caller's arrays are never
+    changed.
+    """
+    p.data = _native_copy(p.data)
+    p.mask = _native_copy(p.mask)
+    p.flags = _native_copy(p.flags)
+    unc = p.uncertainty
+    if unc is not None and isinstance(getattr(unc, "array", None), np.ndarray) \
+            and not unc.array.dtype.isnative:
+        p.uncertainty = type(unc)(_native_copy(unc.array), unit=unc.unit, copy=False)
+    return p
+
+
+def _parse(obj, name, hdu, unit):
+    if obj is None:
+        raise TypeError(f"{name} is None; pass an image, NDData/CCDData, FITS path or catalog.")
     if isinstance(obj, (str, os.PathLike)):
         return _read_path(obj, name, hdu, unit)
     if isinstance(obj, fits.HDUList):

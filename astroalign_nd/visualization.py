@@ -30,6 +30,8 @@ import os
 
 import numpy as np
 
+from .io.write import check_not_input
+
 __all__ = ["plot_matches", "plot_invariants", "plot_residuals", "plot_difference",
            "plot_registration", "save_diagnostic_figure", "match_colors"]
 
@@ -572,6 +574,7 @@ def save_diagnostic_figure(path, source, target, aligned=None, *, overwrite=Fals
     ...     os.path.getsize(out) > 0
     True
     """
+    check_not_input(path, (source, target))
     _check_plot_path(path, overwrite)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure

@@ -123,9 +123,9 @@ def test_failed_write_keeps_old_output(tmp_path, night, monkeypatch):
     target = first.frames[0].output
     before = Path(target).read_bytes()
 
-    def broken_write(self, filename, *args, **kwargs):
-        with open(filename, "wb") as fh:  # half a file, then the disk "fills up"
-            fh.write(b"SIMPLE  =                    T" + b" " * 1000)
+    def broken_write(self, file, *args, **kwargs):
+        # half a file, then the disk "fills up" (the package writes to an open file)
+        file.write(b"SIMPLE  =                    T" + b" " * 1000)
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(CCDData, "write", broken_write)
@@ -153,13 +153,12 @@ def test_killed_during_write_leaves_no_partial_file(tmp_path):
         from astroalign_nd.io.write import write_ccddata
 
         real = fits.HDUList.writeto
-        def slow_writeto(self, name, *args, **kwargs):
-            with open(name, "wb") as fh:
-                fh.write(b"SIMPLE  =                    T" + b" " * 2850)
-                fh.flush()
-                print("writing", flush=True)
-                time.sleep(60)  # killed here
-            real(self, name, *args, **kwargs)
+        def slow_writeto(self, fh, *args, **kwargs):  # the package writes to an open file
+            fh.write(b"SIMPLE  =                    T" + b" " * 2850)
+            fh.flush()
+            print("writing", flush=True)
+            time.sleep(60)  # killed here
+            real(self, fh, *args, **kwargs)
         fits.HDUList.writeto = slow_writeto
         write_ccddata(CCDData(np.ones((64, 64), np.float32), unit="adu"), {str(final)!r},
                       overwrite=True)
@@ -177,8 +176,8 @@ def test_killed_during_write_leaves_no_partial_file(tmp_path):
         proc.stdout.close()
     assert final.read_bytes() == old
     leftovers = [p for p in os.listdir(tmp_path) if p != "out.fits"]
-    # only a hidden temporary (which globs like *.fits do not match) may remain
-    assert leftovers and all(p.startswith(".out.fits.aat-tmp-") for p in leftovers)
+    # only a hidden private folder (which globs like *.fits do not match) may remain
+    assert leftovers and all(p.startswith(".aat-tmp-") for p in leftovers)
 
 
 def test_atomic_write_refuses_existing(tmp_path):

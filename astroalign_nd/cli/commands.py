@@ -9,10 +9,14 @@ from .options import _registration_kwargs
 __all__ = []
 
 
-def _check_writable(path, overwrite):
-    """Refuse, before any work, a path that cannot take the output."""
-    from astroalign_nd.io.write import check_output_path
+def _check_writable(path, overwrite, inputs=()):
+    """Refuse, before any work, a path that cannot take the output (or is an input)."""
+    from astroalign_nd.io.write import check_not_input, check_output_path
 
+    try:
+        check_not_input(path, inputs)
+    except ValueError as exc:
+        raise _CLIError(str(exc)) from None
     try:
         check_output_path(path, overwrite)
     except FileExistsError:
@@ -84,10 +88,15 @@ def _cmd_register(args):
     import astroalign_nd
     from astroalign_nd.io.write import write_ccddata
 
-    _check_writable(args.output, args.overwrite)
+    _check_writable(args.output, args.overwrite, inputs=(args.source, args.target))
     if args.plot:  # before the work: matplotlib missing or PLOT existing stops here
+        from astroalign_nd.io.write import check_not_input
         from astroalign_nd.visualization import _check_plot_path, save_diagnostic_figure
 
+        try:
+            check_not_input(args.plot, (args.source, args.target, args.output))
+        except ValueError as exc:
+            raise _CLIError(str(exc)) from None
         _check_plot_path(args.plot, args.overwrite)
     aligned = astroalign_nd.register(_check_input(args.source), _check_input(args.target),
                                      unit=args.unit, **_registration_kwargs(args))

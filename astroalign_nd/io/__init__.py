@@ -12,11 +12,16 @@ Storing transforms in files.
 * ASDF: any transform, alone or inside an astropy compound model, through
   the extension in ``astroalign_nd.io.asdf`` (registered with asdf by entry
   points when the package is installed).
+* A transform in a file of its own: `write_transform` / `read_transform`
+  (ASDF or FITS, by the name's ending), refusing a damaged file with a
+  `ValueError` that names it.
 """
 
 from .header import (QUALITY_KEYWORDS, add_provenance, distorted_wcs, transform_from_header,
                      transform_to_header)
+from .transform_files import read_transform, write_transform
 from .write import atomic_write, write_ccddata
 
 __all__ = ["transform_to_header", "transform_from_header", "add_provenance", "distorted_wcs",
-           "QUALITY_KEYWORDS", "atomic_write", "write_ccddata"]
+           "QUALITY_KEYWORDS", "atomic_write", "write_ccddata", "read_transform",
+           "write_transform"]

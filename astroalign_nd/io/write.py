@@ -2,12 +2,14 @@
 """
 Writing output files so that a crash never leaves half a file.
 
-Every file the package writes goes first to a hidden temporary file in the
-same folder, which is then renamed onto the final name (`os.replace`, atomic
-on POSIX and Windows within one file system).  So:
+Every file the package writes goes first to a temporary file in a new
+private folder beside the output (mode 0700: nobody else can read it or swap
+it for a link), which is then moved onto the final name (`os.replace` or
+`os.link`, atomic on POSIX and Windows within one file system, never
+following a link).  So:
 
 * a run killed during a write leaves no partial file under the final name
-  (at most a hidden ``.<name>.aat-tmp-*`` file, which shell globs such as
+  (at most a hidden ``.aat-tmp-*`` folder, which shell globs such as
   ``*.fits`` do not match);
 * an existing output is replaced only when the new one is complete;
 * without ``overwrite``, an existing file is never replaced, even by a
@@ -16,10 +18,13 @@ on POSIX and Windows within one file system).  So:
 """
 
 import contextlib
+import gzip
 import os
+import stat
 import tempfile
 
-__all__ = ["atomic_write", "write_ccddata", "check_output_path", "FITS_EXTENSIONS"]
+__all__ = ["atomic_write", "atomic_open", "write_ccddata", "check_output_path",
+           "check_not_input", "FITS_EXTENSIONS"]
 
 #: File name endings taken as FITS by `write_ccddata` and the command line.
 FITS_EXTENSIONS = (".fits", ".fit", ".fts", ".fits.gz", ".fit.gz", ".fts.gz")
@@ -27,48 +32,135 @@ FITS_EXTENSIONS = (".fits", ".fit", ".fts", ".fits.gz", ".fit.gz", ".fts.gz")
 _TMP_TAG = ".aat-tmp-"
 
 
-def _read_umask():
-    # os.umask can only be read by setting it; do that once, at import.
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+#: File operations that can work relative to a directory's descriptor (POSIX): with them,
+#: a temporary folder renamed or replaced by another user cannot redirect a write.
+#: (``os.rename`` is POSIX rename(2), which replaces the destination as ``os.replace`` does;
+#: ``os.replace`` itself is missing from ``os.supports_dir_fd`` although it takes the argument.)
+_DIR_FD = all(f in os.supports_dir_fd for f in (os.open, os.stat, os.unlink, os.link, os.rename))
+
+#: Longest name ending kept on the temporary file (``.fits.gz`` and the like).
+_MAX_SUFFIX = 16
 
 
-#: Permissions of new files, as ``open()`` would give them (mkstemp's are 0600).
-_FILE_MODE = 0o666 & ~_read_umask()
+def _suffix(base):
+    """The name's ending (``'.fits.gz'`` of ``'m31.fits.gz'``), at most `_MAX_SUFFIX` long."""
+    dot = base.find(".", 1)
+    suffix = base[dot:] if dot > 0 else ""
+    while len(suffix) > _MAX_SUFFIX and "." in suffix[1:]:
+        suffix = suffix[suffix.index(".", 1):]
+    return suffix if len(suffix) <= _MAX_SUFFIX else ""
 
 
-def _temp_path(path):
-    folder, base = os.path.split(os.path.abspath(path))
-    # The final name is kept as the suffix, so writers that pick a format or
-    # compression from the ending (``.fits.gz``) behave as for the final name.
-    fd, tmp = tempfile.mkstemp(prefix=f".{base}{_TMP_TAG}", suffix=f"-{base}", dir=folder)
-    try:
-        os.fchmod(fd, _FILE_MODE)
-    except (AttributeError, OSError):  # pragma: no cover - Windows
-        pass
-    os.close(fd)
-    return tmp
+class _PrivateFolder:
+    """
+    A folder only this user can enter (``mkdtemp``: mode 0700, a fresh random name), made
+    beside the output, holding the one temporary file of an atomic write.
 
+    On POSIX the folder is held by a descriptor: the file is created, checked, published and
+    removed relative to it, so renaming the folder or planting a link in its place (which
+    anyone who can write to a shared folder without the sticky bit can do) cannot redirect
+    the write.  On Windows, which has no such calls, names are used.
+    """
 
-def _publish(tmp, path, overwrite):
-    """Move the complete ``tmp`` onto ``path``."""
-    if overwrite:
-        os.replace(tmp, path)
-        return
-    try:
-        os.link(tmp, path)  # fails if ``path`` exists: no check-then-write race
-    except FileExistsError:
-        raise FileExistsError(
-            f"{path} exists; pass overwrite=True (or --overwrite) to replace it.") from None
-    except OSError:
-        # File systems without hard links (FAT, some network shares).
-        if os.path.lexists(path):
+    def __init__(self, path):
+        folder, base = os.path.split(os.path.abspath(path))
+        # The final name's ending is kept, so writers that choose a format or a compression
+        # from it (``.fits.gz``) behave as for the final name; the length stays bounded.
+        self.name = "part" + _suffix(base)
+        self.fd = None
+        for attempt in range(5):
+            self.path = tempfile.mkdtemp(prefix=_TMP_TAG, dir=folder)
+            self.temp = os.path.join(self.path, self.name)
+            if not _DIR_FD or self._hold():
+                return
+        raise OSError(f"a private folder made in {folder!r} was replaced as soon as it was "
+                      "made, 5 times: someone is tampering with this folder; nothing was "
+                      "written.")
+
+    def _hold(self):
+        """Open the new folder; False (and nothing held) if it is no longer the one made."""
+        flags = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_NOFOLLOW", 0)
+        try:
+            fd = os.open(self.path, flags)
+        except OSError:
+            return False
+        st = os.fstat(fd)
+        if st.st_uid != os.geteuid() or stat.S_IMODE(st.st_mode) != 0o700 or \
+                os.listdir(fd):
+            os.close(fd)
+            return False
+        self.fd = fd
+        # Where the system can name a file through an open folder (Linux), writers given a
+        # path reach the file through the descriptor too, not through the folder's name.
+        proc = f"/proc/self/fd/{fd}"
+        if os.path.isdir(proc):
+            self.temp = os.path.join(proc, self.name)
+        return True
+
+    def open(self):
+        """Create the temporary file (never through a link) and return it open for writing."""
+        flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) \
+            | getattr(os, "O_BINARY", 0)
+        if self.fd is None:
+            return os.fdopen(os.open(self.temp, flags, 0o666), "wb")
+        return os.fdopen(os.open(self.name, flags, 0o666, dir_fd=self.fd), "wb")
+
+    def _stat(self):
+        if self.fd is None:
+            return os.lstat(self.temp)
+        return os.stat(self.name, dir_fd=self.fd, follow_symlinks=False)
+
+    def check(self, opened=None):
+        """Raise unless the temporary file is a regular file (the one ``opened``, if given)."""
+        try:
+            st = self._stat()
+        except FileNotFoundError:
+            raise OSError(f"the temporary file {self.temp!r} was removed or its folder "
+                          "replaced before it was complete; nothing was written.") from None
+        if not stat.S_ISREG(st.st_mode) or (
+                opened is not None and (st.st_ino, st.st_dev) != (opened.st_ino, opened.st_dev)):
+            raise OSError(f"the temporary file {self.temp!r} was replaced (by a link or "
+                          "another file) before it was published; nothing was written.")
+
+    def publish(self, path, overwrite):
+        """Move the complete temporary file onto ``path`` (replacing a link there, unfollowed)."""
+        src = dict(src_dir_fd=self.fd) if self.fd is not None else {}
+        name = self.name if self.fd is not None else self.temp
+        move = os.rename if self.fd is not None else os.replace
+        if overwrite:
+            move(name, path, **src)
+            return
+        try:
+            # Fails if ``path`` exists, even as a dangling link: no check-then-write race.
+            os.link(name, path, follow_symlinks=False, **src)
+        except FileExistsError:
             raise FileExistsError(
                 f"{path} exists; pass overwrite=True (or --overwrite) to replace it.") from None
-        os.replace(tmp, path)
-        return
-    os.unlink(tmp)
+        except (OSError, NotImplementedError):
+            # File systems without hard links (FAT, some network shares).
+            if os.path.lexists(path):
+                raise FileExistsError(
+                    f"{path} exists; pass overwrite=True (or --overwrite) to replace it.") \
+                    from None
+            move(name, path, **src)
+
+    def close(self):
+        """Remove what is left: the temporary file (if not published) and the folder."""
+        with contextlib.suppress(OSError):
+            if self.fd is None:
+                os.unlink(self.temp)
+            else:
+                os.unlink(self.name, dir_fd=self.fd)
+        if self.fd is not None:
+            os.close(self.fd)
+        with contextlib.suppress(OSError):
+            os.rmdir(self.path)
+
+
+def _refuse_existing(path, overwrite):
+    if not overwrite and os.path.lexists(path):
+        raise FileExistsError(
+            f"{path} exists; pass overwrite=True (or --overwrite) to replace it.")
 
 
 @contextlib.contextmanager
@@ -77,9 +169,15 @@ def atomic_write(path, overwrite=False):
     Context manager giving a temporary path that becomes ``path`` on success.
 
     Write the whole file to the yielded path; when the block ends without
-    an exception, the file is renamed onto ``path``.  On any exception
+    an exception, the file is moved onto ``path``.  On any exception
     (including `KeyboardInterrupt`) the temporary file is removed and
     ``path`` is left as it was.
+
+    The temporary file lives in a new folder beside ``path`` that only this
+    user can enter (mode 0700), so nobody else can read the data while it
+    is written or swap the file for a link; before the move, the file is
+    checked to be a regular file, and the move never follows a link.  The
+    temporary name has a bounded length, whatever the length of ``path``.
 
     Parameters
     ----------
@@ -92,7 +190,7 @@ def atomic_write(path, overwrite=False):
     Yields
     ------
     tmp : str
-        Where to write (a hidden file in the same folder as ``path``).
+        Where to write (a file in a private folder beside ``path``).
 
     Examples
     --------
@@ -108,17 +206,60 @@ def atomic_write(path, overwrite=False):
     complete ['notes.txt']
     """
     path = os.fspath(path)
-    if not overwrite and os.path.lexists(path):
-        raise FileExistsError(
-            f"{path} exists; pass overwrite=True (or --overwrite) to replace it.")
-    tmp = _temp_path(path)
+    _refuse_existing(path, overwrite)
+    private = _PrivateFolder(path)
     try:
-        yield tmp
-        _publish(tmp, path, overwrite)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+        yield private.temp
+        private.check()
+        private.publish(path, overwrite)
+    finally:
+        private.close()
+
+
+@contextlib.contextmanager
+def atomic_open(path, overwrite=False):
+    """
+    Context manager giving a binary file, open for writing, that becomes ``path`` on success.
+
+    As `atomic_write`, but the package creates and opens the temporary file
+    itself (never through a link; on POSIX relative to the private folder's
+    descriptor), so not even renaming that folder can redirect the data.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The final file name.  Its folder must exist.
+    overwrite : bool, optional
+        Replace ``path`` if it exists (default False: `FileExistsError`).
+
+    Yields
+    ------
+    file : file object
+        Open in ``"wb"`` mode; closed when the block ends.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.io.write import atomic_open
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = os.path.join(folder, "notes.bin")
+    ...     with atomic_open(path) as f:
+    ...         _ = f.write(b"complete")
+    ...     with open(path, "rb") as f:
+    ...         print(f.read(), os.listdir(folder))
+    b'complete' ['notes.bin']
+    """
+    path = os.fspath(path)
+    _refuse_existing(path, overwrite)
+    private = _PrivateFolder(path)
+    try:
+        with private.open() as f:
+            opened = os.fstat(f.fileno())
+            yield f
+        private.check(opened)
+        private.publish(path, overwrite)
+    finally:
+        private.close()
 
 
 def write_ccddata(ccd, path, *, overwrite=False, **kwargs):
@@ -161,8 +302,15 @@ def write_ccddata(ccd, path, *, overwrite=False, **kwargs):
     >>> back.shape, back.unit, back.data.dtype
     ((4, 5), Unit("adu"), dtype('>f4'))
     """
-    with atomic_write(path, overwrite=overwrite) as tmp:
-        ccd.write(tmp, overwrite=True, format="fits", **kwargs)
+    path = os.fspath(path)
+    with atomic_open(path, overwrite=overwrite) as f:
+        if path.lower().endswith(".gz"):
+            # astropy compresses by the file name's ending; a file object needs the wrapper.
+            name = os.path.basename(path)[:-3]
+            with gzip.GzipFile(filename=name, mode="wb", fileobj=f) as gz:
+                ccd.write(gz, format="fits", **kwargs)
+        else:
+            ccd.write(f, format="fits", **kwargs)
 
 
 def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):
@@ -213,6 +361,58 @@ def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):
         raise FileExistsError(f"output file {path!r} already exists; pass --overwrite "
                               "(overwrite=True) to replace it.")
     _check_writable_dir(os.path.dirname(os.path.abspath(path)))
+
+
+def _same_file(a, b):
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)  # hard links, case-insensitive file systems
+    except OSError:
+        return False
+
+
+def check_not_input(output, inputs):
+    """
+    Refuse an output path that is one of the inputs (compared by real path).
+
+    Writing the result over an input would destroy it, with or without
+    ``overwrite``: the source or the reference frame may be the only copy
+    of a night's data.
+
+    Parameters
+    ----------
+    output : str or path-like
+        The output file name.
+    inputs : iterable of str or path-like
+        The input file names (other kinds of input are ignored).
+
+    Raises
+    ------
+    ValueError
+        If ``output`` names the same file as one of ``inputs`` (through a
+        link, a ``..`` or a hard link too).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.io.write import check_not_input
+    >>> with tempfile.TemporaryDirectory() as folder:  # doctest: +ELLIPSIS
+    ...     target = os.path.join(folder, "target.fits")
+    ...     open(target, "wb").close()
+    ...     check_not_input(os.path.join(folder, "aligned.fits"), [target])  # fine
+    ...     try:
+    ...         check_not_input(os.path.join(folder, ".", "target.fits"), [target])
+    ...     except ValueError as exc:
+    ...         print(exc)
+    output ...target.fits is the input ...target.fits: writing it would destroy that input;
+    give another output name.
+    """
+    output = os.fspath(output)
+    for item in inputs:
+        if isinstance(item, (str, os.PathLike)) and _same_file(output, os.fspath(item)):
+            raise ValueError(f"output {output} is the input {os.fspath(item)}: writing it "
+                             "would destroy that input; give another output name.")
 
 
 def _check_writable_dir(folder):

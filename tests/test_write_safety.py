@@ -1,0 +1,163 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Writes that another user of a shared folder cannot hijack.
+
+The attacker is a real race: a thread that watches the output folder and, as
+soon as a temporary entry of ours appears, replaces it by a link to a file it
+controls (a temporary file: a link in its place; a temporary folder: renamed
+away, and a folder of its own with a link inside put in its place).  A write
+must then either publish our complete data as a regular file, or fail with an
+error; it must never write into the attacker's file nor publish a link.
+"""
+
+import os
+import threading
+
+import numpy as np
+import pytest
+from astropy.nddata import CCDData
+
+from astroalign_nd.io.write import atomic_open, atomic_write, write_ccddata
+
+pytestmark = pytest.mark.skipif(os.name == "nt",
+                                reason="planting links needs privileges on Windows")
+
+
+class _Attacker(threading.Thread):
+    def __init__(self, folder, bait):
+        super().__init__(daemon=True)
+        self.folder, self.bait = folder, bait
+        self.stop = threading.Event()
+        self.swaps = 0
+
+    def run(self):
+        n = 0
+        while not self.stop.is_set():
+            for name in os.listdir(self.folder):
+                if "aat-tmp" not in name or name.endswith(".moved"):
+                    continue
+                path = os.path.join(self.folder, name)
+                n += 1
+                try:
+                    if os.path.isdir(path) and not os.path.islink(path):
+                        os.rename(path, f"{path}.{n}.moved")
+                        os.mkdir(path)
+                        for inner in ("part.fits", "part"):
+                            os.symlink(self.bait, os.path.join(path, inner))
+                    elif not os.path.islink(path):
+                        os.unlink(path)
+                        os.symlink(self.bait, path)
+                    self.swaps += 1
+                except OSError:
+                    pass
+
+
+@pytest.mark.parametrize("how", ["write_ccddata", "atomic_write"])
+def test_planted_link_never_followed(tmp_path, how):
+    folder = tmp_path / "shared"
+    folder.mkdir()
+    bait = tmp_path / "attacker.txt"
+    bait.write_bytes(b"attacker's file")
+    data = np.arange(600 * 600, dtype=np.float32).reshape(600, 600)
+    attacker = _Attacker(str(folder), str(bait))
+    attacker.start()
+    outcomes = []
+    try:
+        for i in range(10):
+            out = folder / f"frame{i}.fits"
+            try:
+                if how == "write_ccddata":
+                    write_ccddata(CCDData(data, unit="adu"), out)
+                else:
+                    with atomic_write(out) as tmp:
+                        CCDData(data, unit="adu").write(tmp)
+                outcomes.append("written")
+            except OSError:
+                outcomes.append("refused")
+                continue
+            assert not out.is_symlink()
+            assert np.array_equal(CCDData.read(out).data, data)
+    finally:
+        attacker.stop.set()
+        attacker.join(timeout=10)
+    assert bait.read_bytes() == b"attacker's file"  # never written into
+    assert attacker.swaps > 0  # the race was really run
+    # A swap is noticed and the write refused, or (through the private folder's descriptor)
+    # it does not matter at all: most writes go through.
+    assert outcomes.count("written") >= 5, outcomes
+    assert not any(p.is_symlink() and not p.name.startswith(".") for p in folder.iterdir())
+
+
+def test_private_folder_mode_and_bounded_name(tmp_path):
+    long_name = "x" * 200 + ".fits.gz"  # the temporary name must not grow with it
+    seen = {}
+    with atomic_write(tmp_path / long_name) as tmp:
+        seen["mode"] = os.stat(os.path.dirname(tmp)).st_mode & 0o777
+        seen["name"] = os.path.basename(tmp)
+        with open(tmp, "wb") as f:
+            f.write(b"ok")
+    assert seen["mode"] == 0o700
+    assert seen["name"] == "part.fits.gz"
+    assert (tmp_path / long_name).read_bytes() == b"ok"
+    assert os.listdir(tmp_path) == [long_name]
+
+
+def test_long_output_name_is_written(tmp_path):
+    """Names up to the file system's limit (255) work: the temporary name is short."""
+    name = "n" * 240 + ".fits"
+    write_ccddata(CCDData(np.ones((4, 4), np.float32), unit="adu"), tmp_path / name)
+    assert CCDData.read(tmp_path / name).shape == (4, 4)
+    assert os.listdir(tmp_path) == [name]
+
+
+def test_gzip_output_is_compressed(tmp_path):
+    path = tmp_path / "f.fits.gz"
+    write_ccddata(CCDData(np.ones((16, 16), np.float32), unit="adu"), path)
+    assert path.read_bytes()[:2] == b"\x1f\x8b"
+    assert CCDData.read(path).shape == (16, 16)
+
+
+def test_atomic_open_failure_leaves_nothing(tmp_path):
+    path = tmp_path / "out.bin"
+    with pytest.raises(RuntimeError):
+        with atomic_open(path) as f:
+            f.write(b"half")
+            raise RuntimeError("boom")
+    assert os.listdir(tmp_path) == []
+
+
+def _files(tmp_path):
+    from astroalign_nd.simulate import simulate_pair
+
+    pair = simulate_pair((128, 128), n_stars=60, rotation=10.0, seed=3)
+    src, dst = tmp_path / "s.fits", tmp_path / "t.fits"
+    CCDData(pair.source, unit="adu").write(src)
+    CCDData(pair.target, unit="adu").write(dst)
+    return src, dst
+
+
+@pytest.mark.parametrize("which", ["target", "source", "target-via-link"])
+def test_register_refuses_an_input_as_output(tmp_path, capsys, which):
+    from astroalign_nd.cli import main
+
+    src, dst = _files(tmp_path)
+    before = {p: p.read_bytes() for p in (src, dst)}
+    out = {"target": dst, "source": src}.get(which)
+    if which == "target-via-link":
+        (tmp_path / "sub").mkdir()
+        out = tmp_path / "sub" / ".." / "t.fits"
+    code = main(["register", str(src), str(dst), "-o", str(out), "--overwrite"])
+    assert code == 2
+    assert "would destroy that input" in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in (src, dst)} == before
+
+
+def test_plot_refuses_an_input(tmp_path):
+    pytest.importorskip("matplotlib")
+    from astroalign_nd.visualization import save_diagnostic_figure
+
+    src, dst = _files(tmp_path)
+    before = src.read_bytes()
+    with pytest.raises(ValueError, match="would destroy that input"):
+        save_diagnostic_figure(str(src), str(src), str(dst), overwrite=True)
+    assert src.read_bytes() == before
