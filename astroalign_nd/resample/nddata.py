@@ -26,12 +26,14 @@ The output carries:
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import Any
 import numpy as np
 from astropy import units as u
 from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUncertainty,
                             VarianceUncertainty)
 from .._input import parse_input
+from ..config import ResampleConfig, astroalign_advice
 from ..io.header import add_provenance, check_quality, header_from_meta, header_without_wcs
 from .coordinate_map import _MAP_BAND_PIXELS, _CoordinateMap, _parse_matrix
 from .interpolation import ORDERS
@@ -197,15 +199,17 @@ def _nonlinear_provenance(header, transform, cmap, quality, names):
     return out
 
 
+#: `apply_transform`'s keywords as its error message lists them: the resampling
+#: config's fields, and the inputs' own.
+_ACCEPTED = ", ".join(f.name for f in fields(ResampleConfig)) + ", unit, quality and hdu"
+
+
 def _check_options(unexpected, order, method):
     """`apply_transform`'s keywords: none unknown, a known order and method."""
     if unexpected:
-        from ..registration import _astroalign_advice
-
         raise TypeError(
             f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
-            "accepts order, conserve_flux, fill_value, method, unit, parallel, quality, hdu "
-            f"and add_keyword.{_astroalign_advice(unexpected)}")
+            f"accepts {_ACCEPTED}.{astroalign_advice(unexpected)}")
     if isinstance(order, str) and order not in ORDERS:
         raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
     if method not in ("interpolate", "exact"):
