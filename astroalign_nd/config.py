@@ -379,15 +379,14 @@ class ModelConfig:
         from .transforms.registry import transform_class
 
         object.__setattr__(self, "degree", check_degree(self.transform_type, self.degree))
-        transform_class(self.linear_type if is_nonlinear(self.transform_type)
-                        else self.transform_type)
+        # Not a field: derived from transform_type, checked once here.
+        object.__setattr__(self, "_nonlinear", is_nonlinear(self.transform_type))
+        transform_class(self.linear_type)  # an unknown type: a clear message, before any work
 
     @property
     def nonlinear(self):
         """True for a distortion model (grown from a linear match)."""
-        from .transforms.selection import is_nonlinear
-
-        return is_nonlinear(self.transform_type)
+        return self._nonlinear
 
     @property
     def linear_type(self):
@@ -438,15 +437,16 @@ class ResampleConfig:
                      and 0 <= int(order) <= 3)
         if not known:
             raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
+        # Not a field (apply_transform takes the fields as keywords): derived from order.
+        object.__setattr__(self, "_order_index", ORDERS[order] if isinstance(order, str)
+                           else int(order))
         if self.method not in ("interpolate", "exact"):
             raise ValueError(f"method must be 'interpolate' or 'exact'; got {self.method!r}.")
 
     @property
     def order_index(self):
         """The interpolation order as an integer 0-3."""
-        from .resample.interpolation import ORDERS
-
-        return ORDERS[self.order] if isinstance(self.order, str) else int(self.order)
+        return self._order_index
 
 
 @dataclasses.dataclass(frozen=True)

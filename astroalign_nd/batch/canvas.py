@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import numpy as np
+from ..transforms.convert import as_matrix
 from .results import FrameResult
 from .frame import _shifted
 
@@ -66,8 +67,6 @@ def union_canvas(transforms, shapes, reference_shape, margin=0.0):
     >>> union_canvas([shift], [(100, 100)], (100, 100))
     ((120, 150), (0, -20))
     """
-    from ..transforms.convert import as_matrix
-
     ny, nx = reference_shape
     xs, ys = [0.0, nx - 1.0], [0.0, ny - 1.0]
     for t, (h, w) in zip(transforms, shapes):

@@ -181,7 +181,7 @@ def _nonlinear_provenance(header, transform, cmap, quality, names):
     """
     from astropy.modeling import Model
 
-    from ..io.header import _add_history, fits_text
+    from ..io.header import add_history, fits_text
 
     model = transform
     if not isinstance(model, Model):  # a projective matrix or scikit-image transform
@@ -191,11 +191,11 @@ def _nonlinear_provenance(header, transform, cmap, quality, names):
     except (ValueError, TypeError):
         pass  # not storable in a header
     out = header.copy()
-    _add_history(out, f"astroalign_nd: registered {fits_text(names['source_name'])} onto the "
-                      f"pixel grid of {fits_text(names['target_name'])} through a non-linear "
-                      f"{cmap.name} (not stored in this header)")
-    _add_history(out, f"astroalign_nd resampling: {names['order']}, "
-                      f"conserve_flux={names['conserve_flux']}")
+    add_history(out, f"astroalign_nd: registered {fits_text(names['source_name'])} onto the "
+                     f"pixel grid of {fits_text(names['target_name'])} through a non-linear "
+                     f"{cmap.name} (not stored in this header)")
+    add_history(out, f"astroalign_nd resampling: {names['order']}, "
+                     f"conserve_flux={names['conserve_flux']}")
     return out
 
 
