@@ -11,7 +11,8 @@ accepted values and its help text: constructing a config checks every
 value (``__post_init__``) and normalises it (``float``/``int``/``tuple``), so
 that a bad value gives one message naming the option and its range before
 any work is done.  The command line's options and help are generated from
-the same fields (`cli_fields`).
+the same fields (`cli_fields`).  `OPTIONS` is a view of the checks, by
+option name.
 
 `~astroalign_nd.find_transform`, `~astroalign_nd.register`,
 `~astroalign_nd.register_batch`, `~astroalign_nd.Reference` and
@@ -32,11 +33,11 @@ __all__ = ["DetectionConfig", "MatchingConfig", "ModelConfig", "ResampleConfig",
            "astroalign_advice", "DEFAULT_TOLERANCE", "DEFAULT_NEIGHBORS"]
 
 #: `~astroalign_nd.matching.match_points`' matching radius (pixels); a
-#: registration's search widens it for wide stars (`MatchingConfig.tolerance`).
+#: registration's search widens it for wide stars (`MatchingConfig`'s ``tolerance``).
 DEFAULT_TOLERANCE = 3.0
 
 #: Neighbours per star of `~astroalign_nd.matching.match_points`' triangles;
-#: a registration tries 6 and 8 for sparse lists (`MatchingConfig.n_neighbors`).
+#: a registration tries 6 and 8 for sparse lists (`MatchingConfig`'s ``n_neighbors``).
 DEFAULT_NEIGHBORS = 4
 
 
