@@ -19,7 +19,7 @@ option name.
 `~astroalign_nd.find_sources` take the options as keywords, as before, and
 build these configs once; the stages trust them.
 
-Runtime settings (threads, compiled code) are `astroalign_nd.conf`'s.
+Runtime settings (threads, compiled code) are ``astroalign_nd.conf``'s.
 """
 
 import dataclasses
