@@ -1,132 +1,86 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
-"""One configuration: each option's default, range and message in one place (issue 24)."""
+"""``astroalign_nd.conf``: the thread count and the compiled loops, set once."""
 
-import dataclasses
-import inspect
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
+from astropy.config import ConfigNamespace
 
-from astroalign_nd import config, find_match, find_sources, find_transform, register
-from astroalign_nd.batch import register_batch
-from astroalign_nd.cli.options import _FIELDS, _registration_options
-from astroalign_nd.config import (DetectionConfig, MatchingConfig, ModelConfig,
-                                  RegistrationConfig, ResampleConfig)
-from astroalign_nd.matching import match_points
+import astroalign_nd
+from astroalign_nd import _kernels, conf, find_transform
+from astroalign_nd._config import Conf
+from astroalign_nd.batch.runners import _init_worker
+from astroalign_nd.simulate import simulate_pair
 
+from _helpers import frame_error
 
-def _defaults(func):
-    return {n: p.default for n, p in inspect.signature(func).parameters.items()
-            if p.default is not p.empty}
-
-
-def _field_defaults(cls):
-    return {f.name: f.default for f in dataclasses.fields(cls)
-            if f.default is not dataclasses.MISSING}
+WORKTREE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def _same(a, b):
-    return a == b or (isinstance(a, float) and np.isnan(a) and np.isnan(b))
+def test_conf_is_an_astropy_config_namespace():
+    assert isinstance(astroalign_nd.conf, ConfigNamespace)
+    assert "conf" in dir(astroalign_nd)
+    assert Conf.num_threads.defaultvalue == 0 and Conf.use_compiled.defaultvalue is True
 
 
-@pytest.mark.parametrize("func, configs", [
-    (find_transform, (ModelConfig, RegistrationConfig)),
-    (find_match, (ModelConfig, RegistrationConfig)),
-    (register, (ModelConfig, RegistrationConfig, ResampleConfig)),
-    (register_batch, (ResampleConfig,)),
-])
-def test_signature_defaults_are_the_configs(func, configs):
-    """Literal defaults in the signatures, for readable docs, are the configs' ones."""
-    signature = _defaults(func)
-    checked = 0
-    for cls in configs:
-        for name, default in _field_defaults(cls).items():
-            if name in signature:
-                assert _same(signature[name], default), (func.__name__, name)
-                checked += 1
-    assert checked >= 2
+def test_num_threads_from_conf(monkeypatch):
+    monkeypatch.setattr(_kernels, "_ENV_NUM_THREADS", "")
+    with conf.set_temp("num_threads", 3):
+        assert _kernels.num_threads() == 3
+        calls = _kernels.run_split(lambda start, stop: (start, stop), 9, ())
+        assert calls == [(0, 3), (3, 6), (6, 9)]  # three chunks: three threads
+    assert _kernels.num_threads() >= 1  # 0: every CPU
+    monkeypatch.setattr(_kernels, "_ENV_NUM_THREADS", "2")
+    assert _kernels.num_threads() == 2  # the environment, when conf says 0
+    with conf.set_temp("num_threads", 1):
+        assert _kernels.num_threads() == 1  # conf, when set, wins
 
 
-def test_detection_and_matching_defaults_are_the_configs():
-    det = _defaults(find_sources)
-    for name, default in _field_defaults(DetectionConfig).items():
-        if name != "nsigma":  # None: registration's adaptive threshold; 5 alone
-            assert det[name] == default, name
-    assert det["nsigma"] == 5.0
-    mat = _defaults(match_points)
-    auto = {"tolerance": config.DEFAULT_TOLERANCE, "n_neighbors": config.DEFAULT_NEIGHBORS}
-    for name, default in _field_defaults(MatchingConfig).items():
-        assert mat[name] == auto.get(name, default), name
-    assert _defaults(match_points)["transform_type"] == ModelConfig().transform_type
+def test_bad_num_threads_is_explained():
+    pts = np.random.default_rng(0).uniform(0, 100, (20, 2))
+    with conf.set_temp("num_threads", -2):
+        with pytest.raises(ValueError, match=r"conf\.num_threads .* got -2"):
+            find_transform(pts, pts + 1)
+    with pytest.raises(TypeError):
+        conf.num_threads = "many"
 
 
-@pytest.mark.parametrize("call", [
-    lambda: find_sources(np.zeros((32, 32)), fwhm=-1.0),
-    lambda: find_transform(np.zeros((32, 32)), np.zeros((32, 32)), fwhm=-1.0),
-    lambda: DetectionConfig(fwhm=-1.0),
-])
-def test_fwhm_has_one_rule_and_one_message(call):
-    with pytest.raises(ValueError) as info:
-        call()
-    assert str(info.value) == ("fwhm must be a finite number > 0 and <= 10000 (pixels) or "
-                               "None; got -1.0.")
+def test_environment_variable_still_works():
+    code = ("from astroalign_nd import _kernels, conf; print(_kernels.num_threads()); "
+            "conf.num_threads = 1; print(_kernels.num_threads())")
+    env = dict(os.environ, ASTROALIGN_ND_NUM_THREADS="5", PYTHONPATH=WORKTREE)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out == ["5", "1"]
+    env["ASTROALIGN_ND_NUM_THREADS"] = "zero"
+    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True)
+    assert res.returncode != 0 and "ASTROALIGN_ND_NUM_THREADS must be a positive" in res.stderr
 
 
-def test_configs_are_frozen_and_checked():
-    cfg = RegistrationConfig.from_keywords(tolerance=2, n_sources=40, max_sources=10)
-    assert cfg.matching.tolerance == 2.0 and cfg.max_sources == 40  # raised to n_sources
-    with pytest.raises(dataclasses.FrozenInstanceError):
-        cfg.matching.tolerance = 5.0
-    with pytest.raises(TypeError, match="n_neighbors must be an integer"):
-        MatchingConfig(n_neighbors=2.5)
-    with pytest.raises(TypeError, match=r"unexpected keyword argument\(s\) \['min_area'\].*"
-                       "Instead of astroalign's min_area"):
-        RegistrationConfig.from_keywords(min_area=5)
-    with pytest.raises(ValueError, match="degree"):
-        ModelConfig("similarity", 3)
+def test_numpy_loops_give_the_same_transform():
+    pair = simulate_pair((256, 256), n_stars=100, rotation=25.0, seed=4)
+    compiled, _ = find_transform(pair.source, pair.target)
+    with conf.set_temp("use_compiled", False):
+        assert not _kernels._compiled()
+        numpy_only, _ = find_transform(pair.source, pair.target)
+    assert _kernels._compiled() == _kernels.HAVE_COMPILED
+    assert frame_error(numpy_only, pair.transform, (256, 256)) < 0.1
+    assert frame_error(numpy_only, compiled, (256, 256)) < 1e-6
 
 
-def test_the_search_leaves_the_config_unchanged(monkeypatch):
-    """_escalate widens the tolerance on a copy of the config, never in place."""
-    from astroalign_nd import registration
-    from astroalign_nd.simulate import simulate_pair
-
-    pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
-    cfg = RegistrationConfig()
-    seen = []
-    real = registration._attempt
-
-    def spy(src, dst, sizes, src_stars, dst_stars, matching, *args, **kwargs):
-        seen.append(matching.tolerance)
-        return real(src, dst, sizes, src_stars, dst_stars, matching, *args, **kwargs)
-
-    monkeypatch.setattr(registration, "_attempt", spy)
-    registration.find_match_from_config(pair.source, pair.target, cfg)
-    assert seen and all(t is not None and t >= config.DEFAULT_TOLERANCE for t in seen)
-    assert cfg == RegistrationConfig()
-
-
-def test_cli_options_come_from_the_configs():
-    parser = _registration_options()
-    actions = {a.dest: a for a in parser._actions}
-    for cls in (ModelConfig, ResampleConfig, RegistrationConfig, DetectionConfig,
-                MatchingConfig):
-        for name, flag, kwargs in config.cli_fields(cls):
-            assert name in _FIELDS and flag in actions[name].option_strings
-            assert actions[name].help == kwargs["help"]
-    # The defaults that the help text shows are the configs' ones.
-    assert "(default: 200)" in actions["max_sources"].help
-    assert "(default: 1e-6)" in actions["max_false_alarm"].help
-    assert actions["n_sources"].default == RegistrationConfig().n_sources
-    assert actions["order"].default == ResampleConfig().order
-
-
-def test_apply_transform_lists_the_resample_config_keywords():
-    from astroalign_nd import apply_transform
-    from astroalign_nd.transforms import SimilarityTransform
-
-    with pytest.raises(TypeError) as info:
-        apply_transform(SimilarityTransform(), np.zeros((8, 8)), (8, 8), propagate_mask=True)
-    for f in dataclasses.fields(ResampleConfig):
-        assert f.name in str(info.value)
-    assert "Instead of astroalign's propagate_mask" in str(info.value)
+def test_batch_workers_share_the_cpus_unless_told(monkeypatch):
+    monkeypatch.setattr(_kernels, "_ENV_NUM_THREADS", "")
+    with conf.set_temp("num_threads", 0):
+        _init_worker(None, 2)
+        assert conf.num_threads == 2
+    with conf.set_temp("num_threads", 4):
+        _init_worker(None, 2)
+        assert conf.num_threads == 4  # the user's choice stands
+    monkeypatch.setattr(_kernels, "_ENV_NUM_THREADS", "3")
+    with conf.set_temp("num_threads", 0):
+        _init_worker(None, 2)
+        assert conf.num_threads == 0 and _kernels.num_threads() == 3
