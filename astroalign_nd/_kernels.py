@@ -78,9 +78,20 @@ def num_threads():
         return max(1, os.cpu_count() or 1)
 
 
-def _threads_chosen():
-    """True when the user chose the thread count (configuration or environment)."""
+def threads_chosen():
+    """
+    True when the user chose the thread count (configuration or environment).
+
+    Examples
+    --------
+    >>> from astroalign_nd._kernels import threads_chosen
+    >>> isinstance(threads_chosen(), bool)
+    True
+    """
     return conf.num_threads != 0 or bool(_ENV_NUM_THREADS)
+
+
+_threads_chosen = threads_chosen  # the former name
 
 
 def _compiled():

@@ -1,19 +1,15 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """
-The public options, checked in one place.
+Checks of inputs shared by the stages: star positions and counts.
 
-Every option of `~astroalign_nd.find_transform` (and of the functions it
-calls) has one entry in `OPTIONS`: its kind and accepted range.
-`check_options` checks the options it is given against that table and
-returns them normalised (``float``/``int``/``tuple``), so that a bad value
-gives one message that names the option and the accepted range, before any
-work is done, instead of an error from deep inside numpy.
+The options' accepted ranges live in `astroalign_nd.config`, as the
+metadata of its dataclasses' fields; `OPTIONS` and `check_option` are
+re-exported from there, and `check_options` checks a dict of them.
 """
 
-import math
-import numbers
-
 import numpy as np
+
+from .config import OPTIONS, _Int, check_option
 
 __all__ = ["OPTIONS", "check_options", "check_option", "check_count", "check_points",
            "MAX_TRIANGLES", "MAX_COORDINATE"]
@@ -28,156 +24,6 @@ MAX_TRIANGLES = 2_000_000
 MAX_COORDINATE = 1e9
 
 
-class _Real:
-    """A real number in an interval (each bound open or closed)."""
-
-    def __init__(self, lo=None, hi=None, *, lo_open=False, hi_open=False, none=False,
-                 unit="", infinite=False):
-        self.lo, self.hi, self.lo_open, self.hi_open = lo, hi, lo_open, hi_open
-        self.none, self.unit, self.infinite = none, unit, infinite
-
-    def describe(self):
-        parts = []
-        if self.lo is not None:
-            parts.append(f"{'>' if self.lo_open else '>='} {self.lo:g}")
-        if self.hi is not None:
-            parts.append(f"{'<' if self.hi_open else '<='} {self.hi:g}")
-        text = ("a number" if self.infinite else "a finite number") + (
-            " " + " and ".join(parts) if parts else "")
-        if self.unit:
-            text += f" ({self.unit})"
-        return text + (" or None" if self.none else "")
-
-    def _in_range(self, v):
-        if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo):
-            return False
-        if self.hi is not None and (v >= self.hi if self.hi_open else v > self.hi):
-            return False
-        return True
-
-    #: The accepted type (bools are refused).
-    _kind = numbers.Real
-
-    def _is_none(self, value):
-        """True for an accepted None; TypeError for another None or a value of another type."""
-        if value is None:
-            if self.none:
-                return True
-            raise TypeError
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, self._kind):
-            raise TypeError
-        return False
-
-    def convert(self, value):
-        if self._is_none(value):
-            return None
-        v = float(value)
-        if math.isnan(v) or (math.isinf(v) and not self.infinite) or not self._in_range(v):
-            raise ValueError
-        return v
-
-
-class _Int(_Real):
-    """An integer in a closed interval."""
-
-    def describe(self):
-        text = super().describe().replace("a finite number", "an integer")
-        text = text.replace("a number", "an integer")
-        return text
-
-    _kind = numbers.Integral
-
-    def convert(self, value):
-        if self._is_none(value):
-            return None
-        v = int(value)
-        if not self._in_range(v):
-            raise ValueError
-        return v
-
-
-class _Pair:
-    """An increasing pair ``(lo, hi)`` of numbers, each checked by ``item``."""
-
-    def __init__(self, item, *, none=True, strict=False):
-        self.item, self.none, self.strict = item, none, strict
-
-    def describe(self):
-        order = "lo < hi" if self.strict else "lo <= hi"
-        return (f"a pair (lo, hi) with {order}, each {self.item.describe()}"
-                + (", or None" if self.none else ""))
-
-    def convert(self, value):
-        if value is None:
-            if self.none:
-                return None
-            raise TypeError
-        if isinstance(value, (str, bytes)) or not np.iterable(value):
-            raise TypeError
-        items = list(value)
-        if len(items) != 2:
-            raise ValueError
-        lo, hi = (self.item.convert(v) for v in items)
-        if lo > hi or (self.strict and lo == hi):
-            raise ValueError
-        return (lo, hi)
-
-
-class _Bool:
-    def describe(self):
-        return "True or False"
-
-    def convert(self, value):
-        if isinstance(value, (bool, np.bool_)):
-            return bool(value)
-        raise TypeError
-
-
-#: Every public option: how it is checked.
-OPTIONS = {
-    # matching
-    "tolerance": _Real(0, 1e6, lo_open=True, unit="pixels"),
-    "min_tolerance": _Real(0, 1e6, lo_open=True, unit="pixels"),
-    "invariant_radius": _Real(0, 10, lo_open=True),
-    "n_neighbors": _Int(2, 16),
-    "allow_mirror": _Bool(),
-    "scale_range": _Pair(_Real(0, lo_open=True)),
-    "max_false_alarm": _Real(0, 1, lo_open=True),
-    "accept_matches": _Int(3, None),
-    "batch_size": _Int(1, 1_000_000),
-    "max_hypotheses": _Int(1, 10_000_000),
-    # detection
-    "fwhm": _Real(0, 1e4, lo_open=True, none=True, unit="pixels"),
-    "nsigma": _Real(0, 1e6, lo_open=True, none=True),
-    "peak_max": _Real(none=True),
-    "bin_factor": _Int(1, 1024, none=True),
-    # Sharpness has no lower limit by default (saturated stars): -inf is allowed.
-    "sharpness_range": _Pair(_Real(infinite=True), none=True),
-    "roundness_range": _Pair(_Real(infinite=True), none=True),
-    "refine_centroids": _Bool(),
-    # counts of stars
-    "n_sources": _Int(3, 1_000_000),
-    "max_sources": _Int(3, 1_000_000),
-}
-
-
-def check_option(name, value):
-    """
-    Check one option against `OPTIONS`; return it normalised.
-
-    Raises
-    ------
-    TypeError, ValueError
-        Naming the option and the accepted values.
-    """
-    spec = OPTIONS[name]
-    try:
-        return spec.convert(value)
-    except (TypeError, ValueError) as exc:
-        kind = type(exc) if type(exc) in (TypeError, ValueError) else ValueError
-        raise kind(f"{name} must be {spec.describe()}; got {value!r}.") from None
-
-
 def check_count(value, name, lo=3):
     """A star count: an integer >= ``lo`` (3 by default: a triangle), named in the message."""
     try:
@@ -189,7 +35,7 @@ def check_count(value, name, lo=3):
 
 def check_options(options):
     """
-    Check a dict of options (unknown names are left to the caller).
+    Check a dict of options against `OPTIONS` (unknown names are left to the caller).
 
     Returns
     -------

@@ -13,23 +13,27 @@ The high-level API, top to bottom as the method goes:
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import warnings
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from astropy import log
+from astropy.utils.exceptions import AstropyWarning
 
 from ._input import parse_input
-from .detection.daofind import _control_sources, find_sources
+from .config import (DEFAULT_NEIGHBORS, DetectionConfig, MatchingConfig, RegistrationConfig,
+                     ResampleConfig, split_options)
+# Module attributes under these names: benchmarks/ wrap them to time the stages.
+from .detection.daofind import control_sources as _control_sources
 from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads, side_pool
-from ._validate import check_option, check_options, check_points
+from ._validate import check_points
 from .matching.asterisms import build_asterisms, check_triangle_budget
-from .matching.search import _match_points, _search_tolerance, match_points
+from .matching.search import match_control_points as _match_points
+from .matching.search import search_tolerance
+from .resample.nddata import apply_transform
 from .transforms import selection as model_selection
 from .exceptions import PoorFitWarning
-from .transforms.registry import transform_class
 
 if TYPE_CHECKING:
     from astropy.nddata import CCDData
@@ -42,20 +46,11 @@ __all__ = ["find_transform", "find_match", "register", "Reference"]
 #: Points of a catalog used (brightest first) when ``2 * n_sources`` is fewer.
 _CATALOG_POINTS = 1000
 
-
-def _keyword_options(func, set_by_caller):
-    """The keyword-only parameters of ``func``, less those its caller sets itself."""
-    return tuple(name for name, p in inspect.signature(func).parameters.items()
-                 if p.kind is p.KEYWORD_ONLY and name not in set_by_caller)
-
-
-#: Keyword arguments of `find_transform` forwarded to `find_sources` (read
-#: from its signature, so that a new detection option is routed with no edit here).
-_DETECT_KEYS = _keyword_options(find_sources, {"mask", "n_sources"})
-#: Keyword arguments forwarded to `~astroalign_nd.matching.match_points`: its
-#: settings, less those `find_match` derives from the images.
-_MATCH_KEYS = _keyword_options(match_points, {
-    "transform_type", "source_frame", "target_frame", "source_errors", "target_errors"})
+#: The detection and the matching options (the fields of their configs).
+_DETECT_KEYS = tuple(f.name for f in dataclasses.fields(DetectionConfig))
+_MATCH_KEYS = tuple(f.name for f in dataclasses.fields(MatchingConfig))
+#: `apply_transform`'s options that `register` takes (the fields of its config).
+_RESAMPLE_KEYS = tuple(f.name for f in dataclasses.fields(ResampleConfig))
 
 
 class Reference:
@@ -82,7 +77,9 @@ class Reference:
     Attributes
     ----------
     detect_options : dict
-        The detection options, checked.
+        The detection options given, checked.
+    config : `~astroalign_nd.config.DetectionConfig`
+        Every detection option (the defaults for those not given).
     fwhm : float or None
         The stars' FWHM (pixels) that detection used, once it has run; None
         for a catalog.
@@ -97,17 +94,19 @@ class Reference:
     """
 
     def __init__(self, image: Any, *, hdu: int | str | None = None, unit: Any = None,
-                 _role: str = "reference", **detect_options: Any) -> None:
-        unknown = set(detect_options) - set(_DETECT_KEYS)
-        if unknown:
-            raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}; Reference "
-                            f"accepts the detection options {list(_DETECT_KEYS)} and hdu."
-                            f"{_astroalign_advice(unknown)}")
-        detect_options = check_options(detect_options)
+                 _role: str = "reference", _config: DetectionConfig | None = None,
+                 **detect_options: Any) -> None:
+        if _config is None:  # the user's keywords; a registration passes its checked config
+            det, _ = split_options(detect_options, accept=("detection",), caller="Reference")
+            _config = DetectionConfig(**det)
         # The role ('source', 'target') names the input in error messages.
         self._role = _role
         self._parsed = parse_input(image, _role, hdu=hdu, unit=unit)
-        self.detect_options = detect_options
+        self.config = _config
+        defaults = DetectionConfig()
+        self.detect_options = {k: getattr(_config, k) for k in _DETECT_KEYS
+                               if k in detect_options or getattr(_config, k) != getattr(
+                                   defaults, k)}
         self._stars = {}
         self._asterisms = {}
         self._fwhms = {}
@@ -148,7 +147,7 @@ class Reference:
             The image extent in pixels; None for catalogs.
         """
         p = self._parsed
-        fixed = fwhm is not None and not p.is_catalog and "fwhm" not in self.detect_options
+        fixed = fwhm is not None and not p.is_catalog and self.config.fwhm is None
         key = (n_sources, float(fwhm)) if fixed else n_sources
         if key not in self._stars:
             if p.is_catalog:
@@ -157,18 +156,18 @@ class Reference:
                 cap = max(2 * n_sources, _CATALOG_POINTS)
                 self._stars[key] = (p.points[:cap], None, None)
             else:
-                opts = dict(self.detect_options, fwhm=float(fwhm)) if fixed \
-                    else self.detect_options
+                det = dataclasses.replace(self.config, fwhm=float(fwhm)) if fixed \
+                    else self.config
                 with warnings.catch_warnings():
                     # An empty image is reported by the caller (TooFewSourcesError),
                     # not by photutils' per-frame warning.
                     warnings.simplefilter("ignore", _no_detections_warning())
                     table, nsigma = _control_sources(p.detection_image, mask=p.mask,
                                                      n_sources=2 * n_sources,
-                                                     n_enough=n_sources, **opts)
+                                                     n_enough=n_sources, config=det)
                 if len(table) < 3:
                     raise TooFewSourcesError(_too_few_advice(
-                        self._role, len(table), table.meta, nsigma, "fwhm" in opts))
+                        self._role, len(table), table.meta, nsigma, det.fwhm is not None))
                 ny, nx = p.shape
                 pts = np.column_stack([np.asarray(table["x"], float),
                                        np.asarray(table["y"], float)])
@@ -184,7 +183,7 @@ class Reference:
         for a catalog or before that detection ran."""
         return self._fwhms.get(n_sources)
 
-    def asterisms(self, n_sources: int, n_neighbors: int = 4) -> Any:
+    def asterisms(self, n_sources: int, n_neighbors: int = DEFAULT_NEIGHBORS) -> Any:
         """Triangles of the ``n_sources`` brightest stars (cached)."""
         key = (n_sources, n_neighbors)
         if key not in self._asterisms:
@@ -219,56 +218,23 @@ def _too_few_advice(role, n, meta, nsigma, user_fwhm):
                   "nsigma; or pass a catalog of positions.")
 
 
-def _as_reference(obj, name, detect_options, hdu=None, unit=None):
+def _as_reference(obj, name, config, hdu=None, unit=None):
+    """``obj`` as a `Reference` detected with ``config`` (a Reference keeps its own)."""
     if isinstance(obj, Reference):
         return obj
-    return Reference(obj, hdu=hdu, unit=unit, _role=name, **detect_options)
+    return Reference(obj, hdu=hdu, unit=unit, _role=name, _config=config)
 
 
-#: astroalign's keywords -> what to use here (see docs/migration.rst).
-_ASTROALIGN_ADVICE = {
-    "max_control_points": "pass n_sources=<number of brightest stars used as control points> "
-                          "(the search escalates up to max_sources)",
-    "detection_sigma": "pass nsigma=<detection threshold in noise units> (adaptive if not "
-                       "given)",
-    "min_area": "pass nothing (no equivalent: detection rejects hot pixels and cosmic rays by "
-                "their shape), or fwhm=<the stars' width in pixels> if it is misjudged",
-    "propagate_mask": "pass nothing: the returned CCDData's mask always holds the source's "
-                      "mask (resampled) and the pixels outside the source",
-}
-
-
-def _astroalign_advice(unknown):
-    """What to pass instead of the astroalign keywords among ``unknown`` ('' if none)."""
-    advice = "".join(f" Instead of astroalign's {k}, {_ASTROALIGN_ADVICE[k]}."
-                     for k in sorted(unknown) if k in _ASTROALIGN_ADVICE)
-    if advice:
-        advice += (" Or keep astroalign's API and return values with "
-                   "'from astroalign_nd import compat as aa'.")
-    return advice
-
-
-def _split_options(options):
-    unknown = set(options) - set(_DETECT_KEYS) - set(_MATCH_KEYS)
-    if unknown:
-        raise TypeError(
-            f"unexpected keyword argument(s) {sorted(unknown)}; detection accepts "
-            f"{list(_DETECT_KEYS)} and matching accepts {list(_MATCH_KEYS)}."
-            f"{_astroalign_advice(unknown)}"
-        )
-    options = check_options(options)
-    det = {k: v for k, v in options.items() if k in _DETECT_KEYS}
-    mat = {k: v for k, v in options.items() if k in _MATCH_KEYS}
-    return det, mat
-
-
-def _escalate(src, dst, plan, mat, options, user_nn, *, linear_type, nonlinear):
+def _escalate(src, dst, plan, config):
     """
     The search over the attempts of ``plan`` (more stars, then more neighbours):
     (the first trusted match, its numbers of source and target control points,
     the usual matching tolerance or None when the caller set one).  Raises the
     last attempt's `TransformNotFoundError` when none is trusted.
     """
+    matching, nonlinear = config.matching, config.model.nonlinear
+    user_nn = matching.n_neighbors is not None
+    attempt_matching = matching
     trials, tried, k, last_exc, result = 0, set(), 0, None, None
     grow_tolerance = None
     _detect_both(src, plan[0][0], dst, plan[0][1])
@@ -282,16 +248,19 @@ def _escalate(src, dst, plan, mat, options, user_nn, *, linear_type, nonlinear):
         key = (min(ns, len(src_pts)), min(nd, len(dst_pts)), len(src_pts), len(dst_pts), nn)
         if key not in tried:
             tried.add(key)
-            if "tolerance" not in options:
-                mat["tolerance"] = grow_tolerance = _search_tolerance(dst.fwhm)
+            if matching.tolerance is None:
+                grow_tolerance = search_tolerance(dst.fwhm)
+                tolerance = grow_tolerance
                 if nonlinear:  # a linear model is pixels off at the corners of a wide field
-                    mat["tolerance"] *= model_selection.SEARCH_TOLERANCE_FACTOR
+                    tolerance *= model_selection.SEARCH_TOLERANCE_FACTOR
+                # A copy for this attempt: the config the caller built stays as it was.
+                attempt_matching = dataclasses.replace(matching, tolerance=tolerance)
             log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "
                       f"{key[1]} of {key[3]} target stars, {nn} neighbours per star")
             try:
                 result = _attempt(src, dst, (ns, nd, nn), (src_pts, src_err, src_frame),
-                                  (dst_pts, dst_err, dst_frame), mat, trials,
-                                  linear_type=linear_type, nonlinear=nonlinear)
+                                  (dst_pts, dst_err, dst_frame), attempt_matching, trials,
+                                  linear_type=config.model.linear_type, nonlinear=nonlinear)
                 break
             except TransformNotFoundError as exc:
                 # Earlier attempts count in the trials factor of later ones.
@@ -323,8 +292,6 @@ def _detect_both(src, ns, dst, nd):
             if not ref._parsed.is_catalog and n not in ref._stars]
     if len(todo) < 2 or src is dst or num_threads() < 2:
         return
-    from astropy.utils.exceptions import AstropyWarning
-
     # Both detections ignore the same warnings; one block here restores the
     # caller's filters, which the threads' own (not thread-safe) blocks
     # could otherwise leave changed.
@@ -340,9 +307,12 @@ def _detect_both(src, ns, dst, nd):
         raise error
 
 
-def _attempt(src, dst, sizes, src_stars, dst_stars, mat, trials, *, linear_type, nonlinear):
+def _attempt(src, dst, sizes, src_stars, dst_stars, matching, trials, *, linear_type,
+             nonlinear):
     """One attempt of the search: ``_match_points`` on ``sizes = (ns, nd, nn)``."""
     ns, nd, nn = sizes
+    settings = matching.match_kwargs()
+    del settings["n_neighbors"]  # the attempt's own: ``nn``
     (src_pts, src_err, src_frame), (dst_pts, dst_err, dst_frame) = src_stars, dst_stars
     with warnings.catch_warnings():
         if nonlinear:  # the distortion model answers the linear fit's misfit
@@ -353,7 +323,7 @@ def _attempt(src, dst, sizes, src_stars, dst_stars, mat, trials, *, linear_type,
                              n_control=(ns, nd), n_neighbors=nn,
                              source_asterisms=src.asterisms(ns, nn),
                              target_asterisms=dst.asterisms(nd, nn),
-                             prior_trials=trials, **mat)
+                             prior_trials=trials, **settings)
 
 
 def find_match(source: Any, target: Any, *, transform_type: str | type = "similarity",
@@ -383,37 +353,70 @@ def find_match(source: Any, target: Any, *, transform_type: str | type = "simila
     >>> result.source_points.shape == (result.n_matches, 2)
     True
     """
-    degree = model_selection.check_degree(transform_type, degree)
-    nonlinear = model_selection.is_nonlinear(transform_type)
-    # A distortion model grows from the linear (similarity) match of the brightest stars.
-    linear_type = "similarity" if nonlinear else transform_type
-    transform_class(linear_type)  # validate early, with a clear message
-    n_sources = check_option("n_sources", n_sources)
-    max_sources = max(check_option("max_sources", max_sources), n_sources)
-    det, mat = _split_options(options)
-    num_threads()  # a bad thread setting is reported before any work
-    # Memory is bounded before any work: the largest attempt's triangles.
-    check_triangle_budget(max_sources, mat.get("n_neighbors", 4))
-    src = _as_reference(source, "source", det, hdu)
-    dst = _as_reference(target, "target", det, hdu)
+    config = RegistrationConfig.from_keywords(
+        transform_type=transform_type, degree=degree, n_sources=n_sources,
+        max_sources=max_sources, **options)
+    return find_match_from_config(source, target, config, hdu=hdu)
 
-    user_nn = "n_neighbors" in mat
-    plan = _attempt_plan(n_sources, max_sources, mat.pop("n_neighbors", 4))
-    result, ns, nd, grow_tolerance = _escalate(src, dst, plan, mat, options, user_nn,
-                                               linear_type=linear_type, nonlinear=nonlinear)
+
+def find_match_from_config(source: Any, target: Any, config: RegistrationConfig, *,
+                           hdu: int | str | None = None) -> MatchResult:
+    """
+    `find_match` with its options already checked, as a config.
+
+    Parameters
+    ----------
+    source, target
+        As in `find_transform`.
+    config : `~astroalign_nd.config.RegistrationConfig`
+        The search's options.
+    hdu : int or str, optional
+        As in `find_transform`.
+
+    Returns
+    -------
+    result : `~astroalign_nd.matching.MatchResult`
+
+    Examples
+    --------
+    >>> from astroalign_nd.config import RegistrationConfig
+    >>> from astroalign_nd.registration import find_match_from_config
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> config = RegistrationConfig.from_keywords(n_sources=40)
+    >>> result = find_match_from_config(pair.source, pair.target, config)
+    >>> bool(result.n_matches >= 20)
+    True
+    """
+    num_threads()  # a bad thread setting is reported before any work
+    nn = config.matching.n_neighbors or DEFAULT_NEIGHBORS
+    # Memory is bounded before any work: the largest attempt's triangles.
+    check_triangle_budget(config.max_sources, nn)
+    src = _as_reference(source, "source", config.detection, hdu)
+    dst = _as_reference(target, "target", config.detection, hdu)
+
+    plan = _attempt_plan(config.n_sources, config.max_sources, nn)
+    result, ns, nd, grow_tolerance = _escalate(src, dst, plan, config)
     result.n_sources_used = max(ns, nd)
-    if nonlinear:
-        kind = model_selection.nonlinear_name(transform_type)
-        # The growth pairs stars with the usual radius, not the widened search's:
-        # it follows the distortion disc by disc, and in a crowded field a wide
-        # radius pairs chance neighbours that a polynomial then chases.
-        tol = mat["tolerance"] if "tolerance" in options else grow_tolerance
-        result = model_selection.extend_match(result, src, dst, transform_type=kind,
-                                              degree=degree, tolerance=tol,
-                                              n_control=(ns, nd))
-        info = result.extra["model_selection"]
-        log.debug(f"astroalign_nd: {info['model']} model (degree {info['degree']}) over "
-                  f"{result.n_matches} stars, RMS {result.rms:.3f} px")
+    if config.model.nonlinear:
+        result = _grow(result, src, dst, config, (ns, nd), grow_tolerance)
+    return result
+
+
+def _grow(result, src, dst, config, n_control, grow_tolerance):
+    """The distortion model, grown from the linear ``result`` over more stars."""
+    model = config.model
+    kind = model_selection.nonlinear_name(model.transform_type)
+    # The growth pairs stars with the usual radius, not the widened search's:
+    # it follows the distortion disc by disc, and in a crowded field a wide
+    # radius pairs chance neighbours that a polynomial then chases.
+    tol = grow_tolerance if config.matching.tolerance is None else config.matching.tolerance
+    result = model_selection.extend_match(result, src, dst, transform_type=kind,
+                                          degree=model.degree, tolerance=tol,
+                                          n_control=n_control)
+    info = result.extra["model_selection"]
+    log.debug(f"astroalign_nd: {info['model']} model (degree {info['degree']}) over "
+              f"{result.n_matches} stars, RMS {result.rms:.3f} px")
     return result
 
 
@@ -601,11 +604,45 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
     >>> ccd.shape, ccd.mask.dtype
     ((256, 256), dtype('bool'))
     """
-    from .resample.nddata import apply_transform
+    return register_and_match(
+        source, target, transform_type=transform_type, n_sources=n_sources,
+        max_sources=max_sources, order=order, conserve_flux=conserve_flux,
+        fill_value=fill_value, method=method, unit=unit, parallel=parallel, hdu=hdu,
+        add_keyword=add_keyword, degree=degree, **options)[0]
 
-    src, dst, transform, quality = _find_for_apply(
-        source, target, dict(options, transform_type=transform_type, n_sources=n_sources,
-                             max_sources=max_sources, degree=degree), hdu=hdu, unit=unit)
+
+def register_and_match(source: Any, target: Any, *, hdu: int | str | None = None,
+                       unit: Any = None, **options: Any) -> tuple[CCDData, MatchResult]:
+    """
+    `register`, also returning the match that the registration used.
+
+    Parameters
+    ----------
+    source, target, hdu, unit, **options
+        As in `register` (the options it does not get are its defaults).
+
+    Returns
+    -------
+    registered : `~astropy.nddata.CCDData`
+        As `register` returns it.
+    result : `~astroalign_nd.matching.MatchResult`
+        The match (its transform's ``meta['quality']`` filled in as
+        `find_transform` fills it), e.g. for a diagnostic figure that does
+        not search again.
+
+    Examples
+    --------
+    >>> from astroalign_nd.registration import register_and_match
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> ccd, result = register_and_match(pair.source, pair.target)
+    >>> ccd.shape, result.source_points.shape == result.target_points.shape
+    ((256, 256), True)
+    """
+    resample = ResampleConfig(**{k: options.pop(k) for k in _RESAMPLE_KEYS if k in options})
+    config = RegistrationConfig.from_keywords(**options)
+    src, dst, result = find_for_apply(source, target, config, hdu=hdu, unit=unit)
+    quality = _quality_dict(result)
     # Resampling needs the target's grid, WCS and name, not its pixels: a
     # frame read from a file here is freed before the output is made.
     grid = _grid_only(dst._parsed)
@@ -614,75 +651,120 @@ def register(source: Any, target: Any, *, transform_type: str | type = "similari
         dst._parsed.data = dst._parsed.mask = dst._parsed.uncertainty = None
         dst._parsed.flags = None
     del dst
-    return apply_transform(transform, src._parsed, grid, order=order,
-                           conserve_flux=conserve_flux, fill_value=fill_value, method=method,
-                           unit=unit, parallel=parallel, quality=quality,
-                           add_keyword=add_keyword)
+    ccd = apply_transform(result.transform, src._parsed, grid, unit=unit, quality=quality,
+                          **dataclasses.asdict(resample))
+    result.transform.meta["quality"] = quality
+    return ccd, result
 
 
-#: `find_match`'s own keyword arguments (from its signature): neither
-#: detection nor matching options.
-_FIND_KEYS = _keyword_options(find_match, {"hdu"})
-
-
-def _detection_options(options):
-    """
-    The detection options among `find_match`'s keyword arguments ``options``.
-
-    Every option is checked (unknown names: TypeError; out of range:
-    ValueError), so that a caller can refuse bad options before any work.
-    """
-    det, _ = _split_options({k: v for k, v in options.items() if k not in _FIND_KEYS})
-    return det
-
-
-def _find_for_apply(source, target, options, *, hdu=None, unit=None):
+def find_for_apply(source: Any, target: Any, config: RegistrationConfig, *,
+                   hdu: int | str | None = None, unit: Any = None
+                   ) -> tuple[Reference, Reference, MatchResult]:
     """
     The find step of `register` and `~astroalign_nd.register_batch`: one
     policy for both.
 
-    Both inputs are read as images (a catalog cannot be resampled), the
-    transform is found with `find_match`'s keyword arguments ``options``
-    and its quality figures are returned as ``apply_transform``'s
-    ``quality`` takes them.
+    Both inputs are read as images (a catalog cannot be resampled) and the
+    transform is found with ``config``.
+
+    Parameters
+    ----------
+    source, target
+        Images, as `register` takes them (or `Reference` objects).
+    config : `~astroalign_nd.config.RegistrationConfig`
+        The search's options.
+    hdu, unit : optional
+        As in `register`.
 
     Returns
     -------
     source, target : `Reference`
-    transform : `~astroalign_nd.transforms.LinearTransform2D`
-    quality : dict
+    result : `~astroalign_nd.matching.MatchResult`
+
+    Raises
+    ------
+    TypeError
+        If an input is a catalog.
+
+    Examples
+    --------
+    >>> from astroalign_nd.config import RegistrationConfig
+    >>> from astroalign_nd.registration import find_for_apply
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> src, dst, result = find_for_apply(pair.source, pair.target, RegistrationConfig())
+    >>> src.shape, bool(result.n_matches >= 20)
+    ((256, 256), True)
     """
-    det = _detection_options(options)
-    src = _as_reference(source, "source", det, hdu, unit)
-    dst = _as_reference(target, "target", det, hdu)
+    src = _as_reference(source, "source", config.detection, hdu, unit)
+    dst = _as_reference(target, "target", config.detection, hdu)
     for name, p in (("source", src._parsed), ("target", dst._parsed)):
         if p.is_catalog:
             raise TypeError(
                 f"register needs images; the {name} is a catalog. Use find_transform with "
                 "catalogs, then apply_transform on the source image."
             )
-    result = find_match(src, dst, **options)
-    return src, dst, result.transform, _quality_dict(result)
+    return src, dst, find_match_from_config(src, dst, config)
 
 
-def _prepared_target(target, options, hdu=None):
+def quality_dict(result: MatchResult) -> dict:
     """
-    The target of many finds (`~astroalign_nd.register_batch`), from
-    `find_match`'s keyword arguments ``options`` (all checked here).
+    The quality figures of a `~astroalign_nd.matching.MatchResult` as a dict,
+    as `find_transform` puts them in ``transform.meta['quality']`` and
+    `~astroalign_nd.apply_transform` records them in the header.
 
-    An image `Reference` whose stars and triangles for the first attempt
-    are computed once, before it is shipped to workers.
+    Examples
+    --------
+    >>> from astroalign_nd import find_match
+    >>> from astroalign_nd.registration import quality_dict
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
+    >>> sorted(quality_dict(find_match(pair.source, pair.target)))[:3]
+    ['covariance', 'log10_false_alarm', 'n_hypotheses']
     """
-    det = _detection_options(options)
-    ref = _as_reference(target, "target", det, hdu)
+    return _quality_dict(result)
+
+
+def prepare_target(target: Any, config: RegistrationConfig, hdu: int | str | None = None
+                   ) -> Reference:
+    """
+    The target of many finds (`~astroalign_nd.register_batch`): an image
+    `Reference` whose stars and triangles for the first attempt are computed
+    once, before it is shipped to workers.
+
+    Parameters
+    ----------
+    target
+        An image, as `register` takes it, or a `Reference`.
+    config : `~astroalign_nd.config.RegistrationConfig`
+        The search's options.
+    hdu : int or str, optional
+        As in `register`.
+
+    Returns
+    -------
+    reference : `Reference`
+
+    Raises
+    ------
+    TypeError
+        If the target is a catalog.
+
+    Examples
+    --------
+    >>> from astroalign_nd.config import RegistrationConfig
+    >>> from astroalign_nd.registration import prepare_target
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> prepare_target(pair.target, RegistrationConfig()).shape
+    (256, 256)
+    """
+    ref = _as_reference(target, "target", config.detection, hdu)
     if ref._parsed.is_catalog:
         raise TypeError("the target of register_batch must be an image (it defines the "
                         "output grid); it is a catalog.")
-    defaults = inspect.signature(find_match).parameters
-    n = options.get("n_sources", defaults["n_sources"].default)
-    ref.stars(n)
-    ref.asterisms(n, options.get("n_neighbors",
-                                 inspect.signature(match_points).parameters["n_neighbors"].default))
+    ref.stars(config.n_sources)
+    ref.asterisms(config.n_sources, config.matching.n_neighbors or DEFAULT_NEIGHBORS)
     return ref
 
 

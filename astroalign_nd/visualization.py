@@ -26,18 +26,24 @@ called: ``pip install matplotlib`` (or the ``plot`` extra,
 ``pip install "astroalign_nd[plot]"``).
 """
 
+import dataclasses
 import os
 
 import numpy as np
 
-from .io.write import check_not_input
+from ._input import parse_input
+from .config import ResampleConfig
+from .io.write import atomic_write, check_not_input, check_output_path
+from .matching.asterisms import build_asterisms
+from .registration import find_transform
+from .resample.nddata import apply_transform
 
 __all__ = ["plot_matches", "plot_invariants", "plot_residuals", "plot_difference",
            "plot_registration", "save_diagnostic_figure", "match_colors"]
 
 #: Options of `plot_registration` used to resample the source (when ``aligned`` is not
 #: given) rather than to find the transform.
-_APPLY_KEYS = ("order", "conserve_flux", "fill_value", "method", "unit", "parallel")
+_APPLY_KEYS = tuple(f.name for f in dataclasses.fields(ResampleConfig)) + ("unit",)
 
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 
@@ -129,8 +135,6 @@ def _points(points, name):
 
 def _image(image, name):
     """A 2-D float array to display (masked pixels as NaN), or None for a catalog."""
-    from ._input import parse_input
-
     parsed = parse_input(image, name)
     if parsed.is_catalog:
         return None
@@ -217,7 +221,6 @@ def _label(ax, title, frame=""):
 
 
 def _invariant_ratios(points, n_neighbors):
-    from .matching.asterisms import build_asterisms
 
     ast = build_asterisms(points, n_neighbors=n_neighbors)
     # The asterisms keep log(L2/L1), log(L1/L0); the paper plots the ratios.
@@ -488,10 +491,6 @@ def plot_registration(source, target, transform=None, points=None, aligned=None,
     >>> len(fig.axes)  # six panels and the difference image's colour bar
     7
     """
-    from ._input import parse_input
-    from .resample.nddata import apply_transform
-    from .registration import find_transform
-
     apply_options = {k: options.pop(k) for k in _APPLY_KEYS if k in options}
     # Read the frames once (files too), for the search, the resampling and the plots.
     hdu = options.pop("hdu", None)
@@ -523,15 +522,40 @@ def plot_registration(source, target, transform=None, points=None, aligned=None,
     return fig
 
 
-def _check_plot_path(path, overwrite=False):
-    """Check, before any work, that a figure can be written at ``path``."""
+def check_plot_path(path, overwrite=False):
+    """
+    Check, before any work, that a figure can be written at ``path``.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The image file; its ending must be a format matplotlib writes.
+    overwrite : bool, optional
+        Accept an existing file (default False: `FileExistsError`).
+
+    Raises
+    ------
+    ImportError
+        If matplotlib is not installed.
+    ValueError, FileExistsError, OSError
+        If the file cannot be written there.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.visualization import check_plot_path
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     check_plot_path(os.path.join(folder, "check.png"))
+    """
     _matplotlib()
     from matplotlib.backend_bases import FigureCanvasBase
 
-    from .io.write import check_output_path
-
     extensions = tuple("." + e for e in sorted(FigureCanvasBase.get_supported_filetypes()))
     check_output_path(path, overwrite, extensions=extensions)
+
+
+#: The former private name.
+_check_plot_path = check_plot_path
 
 
 def save_diagnostic_figure(path, source, target, aligned=None, *, overwrite=False, dpi=100,
@@ -575,11 +599,9 @@ def save_diagnostic_figure(path, source, target, aligned=None, *, overwrite=Fals
     True
     """
     check_not_input(path, (source, target))
-    _check_plot_path(path, overwrite)
+    check_plot_path(path, overwrite)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-
-    from .io.write import atomic_write
 
     fig = Figure(figsize=(14, 9), layout="constrained")
     FigureCanvasAgg(fig)

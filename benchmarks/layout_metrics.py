@@ -122,8 +122,8 @@ def analyse(root, max_lines):
                 internal += 1
                 inner += in_function
                 edges[mod].add(target)
-                if name and name.startswith("_") and not name.startswith("__") \
-                        and _subpackage(target, names) != _subpackage(mod, names) and target in names:
+                crosses = _subpackage(target, names) != _subpackage(mod, names)
+                if name and name.startswith("_") and not name.startswith("__") and crosses:
                     private.append(f"{mod} <- {target}.{name}")
     cycles = _cycles(edges)
     return dict(modules=len(modules), internal=internal, inner=inner, statements=statements,

@@ -278,13 +278,13 @@ def test_reference_detection_options_reach_the_frames(night, monkeypatch):
     import astroalign_nd.detection.daofind as detection
 
     calls = []
-    real = detection.find_sources
+    real = detection._detect  # the detection of checked options (a config)
 
-    def spy(image, **kwargs):
-        calls.append(kwargs.get("fwhm"))
-        return real(image, **kwargs)
+    def spy(image, mask, n_sources, config, nsigma):
+        calls.append(config.fwhm)
+        return real(image, mask, n_sources, config, nsigma)
 
-    monkeypatch.setattr(detection, "find_sources", spy)
+    monkeypatch.setattr(detection, "_detect", spy)
     result = register_batch(paths, Reference(ref, fwhm=3.2))
     assert not result.failed
     assert len(calls) >= 4 and all(c == 3.2 for c in calls)  # reference and every frame
@@ -566,10 +566,13 @@ def test_add_keyword_false_in_a_batch(tmp_path, night):
 
 
 def test_valid_margin_follows_the_resampler_order_names():
-    """One parser: any case, names or integers, as apply_transform accepts them."""
+    """One check (the resampling config's): names or integers, as apply_transform accepts them."""
     from astroalign_nd.batch.canvas import _valid_margin
+    from astroalign_nd.config import ResampleConfig
 
-    assert [_valid_margin(o) for o in ("nearest-neighbor", 1, "BiQuadratic", "Bicubic")] == [
-        -0.5, 0.0, 0.5, 1.0]
-    with pytest.raises(ValueError, match="order must be one of"):
-        _valid_margin("spline")
+    assert [_valid_margin(ResampleConfig(order=o))
+            for o in ("nearest-neighbor", 1, "biquadratic", 3)] == [-0.5, 0.0, 0.5, 1.0]
+    assert _valid_margin(ResampleConfig(method="exact")) == -0.5
+    for bad in ("spline", "BiCubic", 4, True):
+        with pytest.raises(ValueError, match="order must be one of"):
+            ResampleConfig(order=bad)

@@ -1,6 +1,7 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """The astroalign-nd command line: batch streaming, resume, summary, options and errors."""
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -124,13 +125,13 @@ def test_detection_options_are_forwarded(files, tmp_path, monkeypatch, capsys):
 
     ref, srcs, _ = files
     calls = []
-    real = detection.find_sources
+    real = detection._detect  # the detection of checked options (a config)
 
-    def spy(image, **kwargs):
-        calls.append(kwargs)
-        return real(image, **kwargs)
+    def spy(image, mask, n_sources, config, nsigma):
+        calls.append(dict(dataclasses.asdict(config), nsigma=nsigma))
+        return real(image, mask, n_sources, config, nsigma)
 
-    monkeypatch.setattr(detection, "find_sources", spy)
+    monkeypatch.setattr(detection, "_detect", spy)
     assert main(["register", srcs[0], ref, "-o", str(tmp_path / "a.fits"), "--fwhm", "3.1",
                  "--nsigma", "4", "--max-sources", "100", "--roundness-range", "-1", "1"]) == 0
     assert calls and all(c["fwhm"] == 3.1 and c["nsigma"] == 4.0 for c in calls)
@@ -156,7 +157,7 @@ def test_register_checks_output_before_work(files, tmp_path, monkeypatch, capsys
     def never(*args, **kwargs):
         raise AssertionError("registration ran before the output path was checked")
 
-    monkeypatch.setattr(astroalign_nd, "register", never)
+    monkeypatch.setattr(astroalign_nd.registration, "register_and_match", never)
     assert main(["register", srcs[0], ref, "-o", out]) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
@@ -191,7 +192,7 @@ def test_every_error_is_one_line(files, tmp_path, monkeypatch, capsys, exc):
     def boom(*args, **kwargs):
         raise exc
 
-    monkeypatch.setattr(astroalign_nd, "register", boom)
+    monkeypatch.setattr(astroalign_nd.registration, "register_and_match", boom)
     assert main(["register", srcs[0], ref, "-o", str(tmp_path / "x.fits")]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
@@ -279,3 +280,22 @@ def test_cli_register_fits(tmp_path, capsys):
     assert main(["register", str(src), str(tgt), "-o", str(out), "--overwrite",
                  "--unit", "electron", "--conserve-flux"]) == 0
     assert CCDData.read(out).unit == u.electron
+
+
+def test_register_plot_registers_once(files, tmp_path, monkeypatch):
+    """The figure takes the match just found: one search, so its warnings print once."""
+    pytest.importorskip("matplotlib")
+    from astroalign_nd import registration
+
+    ref, srcs, _ = files
+    calls = []
+    real = registration.find_match_from_config
+
+    def spy(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(registration, "find_match_from_config", spy)
+    assert main(["register", srcs[0], ref, "-o", str(tmp_path / "a.fits"),
+                 "--plot", str(tmp_path / "a.png")]) == 0
+    assert len(calls) == 1 and (tmp_path / "a.png").stat().st_size > 0

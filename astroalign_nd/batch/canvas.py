@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import numpy as np
+from ..transforms.convert import as_matrix
 from .results import FrameResult
 from .frame import _shifted
 
@@ -13,16 +14,17 @@ __all__ = ['union_canvas']
 _MAX_CANVAS_PIXELS = 2**28
 
 
-def _valid_margin(order):
+def _valid_margin(resample):
     """
     How far inside the frame's edge pixel centres the resampling is valid
     (see `~astroalign_nd.resample.resample`): a frame's pixels count from
     ``margin`` to ``n - 1 - margin``; -0.5 for nearest-neighbour, 0 for
-    bilinear, 0.5 for biquadratic and 1 for bicubic interpolation.
+    bilinear, 0.5 for biquadratic and 1 for bicubic interpolation (and for
+    ``method='exact'``, -0.5), from the `~astroalign_nd.config.ResampleConfig` ``resample``.
     """
-    from ..resample.interpolation import _parse_order
-
-    return (_parse_order(order) - 1) / 2.0
+    if resample.method == "exact":
+        return -0.5
+    return (resample.order_index - 1) / 2.0
 
 
 def union_canvas(transforms, shapes, reference_shape, margin=0.0):
@@ -65,8 +67,6 @@ def union_canvas(transforms, shapes, reference_shape, margin=0.0):
     >>> union_canvas([shift], [(100, 100)], (100, 100))
     ((120, 150), (0, -20))
     """
-    from ..transforms.convert import as_matrix
-
     ny, nx = reference_shape
     xs, ys = [0.0, nx - 1.0], [0.0, ny - 1.0]
     for t, (h, w) in zip(transforms, shapes):

@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterable
-from dataclasses import replace
+from dataclasses import asdict, replace
 from typing import Any
 import numpy as np
 from .._input import batch_frames
+from ..config import RegistrationConfig, ResampleConfig
 from ..exceptions import warn
-from ..io.write import _check_writable_dir
-from ..registration import Reference, _prepared_target
+from ..io.write import check_writable_dir
+from ..registration import Reference, prepare_target
 from .results import BatchResult, FrameResult
 from .frame import _Config, _Job, _shifted, _stream_jobs
 from .planning import _StreamNamer, _display_names, _is_path, _plan_outputs
@@ -154,38 +155,37 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     >>> bool(abs(result.frames[0].transform.rotation_deg - 30.0) < 0.1)
     True
     """
-    from ..transforms.registry import transform_class
-
     _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, suffix, client,
                      workers)
-    transform_class(options.get("transform_type", "similarity"))
-    # Every option checked, and the reference's stars and triangles computed
-    # once, before it is shipped to the workers.
-    ref = _prepared_target(target, options, hdu)
+    resample = ResampleConfig(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
+                              method=method, add_keyword=add_keyword)
+    if isinstance(target, Reference):
+        # The reference's detection options are the batch's, unless overridden here.
+        options = {**target.detect_options, **options}
+    # Every option checked once, and the reference's stars and triangles
+    # computed once, before it is shipped to the workers.
+    config = RegistrationConfig.from_keywords(**options)
+    ref = prepare_target(target, config, hdu)
     union = canvas == "union"
     # A list of (frame, label); or, for a generator, an iterator of them.
     items, frames_hdu = batch_frames(sources, hdu)
     stream = not isinstance(items, list)
     if stream and union:
         items, stream = list(items), False  # pass 2 needs every frame again
-    if isinstance(target, Reference):
-        # The reference's detection options are the batch's, unless overridden here.
-        options = {**target.detect_options, **options}
     protected = [os.fspath(target)] if _is_path(target) else []
     if output_dir is not None:
         output_dir = os.fspath(output_dir)
         os.makedirs(output_dir, exist_ok=True)
-        _check_writable_dir(output_dir)
+        check_writable_dir(output_dir)
     jobs, outputs = _first_jobs(items, stream, union, output_dir, suffix, protected)
-    apply_options = dict(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
-                         method=method, unit=unit, add_keyword=add_keyword)
-    cfg = _Config(reference=ref, options=options, apply_options=apply_options,
+    apply_options = dict(asdict(resample), unit=unit)
+    cfg = _Config(reference=ref, options=config, apply_options=apply_options,
                   overwrite=overwrite, skip_existing=skip_existing, union=union,
                   hdu=frames_hdu, unit=unit, add_keyword=add_keyword)
     total = None if stream else len(items) * (2 if union else 1)
     with _Report(callback, progress, total) as report:
         if union:
-            margin = -0.5 if method == "exact" else _valid_margin(order)
+            margin = _valid_margin(resample)
             return _run_union(jobs, items, outputs, cfg, client, workers, report, margin)
         for job, res in _execute(jobs, cfg, client, workers, stream=stream):
             report.done(job.index, res)

@@ -9,7 +9,7 @@ from dataclasses import dataclass, replace
 from .._input import parse_input
 from ..exceptions import warn
 from ..io.write import write_ccddata
-from ..registration import _find_for_apply
+from ..registration import find_for_apply, quality_dict
 from .results import FrameResult
 from .planning import _CANVAS_KEYS, _SOURCE_SHAPE_KEYS, _is_path, _skip_or_refuse
 
@@ -70,8 +70,9 @@ def _run(job, cfg):
                                seconds=time.perf_counter() - t0, shape=done["source_shape"],
                                _grid=(done["shape"], done["offset"]))
         # Read (parsed) once, here on the worker, for both stages.
-        src, _, transform, quality = _find_for_apply(job.source, cfg.reference, cfg.options,
-                                                     hdu=cfg.hdu, unit=cfg.unit)
+        src, _, result = find_for_apply(job.source, cfg.reference, cfg.options, hdu=cfg.hdu,
+                                        unit=cfg.unit)
+        transform, quality = result.transform, quality_dict(result)
         if job.stage == "find":
             return FrameResult(name=job.name, status="registered", transform=transform,
                                quality=quality, source=src_path, output=job.output,

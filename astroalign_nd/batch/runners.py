@@ -7,8 +7,13 @@ cluster, behind one dispatcher.
 from __future__ import annotations
 
 import itertools
+import multiprocessing
 import os
+import sys
 import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from .._config import conf
+from .._kernels import threads_chosen
 from .frame import _failed, _run
 
 __all__ = []
@@ -23,10 +28,7 @@ def _init_worker(cfg, threads):
     _WORKER_CONFIG = cfg
     # Several processes share the cores: do not let each run every core's
     # threads, unless the user chose how many.
-    from .. import _kernels
-    from .._config import conf
-
-    if not _kernels._threads_chosen():
+    if not threads_chosen():
         conf.num_threads = threads
 
 
@@ -97,9 +99,6 @@ def _execute_dask(jobs, cfg, client, stream):
 
 
 def _execute_pool(jobs, cfg, workers):
-    import multiprocessing
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-
     # fork starts fast and needs no importable __main__; the compiled loops'
     # thread pool is re-created in the child (see _kernels).
     methods = multiprocessing.get_all_start_methods()
@@ -146,6 +145,4 @@ def _execute_pool(jobs, cfg, workers):
 
 
 def _is_macos():
-    import sys
-
     return sys.platform == "darwin"

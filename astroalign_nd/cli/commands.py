@@ -25,7 +25,7 @@ def _check_writable(path, overwrite, inputs=()):
 
 
 def _check_output_dir(path):
-    from astroalign_nd.io.write import _check_writable_dir
+    from astroalign_nd.io.write import check_writable_dir
 
     if os.path.exists(path) and not os.path.isdir(path):
         raise _CLIError(f"--output-dir {path!r} is a file, not a folder.")
@@ -33,7 +33,7 @@ def _check_output_dir(path):
         os.makedirs(path, exist_ok=True)
     except OSError as exc:
         raise _CLIError(f"cannot create output folder {path!r}: {exc.strerror or exc}.") from None
-    _check_writable_dir(path)
+    check_writable_dir(path)
 
 
 def _check_input(path):
@@ -87,28 +87,32 @@ def _max_corner_error(recovered, truth, shape):
 def _cmd_register(args):
     import astroalign_nd
     from astroalign_nd.io.write import write_ccddata
+    from astroalign_nd.registration import register_and_match
 
     _check_writable(args.output, args.overwrite, inputs=(args.source, args.target))
     if args.plot:  # before the work: matplotlib missing or PLOT existing stops here
         from astroalign_nd.io.write import check_not_input
-        from astroalign_nd.visualization import _check_plot_path, save_diagnostic_figure
+        from astroalign_nd.visualization import check_plot_path, save_diagnostic_figure
 
         try:
             check_not_input(args.plot, (args.source, args.target, args.output))
         except ValueError as exc:
             raise _CLIError(str(exc)) from None
-        _check_plot_path(args.plot, args.overwrite)
-    aligned = astroalign_nd.register(_check_input(args.source), _check_input(args.target),
-                                     unit=args.unit, **_registration_kwargs(args))
+        check_plot_path(args.plot, args.overwrite)
+    kwargs = _registration_kwargs(args)
+    aligned, match = register_and_match(_check_input(args.source), _check_input(args.target),
+                                        unit=args.unit, **kwargs)
     write_ccddata(aligned, args.output, overwrite=args.overwrite, hdu_flags="FLAGS")
     q = aligned.meta
     print(f"{_describe(astroalign_nd.transform_from_header(q))}; {q['AATNMAT']} matched "
           f"stars, RMS {q['AATRMS']:.3f} px")
     print(f"wrote {args.output}")
     if args.plot:
+        # The match just found: the figure does not search again (nor warn twice).
+        points = (match.source_points, match.target_points)
         print("wrote " + save_diagnostic_figure(args.plot, args.source, args.target, aligned,
-                                                overwrite=args.overwrite,
-                                                **_registration_kwargs(args)))
+                                                overwrite=args.overwrite, hdu=kwargs["hdu"],
+                                                transform=match.transform, points=points))
     return 0
 
 

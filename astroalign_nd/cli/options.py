@@ -3,7 +3,14 @@
 
 import argparse
 
+# The configs hold no heavy import: --help stays fast.
+from ..config import (DetectionConfig, MatchingConfig, ModelConfig, RegistrationConfig,
+                      ResampleConfig, cli_fields)
+
 __all__ = []
+
+#: Every config whose fields the command line offers.
+_CONFIGS = (ModelConfig, ResampleConfig, RegistrationConfig, DetectionConfig, MatchingConfig)
 
 # -- argument parsing ------------------------------------------------------------------------
 
@@ -22,48 +29,8 @@ def _registration_options():
 
 def _add_model_options(group):
     """The model, resampling and input options of a registration."""
-    group.add_argument(
-        "--transform-type",
-        default="similarity",
-        metavar="TYPE",
-        help="model fitted between the images: translation, euclidean, similarity, affine, "
-        "or for wide fields with distortion projective or polynomial (see --degree) "
-        "(default: %(default)s)",
-    )
-    group.add_argument(
-        "--degree",
-        default=None,
-        metavar="N",
-        help="degree of the polynomial distortion model, 2 to 5, or 'auto' to let an F-test "
-        "choose (linear when the images need no distortion); only with --transform-type "
-        "polynomial (default: 3)",
-    )
-    group.add_argument(
-        "--order",
-        default="bilinear",
-        help="interpolation used to resample the source: nearest-neighbor, bilinear, "
-        "biquadratic or bicubic (default: %(default)s)",
-    )
-    group.add_argument(
-        "--conserve-flux",
-        action="store_true",
-        help="scale the resampled values by the pixel-area change so that total flux is kept",
-    )
-    group.add_argument(
-        "--n-sources",
-        type=int,
-        default=50,
-        metavar="N",
-        help="number of brightest sources used to build triangles (default: %(default)s)",
-    )
-    group.add_argument(
-        "--max-sources",
-        type=int,
-        default=None,
-        metavar="N",
-        help="if no trustworthy match is found, control points are doubled up to N "
-        "(default: 200)",
-    )
+    for config in (ModelConfig, ResampleConfig, RegistrationConfig):
+        _add_fields(group, config)
     group.add_argument(
         "--unit",
         default=None,
@@ -80,49 +47,30 @@ def _add_model_options(group):
 
 def _add_detection_options(det):
     """Options passed on to `astroalign_nd.find_sources` (None: estimated from each image)."""
-    det.add_argument("--fwhm", type=float, default=None, metavar="PX",
-                     help="stellar FWHM in pixels (give it when the estimate fails, e.g. on "
-                     "nebulosity)")
-    det.add_argument("--nsigma", type=float, default=None, metavar="K",
-                     help="detection threshold in background standard deviations")
-    det.add_argument("--peak-max", type=float, default=None, metavar="ADU",
-                     help="ignore sources whose peak exceeds this value (saturated stars)")
-    det.add_argument("--sharpness-range", type=float, nargs=2, default=None,
-                     metavar=("LO", "HI"), help="accepted DAOFIND sharpness range")
-    det.add_argument("--roundness-range", type=float, nargs=2, default=None,
-                     metavar=("LO", "HI"), help="accepted DAOFIND roundness range")
-    det.add_argument("--bin-factor", type=int, default=None, metavar="B",
-                     help="detect on the image binned BxB (for large, oversampled frames)")
+    _add_fields(det, DetectionConfig)
 
 
 def _add_matching_options(mat):
     """Options passed on to `astroalign_nd.matching.match_points`."""
-    mat.add_argument("--tolerance", type=float, default=None, metavar="PX",
-                     help="largest distance (px) for a star to count as matched")
-    mat.add_argument("--max-false-alarm", type=float, default=None, metavar="P",
-                     help="largest false-alarm probability accepted (default: 1e-6)")
-    mat.add_argument("--no-mirror", dest="allow_mirror", action="store_false", default=None,
-                     help="do not consider mirrored (flipped) solutions")
+    _add_fields(mat, MatchingConfig)
 
 
-#: CLI destinations forwarded to find_transform when given (None: the library's default).
-_FORWARDED = ("max_sources", "fwhm", "nsigma", "peak_max", "sharpness_range",
-              "roundness_range", "bin_factor", "tolerance", "max_false_alarm", "allow_mirror")
+def _add_fields(group, config):
+    """The command-line options of ``config``'s fields: flags, types, defaults and help."""
+    for _, flag, kwargs in cli_fields(config):
+        group.add_argument(flag, **kwargs)
+
+
+#: The config fields the command line offers, by name (the keywords of `register`).
+_FIELDS = tuple(name for config in _CONFIGS for name, _, _ in cli_fields(config))
 
 # -- helpers ---------------------------------------------------------------------------------
 
 
 def _registration_kwargs(args):
-    kwargs = dict(
-        transform_type=args.transform_type,
-        order=args.order,
-        conserve_flux=args.conserve_flux,
-        n_sources=args.n_sources,
-        hdu=_hdu(args.hdu),
-    )
-    if getattr(args, "degree", None) is not None:
-        kwargs["degree"] = args.degree
-    for name in _FORWARDED:
+    """`register`'s keyword arguments: every option given (None: the library's default)."""
+    kwargs = dict(hdu=_hdu(args.hdu))
+    for name in _FIELDS:
         value = getattr(args, name, None)
         if value is not None:
             kwargs[name] = tuple(value) if isinstance(value, list) else value

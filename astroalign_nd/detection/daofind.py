@@ -12,6 +12,7 @@ from .._kernels import windowed_centroid as _windowed_centroid
 from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
 from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
 from .background import _bin_mean, _local_background, estimate_noise
+from ..config import DetectionConfig
 
 __all__ = ['find_sources']
 
@@ -93,24 +94,32 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     True
     """
     n_sources = _check_positive_int(n_sources, "n_sources")
-    if fwhm is not None and not (np.isfinite(fwhm) and fwhm > 0):
-        raise ValueError(f"fwhm must be a positive number of pixels or None; got {fwhm!r}.")
+    # The options' one check: their config field (`astroalign_nd.config`).
+    config = DetectionConfig(fwhm=fwhm, nsigma=nsigma, sharpness_range=sharpness_range,
+                             roundness_range=roundness_range, peak_max=peak_max,
+                             bin_factor=bin_factor, refine_centroids=refine_centroids)
+    threshold = _CONFIDENT_NSIGMA if config.nsigma is None else config.nsigma
+    return _detect(image, mask, n_sources, config, threshold)
+
+
+def _detect(image, mask, n_sources, config, nsigma):
+    """`find_sources` on checked options: ``config``, at threshold ``nsigma``."""
+    fwhm, bin_factor = config.fwhm, config.bin_factor
     # Paths, NDData, HDUs, (array, header) tuples, masked arrays: their own
     # mask is combined with ``mask``.
     image, mask = image_and_mask(image, mask)
     data, mask = _as_image(image, mask)
     if mask is not None and mask.all():
         raise ValueError("every pixel of the image is masked or not finite.")
-    opts = dict(n_sources=n_sources, nsigma=nsigma, sharpness_range=sharpness_range,
-                roundness_range=roundness_range, peak_max=peak_max,
-                refine_centroids=refine_centroids)
+    opts = dict(n_sources=n_sources, nsigma=nsigma, sharpness_range=config.sharpness_range,
+                roundness_range=config.roundness_range, peak_max=config.peak_max,
+                refine_centroids=config.refine_centroids)
 
     # Stage 1: noise, then candidate peaks on a binned copy.
     noise = estimate_noise(data, mask)
     if not np.isfinite(noise) or noise <= 0:
         return _empty_table(fwhm or 0.0, noise, 1)
-    b = _auto_bin(data.shape) if bin_factor is None else _check_positive_int(
-        bin_factor, "bin_factor")
+    b = _auto_bin(data.shape) if bin_factor is None else bin_factor
     b = min(b, max(1, min(data.shape) // 8))  # a few binned pixels across at least
     # Spare candidates for what stage 2 rejects (binning already removed
     # most hot pixels and cosmic rays).
@@ -496,19 +505,54 @@ _DEEP_NSIGMA = 3.0
 _CONFIDENT_NSIGMA = find_sources.__kwdefaults__["nsigma"]
 
 
-def _control_sources(image, *, mask, n_sources, n_enough, nsigma=None, **options):
+def control_sources(image, *, mask, n_sources, n_enough, config):
     """
     The sources registration uses: the detection thresholds' one home.
 
-    With ``nsigma`` given, one `find_sources` pass at it; without, one
+    With ``config.nsigma`` given, one detection pass at it; without, one
     pass at ``_DEEP_NSIGMA``, of which only the sources at ``_CONFIDENT_NSIGMA``
     are kept when there are ``n_enough`` of them.
-    Returns the table and the threshold of the pass (for messages).
+
+    Parameters
+    ----------
+    image, mask
+        As in `find_sources`.
+    n_sources : int
+        Sources wanted (the brightest).
+    n_enough : int
+        Sources above the confident threshold that make the deep ones
+        unnecessary.
+    config : `~astroalign_nd.config.DetectionConfig`
+        The detection options, already checked.
+
+    Returns
+    -------
+    table : `~astropy.table.Table`
+        As `find_sources` returns it.
+    nsigma : float
+        The threshold of the pass (for messages).
+
+    Examples
+    --------
+    >>> from astroalign_nd.config import DetectionConfig
+    >>> from astroalign_nd.detection.daofind import control_sources
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> table, nsigma = control_sources(pair.source, mask=None, n_sources=40, n_enough=20,
+    ...                                 config=DetectionConfig())
+    >>> len(table), nsigma
+    (40, 3.0)
     """
+    nsigma = config.nsigma
     threshold = _DEEP_NSIGMA if nsigma is None else nsigma
-    table = find_sources(image, mask=mask, n_sources=n_sources, nsigma=threshold, **options)
+    table = _detect(image, mask, _check_positive_int(n_sources, "n_sources"), config,
+                    threshold)
     if nsigma is None:
         strong = table[table["snr"] >= _CONFIDENT_NSIGMA]
         if len(strong) >= n_enough:
             table = strong
     return table, threshold
+
+
+#: The former private name, kept until every caller uses the public one.
+_control_sources = control_sources

@@ -766,10 +766,24 @@ def _read_polynomial(header, prefix):
     return model
 
 
-def _add_history(header, text):
-    """HISTORY cards wrapped at word boundaries (FITS cuts long ones mid-word)."""
+def add_history(header, text):
+    """
+    HISTORY cards wrapped at word boundaries (FITS cuts long ones mid-word).
+
+    Examples
+    --------
+    >>> from astropy.io import fits
+    >>> from astroalign_nd.io.header import add_history
+    >>> header = fits.Header()
+    >>> add_history(header, "word " * 30)
+    >>> len(header["HISTORY"])
+    3
+    """
     for line in textwrap.wrap(text, 70, subsequent_indent="  "):
         header.add_history(line)
+
+
+_add_history = add_history  # the former name
 
 
 def add_provenance(header: fits.Header, model: Model, *,

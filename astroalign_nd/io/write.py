@@ -360,7 +360,7 @@ def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):
     if os.path.lexists(path) and not overwrite:
         raise FileExistsError(f"output file {path!r} already exists; pass --overwrite "
                               "(overwrite=True) to replace it.")
-    _check_writable_dir(os.path.dirname(os.path.abspath(path)))
+    check_writable_dir(os.path.dirname(os.path.abspath(path)))
 
 
 def _same_file(a, b):
@@ -415,8 +415,17 @@ def check_not_input(output, inputs):
                              "would destroy that input; give another output name.")
 
 
-def _check_writable_dir(folder):
-    """Raise `OSError` with a clear message unless files can be created in ``folder``."""
+def check_writable_dir(folder):
+    """
+    Raise `OSError` with a clear message unless files can be created in ``folder``.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from astroalign_nd.io.write import check_writable_dir
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     check_writable_dir(folder)
+    """
     if not os.path.isdir(folder):
         what = "is not a folder" if os.path.exists(folder) else "does not exist"
         raise NotADirectoryError(f"output folder {folder!r} {what}.")
@@ -427,3 +436,7 @@ def _check_writable_dir(folder):
                               f"{exc.strerror or exc}.") from None
     os.close(fd)
     os.unlink(probe)
+
+
+#: The former private name, kept until every caller uses the public one.
+_check_writable_dir = check_writable_dir

@@ -7,6 +7,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from .._kernels import PointGrid, count_inliers
 from .._validate import OPTIONS, check_options, check_points
+from ..config import DEFAULT_TOLERANCE
 from .asterisms import build_asterisms
 from ..exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
 from ..transforms.registry import transform_class
@@ -110,17 +111,39 @@ _SETTINGS = {name: p.default for name, p in inspect.signature(match_points).para
              if p.kind is p.KEYWORD_ONLY}
 
 
-def _search_tolerance(fwhm=None):
+def search_tolerance(fwhm=None):
     """
-    The search's matching radius (pixels) for stars ``fwhm`` pixels wide:
-    `match_points`' default, or half the FWHM where that is wider (defocus,
-    digitised plates: wide stars have wide position errors).
+    The search's matching radius (pixels) for stars ``fwhm`` pixels wide.
+
+    `match_points`' default (`~astroalign_nd.config.DEFAULT_TOLERANCE`),
+    or half the FWHM where that is wider (defocus, digitised plates: wide
+    stars have wide position errors).  A registration uses it when no
+    ``tolerance`` is given.
+
+    Parameters
+    ----------
+    fwhm : float, optional
+        The stars' FWHM (pixels); None for a catalog.
+
+    Returns
+    -------
+    tolerance : float
+
+    Examples
+    --------
+    >>> from astroalign_nd.matching.search import search_tolerance
+    >>> search_tolerance(None), search_tolerance(4.0), search_tolerance(10.0)
+    (3.0, 3.0, 5.0)
     """
-    return max(_SETTINGS["tolerance"], 0.5 * (fwhm or 0.0))
+    return max(DEFAULT_TOLERANCE, 0.5 * (fwhm or 0.0))
 
 
-def _match_points(src_pts, dst_pts, *, n_control=None, source_asterisms=None,
-                  target_asterisms=None, prior_trials=0, **settings):
+#: The former private name, kept until every caller uses the public one.
+_search_tolerance = search_tolerance
+
+
+def match_control_points(src_pts, dst_pts, *, n_control=None, source_asterisms=None,
+                         target_asterisms=None, prior_trials=0, **settings):
     """
     `match_points`, with what `~astroalign_nd.find_match` knows beyond it.
 
@@ -142,9 +165,26 @@ def _match_points(src_pts, dst_pts, *, n_control=None, source_asterisms=None,
     **settings
         The keyword arguments of `match_points` (its defaults otherwise).
 
+    Returns
+    -------
+    result : `MatchResult`
+
+    Notes
+    -----
     The stages: `_prepare` (checks, frames, control points), triangles and
     their `_Hypotheses` (made batch by batch, through `_filter_hypotheses`),
     `_score_batches` (early acceptance), `_final_pass` and `_failure_message`.
+
+    Examples
+    --------
+    Triangles of the 20 brightest of 40 stars; all 40 refine the fit:
+
+    >>> import numpy as np
+    >>> from astroalign_nd.matching.search import match_control_points
+    >>> src = np.random.default_rng(0).uniform(0, 200, (40, 2))
+    >>> result = match_control_points(src, src + [3.0, -2.0], n_control=20)
+    >>> result.n_matches
+    40
     """
     unknown = set(settings) - set(_SETTINGS)
     if unknown:
@@ -251,6 +291,10 @@ def _prepare(src_pts, dst_pts, settings, n_control, prior_trials):
         # clustered in a corner), it is refused.  Rotation-like models keep the
         # PoorFitWarning: a few widely spread stars (3 are enough) fix them.
         max_predicted=tolerance / 3.0 if cls.n_dof > 4 else np.inf)
+
+
+#: The former private name, kept until every caller uses the public one.
+_match_points = match_control_points
 
 
 class _Hypotheses:

@@ -26,6 +26,7 @@ The output carries:
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import Any
 import numpy as np
 from astropy import units as u
@@ -34,6 +35,7 @@ from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUnce
                             VarianceUncertainty)
 from .._input import parse_input
 from ..exceptions import AstroalignWarning, warn
+from ..config import ResampleConfig, astroalign_advice
 from ..io.header import add_provenance, check_quality, header_from_meta, header_without_wcs
 from .coordinate_map import _MAP_BAND_PIXELS, _CoordinateMap, _parse_matrix
 from .interpolation import ORDERS
@@ -238,7 +240,7 @@ def _nonlinear_provenance(header, transform, cmap, quality, names):
     """
     from astropy.modeling import Model
 
-    from ..io.header import _add_history, fits_text
+    from ..io.header import add_history, fits_text
 
     model = transform
     if not isinstance(model, Model):  # a projective matrix or scikit-image transform
@@ -248,23 +250,25 @@ def _nonlinear_provenance(header, transform, cmap, quality, names):
     except (ValueError, TypeError):
         pass  # not storable in a header
     out = header.copy()
-    _add_history(out, f"astroalign_nd: registered {fits_text(names['source_name'])} onto the "
-                      f"pixel grid of {fits_text(names['target_name'])} through a non-linear "
-                      f"{cmap.name} (not stored in this header)")
-    _add_history(out, f"astroalign_nd resampling: {names['order']}, "
-                      f"conserve_flux={names['conserve_flux']}")
+    add_history(out, f"astroalign_nd: registered {fits_text(names['source_name'])} onto the "
+                     f"pixel grid of {fits_text(names['target_name'])} through a non-linear "
+                     f"{cmap.name} (not stored in this header)")
+    add_history(out, f"astroalign_nd resampling: {names['order']}, "
+                     f"conserve_flux={names['conserve_flux']}")
     return out
+
+
+#: `apply_transform`'s keywords as its error message lists them: the resampling
+#: config's fields, and the inputs' own.
+_ACCEPTED = ", ".join(f.name for f in fields(ResampleConfig)) + ", unit, quality and hdu"
 
 
 def _check_options(unexpected, order, method):
     """`apply_transform`'s keywords: none unknown, a known order and method."""
     if unexpected:
-        from ..registration import _astroalign_advice
-
         raise TypeError(
             f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
-            "accepts order, conserve_flux, fill_value, method, unit, parallel, quality, hdu "
-            f"and add_keyword.{_astroalign_advice(unexpected)}")
+            f"accepts {_ACCEPTED}.{astroalign_advice(unexpected)}")
     if isinstance(order, str) and order not in ORDERS:
         raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
     if method not in ("interpolate", "exact"):
