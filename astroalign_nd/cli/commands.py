@@ -206,6 +206,7 @@ def _cmd_batch(args):
         from tqdm.auto import tqdm
 
         bar = tqdm(total=n, unit="frame", file=sys.stderr)
+    interrupted = None
     try:
         if args.scheduler:
             client = client_class(args.scheduler)
@@ -214,11 +215,21 @@ def _cmd_batch(args):
             skip_existing=args.skip_existing, canvas=args.canvas, client=client,
             workers=args.workers or None, callback=_frame_reporter(n, bar), unit=args.unit,
             **_registration_kwargs(args))
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the workers are stopped
+        result = getattr(exc, "partial_result", None)
+        if result is None:
+            raise
+        interrupted = exc
     finally:
         if bar is not None:
             bar.close()
         if client is not None:
             client.close()
+    if interrupted is not None:  # what was done, in the log and the summary; then the exit code
+        print(result.summary())
+        if args.summary is not None:
+            _write_summary(result, args.summary)
+        raise interrupted
     if args.canvas == "union":
         ny, nx = result.canvas_shape
         print(f"canvas: {nx}x{ny} px, pixel (0, 0) at reference pixel "
