@@ -112,10 +112,11 @@ def _execute(jobs, cfg, client, workers, stream=False, inflight=None):
         run = _execute_here(jobs, cfg, inflight)
     else:
         run = _execute_pool(jobs, cfg, workers, inflight)
-    for job, res in run:
-        if inflight is not None:
-            inflight.pop(job.index, None)
-        yield job, res
+    with contextlib.closing(run):  # closed at once when this one is: the workers stop
+        for job, res in run:
+            if inflight is not None:
+                inflight.pop(job.index, None)
+            yield job, res
 
 
 def _execute_here(jobs, cfg, inflight):
