@@ -4,7 +4,9 @@
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable, Iterable
+from contextlib import closing
 from dataclasses import asdict, replace
 from typing import Any
 import numpy as np
@@ -132,6 +134,22 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
         frames that could not be registered and why, ``result.to_table()``
         tabulates them all.
 
+    Raises
+    ------
+    KeyboardInterrupt
+        When interrupted (Ctrl-C; the command line raises it for SIGTERM
+        too), after the worker processes are stopped; its
+        ``partial_result`` attribute is the `~astroalign_nd.batch.BatchResult`
+        so far, the frames not done reported as failed.
+
+    Notes
+    -----
+    A worker process that dies (the out-of-memory killer, say) does not end
+    the batch: the frames its pool held are retried, one at a time, and
+    only a frame that kills its worker even alone fails.  A retried frame
+    recognises the output its first attempt wrote (its header's
+    ``AABATCH`` names the batch and the frame), also on dask.distributed.
+
     Examples
     --------
     Register two frames onto a reference and write them to a folder (a
@@ -181,16 +199,80 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     apply_options = dict(asdict(resample), unit=unit)
     cfg = _Config(reference=ref, options=config, apply_options=apply_options,
                   overwrite=overwrite, skip_existing=skip_existing, union=union,
-                  hdu=frames_hdu, unit=unit, add_keyword=add_keyword)
+                  hdu=frames_hdu, unit=unit, add_keyword=add_keyword,
+                  batch_id=_batch_id(ref, options, apply_options, union, frames_hdu))
     total = None if stream else len(items) * (2 if union else 1)
+    inflight = {}  # the jobs out on workers, by index (what an interrupt catches running)
     with _Report(callback, progress, total) as report:
-        if union:
-            margin = _valid_margin(resample)
-            return _run_union(jobs, items, outputs, cfg, client, workers, report, margin)
-        for job, res in _execute(jobs, cfg, client, workers, stream=stream):
-            report.done(job.index, res)
+        try:
+            if union:
+                margin = _valid_margin(resample)
+                return _run_union(jobs, items, outputs, cfg, client, workers, report, margin,
+                                  inflight)
+            with closing(_execute(jobs, cfg, client, workers, stream=stream,
+                                  inflight=inflight)) as run:
+                for job, res in run:
+                    report.done(job.index, res)
+        except KeyboardInterrupt as exc:  # (SIGTERM too, on the command line)
+            # The workers are stopped (closing the runner stops them): what is done is final.
+            exc.partial_result = _interrupted(report, jobs if not stream else (), inflight,
+                                              cfg, ref.shape, exc)
+            raise
         return BatchResult(_verified(report.in_order()), canvas_shape=ref.shape,
                            canvas_offset=(0, 0))
+
+
+def _batch_id(ref, options, apply_options, union, hdu):
+    """
+    A digest of what every frame's output depends on besides the frame itself.
+
+    Written (with the frame's name) into each output: a retried frame
+    recognises the output of its earlier attempt.  A digest, not a random
+    run id: the same inputs give the same headers from run to run.
+    """
+    import hashlib
+
+    h = hashlib.sha256()
+    data = np.ascontiguousarray(ref._parsed.data)
+    h.update(repr((data.shape, data.dtype.str)).encode())
+    h.update(data.tobytes())
+    h.update(repr((sorted(options.items(), key=repr), sorted(apply_options.items(), key=repr),
+                   union, hdu)).encode())
+    return h.hexdigest()[:32]
+
+
+def _interrupted(report, jobs, inflight, cfg, shape, exc):
+    """
+    The `BatchResult` of an interrupted batch: the frames done, and the
+    others as failed (not done), except a frame whose worker finished its
+    output just before the stop (the summary matches the files).
+    """
+    from .frame import _failed, _own_output, _registered_before
+
+    why = str(exc) or type(exc).__name__
+    results = dict(report.results)
+    t0 = time.perf_counter()
+    pending = {job.index: job for job in jobs}
+    pending.update(inflight)
+    for i in sorted(pending):
+        if i in results:
+            continue
+        job = pending[i]
+        src = os.fspath(job.source) if _is_path(job.source) else None
+        own = _own_output(job, cfg) if job.stage != "find" else None
+        if own is not None:
+            results[i] = _registered_before(job, own, src, t0)
+        else:
+            results[i] = _failed(job, Interrupted(
+                f"not done: the batch was stopped ({why}) before this frame was finished; "
+                "its output was not written. Run the batch again with skip_existing=True "
+                "(--skip-existing) to finish it."), t0, src)
+    return BatchResult(_verified([results[i] for i in sorted(results)]), canvas_shape=shape,
+                       canvas_offset=(0, 0))
+
+
+class Interrupted(Exception):
+    """A frame that an interrupted batch did not finish (the error of its result)."""
 
 
 def _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, suffix, client,
@@ -270,16 +352,17 @@ class _Report:
         return [self.results[i] for i in range(len(self.results))]
 
 
-def _run_union(jobs, items, outputs, cfg, client, workers, report, margin):
+def _run_union(jobs, items, outputs, cfg, client, workers, report, margin, inflight=None):
     """The two passes of ``canvas='union'``: every transform, then the resampling."""
     # Pass 1: every transform (nothing of the frames is kept).
     found = {}
-    for job, res in _execute(jobs, cfg, client, workers):
-        if res.status == "failed":
-            report.done(job.index, res)
-        else:
-            found[job.index] = res
-            report.tick()
+    with closing(_execute(jobs, cfg, client, workers, inflight=inflight)) as run:
+        for job, res in run:
+            if res.status == "failed":
+                report.done(job.index, res)
+            else:
+                found[job.index] = res
+                report.tick()
     shape, offset = _union_grid(found, cfg.reference.shape, margin)
     wcs = _canvas_wcs(cfg.reference._parsed.wcs, offset, shape)
     # Pass 2: resample onto the canvas.
@@ -296,7 +379,8 @@ def _run_union(jobs, items, outputs, cfg, client, workers, report, margin):
                           quality=res.quality, canvas=(shape, offset, wcs),
                           source_shape=res.shape))
     seconds = {i: found[i].seconds for i in found}
-    for job, res in _execute(jobs2, cfg, client, workers):
-        res.seconds += seconds[job.index]
-        report.done(job.index, res)
+    with closing(_execute(jobs2, cfg, client, workers, inflight=inflight)) as run:
+        for job, res in run:
+            res.seconds += seconds[job.index]
+            report.done(job.index, res)
     return BatchResult(_verified(report.in_order()), canvas_shape=shape, canvas_offset=offset)

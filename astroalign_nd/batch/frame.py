@@ -31,6 +31,7 @@ class _Config:
     hdu: object = None  # the HDU to read from the frames' files
     unit: object = None  # the unit of frames without one
     add_keyword: bool = True  # record the registration (and canvas) in each header
+    batch_id: str = None  # digest of the reference and options (see _job_id)
 
 
 @dataclass
@@ -44,6 +45,7 @@ class _Job:
     quality: dict = None
     canvas: tuple = None  # (shape, (x0, y0), wcs) for the 'apply' stage
     source_shape: tuple = None
+    before: object = None  # the output's _stat_key when the batch first sent the frame out
 
 
 def _failed(job, exc, t0, src_path=None):
@@ -53,11 +55,65 @@ def _failed(job, exc, t0, src_path=None):
                        seconds=time.perf_counter() - t0, output=None, source=src_path)
 
 
+#: Header keyword of a written frame: which batch and frame wrote it (a retry knows its own).
+_JOB_KEY = "AABATCH"
+
+
+def _stat_key(path):
+    """What identifies the file at ``path`` now: False if there is none, None if unknown."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return False
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+def _job_id(job, cfg):
+    """The frame's identity in this batch, as its output's header records it."""
+    import hashlib
+
+    key = "\0".join((cfg.batch_id, job.name, os.path.basename(job.output)))
+    return hashlib.sha256(key.encode("utf-8", "surrogatepass")).hexdigest()[:32]
+
+
+def _own_output(job, cfg):
+    """
+    The frame's complete output written by an earlier attempt of this batch
+    (a retry after a worker died), as `_read_done` reads it; else None.
+
+    Its own: the file appeared (or was replaced) after the batch first sent
+    the frame out, and its header names this batch and frame.
+    """
+    from .planning import _read_done
+
+    if job.output is None or job.before is None or cfg.batch_id is None or not cfg.add_keyword:
+        return None
+    now = _stat_key(job.output)
+    if not now or now == job.before:  # none, or the file that was there before
+        return None
+    done, _ = _read_done(job.output)
+    if done is None:
+        return None
+    from astropy.io import fits
+
+    try:
+        if fits.getval(job.output, _JOB_KEY, ext=0) != _job_id(job, cfg):
+            return None
+    except (OSError, KeyError):
+        return None
+    return done
+
+
 def _run(job, cfg):
     """Process one frame; never raises (a batch must go on)."""
     t0 = time.perf_counter()
     src_path = os.fspath(job.source) if _is_path(job.source) else None
     try:
+        own = _own_output(job, cfg) if job.stage != "find" else None
+        if own is not None:  # a retry: the first attempt wrote it, then its worker died
+            return _registered_before(job, own, src_path, t0)
         if job.stage == "apply":
             return _apply_stage(job, cfg, t0, src_path)
         done = _skip_or_refuse(job, cfg)
@@ -85,6 +141,17 @@ def _run(job, cfg):
         return _failed(job, exc, t0, src_path)
 
 
+def _registered_before(job, done, src_path, t0):
+    """The result of a frame whose earlier attempt in this batch wrote its output."""
+    if job.stage == "apply":  # the transform onto the canvas, as the first pass found it
+        transform, quality = job.transform, job.quality
+    else:
+        transform, quality = done["transform"], done["quality"]
+    return FrameResult(name=job.name, status="registered", transform=transform,
+                       quality=quality, output=job.output, source=src_path,
+                       seconds=time.perf_counter() - t0)
+
+
 def _apply_stage(job, cfg, t0, src_path=None):
     from ..resample.nddata import apply_transform
 
@@ -106,6 +173,8 @@ def _apply_stage(job, cfg, t0, src_path=None):
     if cfg.add_keyword:  # what a resumed run needs to find this frame's grid again
         ccd.meta[_SOURCE_SHAPE_KEYS[0]] = (int(src_shape[1]), "source frame width [px]")
         ccd.meta[_SOURCE_SHAPE_KEYS[1]] = (int(src_shape[0]), "source frame height [px]")
+        if cfg.batch_id is not None and job.output is not None:
+            ccd.meta[_JOB_KEY] = (_job_id(job, cfg), "batch+frame id (for retries)")
     if job.output is not None:
         # FLAGS as an extension, so that CCDData.read(..., hdu_flags='FLAGS') reads it back.
         write_ccddata(ccd, job.output, overwrite=cfg.overwrite, hdu_flags="FLAGS")

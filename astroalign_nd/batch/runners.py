@@ -6,26 +6,66 @@ cluster, behind one dispatcher.
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import itertools
 import multiprocessing
 import os
 import sys
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
 from .._config import conf
 from .._kernels import threads_chosen
-from .frame import _failed, _run
+from .frame import _failed, _run, _stat_key
 
 __all__ = []
 
 # -- running jobs ----------------------------------------------------------------------------
 
 _WORKER_CONFIG = None
+_IN_JOB = False  # a worker is registering a frame (SIGTERM then unwinds instead of exiting)
+
+#: Seconds an interrupted batch gives its workers to stop (after SIGTERM) before SIGKILL.
+_STOP_TIMEOUT = 5.0
+
+
+class _WorkerStop(BaseException):
+    """SIGTERM in a worker during a frame: unwinds it (temporary files removed), then exits."""
+
+
+def _on_worker_sigterm(signum, frame):
+    if _IN_JOB:
+        raise _WorkerStop()
+    os._exit(128 + signum)
+
+
+def _worker_signals():
+    """A worker leaves interrupts to the main process, which stops it and writes the summary."""
+    import signal
+
+    # A terminal's Ctrl-C reaches the whole process group: the main process handles it.
+    if getattr(signal, "SIGINT", None) is not None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if os.name != "posix":  # Windows: terminate() is TerminateProcess, no handler runs
+        return
+    signal.signal(signal.SIGTERM, _on_worker_sigterm)
+    # A main process killed outright (SIGKILL) cannot stop its workers: they stop themselves.
+    parent = os.getppid()
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="astroalign_nd-parent-watch", daemon=True).start()
 
 
 def _init_worker(cfg, threads):
     global _WORKER_CONFIG
     _WORKER_CONFIG = cfg
+    _worker_signals()
     # Several processes share the cores: do not let each run every core's
     # threads, unless the user chose how many.
     if not threads_chosen():
@@ -33,16 +73,35 @@ def _init_worker(cfg, threads):
 
 
 def _run_in_worker(job):
-    return _run(job, _WORKER_CONFIG)
+    global _IN_JOB
+    try:
+        _IN_JOB = True
+        return _run(job, _WORKER_CONFIG)
+    except _WorkerStop:
+        os._exit(143)
+    finally:
+        _IN_JOB = False
 
 
-def _execute(jobs, cfg, client, workers, stream=False):
+def _queued(job, inflight):
+    """Note ``job`` as sent to a worker (once, even when retried)."""
+    if job.before is None and job.output is not None:
+        # What was at the output before this batch ran the frame: a retry
+        # tells its own output (written since) from an older file.
+        job.before = _stat_key(job.output)
+    if inflight is not None:
+        inflight[job.index] = job
+
+
+def _execute(jobs, cfg, client, workers, stream=False, inflight=None):
     """
     Run the jobs; yield ``(job, FrameResult)`` in completion order.
 
     ``jobs`` may be a generator (a batch's generator of frames): jobs are
     taken from it only as workers free up, a few in flight per worker, so
     that the frames of a generator are never all in memory at once.
+    ``inflight`` (a dict, optional) holds the jobs sent out and not yet
+    yielded, by index: what an interrupted batch was doing.
     """
     jobs = iter(jobs)
     first = next(jobs, None)
@@ -51,13 +110,22 @@ def _execute(jobs, cfg, client, workers, stream=False):
     jobs = _prepend(first, jobs)
     del first
     if client is not None:
-        yield from _execute_dask(jobs, cfg, client, stream)
-        return
-    if workers is None or workers <= 1:
-        for job in jobs:
-            yield job, _run(job, cfg)
-        return
-    yield from _execute_pool(jobs, cfg, workers)
+        run = _execute_dask(jobs, cfg, client, stream, inflight)
+    elif workers is None or workers <= 1:
+        run = _execute_here(jobs, cfg, inflight)
+    else:
+        run = _execute_pool(jobs, cfg, workers, inflight)
+    with contextlib.closing(run):  # closed at once when this one is: the workers stop
+        for job, res in run:
+            if inflight is not None:
+                inflight.pop(job.index, None)
+            yield job, res
+
+
+def _execute_here(jobs, cfg, inflight):
+    for job in jobs:
+        _queued(job, inflight)
+        yield job, _run(job, cfg)
 
 
 def _prepend(first, rest):
@@ -68,80 +136,203 @@ def _prepend(first, rest):
     yield from rest
 
 
-def _execute_dask(jobs, cfg, client, stream):
+def _execute_dask(jobs, cfg, client, stream, inflight):
     from dask.distributed import as_completed
 
     cfg_future = client.scatter(cfg, broadcast=True)
     by_key, running = {}, as_completed()
 
     def submit(job):
+        _queued(job, inflight)
         fut = client.submit(_run, job, cfg_future, pure=False)
-        by_key[fut.key] = job
+        by_key[fut.key] = (job, fut)
         running.add(fut)
 
     # A list of frames is submitted at once (the scheduler plans it all); a
     # generator's frames a few per worker thread at a time.
     window = max(2, 2 * sum(client.nthreads().values())) if stream else None
-    for job in itertools.islice(jobs, window):
-        submit(job)
-    for fut in running:
-        job = by_key.pop(fut.key)
-        try:
-            res = fut.result()
-        except Exception as exc:  # a worker died: report, go on
-            res = _failed(job, exc, time.perf_counter())
-        fut.release()
-        yield job, res
-        if stream:
-            nxt = next(jobs, None)
-            if nxt is not None:
-                submit(nxt)
+    try:
+        for job in itertools.islice(jobs, window):
+            submit(job)
+        for fut in running:
+            job, _ = by_key.pop(fut.key)
+            try:
+                res = fut.result()
+            except Exception as exc:  # a worker died: report, go on
+                res = _failed(job, exc, time.perf_counter())
+            fut.release()
+            yield job, res
+            if stream:
+                nxt = next(jobs, None)
+                if nxt is not None:
+                    submit(nxt)
+    finally:
+        if by_key:  # interrupted: the cluster must not go on with this batch's frames
+            with contextlib.suppress(Exception):
+                client.cancel([fut for _, fut in by_key.values()])
 
 
-def _execute_pool(jobs, cfg, workers):
+def _pool_context():
     # fork starts fast and needs no importable __main__; the compiled loops'
     # thread pool is re-created in the child (see _kernels).
     methods = multiprocessing.get_all_start_methods()
-    ctx = multiprocessing.get_context("fork" if "fork" in methods and os.name == "posix"
-                                      and not _is_macos() else None)
+    return multiprocessing.get_context("fork" if "fork" in methods and os.name == "posix"
+                                       and not _is_macos() else None)
+
+
+def _execute_pool(jobs, cfg, workers, inflight):
+    """
+    The jobs in a pool of ``workers`` processes.
+
+    A worker that dies (killed by the out-of-memory killer, say) breaks the
+    pool, and the pool does not say which frame killed it: the frames it
+    held are retried one at a time in a fresh single-worker pool, where a
+    frame that kills its worker again is the culprit and fails with that
+    reason; then the batch goes on in a fresh pool.
+    """
+    ctx = _pool_context()
     threads = max(1, (os.cpu_count() or 1) // workers)
-    pending, back = {}, []  # ``back``: a job whose submission failed
+    back = collections.deque()  # jobs to (re)submit first: their submission failed
+    while True:
+        suspects = []
+        pool = _start_pool(ctx, workers, cfg, threads)
+        with _stopped_on_interrupt(pool):
+            yield from _shared_round(pool, jobs, back, suspects, workers, inflight)
+        if not suspects and not back:
+            return
+        yield from _solo_round(sorted(suspects, key=lambda j: j.index), ctx, cfg, threads)
 
-    def next_job():
-        return back.pop() if back else next(jobs, None)
 
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
-                             initargs=(cfg, threads)) as pool:
-        broken = None
-        while True:
-            # A few frames in flight per worker: memory does not grow with the batch.
-            while len(pending) < 2 * workers and broken is None:
-                job = next_job()
-                if job is None:
-                    break
-                try:
-                    pending[pool.submit(_run_in_worker, job)] = job
-                except Exception as exc:  # the pool broke
-                    broken = exc
-                    back.append(job)
-            if broken is not None and not pending:
-                for job in itertools.chain(back, jobs):
-                    yield job, _failed(job, RuntimeError(
-                        f"not run: a worker process died ({broken})"), time.perf_counter())
-                return
-            if not pending:
-                return
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                job = pending.pop(fut)
-                try:
-                    res = fut.result()
-                except Exception as exc:  # the worker died (out of memory?)
-                    broken = broken or exc
-                    res = _failed(job, RuntimeError(f"a worker process died while "
-                                                    f"registering this frame ({exc!r})"),
-                                  time.perf_counter())
-                yield job, res
+def _start_pool(ctx, n, cfg, threads):
+    return ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker,
+                               initargs=(cfg, threads))
+
+
+@contextlib.contextmanager
+def _stopped_on_interrupt(pool):
+    """Shut ``pool`` down; if the block is left by an exception (an interrupt), stop it now."""
+    try:
+        yield pool
+    except BaseException:  # KeyboardInterrupt, SIGTERM, the consumer gone (GeneratorExit)
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _stop_pool(pool, timeout=None):
+    """End the workers of ``pool`` now: SIGTERM (they unwind), then SIGKILL after ``timeout``."""
+    timeout = _STOP_TIMEOUT if timeout is None else timeout
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.terminate()
+    deadline = time.monotonic() + timeout
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+    for p in procs:
+        if p.is_alive():
+            with contextlib.suppress(Exception):
+                p.kill()
+                p.join(1.0)
+    pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _results(pending):
+    """Wait (in short steps: interrupts are seen at once) until a job of ``pending`` is done."""
+    while True:
+        done, _ = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
+        if done:
+            return done
+
+
+def _shared_round(pool, jobs, back, suspects, workers, inflight):
+    """Run jobs in ``pool`` until all are done or it breaks (its frames then go to ``suspects``)."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    pending, broken = {}, False
+    while True:
+        # A few frames in flight per worker: memory does not grow with the batch.
+        while not broken and len(pending) < 2 * workers:
+            job = back.popleft() if back else next(jobs, None)
+            if job is None:
+                break
+            _queued(job, inflight)
+            try:
+                pending[pool.submit(_run_in_worker, job)] = job
+            except BrokenProcessPool:  # the pool broke before this frame got in
+                broken = True
+                back.appendleft(job)
+        if not pending:
+            return
+        for fut in _results(pending):
+            job = pending.pop(fut)
+            try:
+                res = fut.result()
+            except BrokenProcessPool:  # a worker died: this frame may or may not be why
+                broken = True
+                suspects.append(job)
+                continue
+            except Exception as exc:  # noqa: BLE001 - e.g. a result that cannot be sent back
+                res = _failed(job, RuntimeError(f"the worker process could not return this "
+                                                f"frame's result ({exc!r})"),
+                              time.perf_counter())
+            yield job, res
+
+
+def _solo_round(suspects, ctx, cfg, threads):
+    """Each of ``suspects`` alone in a single-worker pool: one that kills it is the culprit."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    pool = None
+    try:
+        for job in suspects:
+            if pool is None:
+                pool = _start_pool(ctx, 1, cfg, threads)
+            t0 = time.perf_counter()
+            fut = pool.submit(_run_in_worker, job)
+            procs = list((getattr(pool, "_processes", None) or {}).values())
+            try:
+                (fut,) = _results({fut: job})
+                res = fut.result()
+            except BrokenProcessPool:
+                pool.shutdown(wait=True)
+                pool = None
+                res = _failed(job, RuntimeError(_death_message(procs)), t0)
+            except Exception as exc:  # noqa: BLE001 - as in _shared_round
+                res = _failed(job, RuntimeError(f"the worker process could not return this "
+                                                f"frame's result ({exc!r})"), t0)
+            yield job, res
+    except BaseException:
+        if pool is not None:
+            _stop_pool(pool)
+        raise
+    if pool is not None:
+        pool.shutdown(wait=True)
+
+
+def _death_message(procs):
+    """Why a frame failed that killed its worker even alone, with the worker's exit status."""
+    how = ""
+    codes = []
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.join(1.0)
+            codes.append(p.exitcode)
+    code = next((c for c in codes if c not in (None, 0)), None)
+    if code is not None and code < 0:
+        import signal
+
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        how = f" (killed by {name}" + (", as the out-of-memory killer does)"
+                                       if name == "SIGKILL" else ")")
+    elif code is not None:
+        how = f" (exit status {code})"
+    return (f"a worker process died while registering this frame, also when it was retried "
+            f"alone in a fresh worker{how}; the other frames went on. Out of memory? Try "
+            "fewer workers or a smaller max_sources, or register this frame alone to see why.")
 
 
 def _is_macos():

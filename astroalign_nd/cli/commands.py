@@ -202,6 +202,24 @@ def _write_summary(result, path):
     print(f"wrote {path}")
 
 
+def _interrupted_summary(result, exc):
+    """
+    The summary of an interrupted batch: the frames not done in one line
+    (the --summary table lists each), the frames that failed one per line.
+    """
+    not_done = [f for f in result.failed if (f.error or "").startswith("Interrupted: ")]
+    failed = [f for f in result.failed if f not in not_done]
+    why = str(exc) or type(exc).__name__
+    line = f"{len(result.succeeded)} of {len(result.frames)} frames registered"
+    if result.skipped:
+        line += f", {len(result.skipped)} skipped (complete output already there)"
+    if failed:
+        line += f", {len(failed)} failed"
+    line += (f"; interrupted ({why}): {len(not_done)} not done. Run the same command with "
+             "--skip-existing to finish.")
+    return "\n".join([line] + [f"  FAILED {f.name}: {f.error}" for f in failed])
+
+
 def _cmd_batch(args):
     import astroalign_nd
 
@@ -219,6 +237,7 @@ def _cmd_batch(args):
         from tqdm.auto import tqdm
 
         bar = tqdm(total=n, unit="frame", file=sys.stderr)
+    interrupted = None
     try:
         if args.scheduler:
             client = client_class(args.scheduler)
@@ -227,11 +246,21 @@ def _cmd_batch(args):
             skip_existing=args.skip_existing, canvas=args.canvas, client=client,
             workers=args.workers or None, callback=_frame_reporter(n, bar), unit=args.unit,
             **_registration_kwargs(args))
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the workers are stopped
+        result = getattr(exc, "partial_result", None)
+        if result is None:
+            raise
+        interrupted = exc
     finally:
         if bar is not None:
             bar.close()
         if client is not None:
             client.close()
+    if interrupted is not None:  # what was done, in the log and the summary; then the exit code
+        print(_interrupted_summary(result, interrupted))
+        if args.summary is not None:
+            _write_summary(result, args.summary)
+        raise interrupted
     if args.canvas == "union":
         ny, nx = result.canvas_shape
         print(f"canvas: {nx}x{ny} px, pixel (0, 0) at reference pixel "

@@ -2,6 +2,7 @@
 """The ``astroalign-nd`` command: its parser and entry point."""
 
 import argparse
+import contextlib
 import sys
 from .errors import _PROG, _error, _expected_errors
 from .commands import _cmd_batch, _cmd_demo, _cmd_register
@@ -110,6 +111,71 @@ def _add_demo_command(sub):
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
 
 
+_SIGINT = 2  # signal.SIGINT, the same number on every platform
+
+
+class _Terminated(KeyboardInterrupt):
+    """
+    SIGTERM, raised like Ctrl-C's KeyboardInterrupt: the same clean-up runs
+    (workers stopped, temporary files removed, the partial summary written).
+    """
+
+    def __init__(self, signum):
+        super().__init__(_signal_name(signum))
+        self.signum = signum
+
+
+def _signal_name(signum):
+    import signal
+
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
+
+
+@contextlib.contextmanager
+def _interrupt_signals():
+    """
+    SIGTERM (where the platform has it) raises `_Terminated`; the first
+    SIGTERM or SIGINT only: a second one while the batch stops (within a few
+    seconds) must not cut the clean-up short.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be set in the main thread
+        return
+    fired = []
+
+    def interrupt(signum, frame):
+        if fired:
+            return
+        fired.append(signum)
+        if signum == _SIGINT:
+            raise KeyboardInterrupt(_signal_name(signum))
+        raise _Terminated(signum)
+
+    old = {}
+    for name in ("SIGTERM", "SIGINT"):
+        signum = getattr(signal, name, None)
+        if signum is None:
+            continue
+        current = signal.getsignal(signum)
+        # Keep an ignored SIGINT ignored (nohup, a background job) and a caller's own handler.
+        if name == "SIGINT" and current is not signal.default_int_handler:
+            continue
+        if name == "SIGTERM" and current not in (signal.SIG_DFL, None):
+            continue
+        old[signum] = signal.signal(signum, interrupt)
+    try:
+        yield
+    finally:
+        for signum, handler in old.items():
+            signal.signal(signum, handler)
+
+
 def main(argv=None):
     """
     Run the ``astroalign-nd`` command line.
@@ -123,7 +189,9 @@ def main(argv=None):
     -------
     int
         The exit code: 0 on success, 1 if some frames of ``batch`` failed,
-        2 on a usage or registration error.
+        2 on a usage or registration error, 130 when interrupted (SIGINT,
+        Ctrl-C) and 143 when terminated (SIGTERM); ``batch`` stops its
+        workers and prints (and writes, with ``--summary``) what was done.
     """
     parser = _build_parser()
     try:
@@ -155,14 +223,17 @@ def main(argv=None):
     old_showwarning = warnings.showwarning
     warnings.showwarning = one_line_warning
     try:
-        return args.func(args)
+        with _interrupt_signals():
+            return args.func(args)
     except errors as exc:
         return _error(str(exc) or type(exc).__name__)
     except MemoryError as exc:
         return _error(f"out of memory{': ' + str(exc) if str(exc) else ''}; try a smaller "
                       "--max-sources or --n-sources, --bin-factor, or fewer --workers.")
-    except KeyboardInterrupt:
-        return _error("interrupted.")
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", _SIGINT)
+        print(f"{_PROG}: interrupted ({_signal_name(signum)}).", file=sys.stderr)
+        return 128 + signum  # the shell's convention: 130 for SIGINT, 143 for SIGTERM
     except Exception as exc:  # noqa: BLE001 - never a traceback on the command line
         return _error(f"{type(exc).__name__}: {exc}")
     finally:
