@@ -101,7 +101,7 @@ def test_a_frame_that_kills_its_worker_fails_alone(tmp_path, night, monkeypatch)
     """
     ref, paths = night
     out = tmp_path / "out"
-    real_find, real_write = frame_mod._find_for_apply, frame_mod.write_ccddata
+    real_find, real_write = frame_mod.find_for_apply, frame_mod.write_ccddata
 
     def find(source, *args, **kwargs):
         if str(source).endswith("f10.fits"):
@@ -114,7 +114,7 @@ def test_a_frame_that_kills_its_worker_fails_alone(tmp_path, night, monkeypatch)
             _kill_self()  # complete output, result never sent back
 
     # fork: the workers inherit these
-    monkeypatch.setattr(frame_mod, "_find_for_apply", find)
+    monkeypatch.setattr(frame_mod, "find_for_apply", find)
     monkeypatch.setattr(frame_mod, "write_ccddata", write)
     result = register_batch(paths, ref, output_dir=out, workers=2)
     assert result.summary().startswith(f"{N_FRAMES - 1} of {N_FRAMES} frames registered, "
@@ -190,13 +190,13 @@ _SLOW_CLI = textwrap.dedent("""
     import sys, time
     import astroalign_nd.batch.frame as frame
 
-    real = frame._find_for_apply
+    real = frame.find_for_apply
 
     def slow(*args, **kwargs):  # a long night: the signal comes mid-batch
         time.sleep(0.4)
         return real(*args, **kwargs)
 
-    frame._find_for_apply = slow  # the forked workers inherit it
+    frame.find_for_apply = slow  # the forked workers inherit it
     from astroalign_nd.cli.main import main
 
     sys.exit(main(sys.argv[1:]))
