@@ -133,6 +133,18 @@ class _Bool:
         raise TypeError
 
 
+class _Callable:
+    """A source finder: any callable (``finder(data, mask=None)``), or None."""
+
+    def describe(self):
+        return "a source finder (callable as finder(data, mask=None)) or None"
+
+    def convert(self, value):
+        if value is None or callable(value):
+            return value
+        raise TypeError
+
+
 #: Every public option: how it is checked.
 OPTIONS = {
     # matching
@@ -155,6 +167,7 @@ OPTIONS = {
     "sharpness_range": _Pair(_Real(infinite=True), none=True),
     "roundness_range": _Pair(_Real(infinite=True), none=True),
     "refine_centroids": _Bool(),
+    "finder": _Callable(),
     # counts of stars
     "n_sources": _Int(3, 1_000_000),
     "max_sources": _Int(3, 1_000_000),

@@ -21,15 +21,18 @@ import numpy as np
 from astropy import log
 
 from ._input import parse_input
-from .detection.daofind import _control_sources, find_sources
+from .detection.daofind import control_sources, find_sources, import_photutils
 from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads, side_pool
 from ._validate import check_option, check_options, check_points
 from .matching.asterisms import build_asterisms, check_triangle_budget
-from .matching.search import _match_points, _search_tolerance, match_points
+from .matching.search import match_points, search_tolerance
 from .transforms import selection as model_selection
 from .exceptions import PoorFitWarning
 from .transforms.registry import transform_class
+
+#: The stage functions under the names that benchmarks/bench_speed2*.py wrap to time them.
+_control_sources, _match_points = control_sources, match_points
 
 if TYPE_CHECKING:
     from astropy.nddata import CCDData
@@ -55,7 +58,8 @@ _DETECT_KEYS = _keyword_options(find_sources, {"mask", "n_sources"})
 #: Keyword arguments forwarded to `~astroalign_nd.matching.match_points`: its
 #: settings, less those `find_match` derives from the images.
 _MATCH_KEYS = _keyword_options(match_points, {
-    "transform_type", "source_frame", "target_frame", "source_errors", "target_errors"})
+    "transform_type", "source_frame", "target_frame", "source_errors", "target_errors",
+    "n_control", "prior_trials", "source_asterisms", "target_asterisms"})
 
 
 class Reference:
@@ -194,9 +198,7 @@ class Reference:
 
 
 def _no_detections_warning():
-    from .detection.daofind import _import_photutils
-
-    _import_photutils()  # without photutils' slow metadata scan
+    import_photutils()  # without photutils' slow metadata scan
     try:
         from photutils.utils.exceptions import NoDetectionsWarning
     except ImportError:  # moved in a future photutils: its base class then
@@ -286,7 +288,7 @@ def _escalate(src, dst, plan, mat, options, user_nn, *, linear_type, nonlinear):
         if key not in tried:
             tried.add(key)
             if "tolerance" not in options:
-                mat["tolerance"] = grow_tolerance = _search_tolerance(dst.fwhm)
+                mat["tolerance"] = grow_tolerance = search_tolerance(dst.fwhm)
                 if nonlinear:  # a linear model is pixels off at the corners of a wide field
                     mat["tolerance"] *= model_selection.SEARCH_TOLERANCE_FACTOR
             log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "

@@ -392,7 +392,7 @@ def test_bad_options(frame3, kwargs, exc):
 
 
 def test_photutils_import_without_metadata_scan_is_the_same_photutils():
-    # _import_photutils skips photutils' scan of every installed distribution
+    # import_photutils skips photutils' scan of every installed distribution
     # (a fifth of a second in a fresh process): photutils must end up exactly
     # as a plain import leaves it, and importlib.metadata untouched.
     import subprocess
@@ -402,8 +402,8 @@ def test_photutils_import_without_metadata_scan_is_the_same_photutils():
         "import importlib.metadata as md, json, sys\n"
         "scan = md.packages_distributions\n"
         "if sys.argv[1] == 'ours':\n"
-        "    from astroalign_nd.detection.daofind import _import_photutils\n"
-        "    _import_photutils()\n"
+        "    from astroalign_nd.detection.daofind import import_photutils\n"
+        "    import_photutils()\n"
         "import photutils.utils._optional_deps as o\n"
         "from photutils.detection import DAOStarFinder\n"
         "print(json.dumps([o._pkg_dist_name, o.__all__, md.packages_distributions is scan]))\n"

@@ -13,13 +13,14 @@ from .._kernels import windowed_centroid as _windowed_centroid
 from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
 from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
 from .background import _bin_mean, _local_background, estimate_noise
+from .base import SourceFinderBase, _standard_table
 
-__all__ = ['find_sources']
+__all__ = ['find_sources', 'DAOSourceFinder', 'control_sources', 'import_photutils']
 
 
 def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
                  sharpness_range=(-np.inf, 1.0), roundness_range=(-1.0, 1.0),
-                 peak_max=None, bin_factor=None, refine_centroids=True):
+                 peak_max=None, bin_factor=None, refine_centroids=True, finder=None):
     """
     Find the brightest point sources of an image with DAOStarFinder.
 
@@ -59,6 +60,16 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     refine_centroids : bool, optional
         Refine DAOStarFinder's centroids with a Gaussian-windowed centroid
         (default True).
+    finder : `~astroalign_nd.detection.SourceFinderBase` or callable, optional
+        Another detector, instead of the DAOStarFinder pipeline: a finder
+        such as `~astroalign_nd.detection.SegmentationFinder`, or any
+        callable ``finder(data, mask=None)`` returning an
+        `~astropy.table.Table` with ``x``, ``y`` (or photutils'
+        ``x_centroid``, ``y_centroid``) and ``flux`` columns, such as a
+        photutils star finder.  Its ``n_sources`` brightest sources are
+        returned.  The options above (but ``mask`` and ``n_sources``)
+        configure the DAOStarFinder pipeline: with ``finder``, they must be
+        left at their defaults (set the finder's own instead).
 
     Returns
     -------
@@ -71,7 +82,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
         flux.  The table's ``meta`` holds ``fwhm``, ``noise``,
         ``bin_factor`` and ``fwhm_source`` (``'user'``, ``'estimate'`` or
         ``'scale search'``).  It may have fewer rows than ``n_sources``
-        (or none).
+        (or none).  With ``finder``: the finder's table, brightest first.
 
     Examples
     --------
@@ -92,6 +103,12 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     >>> dist, _ = cKDTree(truth).query(np.column_stack([sources["x"], sources["y"]]))
     >>> bool(np.median(dist) < 0.2)
     True
+
+    The same frame with another detector:
+
+    >>> from astroalign_nd.detection import SegmentationFinder
+    >>> len(find_sources(pair.source, n_sources=30, finder=SegmentationFinder()))
+    30
     """
     n_sources = _check_positive_int(n_sources, "n_sources")
     if fwhm is not None and not (np.isfinite(fwhm) and fwhm > 0):
@@ -102,6 +119,11 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     data, mask = _as_image(image, mask)
     if mask is not None and mask.all():
         raise ValueError("every pixel of the image is masked or not finite.")
+    if finder is not None:
+        return _run_finder(finder, data, mask, n_sources, dict(
+            fwhm=fwhm, nsigma=nsigma, sharpness_range=sharpness_range,
+            roundness_range=roundness_range, peak_max=peak_max, bin_factor=bin_factor,
+            refine_centroids=refine_centroids))
     opts = dict(n_sources=n_sources, nsigma=nsigma, sharpness_range=sharpness_range,
                 roundness_range=roundness_range, peak_max=peak_max,
                 refine_centroids=refine_centroids)
@@ -279,7 +301,7 @@ def _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts):
     # Imported here: photutils' import is the largest part of a fresh
     # process's first call, and a bare ``import astroalign_nd.detection``
     # (or a catalog-only run) does not need it.
-    _import_photutils()
+    import_photutils()
     from photutils.detection import DAOStarFinder
 
     finder = DAOStarFinder(
@@ -482,7 +504,7 @@ def _empty_table(fwhm, noise, b):
     return t
 
 
-def _import_photutils():
+def import_photutils():
     """
     Import photutils without its scan of every installed package's metadata.
 
@@ -492,7 +514,16 @@ def _import_photutils():
     call, a third of it.  Its distribution is named ``photutils``, which is
     what the scan would return; that answer is given for the duration of the
     import.  Nothing else changes (photutils still reads its own metadata for
-    its optional dependencies).
+    its optional dependencies).  Every module of the package that imports
+    photutils calls this first; it does nothing once photutils is imported.
+
+    Examples
+    --------
+    >>> import sys
+    >>> from astroalign_nd.detection.daofind import import_photutils
+    >>> import_photutils()
+    >>> "photutils" in sys.modules
+    True
     """
     if "photutils.utils._optional_deps" in sys.modules:
         return
@@ -521,6 +552,116 @@ def _check_positive_int(value, name):
     return int(value)
 
 
+# -- other finders -----------------------------------------------------------------------------
+
+#: `find_sources`' options of the DAOStarFinder pipeline (not ``finder``'s).
+_PIPELINE_DEFAULTS = {k: v for k, v in find_sources.__kwdefaults__.items()
+                      if k not in ("mask", "n_sources", "finder")}
+
+
+def _run_finder(finder, data, mask, n_sources, options):
+    """`find_sources` with ``finder``: its table, brightest first, ``n_sources`` rows."""
+    if not callable(finder):
+        raise TypeError(f"finder must be a source finder (a SourceFinderBase, or a callable "
+                        f"finder(data, mask=None) returning a Table); got {finder!r}.")
+    changed = [k for k, v in options.items() if not _is_default(v, _PIPELINE_DEFAULTS[k])]
+    if changed:
+        raise TypeError(f"the option(s) {', '.join(changed)} of find_sources configure its "
+                        f"DAOStarFinder pipeline, which finder={finder!r} replaces; set the "
+                        "finder's own options instead.")
+    table = _standard_table(finder(data, mask=mask), finder, n_sources)
+    table.meta.setdefault("fwhm_source", "finder")
+    return table
+
+
+def _is_default(value, default):
+    if value is None or default is None:
+        return value is default
+    try:
+        return bool(np.array_equal(np.asarray(value, float), np.asarray(default, float)))
+    except (TypeError, ValueError):  # a value that cannot be compared is not the default
+        return False
+
+
+class DAOSourceFinder(SourceFinderBase):
+    """
+    The DAOStarFinder pipeline of `~astroalign_nd.detection.find_sources`, as
+    a finder.
+
+    Its stages are the parts of the `~astroalign_nd.detection` subpackage:
+    the noise (`~astroalign_nd.detection.estimate_noise`), candidate peaks
+    on a binned copy less a coarse background, the FWHM estimate
+    (`~astroalign_nd.detection.estimate_fwhm`), the measurement with
+    `~photutils.detection.DAOStarFinder` and the windowed centroids.
+    Calling the finder gives what ``find_sources(data, mask=mask,
+    **options)`` gives.
+
+    Parameters
+    ----------
+    **options
+        Options of `~astroalign_nd.detection.find_sources` (``n_sources``,
+        ``fwhm``, ``nsigma``, ``sharpness_range``, ``roundness_range``,
+        ``peak_max``, ``bin_factor``, ``refine_centroids``), with its
+        defaults; their values are checked when the finder is called.
+
+    Attributes
+    ----------
+    options : dict
+        The options given.
+
+    Examples
+    --------
+    >>> from astroalign_nd.detection import DAOSourceFinder, find_sources
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> finder = DAOSourceFinder(n_sources=20, nsigma=10.0)
+    >>> finder
+    DAOSourceFinder(n_sources=20, nsigma=10.0)
+    >>> found = finder(pair.source)
+    >>> len(found), found.meta["fwhm_source"]
+    (20, 'estimate')
+    >>> bool((found["x"] == find_sources(pair.source, n_sources=20, nsigma=10.0)["x"]).all())
+    True
+    """
+
+    def __init__(self, **options):
+        unknown = sorted(set(options) - set(_PIPELINE_DEFAULTS) - {"n_sources"})
+        if unknown:
+            raise TypeError(f"unexpected option(s) {unknown}; DAOSourceFinder takes "
+                            f"find_sources' options {['n_sources', *_PIPELINE_DEFAULTS]}.")
+        self.options = dict(options)
+
+    @property
+    def nsigma(self):
+        """The detection threshold, in noise units."""
+        return self.options.get("nsigma", _PIPELINE_DEFAULTS["nsigma"])
+
+    def __call__(self, data, mask=None):
+        # find_sources checks and reads every input itself (and collects no
+        # non-finite pixels: its stages skip them).
+        return find_sources(data, mask=mask, **self.options)
+
+    def find_stars(self, data, mask=None):
+        """
+        The sources of a checked image: ``find_sources(data, mask=mask, **options)``.
+
+        Parameters
+        ----------
+        data : 2-D float ndarray
+        mask : 2-D bool ndarray or None
+
+        Returns
+        -------
+        sources : `~astropy.table.Table`
+        """
+        return find_sources(data, mask=mask, **self.options)
+
+    def __repr__(self):
+        return f"DAOSourceFinder({', '.join(f'{k}={v!r}' for k, v in self.options.items())})"
+
+
+# -- the detection of registration ---------------------------------------------------------
+
 #: The deep threshold (noise units) of registration's one detection pass, for
 #: faint or sparse fields.
 _DEEP_NSIGMA = 3.0
@@ -528,16 +669,66 @@ _DEEP_NSIGMA = 3.0
 #: The confident threshold kept when enough sources pass it: `find_sources`' default.
 _CONFIDENT_NSIGMA = find_sources.__kwdefaults__["nsigma"]
 
+#: The centroid error (pixels per axis) of a finder's sources that come without one,
+#: as the distortion fit assumes for unknown errors.
+_UNKNOWN_POSITION_ERROR = 0.1
 
-def _control_sources(image, *, mask, n_sources, n_enough, nsigma=None, **options):
+
+def control_sources(image, *, mask, n_sources, n_enough, nsigma=None, finder=None,
+                    **options):
     """
     The sources registration uses: the detection thresholds' one home.
 
-    With ``nsigma`` given, one `find_sources` pass at it; without, one
-    pass at ``_DEEP_NSIGMA``, of which only the sources at ``_CONFIDENT_NSIGMA``
-    are kept when there are ``n_enough`` of them.
-    Returns the table and the threshold of the pass (for messages).
+    With ``nsigma`` given, one `find_sources` pass at it; without, one pass
+    at a deep threshold (3 sigma), of which only the sources at
+    `find_sources`' default threshold (5 sigma) are kept when there are
+    ``n_enough`` of them: faint or sparse fields get their faint stars,
+    rich fields only their confident ones.  With ``finder``, one pass of
+    that finder (its own threshold).
+
+    Parameters
+    ----------
+    image : 2-D array-like, `~astropy.nddata.NDData`, path, HDU or tuple
+        As `find_sources` takes it.
+    mask : 2-D bool array-like or None
+        True for pixels to ignore.
+    n_sources : int
+        Sources wanted.
+    n_enough : int
+        Confident sources that make the deep ones unnecessary.
+    nsigma : float, optional
+        A threshold of the caller's (noise units).
+    finder : `~astroalign_nd.detection.SourceFinderBase` or callable, optional
+        Another detector (see `find_sources`).
+    **options
+        Further options of `find_sources`.
+
+    Returns
+    -------
+    sources : `~astropy.table.Table`
+        As `find_sources` returns them; a finder's sources without a
+        ``position_error`` column get one of 0.1 px.
+    threshold : float
+        The threshold of the pass, noise units (for messages; NaN for a
+        finder that does not tell).
+
+    Examples
+    --------
+    >>> from astroalign_nd.detection.daofind import control_sources
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> table, threshold = control_sources(pair.source, mask=None, n_sources=100,
+    ...                                    n_enough=50)
+    >>> threshold, bool(table["snr"].min() >= 5.0)
+    (3.0, True)
     """
+    if finder is not None:
+        if nsigma is not None:  # refused by find_sources, with the reason
+            options["nsigma"] = nsigma
+        table = find_sources(image, mask=mask, n_sources=n_sources, finder=finder, **options)
+        if "position_error" not in table.colnames:  # the final fit weighs every star alike
+            table["position_error"] = np.full(len(table), _UNKNOWN_POSITION_ERROR)
+        return table, float(table.meta.get("nsigma", getattr(finder, "nsigma", np.nan)))
     threshold = _DEEP_NSIGMA if nsigma is None else nsigma
     table = find_sources(image, mask=mask, n_sources=n_sources, nsigma=threshold, **options)
     if nsigma is None:

@@ -11,11 +11,11 @@ from .asterisms import build_asterisms
 from ..exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
 from ..transforms.registry import transform_class
 from .result import MatchResult
-from .geometry import _bbox, _overlap_box
+from .geometry import _overlap_box, bounding_frame
 from .verify import _log10_false_alarm, _model_misfit, _predicted_error, _refine
 from .triangles import hypothesis_matrices, match_triangles
 
-__all__ = ['match_points']
+__all__ = ['match_points', 'search_tolerance']
 
 
 def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0,
@@ -23,7 +23,8 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
                  allow_mirror=True, scale_range=None, max_false_alarm=1e-6,
                  accept_matches=10, batch_size=512, max_hypotheses=20_000,
                  source_frame=None, target_frame=None, source_errors=None,
-                 target_errors=None):
+                 target_errors=None, n_control=None, prior_trials=0, source_asterisms=None,
+                 target_asterisms=None):
     """
     Find the transform that maps ``src_pts`` onto ``dst_pts``.
 
@@ -55,10 +56,24 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     batch_size, max_hypotheses : int, optional
         Hypotheses scored per batch, and at most in total.
     source_frame, target_frame : (x0, x1, y0, y1), optional
-        Extent of each image; the points' bounding box by default.
+        Extent of each image; the points' `bounding_frame` by default.
     source_errors, target_errors : (N,) ndarray, optional
         Expected position error of each point (pixels); used to weight the
         final fit.
+    n_control : int or (int, int), optional
+        Only the first ``n_control`` points (the brightest) form triangles
+        and score hypotheses; all points are used to refine and verify.  A
+        pair gives different numbers for the source and the target.  By
+        default every point is a control point.
+    prior_trials : int, optional
+        Hypotheses already tried on this pair by earlier searches (the
+        ``n_hypotheses`` of their `~astroalign_nd.TransformNotFoundError`);
+        they count in the trials factor of the false-alarm probability, so
+        that searching again does not make a chance match likelier to pass.
+    source_asterisms, target_asterisms : `~astroalign_nd.matching.Asterisms`, optional
+        Triangles of the first ``n_control`` points, when already built
+        (a reference frame used for many registrations builds them once).
+
     Returns
     -------
     result : `MatchResult`
@@ -68,7 +83,8 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     TooFewSourcesError
         If either list has fewer than 3 points.
     TransformNotFoundError
-        If no hypothesis passes the false-alarm test.
+        If no hypothesis passes the false-alarm test; its ``n_hypotheses``
+        attribute holds the number of hypotheses tried.
     ValueError, TypeError
         If an option is outside its range (one message per option, from
         ``astroalign_nd._validate.OPTIONS``), the positions are not finite
@@ -95,62 +111,25 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     True
     >>> bool(np.allclose(result.transform(*src.T), dst.T))
     True
+
+    Only the 15 brightest stars of each list as control points, after an
+    earlier search that tried 500 hypotheses:
+
+    >>> result = match_points(src, dst, n_control=15, prior_trials=500)
+    >>> result.n_matches
+    40
     """
-    return _match_points(
-        src_pts, dst_pts, transform_type=transform_type, tolerance=tolerance,
-        min_tolerance=min_tolerance, invariant_radius=invariant_radius,
-        n_neighbors=n_neighbors, allow_mirror=allow_mirror, scale_range=scale_range,
-        max_false_alarm=max_false_alarm, accept_matches=accept_matches,
-        batch_size=batch_size, max_hypotheses=max_hypotheses, source_frame=source_frame,
-        target_frame=target_frame, source_errors=source_errors, target_errors=target_errors)
-
-
-#: The settings of `match_points` and their defaults (its signature is their one home).
-_SETTINGS = {name: p.default for name, p in inspect.signature(match_points).parameters.items()
-             if p.kind is p.KEYWORD_ONLY}
-
-
-def _search_tolerance(fwhm=None):
-    """
-    The search's matching radius (pixels) for stars ``fwhm`` pixels wide:
-    `match_points`' default, or half the FWHM where that is wider (defocus,
-    digitised plates: wide stars have wide position errors).
-    """
-    return max(_SETTINGS["tolerance"], 0.5 * (fwhm or 0.0))
-
-
-def _match_points(src_pts, dst_pts, *, n_control=None, source_asterisms=None,
-                  target_asterisms=None, prior_trials=0, **settings):
-    """
-    `match_points`, with what `~astroalign_nd.find_match` knows beyond it.
-
-    Parameters
-    ----------
-    src_pts, dst_pts : (N, 2) ndarray
-        As in `match_points`.
-    n_control : int or (int, int), optional
-        Only the first ``n_control`` points (the brightest) form triangles
-        and score hypotheses; all points are used to refine and verify.  A
-        pair gives different numbers for the source and the target.
-    source_asterisms, target_asterisms : `~astroalign_nd.matching.Asterisms`, optional
-        Triangles of the first ``n_control`` points, when already built
-        (a reference frame used for many registrations builds them once).
-    prior_trials : int, optional
-        Hypotheses already tried on this pair by earlier attempts; they
-        count in the trials factor of the false-alarm probability.
-
-    **settings
-        The keyword arguments of `match_points` (its defaults otherwise).
-
-    The stages: `_prepare` (checks, frames, control points), triangles and
-    their `_Hypotheses` (made batch by batch, through `_filter_hypotheses`),
-    `_score_batches` (early acceptance), `_final_pass` and `_failure_message`.
-    """
-    unknown = set(settings) - set(_SETTINGS)
-    if unknown:
-        raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}; match_points "
-                        f"accepts {list(_SETTINGS)}.")
-    s = _prepare(src_pts, dst_pts, {**_SETTINGS, **settings}, n_control, prior_trials)
+    settings = dict(
+        transform_type=transform_type, tolerance=tolerance, min_tolerance=min_tolerance,
+        invariant_radius=invariant_radius, n_neighbors=n_neighbors, allow_mirror=allow_mirror,
+        scale_range=scale_range, max_false_alarm=max_false_alarm,
+        accept_matches=accept_matches, batch_size=batch_size, max_hypotheses=max_hypotheses,
+        source_frame=source_frame, target_frame=target_frame, source_errors=source_errors,
+        target_errors=target_errors)
+    # The stages: _prepare (checks, frames, control points), triangles and their
+    # _Hypotheses (made batch by batch), _score_batches (early acceptance),
+    # _final_pass and _failure_message.
+    s = _prepare(src_pts, dst_pts, settings, n_control, prior_trials)
     src_ast = source_asterisms or build_asterisms(s.src_ctl, n_neighbors=s.n_neighbors)
     dst_ast = target_asterisms or build_asterisms(s.dst_ctl, n_neighbors=s.n_neighbors)
     pairs, _ = match_triangles(src_ast, dst_ast, s.invariant_radius,
@@ -170,6 +149,52 @@ def _match_points(src_pts, dst_pts, *, n_control=None, source_asterisms=None,
     if progress.best is not None and progress.best.ok:
         return _result(progress.best, s, n_tri, progress.n_scored)
     raise _not_found(progress.n_scored, _failure_message(s, progress, n_tri))
+
+
+#: The settings of `match_points` and their defaults (its signature is their one home).
+_SETTINGS = {name: p.default for name, p in inspect.signature(match_points).parameters.items()
+             if p.kind is p.KEYWORD_ONLY}
+
+
+def _search_tolerance(fwhm=None):
+    """
+    The search's matching radius (pixels) for stars ``fwhm`` pixels wide:
+    `match_points`' default, or half the FWHM where that is wider (defocus,
+    digitised plates: wide stars have wide position errors).
+    """
+    return max(_SETTINGS["tolerance"], 0.5 * (fwhm or 0.0))
+
+
+def search_tolerance(fwhm=None):
+    """
+    The matching radius (pixels) of a search for stars ``fwhm`` pixels wide.
+
+    `match_points`' default ``tolerance``, or half the FWHM where that is
+    wider (defocused frames, digitised plates: wide stars have wide
+    position errors).  `~astroalign_nd.registration.find_match` searches at it unless
+    given a ``tolerance``.
+
+    Parameters
+    ----------
+    fwhm : float, optional
+        The stars' FWHM in pixels (unknown: the default radius).
+
+    Returns
+    -------
+    tolerance : float
+
+    Examples
+    --------
+    >>> from astroalign_nd.matching import search_tolerance
+    >>> search_tolerance(), search_tolerance(2.5), search_tolerance(12.0)
+    (3.0, 3.0, 6.0)
+    """
+    return _search_tolerance(fwhm)
+
+
+#: The former name of `match_points` with its search context (``benchmarks/bench_speed.py``
+#: imports it).
+_match_points = match_points
 
 
 @dataclass
@@ -232,8 +257,8 @@ def _prepare(src_pts, dst_pts, settings, n_control, prior_trials):
     tolerance = opts["tolerance"]
     return _Search(
         src_pts=src_pts, dst_pts=dst_pts, src_ctl=src_ctl, dst_ctl=dst_ctl,
-        src_frame=settings["source_frame"] or _bbox(src_pts),
-        dst_frame=settings["target_frame"] or _bbox(dst_pts),
+        src_frame=settings["source_frame"] or bounding_frame(src_pts),
+        dst_frame=settings["target_frame"] or bounding_frame(dst_pts),
         src_err=settings["source_errors"], dst_err=settings["target_errors"],
         transform_type=transform_type,
         # Free parameters of the fitted model: an affine fit bends to chance
@@ -463,7 +488,7 @@ def _result(c, s, n_tri, n_scored):
     resid = c.resid
     rms = float(np.sqrt(np.mean(np.sum(resid**2, axis=1)))) if len(resid) else float("nan")
     si, dj = c.si, c.dj
-    predicted = _predicted_error(c.model, c.cov, dst_frame or _bbox(dst_pts[dj]))
+    predicted = _predicted_error(c.model, c.cov, dst_frame or bounding_frame(dst_pts[dj]))
     if predicted > 0.3:  # 3 sigma above 1 px somewhere in the frame
         warn(
             f"the transform is uncertain: its parameter covariance gives a 1-sigma position "
