@@ -12,9 +12,10 @@ __all__ = []
 def _check_writable(path, overwrite):
     """Refuse, before any work, a path that cannot take the output."""
     from astroalign_nd.io.write import check_output_path
+    from astroalign_nd.io.writers import output_suffixes
 
     try:
-        check_output_path(path, overwrite)
+        check_output_path(path, overwrite, extensions=output_suffixes())
     except FileExistsError:
         raise _CLIError(f"output file {path!r} already exists; pass --overwrite to replace "
                         "it.") from None
@@ -82,7 +83,7 @@ def _max_corner_error(recovered, truth, shape):
 
 def _cmd_register(args):
     import astroalign_nd
-    from astroalign_nd.io.write import write_ccddata
+    from astroalign_nd.io import write_output
 
     _check_writable(args.output, args.overwrite)
     if args.plot:  # before the work: matplotlib missing or PLOT existing stops here
@@ -91,7 +92,7 @@ def _cmd_register(args):
         _check_plot_path(args.plot, args.overwrite)
     aligned = astroalign_nd.register(_check_input(args.source), _check_input(args.target),
                                      unit=args.unit, **_registration_kwargs(args))
-    write_ccddata(aligned, args.output, overwrite=args.overwrite, hdu_flags="FLAGS")
+    write_output(aligned, args.output, overwrite=args.overwrite)
     q = aligned.meta
     print(f"{_describe(astroalign_nd.transform_from_header(q))}; {q['AATNMAT']} matched "
           f"stars, RMS {q['AATRMS']:.3f} px")
