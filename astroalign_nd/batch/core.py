@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from .._input import batch_frames
 from ..exceptions import warn
-from ..io.write import _check_writable_dir
+from ..io.write import check_output_dir
 from ..registration import Reference, _prepared_target
 from .results import BatchResult, FrameResult
 from .frame import _Config, _Job, _shifted, _stream_jobs
@@ -175,7 +175,7 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     if output_dir is not None:
         output_dir = os.fspath(output_dir)
         os.makedirs(output_dir, exist_ok=True)
-        _check_writable_dir(output_dir)
+        check_output_dir(output_dir)
     jobs, outputs = _first_jobs(items, stream, union, output_dir, suffix, protected)
     apply_options = dict(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
                          method=method, unit=unit, add_keyword=add_keyword)

@@ -22,7 +22,7 @@ def _check_writable(path, overwrite):
 
 
 def _check_output_dir(path):
-    from astroalign_nd.io.write import _check_writable_dir
+    from astroalign_nd.io.write import check_output_dir
 
     if os.path.exists(path) and not os.path.isdir(path):
         raise _CLIError(f"--output-dir {path!r} is a file, not a folder.")
@@ -30,7 +30,7 @@ def _check_output_dir(path):
         os.makedirs(path, exist_ok=True)
     except OSError as exc:
         raise _CLIError(f"cannot create output folder {path!r}: {exc.strerror or exc}.") from None
-    _check_writable_dir(path)
+    check_output_dir(path)
 
 
 def _check_input(path):

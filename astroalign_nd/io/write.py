@@ -19,7 +19,8 @@ import contextlib
 import os
 import tempfile
 
-__all__ = ["atomic_write", "write_ccddata", "check_output_path", "FITS_EXTENSIONS"]
+__all__ = ["atomic_write", "write_ccddata", "check_output_path", "check_output_dir",
+           "FITS_EXTENSIONS"]
 
 #: File name endings taken as FITS by `write_ccddata` and the command line.
 FITS_EXTENSIONS = (".fits", ".fit", ".fts", ".fits.gz", ".fit.gz", ".fts.gz")
@@ -213,6 +214,39 @@ def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):
         raise FileExistsError(f"output file {path!r} already exists; pass --overwrite "
                               "(overwrite=True) to replace it.")
     _check_writable_dir(os.path.dirname(os.path.abspath(path)))
+
+
+def check_output_dir(folder):
+    """
+    Check, before any work, that files can be created in ``folder``.
+
+    Parameters
+    ----------
+    folder : str or path-like
+        An existing folder.
+
+    Raises
+    ------
+    NotADirectoryError
+        If ``folder`` does not exist or is not a folder.
+    PermissionError
+        If no file can be created in it.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.io.write import check_output_dir
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     check_output_dir(folder)  # fine: returns None, leaves nothing behind
+    ...     try:
+    ...         check_output_dir(os.path.join(folder, "missing"))
+    ...     except NotADirectoryError:
+    ...         print("no such folder")
+    ...     print(os.listdir(folder))
+    no such folder
+    []
+    """
+    _check_writable_dir(os.fspath(folder))
 
 
 def _check_writable_dir(folder):
