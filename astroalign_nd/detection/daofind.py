@@ -82,7 +82,8 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
         flux.  The table's ``meta`` holds ``fwhm``, ``noise``,
         ``bin_factor`` and ``fwhm_source`` (``'user'``, ``'estimate'`` or
         ``'scale search'``).  It may have fewer rows than ``n_sources``
-        (or none).  With ``finder``: the finder's table, brightest first.
+        (or none).  With ``finder``: the finder's table, brightest first
+        (``fwhm_source`` ``'finder'`` unless the finder sets it).
 
     Examples
     --------
