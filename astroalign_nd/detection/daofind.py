@@ -108,7 +108,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     The same frame with another detector:
 
     >>> from astroalign_nd.detection import SegmentationFinder
-    >>> len(find_sources(pair.source, n_sources=30, finder=SegmentationFinder()))
+    >>> len(find_sources(pair.source, n_sources=30, finder=SegmentationFinder(nsigma=3.0)))
     30
     """
     n_sources = _check_positive_int(n_sources, "n_sources")
@@ -615,13 +615,13 @@ class DAOSourceFinder(SourceFinderBase):
     >>> from astroalign_nd.detection import DAOSourceFinder, find_sources
     >>> from astroalign_nd.simulate import simulate_pair
     >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
-    >>> finder = DAOSourceFinder(n_sources=20, nsigma=10.0)
+    >>> finder = DAOSourceFinder(n_sources=20, fwhm=3.0)
     >>> finder
-    DAOSourceFinder(n_sources=20, nsigma=10.0)
+    DAOSourceFinder(n_sources=20, fwhm=3.0)
     >>> found = finder(pair.source)
     >>> len(found), found.meta["fwhm_source"]
-    (20, 'estimate')
-    >>> bool((found["x"] == find_sources(pair.source, n_sources=20, nsigma=10.0)["x"]).all())
+    (20, 'user')
+    >>> bool((found["x"] == find_sources(pair.source, n_sources=20, fwhm=3.0)["x"]).all())
     True
     """
 
