@@ -29,7 +29,7 @@ _REQUIRED = ("x", "y", "flux")
 _POSITION_ALIASES = {"x": ("x_centroid", "xcentroid"), "y": ("y_centroid", "ycentroid")}
 
 
-class SourceFinderBase(abc.ABC):
+class SourceFinderBase(metaclass=abc.ABCMeta):
     """
     Abstract base class of the source finders.
 

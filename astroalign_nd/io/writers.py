@@ -24,7 +24,7 @@ __all__ = ["Writer", "FITSWriter", "WRITERS", "register_writer", "writer_for",
            "output_suffixes", "write_output"]
 
 
-class Writer(abc.ABC):
+class Writer(metaclass=abc.ABCMeta):
     """
     One output format: how a registered frame is written and read back.
 
