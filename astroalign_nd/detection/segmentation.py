@@ -123,7 +123,7 @@ class SegmentationFinder(SourceFinderBase):
             if segm is None:
                 return _empty_sources()
             cat = SourceCatalog(sub, segm, mask=bad if bad.any() else None)
-            x, y = np.asarray(cat.xcentroid, float), np.asarray(cat.ycentroid, float)
+            x, y = np.asarray(cat.x_centroid, float), np.asarray(cat.y_centroid, float)
             flux = np.asarray(cat.segment_flux, float)
         ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(flux)
         order = np.argsort(-flux[ok], kind="stable")
