@@ -43,7 +43,13 @@ from typing import Any
 
 import numpy as np
 
+from ._validate import check_count
+from .detection import SegmentationFinder
 from .exceptions import TooFewSourcesError, TransformNotFoundError, warn
+from .matching import bounding_frame, match_points, overlap_counts, search_tolerance
+from .registration import Reference, find_match
+from .resample import resample
+from .transforms import as_matrix
 
 __all__ = [
     "MIN_MATCHES_FRACTION",
@@ -220,7 +226,7 @@ def _engine_options(detection_sigma):
 
 def _segment_sources(image, mask, detection_sigma, min_area):
     """
-    astroalign's detection criterion, with photutils segmentation.
+    astroalign's detection criterion: `~astroalign_nd.detection.SegmentationFinder`.
 
     Sources are groups of at least ``min_area`` connected pixels above
     ``detection_sigma`` times the background's standard deviation (after
@@ -228,39 +234,11 @@ def _segment_sources(image, mask, detection_sigma, min_area):
     keywords.  Returns (x, y) centroids, brightest (largest segment flux)
     first.
     """
-    from astropy.utils.exceptions import AstropyWarning
-    from photutils.background import Background2D
-    from photutils.segmentation import SourceCatalog, detect_sources
-
-    data = np.array(image, dtype=float)
-    bad = ~np.isfinite(data)
-    if mask is not None:
-        bad |= np.asarray(mask, dtype=bool)
-    empty = np.empty((0, 2))
-    if bad.all():
-        return empty
-    data[bad] = np.median(data[~bad])
-    box = int(max(8, min(64, min(data.shape) // 2)))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", AstropyWarning)
-        try:
-            bkg = Background2D(data, box, mask=bad if bad.any() else None)
-        except ValueError:  # too few unmasked pixels per box
-            return empty
-        sub = data - bkg.background
-        rms = float(bkg.background_rms_median)
-        if not np.isfinite(rms) or rms <= 0:
-            return empty
-        segm = detect_sources(sub, detection_sigma * rms, n_pixels=max(int(min_area), 1),
-                              mask=bad if bad.any() else None)
-        if segm is None:
-            return empty
-        cat = SourceCatalog(sub, segm, mask=bad if bad.any() else None)
-        x, y = np.asarray(cat.xcentroid, float), np.asarray(cat.ycentroid, float)
-        flux = np.asarray(cat.segment_flux, float)
-    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(flux)
-    order = np.argsort(-flux[ok], kind="stable")
-    return np.column_stack([x[ok][order], y[ok][order]])
+    finder = SegmentationFinder(nsigma=detection_sigma, min_area=max(int(min_area), 1))
+    if mask is np.ma.nomask:
+        mask = None
+    found = finder(np.asarray(image, dtype=float), mask=mask)
+    return np.column_stack([np.asarray(found["x"], float), np.asarray(found["y"], float)])
 
 
 def _skimage_transform(matrix):
@@ -351,9 +329,6 @@ def find_transform(source: Any, target: Any, max_control_points: int = 50,
     >>> round(float(T.rotation * 180 / 3.141592653589793), 1)
     30.0
     """
-    from ._validate import check_count
-    from .registration import Reference, find_match
-
     n = check_count(max_control_points, "max_control_points")
     opts = _engine_options(detection_sigma)
     det = {"nsigma": opts.pop("nsigma")} if "nsigma" in opts else {}
@@ -382,15 +357,11 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
 
     Raises `MaxIterError` (or the engine's `TooFewSourcesError`) otherwise.
     """
-    from .matching.geometry import _bbox, _in_frame
-    from .matching.search import _match_points, _search_tolerance
-    from .transforms._matrix import _apply
-
     lists = []
     for inp, ref in zip(inputs, refs):
-        if ref._parsed.is_catalog:
+        if ref.shape is None:  # a catalog
             pts = ref.stars(n)[0]
-            frame = _bbox(pts) if len(pts) else None
+            frame = bounding_frame(pts) if len(pts) else None
         else:
             pts = _segment_sources(inp.data, np.ma.getmask(inp), detection_sigma,
                                    min_area)[:2 * n]
@@ -406,21 +377,20 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
                   target_frame=dst_frame, n_control=(n, n),
                   prior_trials=getattr(exc, "n_hypotheses", 0))
     try:
-        return _match_points(src_pts, dst_pts,
-                             tolerance=opts.get("tolerance", _search_tolerance()), **common)
+        return match_points(src_pts, dst_pts,
+                            tolerance=opts.get("tolerance", search_tolerance()), **common)
     except TransformNotFoundError:
         pass
     # The candidate's warnings (an uncertain fit) are shown only if the rule accepts it.
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            result = _match_points(src_pts, dst_pts, tolerance=float(PIXEL_TOL),
-                                   max_false_alarm=1.0, **common)
+            result = match_points(src_pts, dst_pts, tolerance=float(PIXEL_TOL),
+                                  max_false_alarm=1.0, **common)
         except TransformNotFoundError:
             raise MaxIterError(str(exc)) from exc
     m = result.transform.matrix
-    n_in = max(int(np.sum(_in_frame(_apply(m, src_pts), dst_frame))),
-               int(np.sum(_in_frame(_apply(np.linalg.inv(m), dst_pts), src_frame))))
+    n_in = max(overlap_counts(m, src_pts, dst_pts, src_frame, dst_frame))
     need = 3 if n_in == 3 else max(4, math.ceil(MIN_MATCHES_FRACTION * n_in - 1e-9))
     resid = np.hypot(*np.asarray(result.residuals, float).reshape(-1, 2).T)
     if result.n_matches < need or np.max(resid, initial=0.0) >= PIXEL_TOL:
@@ -437,8 +407,6 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
 
 def _snapped_matrix(transform):
     """The 3x3 matrix of any transform, entries within 1e-12 of an integer rounded."""
-    from .transforms.convert import as_matrix
-
     m = np.array(as_matrix(transform), dtype=float)
     r = np.round(m)
     close = np.abs(m - r) < _SNAP
@@ -497,8 +465,6 @@ def apply_transform(transform: Any, source: Any, target: Any, fill_value: float 
     >>> footprint[0]
     array([ True, False, False, False])
     """
-    from .resample.core import resample
-
     m = _snapped_matrix(transform)
     data = np.asarray(_data(source))
     if data.dtype.kind not in "biuf" or data.ndim not in (2, 3):

@@ -149,6 +149,18 @@ class _Bool:
         raise TypeError
 
 
+class _Callable:
+    """A source finder: any callable (``finder(data, mask=None)``), or None."""
+
+    def describe(self):
+        return "a source finder (callable as finder(data, mask=None)) or None"
+
+    def convert(self, value):
+        if value is None or callable(value):
+            return value
+        raise TypeError
+
+
 class _Any:
     """Any value: checked where it is used (e.g. a transform type, by the transform registry)."""
 
@@ -210,6 +222,9 @@ class DetectionConfig:
         across.
     refine_centroids : bool, optional
         Refine the centroids with a Gaussian-windowed centroid.
+    finder : `~astroalign_nd.detection.SourceFinderBase` or callable, optional
+        Another detector instead of the DAOStarFinder pipeline (see
+        `~astroalign_nd.find_sources`).
 
     Raises
     ------
@@ -254,13 +269,15 @@ class DetectionConfig:
         "detect on the image binned BxB (for large, oversampled frames)",
         flag="--bin-factor", type=int, metavar="B")
     refine_centroids: bool = _option(True, _Bool(), "refine the centroids")
+    # Another detector instead of the DAOStarFinder pipeline (the API's; no command-line flag).
+    finder: object = _option(None, _Callable(), "another source finder")
 
     def __post_init__(self):
         _checked(self)
 
     def find_sources_kwargs(self):
         """The fields as `~astroalign_nd.find_sources`' keywords (nsigma left out when None)."""
-        kwargs = dataclasses.asdict(self)
+        kwargs = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}  # no deep copy
         if kwargs["nsigma"] is None:
             del kwargs["nsigma"]
         return kwargs

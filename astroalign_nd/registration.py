@@ -496,7 +496,7 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
     **options
         Detection options (``fwhm``, ``nsigma``, ``sharpness_range``,
         ``roundness_range``, ``peak_max``, ``bin_factor``,
-        ``refine_centroids``; see
+        ``refine_centroids``, or ``finder``: another detector; see
         `~astroalign_nd.find_sources`) and matching options
         (``tolerance``, ``min_tolerance``, ``invariant_radius``,
         ``n_neighbors``, ``allow_mirror``, ``scale_range``,

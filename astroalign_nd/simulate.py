@@ -1013,6 +1013,32 @@ def _map_xy(m, x, y):
     return m[0, 0] * x + m[0, 1] * y + m[0, 2], m[1, 0] * x + m[1, 1] * y + m[1, 2]
 
 
+def _check_pair_counts(n_stars, n_transients, mirror):
+    """Check `simulate_pair`'s counts of stars and its ``mirror``; return the counts."""
+    n_stars = _check_count(n_stars, "n_stars")
+    n_transients = _check_count(n_transients, "n_transients")
+    if not isinstance(mirror, (bool, np.bool_)):
+        raise TypeError(f"mirror must be True or False; got {mirror!r}.")
+    return n_stars, n_transients
+
+
+def _frame_options(psf, beta, dtype, noise, **detector):
+    """
+    The `simulate_image` options common to both frames of `simulate_pair`
+    (PSF, dtype and noise checked), and the noise model's name.
+    """
+    psf, beta = _check_psf(psf, beta)
+    dtype = _check_dtype(dtype)
+    noise_model = _check_noise(noise)
+    return dict(psf=psf, beta=beta, **detector, noise=noise, dtype=dtype), noise_model
+
+
+def _frame_stars(x, y, flux, ids, present, shape):
+    """The catalog of the stars rendered in a frame and inside it."""
+    keep = present & _inside(x, y, shape)
+    return _star_table(x[keep], y[keep], flux[keep], ids[keep])
+
+
 def _check_pair_image_options(background, target_background, gradient, read_noise, gain,
                               saturation, n_hot_pixels, n_cosmic_rays):
     """Check the detector options of both frames; return the target's background."""
@@ -1302,15 +1328,12 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     shape = _check_shape(shape)
     target_shape = shape if target_shape is None else _check_shape(target_shape, "target_shape")
     dist = _check_distortion(distortion, shape)
-    n_stars = _check_count(n_stars, "n_stars")
-    n_transients = _check_count(n_transients, "n_transients")
-    if not isinstance(mirror, (bool, np.bool_)):
-        raise TypeError(f"mirror must be True or False; got {mirror!r}.")
+    n_stars, n_transients = _check_pair_counts(n_stars, n_transients, mirror)
     fwhm = _check_fwhm(fwhm, "fwhm")
     (lo, hi), alpha = _check_flux_range(flux_range, flux_index)
-    psf, beta = _check_psf(psf, beta)
-    dtype = _check_dtype(dtype)
-    noise_model = _check_noise(noise)
+    common, noise_model = _frame_options(
+        psf, beta, dtype, noise, gradient=gradient, read_noise=read_noise, gain=gain,
+        saturation=saturation, n_hot_pixels=n_hot_pixels, n_cosmic_rays=n_cosmic_rays)
     missing_fraction = _check_real(
         missing_fraction, "missing_fraction", minimum=0.0, maximum=1.0, strict_max=True,
         hint=" Pass the fraction of stars to drop from each frame, in [0, 1).")
@@ -1336,9 +1359,6 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     tr_x, tr_y, tr_flux, tr_ids = _draw_transients(rng_trans, n_transients, target_shape,
                                                    lo, hi, xs.size)
 
-    common = dict(psf=psf, beta=beta, gradient=gradient, read_noise=read_noise, gain=gain,
-                  saturation=saturation, n_hot_pixels=n_hot_pixels,
-                  n_cosmic_rays=n_cosmic_rays, noise=noise, dtype=dtype)
     source = simulate_image(shape, xs[present_src], ys[present_src], flux[present_src],
                             fwhm=fwhm, background=background, seed=rng_src, **common)
     # The target: the field's stars through the mapping, and the transients.
@@ -1348,20 +1368,18 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
         fwhm=target_fwhm, background=target_background, seed=rng_tgt, **common,
     )
 
-    in_src = present_src & _inside(xs, ys, shape)
-    in_tgt = present_tgt & _inside(xt, yt, target_shape)
     meta = _pair_meta(
         info, seed, dist, m, mapping,
         shape=shape, target_shape=target_shape, n_stars=n_stars, n_stars_simulated=xs.size,
-        fwhm=fwhm, target_fwhm=target_fwhm, psf=psf, background=float(background),
+        fwhm=fwhm, target_fwhm=target_fwhm, psf=common["psf"], background=float(background),
         target_background=float(target_background), gradient=float(gradient),
         flux_range=(lo, hi), flux_index=alpha, read_noise=float(read_noise), gain=float(gain),
         saturation=saturation, noise=noise_model, missing_fraction=missing_fraction,
         n_transients=n_transients)
     return SimulatedPair(
         source=source, target=target, transform=model, truth_matrix=np.array(m, dtype=float),
-        source_stars=_star_table(xs[in_src], ys[in_src], flux[in_src], ids[in_src]),
-        target_stars=_star_table(xt[in_tgt], yt[in_tgt], flux[in_tgt], ids[in_tgt]),
+        source_stars=_frame_stars(xs, ys, flux, ids, present_src, shape),
+        target_stars=_frame_stars(xt, yt, flux, ids, present_tgt, target_shape),
         transients=_star_table(tr_x, tr_y, tr_flux, tr_ids),
         meta=meta, mapping=None if dist is None else mapping,
     )

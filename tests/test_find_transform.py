@@ -484,16 +484,27 @@ def test_find_match_returns_match_result(small_pair, small_result):
     assert r.n_sources_used == 7 and r.extra["note"] == "kept" and "note" in dict(r.extra)
 
 
-def test_match_points_public_settings_only():
-    """The escalation's internals go through the private entry point."""
-    from astroalign_nd.matching import match_points
+def test_match_points_takes_the_search_context():
+    """The escalation's context (control points, earlier trials, prebuilt
+    triangles) is public in match_points, but not an option of find_transform."""
+    from astroalign_nd.matching import build_asterisms, match_points
 
     src = np.random.default_rng(3).uniform(0, 500, (40, 2))
-    r = match_points(src, _map(TRUTH, src))
+    dst = _map(TRUTH, src)
+    r = match_points(src, dst)
     assert r.n_sources_used is None and r.source_points.shape == (r.n_matches, 2)
-    np.testing.assert_array_equal(r.target_points, _map(TRUTH, src)[r.target_index])
-    with pytest.raises(TypeError):
-        match_points(src, _map(TRUTH, src), n_control=10)
+    np.testing.assert_array_equal(r.target_points, dst[r.target_index])
+    # Control points: triangles of the first 12 only, every star refined.
+    ctl = match_points(src, dst, n_control=12,
+                       source_asterisms=build_asterisms(src[:12]),
+                       target_asterisms=build_asterisms(dst[:12]))
+    assert ctl.n_matches == 40 and ctl.n_hypotheses <= r.n_hypotheses
+    # Earlier trials count in the false-alarm probability.
+    later = match_points(src, dst, prior_trials=10**6)
+    assert later.log10_false_alarm > r.log10_false_alarm
+    for name, value in (("n_control", 10), ("prior_trials", 5), ("source_asterisms", None)):
+        with pytest.raises(TypeError, match="unexpected keyword"):
+            find_transform(src, dst, **{name: value})
 
 
 # -- (i) transform types -------------------------------------------------------------------

@@ -13,7 +13,7 @@ import numpy as np
 from .._input import batch_frames
 from ..config import RegistrationConfig, ResampleConfig
 from ..exceptions import warn
-from ..io.write import check_writable_dir
+from ..io.write import check_output_dir
 from ..registration import Reference, prepare_target
 from .results import BatchResult, FrameResult
 from .frame import _Config, _Job, _shifted, _stream_jobs
@@ -194,7 +194,7 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     if output_dir is not None:
         output_dir = os.fspath(output_dir)
         os.makedirs(output_dir, exist_ok=True)
-        check_writable_dir(output_dir)
+        check_output_dir(output_dir)
     jobs, outputs = _first_jobs(items, stream, union, output_dir, suffix, protected)
     apply_options = dict(asdict(resample), unit=unit)
     cfg = _Config(reference=ref, options=config, apply_options=apply_options,

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from .._input import parse_input
 from ..exceptions import warn
-from ..io.write import write_ccddata
+from ..io import WRITERS, writer_for
 from ..registration import find_for_apply, quality_dict
+from ..resample import apply_transform
+from ..transforms import as_matrix, from_matrix
 from .results import FrameResult
 from .planning import _CANVAS_KEYS, _SOURCE_SHAPE_KEYS, _is_path, _skip_or_refuse
 
@@ -32,6 +34,9 @@ class _Config:
     unit: object = None  # the unit of frames without one
     add_keyword: bool = True  # record the registration (and canvas) in each header
     batch_id: str = None  # digest of the reference and options (see _job_id)
+    # The output formats, as registered when the batch starts: workers (other
+    # processes) write and resume with the same ones.
+    writers: dict = field(default_factory=lambda: dict(WRITERS))
 
 
 @dataclass
@@ -153,8 +158,6 @@ def _registered_before(job, done, src_path, t0):
 
 
 def _apply_stage(job, cfg, t0, src_path=None):
-    from ..resample.nddata import apply_transform
-
     # Already parsed in the 'full' stage (a Reference); read here in 'apply'.
     src = parse_input(job.source, "source", hdu=cfg.hdu, unit=cfg.unit)
     if job.canvas is None:
@@ -176,8 +179,7 @@ def _apply_stage(job, cfg, t0, src_path=None):
         if cfg.batch_id is not None and job.output is not None:
             ccd.meta[_JOB_KEY] = (_job_id(job, cfg), "batch+frame id (for retries)")
     if job.output is not None:
-        # FLAGS as an extension, so that CCDData.read(..., hdu_flags='FLAGS') reads it back.
-        write_ccddata(ccd, job.output, overwrite=cfg.overwrite, hdu_flags="FLAGS")
+        writer_for(job.output, cfg.writers).write(ccd, job.output, overwrite=cfg.overwrite)
         ccd = None  # memory stays flat: nothing of the frame is kept
     return FrameResult(name=job.name, status="registered", transform=job.transform,
                        quality=job.quality, output=job.output, ccd=ccd, source=src_path,
@@ -188,8 +190,6 @@ def _apply_stage(job, cfg, t0, src_path=None):
 
 def _shifted(transform, offset, sign):
     """``transform`` followed by a shift of ``sign * offset`` pixels."""
-    from ..transforms.convert import as_matrix, from_matrix
-
     m = as_matrix(transform).copy()
     m[0, 2] += sign * offset[0]
     m[1, 2] += sign * offset[1]

@@ -4,9 +4,8 @@
 from __future__ import annotations
 
 import os
-import warnings
-import numpy as np
 from .._input import batch_frames
+from ..io import WRITERS, output_suffixes, transform_from_header, writer_for
 from ..io.write import FITS_EXTENSIONS
 
 __all__ = ['plan_outputs']
@@ -33,6 +32,18 @@ def _stem(name):
         if low.endswith(ext):
             return name[: -len(ext)]
     return name
+
+
+def _output_name(stem, suffix):
+    """
+    ``<stem><suffix>``, followed by the default format's ending (``.fits``)
+    unless ``suffix`` ends in an output format's own (``'_aligned.fits.gz'``).
+    """
+    try:
+        writer_for(suffix)
+    except ValueError:
+        return f"{stem}{suffix}{output_suffixes()[0]}"
+    return f"{stem}{suffix}"
 
 
 def _base(label, i):
@@ -76,7 +87,11 @@ def plan_outputs(sources, output_dir, suffix="_aligned", protected=()):
 
     A frame's natural output is ``<stem><suffix>.fits``, where ``stem`` is
     its file name without the extension (``frame<i>`` in memory; the file
-    name of a ``(frame, file name)`` pair).  When two frames would share it
+    name of a ``(frame, file name)`` pair).  A ``suffix`` that ends in the
+    ending of an output format (`~astroalign_nd.io.writer_for`:
+    ``'_aligned.fits.gz'``, or that of a format added with
+    `~astroalign_nd.io.register_writer`) is used as it is, and selects that
+    format.  When two frames would share it
     (``in/a.fits`` and ``in2/a.fits``, ``a.fits`` and ``a.fit``, or names
     differing only in case, which collide on macOS and Windows), or when it
     would replace an input file, the later frame in input order gets
@@ -119,7 +134,7 @@ def plan_outputs(sources, output_dir, suffix="_aligned", protected=()):
 
 def _plan_outputs(items, output_dir, suffix, protected):
     stems = [_stem(_base(label, i)) for i, (_, label) in enumerate(items)]
-    natural = [f"{s}{suffix}.fits" for s in stems]
+    natural = [_output_name(s, suffix) for s in stems]
     out_real = os.path.realpath(output_dir)
     located = [_located(frame, label) for frame, label in items]
     inputs = {os.path.basename(os.fspath(p)).casefold()
@@ -131,7 +146,7 @@ def _plan_outputs(items, output_dir, suffix, protected):
         if nat.casefold() in used or nat.casefold() in inputs:
             k = 2
             while True:
-                chosen = f"{stem}_{k}{suffix}.fits"
+                chosen = _output_name(f"{stem}_{k}", suffix)
                 key = chosen.casefold()
                 if key not in used and key not in reserved and key not in inputs:
                     break
@@ -174,10 +189,10 @@ class _StreamNamer:
         if here is not None and _in_folder(here, self.out_real):
             self.inputs.add(os.path.basename(here).casefold())
         stem = _stem(base)
-        natural = chosen = f"{stem}{self.suffix}.fits"
+        natural = chosen = _output_name(stem, self.suffix)
         k = 2
         while chosen.casefold() in self.used or chosen.casefold() in self.inputs:
-            chosen, k = f"{stem}_{k}{self.suffix}.fits", k + 1
+            chosen, k = _output_name(f"{stem}_{k}", self.suffix), k + 1
         self.used.add(chosen.casefold())
         return name, os.path.join(self.output_dir, chosen), (
             None if chosen == natural else (natural, chosen))
@@ -185,35 +200,18 @@ class _StreamNamer:
 # -- resuming --------------------------------------------------------------------------------
 
 
-def _read_done(path):
+def _read_done(path, writers=None):
     """
     The transform, quality, shape and canvas origin recorded in a complete
     registered frame, or a reason why ``path`` is not one.
+
+    The file is read by the writer of its format (`~astroalign_nd.io.writer_for`
+    among ``writers``, by default every registered one).
     """
-    from astropy.io import fits
-
-    from ..io.header import transform_from_header
-
     try:
-        # A warning ("file may have been truncated") counts as incomplete.  It
-        # is recorded, not raised: raised inside fits.open it would leave the
-        # file open; here the file is ours to close, whatever happens.
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            with open(path, "rb") as fh, fits.open(
-                    fh, memmap=not path.lower().endswith(".gz")) as hdul:
-                hdul.readall()
-                for hdu in hdul:  # every data block is there, in full
-                    if hdu.data is not None:
-                        np.asarray(hdu.data).ravel()[-1:].copy()
-                header = hdul[0].header
-                shape = hdul[0].data.shape[:2] if hdul[0].data is not None else None
+        header, shape = writer_for(path, WRITERS if writers is None else writers).read_done(path)
     except Exception as exc:  # noqa: BLE001 - any unreadable file is not complete
         return None, f"it is incomplete or unreadable ({type(exc).__name__}: {exc})"
-    if caught:
-        w = caught[0]
-        return None, (f"it is incomplete or unreadable ({w.category.__name__}: "
-                      f"{w.message})")
     if shape is None or "AATTYPE" not in header:
         return None, "it is not a frame registered by astroalign_nd"
     try:
@@ -238,7 +236,7 @@ def _skip_or_refuse(job, cfg):
     if job.output is None or not os.path.lexists(job.output):
         return None
     if cfg.skip_existing:
-        done, why = _read_done(job.output)
+        done, why = _read_done(job.output, cfg.writers)
         if done is not None:
             return _same_grid(done, job, cfg)
         if not cfg.overwrite:

@@ -12,20 +12,21 @@ __all__ = []
 def _check_writable(path, overwrite, inputs=()):
     """Refuse, before any work, a path that cannot take the output (or is an input)."""
     from astroalign_nd.io.write import check_not_input, check_output_path
+    from astroalign_nd.io.writers import output_suffixes
 
     try:
         check_not_input(path, inputs)
     except ValueError as exc:
         raise _CLIError(str(exc)) from None
     try:
-        check_output_path(path, overwrite)
+        check_output_path(path, overwrite, extensions=output_suffixes())
     except FileExistsError:
         raise _CLIError(f"output file {path!r} already exists; pass --overwrite to replace "
                         "it.") from None
 
 
 def _check_output_dir(path):
-    from astroalign_nd.io.write import check_writable_dir
+    from astroalign_nd.io.write import check_output_dir
 
     if os.path.exists(path) and not os.path.isdir(path):
         raise _CLIError(f"--output-dir {path!r} is a file, not a folder.")
@@ -33,7 +34,7 @@ def _check_output_dir(path):
         os.makedirs(path, exist_ok=True)
     except OSError as exc:
         raise _CLIError(f"cannot create output folder {path!r}: {exc.strerror or exc}.") from None
-    check_writable_dir(path)
+    check_output_dir(path)
 
 
 def _check_input(path):
@@ -86,7 +87,7 @@ def _max_corner_error(recovered, truth, shape):
 
 def _cmd_register(args):
     import astroalign_nd
-    from astroalign_nd.io.write import write_ccddata
+    from astroalign_nd.io import write_output
     from astroalign_nd.registration import register_and_match
 
     _check_writable(args.output, args.overwrite, inputs=(args.source, args.target))
@@ -102,7 +103,7 @@ def _cmd_register(args):
     kwargs = _registration_kwargs(args)
     aligned, match = register_and_match(_check_input(args.source), _check_input(args.target),
                                         unit=args.unit, **kwargs)
-    write_ccddata(aligned, args.output, overwrite=args.overwrite, hdu_flags="FLAGS")
+    write_output(aligned, args.output, overwrite=args.overwrite)
     q = aligned.meta
     print(f"{_describe(astroalign_nd.transform_from_header(q))}; {q['AATNMAT']} matched "
           f"stars, RMS {q['AATRMS']:.3f} px")

@@ -24,10 +24,23 @@ work is avoided (it dominates the cost of a naive DAOStarFinder run on a
 
 Stars wider than ~10 px (defocused frames, digitised plates) are measured
 on a binned copy instead, where they are well sampled and cheap.
+
+Other detectors are finders: subclasses of `SourceFinderBase` (the
+interface of photutils' ``StarFinderBase``: configured once, called as
+``finder(data, mask=None)``, returning a table of ``x``, ``y``, ``flux``).
+`DAOSourceFinder` is the pipeline above as a finder;
+`SegmentationFinder` is astroalign's criterion (connected pixels above a
+threshold).  ``find_sources(image, finder=...)`` runs any of them, and so
+do `~astroalign_nd.registration.find_transform`, ``register``,
+``Reference`` and ``register_batch`` (``finder=``).  A new detector is one
+module: a subclass that implements `SourceFinderBase.find_stars`.
 """
 
-from .daofind import find_sources
+from .base import SourceFinderBase
+from .daofind import DAOSourceFinder, find_sources
+from .segmentation import SegmentationFinder
 from .background import estimate_noise
 from .fwhm import estimate_fwhm
 
-__all__ = ['find_sources', 'estimate_noise', 'estimate_fwhm']
+__all__ = ['find_sources', 'estimate_noise', 'estimate_fwhm', 'SourceFinderBase',
+           'DAOSourceFinder', 'SegmentationFinder']

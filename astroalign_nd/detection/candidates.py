@@ -54,11 +54,12 @@ def _auto_bin(shape):
     return int(max(2, round(max(shape) / 320.0)))
 
 
-def _as_image(data, mask):
+def _as_image(data, mask, caller="find_sources"):
+    """The image as a float array and its mask (None if nothing is masked), checked."""
     arr = np.asarray(data)
     if arr.ndim != 2:
         raise ValueError(
-            f"find_sources needs a 2-D image; got an array with shape {arr.shape}. For "
+            f"{caller} needs a 2-D image; got an array with shape {arr.shape}. For "
             "multichannel images pass the channel mean (or use register, which does it)."
         )
     if arr.dtype.kind not in "biuf":

@@ -13,13 +13,14 @@ from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
 from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
 from .background import _bin_mean, _local_background, estimate_noise
 from ..config import DetectionConfig
+from .base import SourceFinderBase, _standard_table
 
-__all__ = ['find_sources']
+__all__ = ['find_sources', 'DAOSourceFinder', 'control_sources']
 
 
 def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
                  sharpness_range=(-np.inf, 1.0), roundness_range=(-1.0, 1.0),
-                 peak_max=None, bin_factor=None, refine_centroids=True):
+                 peak_max=None, bin_factor=None, refine_centroids=True, finder=None):
     """
     Find the brightest point sources of an image with DAOStarFinder.
 
@@ -59,6 +60,16 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     refine_centroids : bool, optional
         Refine DAOStarFinder's centroids with a Gaussian-windowed centroid
         (default True).
+    finder : `~astroalign_nd.detection.SourceFinderBase` or callable, optional
+        Another detector, instead of the DAOStarFinder pipeline: a finder
+        such as `~astroalign_nd.detection.SegmentationFinder`, or any
+        callable ``finder(data, mask=None)`` returning an
+        `~astropy.table.Table` with ``x``, ``y`` (or photutils'
+        ``x_centroid``, ``y_centroid``) and ``flux`` columns, such as a
+        photutils star finder.  Its ``n_sources`` brightest sources are
+        returned.  The options above (but ``mask`` and ``n_sources``)
+        configure the DAOStarFinder pipeline: with ``finder``, they must be
+        left at their defaults (set the finder's own instead).
 
     Returns
     -------
@@ -71,7 +82,8 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
         flux.  The table's ``meta`` holds ``fwhm``, ``noise``,
         ``bin_factor`` and ``fwhm_source`` (``'user'``, ``'estimate'`` or
         ``'scale search'``).  It may have fewer rows than ``n_sources``
-        (or none).
+        (or none).  With ``finder``: the finder's table, brightest first
+        (``fwhm_source`` ``'finder'`` unless the finder sets it).
 
     Examples
     --------
@@ -92,12 +104,19 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     >>> dist, _ = cKDTree(truth).query(np.column_stack([sources["x"], sources["y"]]))
     >>> bool(np.median(dist) < 0.2)
     True
+
+    The same frame with another detector:
+
+    >>> from astroalign_nd.detection import SegmentationFinder
+    >>> len(find_sources(pair.source, n_sources=30, finder=SegmentationFinder(nsigma=3.0)))
+    30
     """
     n_sources = _check_positive_int(n_sources, "n_sources")
     # The options' one check: their config field (`astroalign_nd.config`).
     config = DetectionConfig(fwhm=fwhm, nsigma=nsigma, sharpness_range=sharpness_range,
                              roundness_range=roundness_range, peak_max=peak_max,
-                             bin_factor=bin_factor, refine_centroids=refine_centroids)
+                             bin_factor=bin_factor, refine_centroids=refine_centroids,
+                             finder=finder)
     threshold = _CONFIDENT_NSIGMA if config.nsigma is None else config.nsigma
     return _detect(image, mask, n_sources, config, threshold)
 
@@ -111,6 +130,11 @@ def _detect(image, mask, n_sources, config, nsigma):
     data, mask = _as_image(image, mask)
     if mask is not None and mask.all():
         raise ValueError("every pixel of the image is masked or not finite.")
+    if config.finder is not None:
+        return _run_finder(config.finder, data, mask, n_sources, dict(
+            fwhm=config.fwhm, nsigma=nsigma, sharpness_range=config.sharpness_range,
+            roundness_range=config.roundness_range, peak_max=config.peak_max,
+            bin_factor=config.bin_factor, refine_centroids=config.refine_centroids))
     opts = dict(n_sources=n_sources, nsigma=nsigma, sharpness_range=config.sharpness_range,
                 roundness_range=config.roundness_range, peak_max=config.peak_max,
                 refine_centroids=config.refine_centroids)
@@ -497,12 +521,126 @@ def _check_positive_int(value, name):
     return int(value)
 
 
+# -- other finders -----------------------------------------------------------------------------
+
+#: `find_sources`' options of the DAOStarFinder pipeline (not ``finder``'s).
+_PIPELINE_DEFAULTS = {k: v for k, v in find_sources.__kwdefaults__.items()
+                      if k not in ("mask", "n_sources", "finder")}
+
+
+def _run_finder(finder, data, mask, n_sources, options):
+    """`find_sources` with ``finder``: its table, brightest first, ``n_sources`` rows."""
+    if not callable(finder):
+        raise TypeError(f"finder must be a source finder (a SourceFinderBase, or a callable "
+                        f"finder(data, mask=None) returning a Table); got {finder!r}.")
+    changed = [k for k, v in options.items() if not _is_default(v, _PIPELINE_DEFAULTS[k])]
+    if changed:
+        raise TypeError(f"the option(s) {', '.join(changed)} of find_sources configure its "
+                        f"DAOStarFinder pipeline, which finder={finder!r} replaces; set the "
+                        "finder's own options instead.")
+    table = _standard_table(finder(data, mask=mask), finder, n_sources)
+    table.meta.setdefault("fwhm_source", "finder")
+    return table
+
+
+def _is_default(value, default):
+    if value is None or default is None:
+        return value is default
+    try:
+        return bool(np.array_equal(np.asarray(value, float), np.asarray(default, float)))
+    except (TypeError, ValueError):  # a value that cannot be compared is not the default
+        return False
+
+
+class DAOSourceFinder(SourceFinderBase):
+    """
+    The DAOStarFinder pipeline of `~astroalign_nd.detection.find_sources`, as
+    a finder.
+
+    Its stages are the parts of the `~astroalign_nd.detection` subpackage:
+    the noise (`~astroalign_nd.detection.estimate_noise`), candidate peaks
+    on a binned copy less a coarse background, the FWHM estimate
+    (`~astroalign_nd.detection.estimate_fwhm`), the measurement with
+    `~photutils.detection.DAOStarFinder` and the windowed centroids.
+    Calling the finder gives what ``find_sources(data, mask=mask,
+    **options)`` gives.
+
+    Parameters
+    ----------
+    **options
+        Options of `~astroalign_nd.detection.find_sources` (``n_sources``,
+        ``fwhm``, ``nsigma``, ``sharpness_range``, ``roundness_range``,
+        ``peak_max``, ``bin_factor``, ``refine_centroids``), with its
+        defaults; their values are checked when the finder is called.
+
+    Attributes
+    ----------
+    options : dict
+        The options given.
+
+    Examples
+    --------
+    >>> from astroalign_nd.detection import DAOSourceFinder, find_sources
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
+    >>> finder = DAOSourceFinder(n_sources=20, fwhm=3.0)
+    >>> finder
+    DAOSourceFinder(n_sources=20, fwhm=3.0)
+    >>> found = finder(pair.source)
+    >>> len(found), found.meta["fwhm_source"]
+    (20, 'user')
+    >>> bool((found["x"] == find_sources(pair.source, n_sources=20, fwhm=3.0)["x"]).all())
+    True
+    """
+
+    def __init__(self, **options):
+        unknown = sorted(set(options) - set(_PIPELINE_DEFAULTS) - {"n_sources"})
+        if unknown:
+            raise TypeError(f"unexpected option(s) {unknown}; DAOSourceFinder takes "
+                            f"find_sources' options {['n_sources', *_PIPELINE_DEFAULTS]}.")
+        self.options = dict(options)
+
+    @property
+    def nsigma(self):
+        """The detection threshold, in noise units."""
+        return self.options.get("nsigma", _PIPELINE_DEFAULTS["nsigma"])
+
+    def __call__(self, data, mask=None):
+        # find_sources checks and reads every input itself (and collects no
+        # non-finite pixels: its stages skip them).
+        return find_sources(data, mask=mask, **self.options)
+
+    def find_stars(self, data, mask=None):
+        """
+        The sources of a checked image: ``find_sources(data, mask=mask, **options)``.
+
+        Parameters
+        ----------
+        data : 2-D float ndarray
+        mask : 2-D bool ndarray or None
+
+        Returns
+        -------
+        sources : `~astropy.table.Table`
+        """
+        return find_sources(data, mask=mask, **self.options)
+
+    def __repr__(self):
+        return f"DAOSourceFinder({', '.join(f'{k}={v!r}' for k, v in self.options.items())})"
+
+
+# -- the detection of registration ---------------------------------------------------------
+
 #: The deep threshold (noise units) of registration's one detection pass, for
 #: faint or sparse fields.
 _DEEP_NSIGMA = 3.0
 
 #: The confident threshold kept when enough sources pass it: `find_sources`' default.
 _CONFIDENT_NSIGMA = find_sources.__kwdefaults__["nsigma"]
+
+#: The centroid error (pixels per axis) of a finder's sources that come without one,
+#: as the distortion fit assumes for unknown errors.
+_UNKNOWN_POSITION_ERROR = 0.1
 
 
 def control_sources(image, *, mask, n_sources, n_enough, config):
@@ -544,6 +682,13 @@ def control_sources(image, *, mask, n_sources, n_enough, config):
     (40, 3.0)
     """
     nsigma = config.nsigma
+    if config.finder is not None:
+        # One pass of the finder, at its own threshold (the DAO thresholds do not apply).
+        table = _detect(image, mask, _check_positive_int(n_sources, "n_sources"), config,
+                        _CONFIDENT_NSIGMA if nsigma is None else nsigma)
+        if "position_error" not in table.colnames:  # the final fit weighs every star alike
+            table["position_error"] = np.full(len(table), _UNKNOWN_POSITION_ERROR)
+        return table, float(table.meta.get("nsigma", getattr(config.finder, "nsigma", np.nan)))
     threshold = _DEEP_NSIGMA if nsigma is None else nsigma
     table = _detect(image, mask, _check_positive_int(n_sources, "n_sources"), config,
                     threshold)

@@ -9,6 +9,10 @@ Storing transforms in files.
   of a polynomial transform from the target frame's WCS.
 * Writing: `write_ccddata` / `atomic_write` write a file atomically, so an
   interrupted run never leaves half a file under the final name.
+* Output formats: a `Writer` per format (`FITSWriter` built in), found by
+  the file name's ending (`writer_for`); `~astroalign_nd.register_batch`
+  and the command line write, and a resumed batch reads back, through it,
+  so a new output format is one writer (`register_writer`).
 * ASDF: any transform, alone or inside an astropy compound model, through
   the extension in ``astroalign_nd.io.asdf`` (registered with asdf by entry
   points when the package is installed).
@@ -21,7 +25,10 @@ from .header import (QUALITY_KEYWORDS, add_provenance, distorted_wcs, transform_
                      transform_to_header)
 from .transform_files import read_transform, write_transform
 from .write import atomic_write, write_ccddata
+from .writers import (WRITERS, FITSWriter, Writer, output_suffixes, register_writer,
+                      write_output, writer_for)
 
 __all__ = ["transform_to_header", "transform_from_header", "add_provenance", "distorted_wcs",
            "QUALITY_KEYWORDS", "atomic_write", "write_ccddata", "read_transform",
-           "write_transform"]
+           "write_transform", "Writer", "FITSWriter", "WRITERS", "register_writer",
+           "writer_for", "output_suffixes", "write_output"]

@@ -24,7 +24,7 @@ import stat
 import tempfile
 
 __all__ = ["atomic_write", "atomic_open", "write_ccddata", "check_output_path",
-           "check_not_input", "FITS_EXTENSIONS"]
+           "check_output_dir", "check_not_input", "FITS_EXTENSIONS"]
 
 #: File name endings taken as FITS by `write_ccddata` and the command line.
 FITS_EXTENSIONS = (".fits", ".fit", ".fts", ".fits.gz", ".fit.gz", ".fts.gz")
@@ -440,3 +440,36 @@ def check_writable_dir(folder):
 
 #: The former private name, kept until every caller uses the public one.
 _check_writable_dir = check_writable_dir
+
+
+def check_output_dir(folder):
+    """
+    Check, before any work, that files can be created in ``folder``.
+
+    Parameters
+    ----------
+    folder : str or path-like
+        An existing folder.
+
+    Raises
+    ------
+    NotADirectoryError
+        If ``folder`` does not exist or is not a folder.
+    PermissionError
+        If no file can be created in it.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.io.write import check_output_dir
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     check_output_dir(folder)  # fine: returns None, leaves nothing behind
+    ...     try:
+    ...         check_output_dir(os.path.join(folder, "missing"))
+    ...     except NotADirectoryError:
+    ...         print("no such folder")
+    ...     print(os.listdir(folder))
+    no such folder
+    []
+    """
+    check_writable_dir(os.fspath(folder))

@@ -20,13 +20,17 @@
 """
 
 from .result import MatchResult
-from .search import match_points
+from .search import match_points, search_tolerance
+from .geometry import bounding_frame, overlap_counts
 from .triangles import match_triangles, hypothesis_matrices
 from .asterisms import Asterisms, build_asterisms, check_triangle_budget
 
 __all__ = [
     'MatchResult',
     'match_points',
+    'search_tolerance',
+    'bounding_frame',
+    'overlap_counts',
     'match_triangles',
     'hypothesis_matrices',
     'Asterisms',

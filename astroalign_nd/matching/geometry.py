@@ -3,9 +3,15 @@
 
 import functools
 import numpy as np
-from ..transforms._matrix import _apply
 
-__all__ = []
+__all__ = ["bounding_frame", "overlap_counts"]
+
+
+def _apply(matrix, pts):
+    """(N, 2) points mapped by a 3x3 affine matrix (its last row is not read)."""
+    # The product of transforms' own helper, kept here so that matching needs no
+    # private name of transforms.
+    return pts @ matrix[:2, :2].T + matrix[:2, 2]
 
 
 @functools.lru_cache(maxsize=32)
@@ -49,8 +55,68 @@ def _in_frame(pts, frame):
     return (pts[:, 0] >= x0) & (pts[:, 0] <= x1) & (pts[:, 1] >= y0) & (pts[:, 1] <= y1)
 
 
-def _bbox(pts):
-    x0, y0 = pts.min(axis=0)
-    x1, y1 = pts.max(axis=0)
+def bounding_frame(points):
+    """
+    The frame ``(x0, x1, y0, y1)`` of a star list: its bounding box, half a
+    pixel wider on every side.
+
+    `match_points` takes it as a list's frame when none is given (a
+    catalog has no image extent).
+
+    Parameters
+    ----------
+    points : (N, 2) ndarray
+        Positions (x, y), at least one.
+
+    Returns
+    -------
+    frame : tuple of 4 floats
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.matching import bounding_frame
+    >>> [float(v) for v in bounding_frame(np.array([[1.0, 2.0], [5.0, 3.0]]))]
+    [0.5, 5.5, 1.5, 3.5]
+    """
+    x0, y0 = points.min(axis=0)
+    x1, y1 = points.max(axis=0)
     pad = 0.5
     return (x0 - pad, x1 + pad, y0 - pad, y1 + pad)
+
+
+def overlap_counts(matrix, source_points, target_points, source_frame, target_frame):
+    """
+    How many stars of each list lie in the overlap of the two frames.
+
+    Parameters
+    ----------
+    matrix : (3, 3) ndarray
+        The source-to-target pixel matrix (affine).
+    source_points, target_points : (N, 2), (M, 2) ndarray
+        The two star lists (x, y).
+    source_frame, target_frame : (x0, x1, y0, y1)
+        The extent of each frame (see `bounding_frame` for a catalog's).
+
+    Returns
+    -------
+    n_source, n_target : int
+        The source stars that ``matrix`` maps into the target frame, and
+        the target stars that its inverse maps into the source frame.
+
+    Examples
+    --------
+    A shift by 50 pixels: the right half of the source frame overlaps the
+    target frame.
+
+    >>> import numpy as np
+    >>> from astroalign_nd.matching import overlap_counts
+    >>> shift = np.array([[1.0, 0.0, -50.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    >>> stars = np.array([[10.0, 10.0], [60.0, 20.0], [90.0, 50.0]])
+    >>> overlap_counts(shift, stars, stars, (0, 100, 0, 100), (0, 100, 0, 100))
+    (2, 1)
+    """
+    n_source = int(np.sum(_in_frame(_apply(matrix, source_points), target_frame)))
+    n_target = int(np.sum(_in_frame(_apply(np.linalg.inv(matrix), target_points),
+                                    source_frame)))
+    return n_source, n_target

@@ -12,11 +12,11 @@ from .asterisms import build_asterisms
 from ..exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
 from ..transforms.registry import transform_class
 from .result import MatchResult
-from .geometry import _bbox, _overlap_box
+from .geometry import _overlap_box, bounding_frame
 from .verify import _log10_false_alarm, _model_misfit, _predicted_error, _refine
 from .triangles import hypothesis_matrices, match_triangles
 
-__all__ = ['match_points']
+__all__ = ['match_points', 'search_tolerance']
 
 
 def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0,
@@ -24,7 +24,8 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
                  allow_mirror=True, scale_range=None, max_false_alarm=1e-6,
                  accept_matches=10, batch_size=512, max_hypotheses=20_000,
                  source_frame=None, target_frame=None, source_errors=None,
-                 target_errors=None):
+                 target_errors=None, n_control=None, prior_trials=0, source_asterisms=None,
+                 target_asterisms=None):
     """
     Find the transform that maps ``src_pts`` onto ``dst_pts``.
 
@@ -56,10 +57,24 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     batch_size, max_hypotheses : int, optional
         Hypotheses scored per batch, and at most in total.
     source_frame, target_frame : (x0, x1, y0, y1), optional
-        Extent of each image; the points' bounding box by default.
+        Extent of each image; the points' `bounding_frame` by default.
     source_errors, target_errors : (N,) ndarray, optional
         Expected position error of each point (pixels); used to weight the
         final fit.
+    n_control : int or (int, int), optional
+        Only the first ``n_control`` points (the brightest) form triangles
+        and score hypotheses; all points are used to refine and verify.  A
+        pair gives different numbers for the source and the target.  By
+        default every point is a control point.
+    prior_trials : int, optional
+        Hypotheses already tried on this pair by earlier searches (the
+        ``n_hypotheses`` of their `~astroalign_nd.TransformNotFoundError`);
+        they count in the trials factor of the false-alarm probability, so
+        that searching again does not make a chance match likelier to pass.
+    source_asterisms, target_asterisms : `~astroalign_nd.matching.Asterisms`, optional
+        Triangles of the first ``n_control`` points, when already built
+        (a reference frame used for many registrations builds them once).
+
     Returns
     -------
     result : `MatchResult`
@@ -69,7 +84,8 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     TooFewSourcesError
         If either list has fewer than 3 points.
     TransformNotFoundError
-        If no hypothesis passes the false-alarm test.
+        If no hypothesis passes the false-alarm test; its ``n_hypotheses``
+        attribute holds the number of hypotheses tried.
     ValueError, TypeError
         If an option is outside its range (one message per option, from
         ``astroalign_nd._validate.OPTIONS``), the positions are not finite
@@ -96,9 +112,18 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
     True
     >>> bool(np.allclose(result.transform(*src.T), dst.T))
     True
+
+    Only the 15 brightest stars of each list as control points, after an
+    earlier search that tried 500 hypotheses:
+
+    >>> result = match_points(src, dst, n_control=15, prior_trials=500)
+    >>> result.n_matches
+    40
     """
-    return _match_points(
-        src_pts, dst_pts, transform_type=transform_type, tolerance=tolerance,
+    return match_control_points(
+        src_pts, dst_pts, n_control=n_control, prior_trials=prior_trials,
+        source_asterisms=source_asterisms, target_asterisms=target_asterisms,
+        transform_type=transform_type, tolerance=tolerance,
         min_tolerance=min_tolerance, invariant_radius=invariant_radius,
         n_neighbors=n_neighbors, allow_mirror=allow_mirror, scale_range=scale_range,
         max_false_alarm=max_false_alarm, accept_matches=accept_matches,
@@ -106,9 +131,13 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
         target_frame=target_frame, source_errors=source_errors, target_errors=target_errors)
 
 
+#: What a search knows beyond its settings (the control points, triangles already built,
+#: earlier trials): arguments of `match_control_points`, not settings.
+_CONTEXT = ("n_control", "prior_trials", "source_asterisms", "target_asterisms")
+
 #: The settings of `match_points` and their defaults (its signature is their one home).
 _SETTINGS = {name: p.default for name, p in inspect.signature(match_points).parameters.items()
-             if p.kind is p.KEYWORD_ONLY}
+             if p.kind is p.KEYWORD_ONLY and name not in _CONTEXT}
 
 
 def search_tolerance(fwhm=None):
@@ -272,8 +301,8 @@ def _prepare(src_pts, dst_pts, settings, n_control, prior_trials):
     tolerance = opts["tolerance"]
     return _Search(
         src_pts=src_pts, dst_pts=dst_pts, src_ctl=src_ctl, dst_ctl=dst_ctl,
-        src_frame=settings["source_frame"] or _bbox(src_pts),
-        dst_frame=settings["target_frame"] or _bbox(dst_pts),
+        src_frame=settings["source_frame"] or bounding_frame(src_pts),
+        dst_frame=settings["target_frame"] or bounding_frame(dst_pts),
         src_err=settings["source_errors"], dst_err=settings["target_errors"],
         transform_type=transform_type,
         # Free parameters of the fitted model: an affine fit bends to chance
@@ -507,7 +536,7 @@ def _result(c, s, n_tri, n_scored):
     resid = c.resid
     rms = float(np.sqrt(np.mean(np.sum(resid**2, axis=1)))) if len(resid) else float("nan")
     si, dj = c.si, c.dj
-    predicted = _predicted_error(c.model, c.cov, dst_frame or _bbox(dst_pts[dj]))
+    predicted = _predicted_error(c.model, c.cov, dst_frame or bounding_frame(dst_pts[dj]))
     if predicted > 0.3:  # 3 sigma above 1 px somewhere in the frame
         warn(
             f"the transform is uncertain: its parameter covariance gives a 1-sigma position "

@@ -5,10 +5,9 @@ import numpy as np
 from scipy.special import betainc
 from .._kernels import median as _median
 from ..transforms.linear import AffineTransform
-from ..transforms._matrix import _apply
 from ..transforms.fitting import fit_transform
 from ..transforms.registry import transform_class
-from .geometry import _bbox, _frame_area_fraction, _in_frame
+from .geometry import _apply, _frame_area_fraction, bounding_frame, overlap_counts
 from .pairing import _mutual_matches
 
 __all__ = []
@@ -30,8 +29,7 @@ def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame
     frac, area = _frame_area_fraction(m, src_frame, dst_frame)
     if area <= 0:
         return 0.0
-    n_s = int(np.sum(_in_frame(_apply(m, src_pts), dst_frame)))
-    m_o = int(np.sum(_in_frame(_apply(np.linalg.inv(m), dst_pts), src_frame)))
+    n_s, m_o = overlap_counts(m, src_pts, dst_pts, src_frame, dst_frame)
     p = min(1.0, max(m_o, 1) * np.pi * tol**2 / area)
     k_extra = max(n_matched - 3, 0)
     n_extra = max(n_s - 3, k_extra)
@@ -275,7 +273,7 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame):
     d1, d2 = k_aff - k_model, dof_aff
     if f_stat <= 0 or betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f_stat)) >= 1e-6:
         return 0.0
-    x0, x1, y0, y1 = frame if frame is not None else _bbox(dst)
+    x0, x1, y0, y1 = frame if frame is not None else bounding_frame(dst)
     corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
     inv_aff = np.linalg.inv(aff)
     pre = _apply(inv_aff, corners)
