@@ -17,6 +17,7 @@ from astropy.io import fits
 from astropy.table import Table
 
 import astroalign_nd.batch.frame as frame_mod
+from astroalign_nd.io.writers import FITSWriter
 from astroalign_nd import register_batch
 from astroalign_nd.io.write import write_ccddata
 from astroalign_nd.simulate import draw_fluxes, simulate_image
@@ -101,21 +102,21 @@ def test_a_frame_that_kills_its_worker_fails_alone(tmp_path, night, monkeypatch)
     """
     ref, paths = night
     out = tmp_path / "out"
-    real_find, real_write = frame_mod.find_for_apply, frame_mod.write_ccddata
+    real_find, real_write = frame_mod.find_for_apply, FITSWriter.write
 
     def find(source, *args, **kwargs):
         if str(source).endswith("f10.fits"):
             _kill_self()
         return real_find(source, *args, **kwargs)
 
-    def write(ccd, path, **kwargs):
-        real_write(ccd, path, **kwargs)
+    def write(self, ccd, path, **kwargs):
+        real_write(self, ccd, path, **kwargs)
         if path.endswith("f01_aligned.fits") and _first_time(str(tmp_path / "f01.died")):
             _kill_self()  # complete output, result never sent back
 
     # fork: the workers inherit these
     monkeypatch.setattr(frame_mod, "find_for_apply", find)
-    monkeypatch.setattr(frame_mod, "write_ccddata", write)
+    monkeypatch.setattr(FITSWriter, "write", write)
     result = register_batch(paths, ref, output_dir=out, workers=2)
     assert result.summary().startswith(f"{N_FRAMES - 1} of {N_FRAMES} frames registered, "
                                        "1 failed\n  FAILED f10.fits: RuntimeError: a worker "
@@ -296,12 +297,12 @@ def test_signal_stops_the_workers_and_writes_the_summary(tmp_path, night, signam
 
 _DIE_AFTER_WRITE = """
 import os, signal
-import astroalign_nd.batch.frame as frame
+from astroalign_nd.io.writers import FITSWriter
 
-_real = frame.write_ccddata
+_real = FITSWriter.write
 
-def _write(ccd, path, **kwargs):
-    _real(ccd, path, **kwargs)
+def _write(self, ccd, path, **kwargs):
+    _real(self, ccd, path, **kwargs)
     if path.endswith({name!r}):
         try:
             os.close(os.open({marker!r}, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
@@ -309,7 +310,7 @@ def _write(ccd, path, **kwargs):
             return
         os.kill(os.getpid(), signal.SIGKILL)  # the output is complete; the result is lost
 
-frame.write_ccddata = _write
+FITSWriter.write = _write
 """
 
 
