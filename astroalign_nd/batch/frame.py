@@ -10,6 +10,7 @@ from .._input import parse_input
 from ..exceptions import warn
 from ..io.write import write_ccddata
 from ..registration import _find_for_apply
+from ..transforms.registry import transform_type_of
 from .results import FrameResult
 from .planning import _CANVAS_KEYS, _SOURCE_SHAPE_KEYS, _is_path, _skip_or_refuse
 
@@ -129,12 +130,9 @@ def _shifted(transform, offset, sign):
 
 
 def _type_of(transform):
-    from ..transforms.registry import TRANSFORM_TYPES
-
-    for name, cls in TRANSFORM_TYPES.items():
-        if type(transform) is cls:
-            return name
-    return None
+    """The registry name of the transform's own class (None for any other class)."""
+    entry = transform_type_of(transform, exact=True)
+    return None if entry is None else entry.name
 
 
 def _stream_jobs(items, namer):

@@ -3,6 +3,9 @@
 
 import argparse
 
+# (The registry is light: it names the model classes, imported when they are used.)
+from ..transforms.registry import LINEAR_TYPES, NONLINEAR_TYPES
+
 __all__ = []
 
 # -- argument parsing ------------------------------------------------------------------------
@@ -26,9 +29,8 @@ def _add_model_options(group):
         "--transform-type",
         default="similarity",
         metavar="TYPE",
-        help="model fitted between the images: translation, euclidean, similarity, affine, "
-        "or for wide fields with distortion projective or polynomial (see --degree) "
-        "(default: %(default)s)",
+        help=f"model fitted between the images: {', '.join(LINEAR_TYPES)}, or for wide fields "
+        f"with distortion {' or '.join(NONLINEAR_TYPES)} (see --degree) (default: %(default)s)",
     )
     group.add_argument(
         "--degree",

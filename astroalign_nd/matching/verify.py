@@ -7,7 +7,7 @@ from .._kernels import median as _median
 from ..transforms.linear import AffineTransform
 from ..transforms._matrix import _apply
 from ..transforms.fitting import fit_transform
-from ..transforms.registry import transform_class
+from ..transforms.registry import transform_class, transform_type_of
 from .geometry import _bbox, _frame_area_fraction, _in_frame
 from .pairing import _mutual_matches
 
@@ -142,7 +142,8 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
     si, dj, resid, cov, tolerance used)``, or None.
     """
     cls = transform_class(transform_type)
-    fit_parity = parity if transform_type in ("similarity", "euclidean") else 1
+    # Models with a parity are fitted with the hypothesis's; the others take it from the data.
+    fit_parity = parity if transform_type_of(cls).parity else 1
     m = m0
     if seed is not None and cls.n_dof > 4:
         m = _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol)
@@ -235,7 +236,8 @@ def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
     si, dj, total, used_tol = last
     try:
         model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls,
-                                          parity=fit_parity if cls.n_dof in (3, 4) else None,
+                                          parity=fit_parity if transform_type_of(cls).parity
+                                          else None,
                                           weights=1.0 / total)
     except ValueError:  # collinear or coincident stars: no transform to trust
         return None

@@ -593,3 +593,24 @@ class AffineTransform(LinearTransform2D):
         design[1::2, 2:4] = src
         design[1::2, 5] = 1.0
         return design
+
+
+def _check_values(values):
+    """
+    Refuse parameter values (read from a file) that make no usable model: a
+    parity other than +1 or -1, a scale that is not positive, a singular
+    linear part ``a11 .. a22`` (the affine and polynomial models').
+    """
+    if "parity" in values and values["parity"] not in (1.0, -1.0):
+        raise ValueError(f"its parity must be +1 (proper) or -1 (mirrored); got "
+                         f"{values['parity']!r}")
+    if "scale" in values and not values["scale"] > 0:
+        raise ValueError(f"its scale must be > 0; got {values['scale']!r}")
+    if "a11" in values:
+        lin = np.array([[values["a11"], values["a12"]], [values["a21"], values["a22"]]])
+        with np.errstate(over="ignore", invalid="ignore"):
+            det = float(np.linalg.det(lin))
+            norm2 = float(np.sum(lin**2))
+        if not (np.isfinite(det) and np.isfinite(norm2) and abs(det) > 1e-12 * norm2):
+            raise ValueError(f"it holds a singular or overflowing matrix (a11 a22 - a12 a21 = "
+                             f"{det:g}); it cannot map an image")

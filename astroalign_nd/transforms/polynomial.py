@@ -6,12 +6,14 @@ from __future__ import annotations
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
+from ._matrix import _check_invertible
 from ._pairs import _check_pairs, _scalar_values
+from .registry import TRANSFORM_REGISTRY, HeaderHooks
 
 __all__ = ['PolynomialTransform']
 
-#: The polynomial degrees a `PolynomialTransform` accepts.
-DEGREES = (2, 3, 4, 5)
+#: The polynomial degrees a `PolynomialTransform` accepts (its registry entry's).
+DEGREES = TRANSFORM_REGISTRY["polynomial"].degrees
 
 # -- polynomial (SIP) ------------------------------------------------------------------
 
@@ -365,8 +367,6 @@ class PolynomialTransform(Model):
     @classmethod
     def _fit(cls, src, dst, *, degree=3, weights=None, crpix=None, domain=None, parity=None):
         """Fit; also return the Jacobian of the positions and the residuals."""
-        from ._matrix import _check_invertible
-
         degree = _check_degree(degree)
         need = cls.min_points_for(degree)
         src, dst, w = _check_pairs(f"A degree-{degree} PolynomialTransform", src, dst,
@@ -457,3 +457,76 @@ def _distortion(u, v, exps, coef_a, coef_b):
         f += np.multiply(m, a, out=term)
         g += np.multiply(m, b, out=term)
     return f, g
+
+
+# -- the FITS header keywords (`astroalign_nd.io.header`) ---------------------------------
+
+_DOMAIN_SUFFIXES = ("DXMIN", "DXMAX", "DYMIN", "DYMAX")
+_COEFF_SUFFIXES = tuple(f"{ab}{p}{q}" for ab in "AB" for p, q in _exponents(DEGREES[-1]))
+
+
+def _header_matrix(model):
+    """The linear part about ``crpix``, with the shift of ``crpix``: the ``M`` keywords."""
+    matrix = np.eye(3)
+    matrix[:2, :2] = model.linear_matrix
+    matrix[:2, 2] = [model.translation_x.value, model.translation_y.value]
+    return matrix
+
+
+def _header_cards(model):
+    """The degree, reference pixel, domain and coefficients, and the readable shift."""
+    cards = [("DEG", model.degree, "degree of the polynomial distortion", False)]
+    for i, value in enumerate(model.crpix, start=1):
+        cards.append((f"CRP{i}", value, f"[px] reference pixel {'xy'[i - 1]}, 0-based", True))
+    for suffix, value in zip(_DOMAIN_SUFFIXES, model.domain or ()):
+        cards.append((suffix, value, "[px] domain of the fitted inverse", False))
+    coef_a, coef_b = model.coefficients
+    for ab, coefs in (("A", coef_a), ("B", coef_b)):
+        for (p, q), value in coefs.items():
+            cards.append((f"{ab}{p}{q}", value, f"distortion coefficient {ab}_{p}_{q}", True))
+    m = _header_matrix(model)
+    return cards + [(f"T{axis}", float(m[i, 2]), f"[px] translation along {axis.lower()} of "
+                     "the reference pixel", False) for i, axis in enumerate("XY")]
+
+
+def _from_header(reader):
+    """The `PolynomialTransform` of a header's keywords (``reader``: see `HeaderHooks`)."""
+    degree = reader.get("DEG")
+    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or (
+            degree not in DEGREES):
+        raise ValueError(f"header keyword {reader.key('DEG')} must be the polynomial's degree, "
+                         f"an integer from 2 to 5; got {degree!r}.")
+    m = reader.matrix()
+    params = {"a11": m[0, 0], "a12": m[0, 1], "a21": m[1, 0], "a22": m[1, 1],
+              "translation_x": m[0, 2], "translation_y": m[1, 2]}
+    crpix = [reader.exact(f"CRP{i}", "the reference pixel") for i in (1, 2)]
+    for ab in "AB":
+        for p, q in _exponents(int(degree)):
+            params[f"{ab}_{p}_{q}"] = reader.exact(f"{ab}{p}{q}",
+                                                   f"the degree-{degree} polynomial")
+    extra = [reader.key(c) for c in _COEFF_SUFFIXES
+             if reader.has(c) and int(c[1]) + int(c[2]) > degree]
+    if extra:
+        raise ValueError(f"header has {extra}, terms beyond {reader.key('DEG')} = {degree}; was "
+                         f"{reader.key('DEG')} edited?")
+    present = [reader.has(k) for k in _DOMAIN_SUFFIXES]
+    domain = None
+    if any(present):
+        if not all(present):
+            raise ValueError(f"header has only some of {[reader.key(k) for k in _DOMAIN_SUFFIXES]}"
+                             "; give all four (the inverse's domain) or none.")
+        domain = [reader.get(k) for k in _DOMAIN_SUFFIXES]
+    try:
+        model = PolynomialTransform(degree=int(degree), crpix=crpix, domain=domain, **params)
+        _check_invertible(_header_matrix(model), "PolynomialTransform's linear part")
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"the header's polynomial keywords are not a valid "
+                         f"PolynomialTransform ({exc}).") from None
+    return model
+
+
+#: How `~astroalign_nd.io.transform_to_header` stores a `PolynomialTransform`.
+HEADER_HOOKS = HeaderHooks(
+    matrix=_header_matrix, cards=_header_cards, read=_from_header,
+    suffixes=("DEG", "CRP1", "CRP1S", "CRP2", "CRP2S", *_DOMAIN_SUFFIXES, *_COEFF_SUFFIXES,
+              *(c + "S" for c in _COEFF_SUFFIXES), "TX", "TY"))

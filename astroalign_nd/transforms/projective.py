@@ -196,6 +196,15 @@ def _check_homography(m, fitted=False):
                          "an image.")
 
 
+def _check_values(values):
+    """Refuse parameter values (read from a file) that make a singular homography."""
+    h = [values[f"h{i}{j}"] for i in (1, 2, 3) for j in (1, 2, 3) if (i, j) != (3, 3)]
+    try:
+        _check_homography(np.array([h[0:3], h[3:6], [h[6], h[7], 1.0]]))
+    except ValueError as exc:
+        raise ValueError(f"it holds a singular homography ({exc})") from None
+
+
 def _invert_homography(m):
     _check_homography(m)
     inv = np.linalg.inv(m)

@@ -53,11 +53,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import betainc
 from ..exceptions import PoorCoverageError, PoorFitWarning, TooFewSourcesError, warn
+from .registry import NONLINEAR_TYPES, TRANSFORM_REGISTRY, transform_type_of
 
 __all__ = ['NONLINEAR_TYPES', 'check_degree', 'fit_nonlinear', 'extend_match', 'DistortionFit']
 
-#: The transform types handled by this stage.
-NONLINEAR_TYPES = ("projective", "polynomial")
+#: The non-linear types (`NONLINEAR_TYPES`) this stage has candidate models for:
+#: another registered one needs its own here.
+_GROWN = ("projective", "polynomial")
 
 #: Polynomial degrees offered (the SIP convention's useful range).
 DEGREES = (2, 3, 4, 5)
@@ -158,19 +160,11 @@ def check_degree(transform_type, degree):
 
 
 def nonlinear_name(transform_type):
-    """'projective' or 'polynomial' for this stage's types (names or classes), else None."""
-    if isinstance(transform_type, str):
-        name = transform_type.lower()
-        return name if name in NONLINEAR_TYPES else None
-    if isinstance(transform_type, type):
-        from .polynomial import PolynomialTransform
-        from .projective import ProjectiveTransform
-
-        if issubclass(transform_type, ProjectiveTransform):
-            return "projective"
-        if issubclass(transform_type, PolynomialTransform):
-            return "polynomial"
-    return None
+    """The registry name of a non-linear type (a name or a class), else None."""
+    if not isinstance(transform_type, (str, type)):
+        return None
+    entry = transform_type_of(transform_type)
+    return None if entry is None or entry.linear else entry.name
 
 
 def is_nonlinear(transform_type):
@@ -571,8 +565,9 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         Treat rows of ``src_pts`` and ``dst_pts`` as given pairs instead of
         pairing stars by position.
     linear_type : str, optional
-        The linear candidate of ``degree='auto'`` ('similarity' includes a
-        similarity before the affine model; default: affine only).
+        The linear match's type: with ``degree='auto'``, a conformal one
+        ('similarity', 'euclidean', 'translation') adds a similarity
+        candidate before the affine model (default: affine only).
 
     Returns
     -------
@@ -721,6 +716,9 @@ def _prepare(src_pts, dst_pts, linear, *, transform_type, degree, source_errors,
         raise ValueError(f"transform_type must be one of {list(NONLINEAR_TYPES)}; got "
                          f"{transform_type!r}.")
     transform_type = nonlinear_name(transform_type)
+    if transform_type not in _GROWN:
+        raise ValueError(f"fit_nonlinear grows {list(_GROWN)} models; it has no candidate "
+                         f"model for transform_type={transform_type!r}.")
     degree = check_degree("polynomial", degree) if transform_type == "polynomial" else None
     src = np.asarray(src_pts, float).reshape(-1, 2)
     dst = np.asarray(dst_pts, float).reshape(-1, 2)
@@ -875,7 +873,8 @@ def _candidate_pool(prob, p, linear_type):
         return [(_Poly(prob.degree), prob.degree, "polynomial")]
     pool = []
     parity = 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1
-    if linear_type in ("similarity", "euclidean", "translation"):
+    linear_entry = transform_type_of(linear_type) if isinstance(linear_type, str) else None
+    if linear_entry is not None and linear_entry.conformal:
         pool.append((_Similarity(parity), 1, "similarity"))
     pool.append((_Poly(1), 1, "affine"))
     for d in DEGREES:
@@ -1025,10 +1024,10 @@ def _build(prob, choice, p, trust, significance):
         model, cov, resid = _fit_polynomial(fit_transform, s_pts, d_pts, deg, p.w, prob.centre,
                                             prob.frame)
     else:
-        kind = {"similarity": "similarity", "affine": "affine", "projective": "projective"}[name]
+        # (The candidates' labels are registry names: similarity, affine, projective.)
         kw = ({"parity": 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1}
-              if kind == "similarity" else {})
-        model, cov, resid = fit_transform(s_pts, d_pts, kind, weights=p.w, **kw)
+              if TRANSFORM_REGISTRY[name].parity else {})
+        model, cov, resid = fit_transform(s_pts, d_pts, name, weights=p.w, **kw)
     info = dict(model=name, degree=deg, requested_degree=degree if name != "projective" else None,
                 selection=("F-test, BIC and blocked cross-validation" if degree == "auto"
                            else None), significance=significance,
@@ -1197,8 +1196,7 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
                         degree=degree, seed_points=result.source_points,
                         source_errors=src_err, target_errors=dst_err, source_frame=src_frame,
                         tolerance=tolerance, significance=significance,
-                        linear_type=type(result.transform).__name__.replace(
-                            "Transform", "").lower())
+                        linear_type=transform_type_of(result.transform).name)
     out = MatchResult(
         transform=fit.transform, source_index=fit.source_index, target_index=fit.target_index,
         residuals=fit.residuals, rms=fit.rms, covariance=fit.covariance,
