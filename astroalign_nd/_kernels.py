@@ -30,7 +30,7 @@ except ImportError:  # pragma: no cover - an unbuilt source tree
 
 __all__ = ["bin_despike", "peak_candidates", "median", "finite_sample", "windowed_centroid",
            "adaptive_fwhm", "PointGrid",
-           "count_inliers", "num_threads",
+           "count_inliers", "num_threads", "compiled_kernels",
            "run_split", "GAUSS_SIGMA_TO_FWHM"]
 
 #: FWHM of a Gaussian in units of its sigma (detection and simulation share it).
@@ -81,6 +81,11 @@ def _threads_chosen():
 def _compiled():
     """Run the compiled loops: built, and not turned off by ``conf.use_compiled``."""
     return HAVE_COMPILED and conf.use_compiled
+
+
+def compiled_kernels():
+    """The compiled extension module (``astroalign_nd._ckernels``), or None if it is not built."""
+    return _ckernels
 
 
 def _after_fork_in_child():

@@ -384,7 +384,7 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
     """
     from .matching.geometry import _bbox, _in_frame
     from .matching.search import _match_points, _search_tolerance
-    from .transforms._matrix import _apply
+    from .transforms import apply_matrix as _apply
 
     lists = []
     for inp, ref in zip(inputs, refs):

@@ -3,7 +3,7 @@
 
 import functools
 import numpy as np
-from ..transforms._matrix import _apply
+from ..transforms import apply_matrix
 
 __all__ = []
 
@@ -27,7 +27,7 @@ def _frame_area_fraction(m, src_frame, dst_frame, n_grid=48):
     """Overlap of the source frame mapped into the target frame (fraction, area)."""
     (x0, x1, y0, y1) = dst_frame
     inv = np.linalg.inv(m)
-    q = _apply(inv, _frame_grid(dst_frame, n_grid))
+    q = apply_matrix(inv, _frame_grid(dst_frame, n_grid))
     sx0, sx1, sy0, sy1 = src_frame
     inside = (q[:, 0] >= sx0) & (q[:, 0] <= sx1) & (q[:, 1] >= sy0) & (q[:, 1] <= sy1)
     frac = inside.mean()
@@ -37,7 +37,7 @@ def _frame_area_fraction(m, src_frame, dst_frame, n_grid=48):
 def _overlap_box(m, src_frame, dst_frame, n_grid=24):
     """Bounding box (x0, x1, y0, y1) in the target of the source frame's footprint there."""
     grid = _frame_grid(dst_frame, n_grid)
-    inside = grid[_in_frame(_apply(np.linalg.inv(m), grid), src_frame)]
+    inside = grid[_in_frame(apply_matrix(np.linalg.inv(m), grid), src_frame)]
     if len(inside) == 0:
         return dst_frame
     (ox0, oy0), (ox1, oy1) = inside.min(axis=0), inside.max(axis=0)

@@ -2,7 +2,11 @@
 """Non-linear transforms as a coordinate map: the output-to-input pixel positions, band by band."""
 
 import numpy as np
-from .._kernels import _ckernels, run_split
+from astropy.modeling import Model
+from .._kernels import compiled_kernels, run_split
+from ..transforms import ProjectiveTransform
+from ..transforms._matrix import as_3x3
+from ..transforms.convert import as_matrix
 from .interpolation import _interp_numpy
 
 __all__ = []
@@ -15,12 +19,6 @@ def _parse_matrix(matrix, what="resample", shape_in=None):
     ``shape_in``, the source's ``(ny, nx)``, is the domain of a polynomial
     model that has none).
     """
-    from astropy.modeling import Model
-
-    from ..transforms import ProjectiveTransform
-    from ..transforms._matrix import _as_3x3
-    from ..transforms.convert import as_matrix
-
     if isinstance(matrix, _CoordinateMap):  # already parsed (by apply_transform)
         return _nonlinear(matrix, what)
     if isinstance(matrix, ProjectiveTransform):
@@ -42,7 +40,7 @@ def _parse_matrix(matrix, what="resample", shape_in=None):
             "matrix must be a 3x3 (or 2x3) array of numbers, e.g. transform.matrix; "
             f"got {type(matrix).__name__}."
         ) from None
-    m = _as_3x3(m)
+    m = as_3x3(m)
     # cos(90 deg) is 6e-17, not 0: snap such round-off to the integer, or an exact
     # quarter turn maps edge pixels a hair outside the source and masks them.
     near = np.abs(m - np.round(m)) < 1e-12
@@ -269,7 +267,7 @@ def _resample_map(job, cmap, conserve_flux):
                               xs, ys, job.fill, sdk, sdk * sdk if jac is not None else 1.0,
                               job.out[c, r0:r1], ov, job.masks[c, r0:r1], job.order)
                 continue
-            run_split(_ckernels.map_rows, r1 - r0,
+            run_split(compiled_kernels().map_rows, r1 - r0,
                       (job.data[c], job.var_plane(c), job.has_var, job.kind, job.okind,
                        job.bad8, job.has_mask, xs, ys, _DUMMY_MAP if jac is None else jac,
                        jac is not None, job.order, job.fill, 1.0, job.out[c, r0:r1], ov,

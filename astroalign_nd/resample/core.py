@@ -3,7 +3,7 @@
 
 from dataclasses import dataclass
 import numpy as np
-from .._kernels import HAVE_COMPILED, _ckernels, run_split
+from .._kernels import HAVE_COMPILED, compiled_kernels, run_split
 from .coordinate_map import _CoordinateMap, _inverse_coefficients, _parse_matrix, _resample_map
 from .interpolation import _parse_order, _resample_numpy
 
@@ -114,10 +114,11 @@ _VARIANCE_KINDS = {"variance": 0, "stddev": 1, "inverse": 2}
 def _run_affine(data, var, has_var, kind, okind, bad8, has_mask, coeffs, order, fill, sd, sv,
                 out, out_var, mask, rows_per_thread, parallel, start, n):
     """Output rows ``start:start + n`` of one channel, on the compiled affine kernels."""
+    kernels = compiled_kernels()
     if order == 1:
-        kernel, extra = _ckernels.bilinear_rows, (fill, sd, sv)
+        kernel, extra = kernels.bilinear_rows, (fill, sd, sv)
     else:
-        kernel, extra = _ckernels.resample_rows, (order, fill, sd, sv)
+        kernel, extra = kernels.resample_rows, (order, fill, sd, sv)
     run_split(kernel, n, (data, var, has_var, kind, okind, bad8, has_mask, coeffs) + extra
               + (out, out_var, mask.view(np.uint8)),
               min_per_thread=rows_per_thread, parallel=parallel, start=start)

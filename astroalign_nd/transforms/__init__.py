@@ -68,6 +68,7 @@ _LAZY = {
     'from_skimage': 'convert',
     'to_astropy_affine': 'convert',
     'from_astropy_affine': 'convert',
+    'apply_matrix': '_matrix',
     'check_degree': 'selection',
     'fit_nonlinear': 'selection',
     'extend_match': 'selection',

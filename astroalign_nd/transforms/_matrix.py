@@ -1,7 +1,9 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """Matrix and point helpers shared by every transform model.
 
-A leaf module: it imports no other module of the package.
+A leaf module: it imports no other module of the package.  Its public names
+(`apply_matrix`, `as_3x3`, `check_invertible`) are the helpers other stages
+use; `apply_matrix` is also ``astroalign_nd.transforms.apply_matrix``.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ import numpy as np
 from astropy import units as u
 from astropy.modeling import Parameter
 
-__all__ = []
+__all__ = ['apply_matrix', 'as_3x3', 'check_invertible']
 
 
 def _as_points(points, name):
@@ -54,8 +56,23 @@ def _check_parity_value(parity):
         )
 
 
-def _as_3x3(matrix):
-    """A finite 3x3 float matrix from a 3x3 or 2x3 (affine) array-like."""
+def as_3x3(matrix):
+    """
+    A finite 3x3 float matrix from a 3x3 or 2x3 (affine) array-like.
+
+    Raises
+    ------
+    ValueError
+        For another shape, or NaN or infinite values.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms._matrix import as_3x3
+    >>> as_3x3([[1, 0, 5], [0, 1, -2]])
+    array([[ 1.,  0.,  5.],
+           [ 0.,  1., -2.],
+           [ 0.,  0.,  1.]])
+    """
     m = np.asarray(matrix, dtype=float)
     if m.shape == (2, 3):
         m = np.vstack([m, [0.0, 0.0, 1.0]])
@@ -66,8 +83,36 @@ def _as_3x3(matrix):
     return m
 
 
-def _apply(matrix, pts):
-    return pts @ matrix[:2, :2].T + matrix[:2, 2]
+def apply_matrix(matrix, points):
+    """
+    Map points through the affine part of a 3x3 homogeneous matrix.
+
+    The fast path for loops over many points and matrices: no checks, and
+    the last row of ``matrix`` is not used (a projective matrix needs its
+    `~astroalign_nd.transforms.ProjectiveTransform`).
+
+    Parameters
+    ----------
+    matrix : (3, 3) or (2, 3) ndarray
+        Source-to-target matrix, e.g. ``transform.matrix``.
+    points : (N, 2) ndarray
+        ``(x, y)`` positions.
+
+    Returns
+    -------
+    mapped : (N, 2) ndarray
+        ``matrix[:2, :2] @ (x, y) + matrix[:2, 2]`` for each point.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import SimilarityTransform, apply_matrix
+    >>> t = SimilarityTransform(scale=2.0, rotation=90.0, translation_x=10.0)
+    >>> apply_matrix(t.matrix, np.array([[1.0, 0.0], [0.0, 1.0]])).round(12)
+    array([[10.,  2.],
+           [ 8.,  0.]])
+    """
+    return points @ matrix[:2, :2].T + matrix[:2, 2]
 
 
 def _check_spread(cls, pts, name):
@@ -92,8 +137,33 @@ def _check_spread(cls, pts, name):
             "their line. Give points that span an area, or fit a SimilarityTransform.")
 
 
-def _check_invertible(matrix, name, fitted=False):
-    """Refuse a singular linear part (zero scale, or points squashed onto a line)."""
+def check_invertible(matrix, name, fitted=False):
+    """
+    Refuse a singular linear part (zero scale, or points squashed onto a line).
+
+    Parameters
+    ----------
+    matrix : (3, 3) or (2, 2) array-like
+        The matrix; its upper-left 2x2 block is tested.
+    name : str
+        What it is, for the message (``'AffineTransform'``).
+    fitted : bool, optional
+        The matrix was fitted to points: the message says why it is singular.
+
+    Raises
+    ------
+    ValueError
+        If the matrix is singular or not finite.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms._matrix import check_invertible
+    >>> check_invertible([[1.0, 2.0], [2.0, 4.0]], "AffineTransform")
+    Traceback (most recent call last):
+    ...
+    ValueError: the AffineTransform is singular (its scale is zero or its matrix singular); it \
+has no inverse and cannot register an image.
+    """
     lin = np.asarray(matrix, float)[:2, :2]
     with np.errstate(over="ignore", invalid="ignore"):
         det = float(np.linalg.det(lin))

@@ -4,14 +4,13 @@
 from __future__ import annotations
 
 import numpy as np
+from ._matrix import _as_points
 
 __all__ = []
 
 
 def _check_pairs(cls_name, src, dst, weights, need):
     """Validated (src, dst, weights) for a fit needing ``need`` point pairs."""
-    from ._matrix import _as_points
-
     src = _as_points(src, "src")
     dst = _as_points(dst, "dst")
     if len(src) != len(dst):

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
-from ._matrix import (_apply, _as_3x3, _as_degrees, _as_points, _check_invertible, _check_parity,
-                      _check_parity_value, _check_spread, _radians, _rotate_shift,
+from ._matrix import (apply_matrix, as_3x3, check_invertible, _as_degrees, _as_points,
+                      _check_parity, _check_parity_value, _check_spread, _radians, _rotate_shift,
                       _rotation_matrix, _rotation_parameters, _rotation_shift_parameters,
                       _weighted_lstsq)
 
@@ -131,7 +131,7 @@ class LinearTransform2D(Model):
     def inverse(self):
         """The analytic inverse, a model of the same class (target -> source)."""
         m = self.matrix
-        _check_invertible(m, type(self).__name__)
+        check_invertible(m, type(self).__name__)
         return type(self).from_matrix(np.linalg.inv(m))
 
     # -- construction ----------------------------------------------------------
@@ -146,7 +146,7 @@ class LinearTransform2D(Model):
             If the matrix cannot be represented by this class (for example a
             sheared matrix given to `SimilarityTransform`).
         """
-        m = _as_3x3(matrix)
+        m = as_3x3(matrix)
         if not np.allclose(m[2], [0.0, 0.0, 1.0]):
             raise ValueError(
                 "matrix is projective (last row is not [0, 0, 1]); only affine-family "
@@ -283,13 +283,13 @@ class LinearTransform2D(Model):
         best = None
         for p in parities:
             matrix, design, theta = cls._linear_fit(src, dst, w, p)
-            resid = _apply(matrix, src) - dst
+            resid = apply_matrix(matrix, src) - dst
             sse = float(np.sum(w * np.sum(resid**2, axis=1)))
             if best is None or sse < best[0] - 1e-12 * max(1.0, best[0]):
                 best = (sse, matrix, design, resid)
         sse, matrix, design, resid = best
         _check_spread(cls, src[w > 0], "src")
-        _check_invertible(matrix, cls.__name__, fitted=True)
+        check_invertible(matrix, cls.__name__, fitted=True)
         return cls._from_matrix(matrix), design, resid
 
     _parities = (1,)

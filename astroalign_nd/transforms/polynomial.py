@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
-from ._matrix import _check_invertible
+from ._matrix import check_invertible
+from .linear import AffineTransform
 from ._pairs import _check_pairs, _scalar_values
 from .registry import TRANSFORM_REGISTRY, HeaderHooks
 
@@ -234,8 +235,6 @@ class PolynomialTransform(Model):
         The `~astroalign_nd.transforms.AffineTransform` this model is without its
         distortion terms, in source pixels ``(x, y)``: ``x' = a (x - crpix) + t``.
         """
-        from .linear import AffineTransform
-
         v = self._values()
         lin = self.linear_matrix
         shift = np.array([v["translation_x"], v["translation_y"]]) - lin @ np.array(
@@ -399,8 +398,7 @@ class PolynomialTransform(Model):
         lin = np.array([[coef[1, 0], coef[2, 0]], [coef[1, 1], coef[2, 1]]])
         m = np.eye(3)
         m[:2, :2] = lin
-        _check_invertible(m, f"degree-{degree} PolynomialTransform's linear part",
-                          fitted=True)
+        check_invertible(m, f"degree-{degree} PolynomialTransform's linear part", fitted=True)
         high = np.linalg.solve(lin, coef[3:].T)  # (2, n_terms): rows f, g
         exps = _exponents(degree)
         params = {"a11": lin[0, 0], "a12": lin[0, 1], "a21": lin[1, 0], "a22": lin[1, 1],
@@ -518,7 +516,7 @@ def _from_header(reader):
         domain = [reader.get(k) for k in _DOMAIN_SUFFIXES]
     try:
         model = PolynomialTransform(degree=int(degree), crpix=crpix, domain=domain, **params)
-        _check_invertible(_header_matrix(model), "PolynomialTransform's linear part")
+        check_invertible(_header_matrix(model), "PolynomialTransform's linear part")
     except (ValueError, TypeError) as exc:
         raise ValueError(f"the header's polynomial keywords are not a valid "
                          f"PolynomialTransform ({exc}).") from None

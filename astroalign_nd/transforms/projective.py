@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
+from ._matrix import as_3x3
 from ._pairs import _check_pairs, _scalar_values
 
 __all__ = ['ProjectiveTransform']
@@ -110,9 +111,7 @@ class ProjectiveTransform(Model):
         >>> t.matrix.tolist()
         [[1.0, 0.0, 2.0], [0.0, 1.0, 0.0], [0.0, 0.001, 1.0]]
         """
-        from ._matrix import _as_3x3
-
-        m = _as_3x3(matrix)
+        m = as_3x3(matrix)
         scale = np.max(np.abs(m))
         if scale == 0 or abs(m[2, 2]) <= 1e-14 * scale:
             raise ValueError(

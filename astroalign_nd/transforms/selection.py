@@ -53,6 +53,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import betainc
 from ..exceptions import PoorCoverageError, PoorFitWarning, TooFewSourcesError, warn
+from ..matching.result import MatchResult
+from .convert import as_matrix
+from .fitting import fit_transform
 from .registry import NONLINEAR_TYPES, TRANSFORM_REGISTRY, transform_type_of
 
 __all__ = ['NONLINEAR_TYPES', 'check_degree', 'fit_nonlinear', 'extend_match', 'DistortionFit']
@@ -1016,8 +1019,6 @@ def _warn_trust(prob, choice, p, trust):
 def _build(prob, choice, p, trust, significance):
     """The model object, through the same fitting function as the linear models,
     and the `DistortionFit`."""
-    from .fitting import fit_transform
-
     name, deg, degree = choice.name, choice.deg, prob.degree
     s_pts, d_pts = prob.src[p.si], prob.dst[p.dj]
     if name == "polynomial":
@@ -1105,8 +1106,6 @@ def _fit_polynomial(fit_transform, src, dst, degree, w, centre, frame):
 
 
 def _as_matrix(linear):
-    from .convert import as_matrix
-
     m = np.asarray(as_matrix(linear), float)
     if m.shape != (3, 3) or not np.all(np.isfinite(m)):
         raise ValueError("linear must be a finite 3x3 matrix or a linear transform model.")
@@ -1172,8 +1171,6 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
     >>> type(grown.transform).__name__, len(grown.source_index) > len(linear.source_index)
     ('PolynomialTransform', True)
     """
-    from ..matching.result import MatchResult
-
     n = max(int(n_fit), int(result.n_sources_used or 0))
     if n_control is None:
         n_control = (result.n_sources_used, result.n_sources_used)
