@@ -9,7 +9,7 @@ from ..transforms import apply_matrix
 from ..transforms.fitting import fit_transform
 from ..transforms.registry import transform_class, transform_type_of
 from .geometry import _bbox, _frame_area_fraction, _in_frame
-from .pairing import _mutual_matches
+from .pairing import mutual_matches
 
 __all__ = []
 
@@ -111,7 +111,7 @@ def _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol):
         for _ in range(3):
             # Match, fit, drop the pairs far off the fit (chance pairs pull a
             # local fit away from the field), refit; repeat with the new model.
-            si, dj = _mutual_matches(apply_matrix(m, src_pts[inside]), dst_pts, dst_tree, tol)
+            si, dj = mutual_matches(apply_matrix(m, src_pts[inside]), dst_tree, tol)
             if len(si) < need:
                 break
             s_in, d_in = src_pts[inside[si]], dst_pts[dj]
@@ -189,7 +189,7 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
     cur_tol = tol
     last = prev = None
     for _ in range(n_iter):
-        si, dj = _mutual_matches(apply_matrix(m, src_pts), dst_pts, dst_tree, cur_tol)
+        si, dj = mutual_matches(apply_matrix(m, src_pts), dst_tree, cur_tol)
         if len(si) < need:
             break
         r2, total = _pair_variances(m, src_pts[si], dst_pts[dj],

@@ -53,6 +53,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import betainc
 from ..exceptions import PoorCoverageError, PoorFitWarning, TooFewSourcesError, warn
+from ..matching.pairing import mutual_matches
 from ..matching.result import MatchResult
 from .convert import as_matrix
 from .fitting import fit_transform
@@ -309,22 +310,6 @@ def _projective_start(aff_params):
 # -- pairing ------------------------------------------------------------------------
 
 
-def _mutual(pred, dst_pts, tree, tol):
-    """Mutual nearest neighbours within ``tol``: (source indices, target indices)."""
-    if len(pred) == 0:
-        return np.zeros(0, int), np.zeros(0, int)
-    d, j = tree.query(pred, distance_upper_bound=tol)
-    ok = np.isfinite(d)
-    si, dj = np.flatnonzero(ok), j[ok]
-    if len(si) == 0:
-        return si, dj
-    # Keep, for each target star, only its nearest predicted source star.
-    order = np.lexsort((d[si], dj))
-    first = np.r_[True, dj[order][1:] != dj[order][:-1]]
-    keep = order[first]
-    return si[keep], dj[keep]
-
-
 class _Pairs:
     """How source and target stars are paired: by position, or as given."""
 
@@ -338,7 +323,7 @@ class _Pairs:
             r = np.hypot(*(pred - self.dst[idx]).T)
             ok = r <= tol
             return idx[ok], idx[ok]
-        si, dj = _mutual(pred, self.dst, self.tree, tol)
+        si, dj = mutual_matches(pred, self.tree, tol)
         return idx[si], dj
 
 # -- the robust fit -----------------------------------------------------------------
