@@ -69,7 +69,7 @@ from astropy.utils.exceptions import AstropyUserWarning
 
 from .. import __version__
 from ..exceptions import warn
-from ..transforms.polynomial import PolynomialTransform
+from ..transforms.polynomial import PolynomialTransform, monomials, polynomial_terms
 from ..transforms.projective import ProjectiveTransform
 from ..transforms.registry import TRANSFORM_REGISTRY, transform_type_of
 from ..transforms.linear import AffineTransform, EuclideanTransform, SimilarityTransform
@@ -816,8 +816,8 @@ def _solve(model, target, start, iterations=30):
 def _poly_fit(d, values, degree):
     """Coefficients ``{(p, q): (cx, cy)}`` of a full polynomial of ``degree`` in ``d``."""
     s = max(float(np.max(np.abs(d))), 1.0)
-    exps = [(p, n - p) for n in range(degree + 1) for p in range(n, -1, -1)]
-    design = np.column_stack([(d[:, 0] / s) ** p * (d[:, 1] / s) ** q for p, q in exps])
+    exps = polynomial_terms(degree)
+    design = monomials(d[:, 0] / s, d[:, 1] / s, exps)
     coef, *_ = np.linalg.lstsq(design, values, rcond=None)
     return {e: coef[k] / s ** sum(e) for k, e in enumerate(exps)}
 

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
@@ -19,18 +21,66 @@ DEGREES = TRANSFORM_REGISTRY["polynomial"].degrees
 # -- polynomial (SIP) ------------------------------------------------------------------
 
 
+def polynomial_terms(degree, lowest=0):
+    """
+    The exponents ``(p, q)`` of the terms ``x**p y**q`` of total degree ``lowest`` to ``degree``.
+
+    By total degree, then ``p`` descending: the order of the
+    `PolynomialTransform` coefficients (``lowest=2``: its distortion terms)
+    and of every polynomial design matrix of the package.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms.polynomial import polynomial_terms
+    >>> polynomial_terms(2)
+    [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]
+    >>> polynomial_terms(3, lowest=3)
+    [(3, 0), (2, 1), (1, 2), (0, 3)]
+    """
+    return [(p, n - p) for n in range(lowest, degree + 1) for p in range(n, -1, -1)]
+
+
+def monomials(x, y, terms):
+    """
+    The design matrix of polynomial terms: column ``k`` is ``x**p * y**q`` for ``terms[k]``.
+
+    Parameters
+    ----------
+    x, y : (N,) ndarray
+        The coordinates (scaled by the caller to about 1, for conditioning).
+    terms : list of (int, int)
+        Exponents, e.g. `polynomial_terms`.
+
+    Returns
+    -------
+    design : (N, len(terms)) ndarray
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms.polynomial import monomials, polynomial_terms
+    >>> monomials(np.array([2.0]), np.array([3.0]), polynomial_terms(2))
+    array([[1., 2., 3., 4., 6., 9.]])
+    """
+    return np.column_stack([x ** p * y ** q for p, q in terms])
+
+
 def _exponents(degree):
-    """The (p, q) of the distortion terms, 2 <= p + q <= degree, by degree then p descending."""
-    return [(p, n - p) for n in range(2, degree + 1) for p in range(n, -1, -1)]
+    """The (p, q) of the distortion terms, 2 <= p + q <= degree."""
+    return polynomial_terms(degree, lowest=2)
 
 
-def _check_degree(degree):
-    if isinstance(degree, (bool, np.bool_)) or not isinstance(degree, (int, np.integer)):
-        raise TypeError(f"degree must be an integer from 2 to 5; got {degree!r}.")
+def _check_degree(degree, auto=False):
+    """
+    The degree as an int, or a TypeError or ValueError: the one check of a
+    polynomial degree (``auto``: the message offers ``'auto'`` as well).
+    """
+    what = f"an integer from {DEGREES[0]} to {DEGREES[-1]}" + (" or 'auto'" if auto else "")
+    if isinstance(degree, (bool, np.bool_)) or not isinstance(degree, numbers.Integral):
+        raise TypeError(f"degree must be {what}; got {degree!r}.")
     if int(degree) not in DEGREES:
-        raise ValueError(
-            f"degree must be from 2 to 5 (the polynomial distortion terms); got {degree}. "
-            "For degree 1 use an AffineTransform.")
+        raise ValueError(f"degree must be {what}; got {degree!r}. (Degree 1 is "
+                         "transform_type='affine': an AffineTransform.)")
     return int(degree)
 
 
@@ -383,8 +433,8 @@ class PolynomialTransform(Model):
         u = src[keep] - c
         # Scale to ~1 so that the monomials up to degree 5 stay well conditioned.
         s = max(float(np.max(np.abs(u))), 1.0)
-        full = [(p, n - p) for n in range(degree + 1) for p in range(n, -1, -1)]
-        design = np.column_stack([(u[:, 0] / s) ** p * (u[:, 1] / s) ** q for p, q in full])
+        full = polynomial_terms(degree)
+        design = monomials(u[:, 0] / s, u[:, 1] / s, full)
         sw = np.sqrt(w[keep])
         coef, _, _, sv = np.linalg.lstsq(design * sw[:, None], dst[keep] * sw[:, None],
                                          rcond=None)
@@ -489,17 +539,17 @@ def _header_cards(model):
 
 def _from_header(reader):
     """The `PolynomialTransform` of a header's keywords (``reader``: see `HeaderHooks`)."""
-    degree = reader.get("DEG")
-    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or (
-            degree not in DEGREES):
-        raise ValueError(f"header keyword {reader.key('DEG')} must be the polynomial's degree, "
-                         f"an integer from 2 to 5; got {degree!r}.")
+    try:
+        degree = _check_degree(reader.get("DEG"))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"header keyword {reader.key('DEG')} must be the polynomial's degree "
+                         f"({exc})") from None
     m = reader.matrix()
     params = {"a11": m[0, 0], "a12": m[0, 1], "a21": m[1, 0], "a22": m[1, 1],
               "translation_x": m[0, 2], "translation_y": m[1, 2]}
     crpix = [reader.exact(f"CRP{i}", "the reference pixel") for i in (1, 2)]
     for ab in "AB":
-        for p, q in _exponents(int(degree)):
+        for p, q in _exponents(degree):
             params[f"{ab}_{p}_{q}"] = reader.exact(f"{ab}{p}{q}",
                                                    f"the degree-{degree} polynomial")
     extra = [reader.key(c) for c in _COEFF_SUFFIXES

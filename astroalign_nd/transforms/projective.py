@@ -252,12 +252,17 @@ def _dlt(src, dst, w):
     return h / h[2, 2]
 
 
+def _homography_apply(h, x, y):
+    """``(x', y')`` of the homography ``h`` (3x3, ``h[2, 2] = 1``) at ``(x, y)``."""
+    den = h[2, 0] * x + h[2, 1] * y + 1.0
+    return (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / den, (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / den
+
+
 def _homography_jacobian(h, src):
     """d(x', y') / d(h11 ... h32), rows interleaved (x'_0, y'_0, x'_1, ...)."""
     x, y = src[:, 0], src[:, 1]
     den = h[2, 0] * x + h[2, 1] * y + 1.0
-    xp = (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / den
-    yp = (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / den
+    xp, yp = _homography_apply(h, x, y)
     n = len(src)
     jac = np.zeros((2 * n, 8))
     jac[0::2, 0:3] = np.column_stack([x, y, np.ones(n)]) / den[:, None]
@@ -274,9 +279,7 @@ def _polish_homography(h, src, dst, w, iterations=20):
 
     def residual(t):
         m = np.array([t[0:3], t[3:6], [t[6], t[7], 1.0]])
-        den = m[2, 0] * src[:, 0] + m[2, 1] * src[:, 1] + 1.0
-        xp = (m[0, 0] * src[:, 0] + m[0, 1] * src[:, 1] + m[0, 2]) / den
-        yp = (m[1, 0] * src[:, 0] + m[1, 1] * src[:, 1] + m[1, 2]) / den
+        xp, yp = _homography_apply(m, src[:, 0], src[:, 1])
         return m, np.column_stack([xp, yp]).ravel() - dst.ravel()
 
     m, r = residual(theta)

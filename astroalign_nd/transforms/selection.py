@@ -47,7 +47,6 @@ are built by `~astroalign_nd.transforms.fit_transform` on the final pairs,
 like the linear ones.
 """
 
-import numbers
 from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
@@ -57,6 +56,9 @@ from ..matching.pairing import mutual_matches
 from ..matching.result import MatchResult
 from .convert import as_matrix
 from .fitting import fit_transform
+from .linear import SimilarityTransform
+from .polynomial import DEGREES, _check_degree, monomials, polynomial_terms
+from .projective import _homography_apply, _homography_jacobian
 from .registry import NONLINEAR_TYPES, TRANSFORM_REGISTRY, transform_type_of
 
 __all__ = ['NONLINEAR_TYPES', 'check_degree', 'fit_nonlinear', 'extend_match', 'DistortionFit']
@@ -64,9 +66,6 @@ __all__ = ['NONLINEAR_TYPES', 'check_degree', 'fit_nonlinear', 'extend_match', '
 #: The non-linear types (`NONLINEAR_TYPES`) this stage has candidate models for:
 #: another registered one needs its own here.
 _GROWN = ("projective", "polynomial")
-
-#: Polynomial degrees offered (the SIP convention's useful range).
-DEGREES = (2, 3, 4, 5)
 
 #: Chi-square (2 degrees of freedom) above which a pair is clipped: p = 3e-4.
 CLIP_CHI2 = 16.0
@@ -155,12 +154,7 @@ def check_degree(transform_type, degree):
             return "auto"
         if degree.strip().isdigit():
             degree = int(degree)
-    if isinstance(degree, (bool, np.bool_)) or not isinstance(degree, numbers.Integral):
-        raise TypeError(f"degree must be an integer from 2 to 5 or 'auto'; got {degree!r}.")
-    if int(degree) not in DEGREES:
-        raise ValueError(f"degree must be an integer from 2 to 5 or 'auto'; got {degree!r}. "
-                         "(Degree 1 is transform_type='affine'.)")
-    return int(degree)
+    return _check_degree(degree, auto=True)
 
 
 def nonlinear_name(transform_type):
@@ -178,13 +172,11 @@ def is_nonlinear(transform_type):
 # -- the candidate models, as design matrices ---------------------------------------
 
 
+# Each candidate's design matrix is its model's own: the polynomial terms of
+# `PolynomialTransform`, the similarity's and the homography's Jacobians.
+
 def _n_terms(degree):
-    return (degree + 1) * (degree + 2) // 2
-
-
-def _terms(degree):
-    """Exponents (p, q) of u**p v**q, total degree 0 to ``degree``."""
-    return [(n - q, q) for n in range(degree + 1) for q in range(n + 1)]
+    return len(polynomial_terms(degree))
 
 
 class _Poly:
@@ -192,14 +184,14 @@ class _Poly:
 
     def __init__(self, degree):
         self.degree = degree
-        self.terms = _terms(degree)
+        self.terms = polynomial_terms(degree)
         self.k = 2 * len(self.terms)
         self.name = "affine" if degree == 1 else f"polynomial degree {degree}"
         self.linear = True
 
     def design(self, uv, params=None):
         """(N, 2, k) derivatives of (x', y') with respect to the parameters."""
-        base = np.column_stack([uv[:, 0] ** p * uv[:, 1] ** q for p, q in self.terms])
+        base = monomials(uv[:, 0], uv[:, 1], self.terms)
         t = len(self.terms)
         d = np.zeros((len(uv), 2, self.k))
         d[:, 0, :t] = base
@@ -217,12 +209,8 @@ class _Similarity:
         self.linear = True
 
     def design(self, uv, params=None):
-        u, v = uv[:, 0], self.parity * uv[:, 1]
-        d = np.zeros((len(uv), 2, 4))
-        one = np.ones(len(uv))
-        d[:, 0, 0], d[:, 0, 1], d[:, 0, 2] = u, -v, one
-        d[:, 1, 0], d[:, 1, 1], d[:, 1, 3] = v, u, one
-        return d
+        # (rows x', y' of each star, as SimilarityTransform's fit has them)
+        return SimilarityTransform._design(uv, None, self.parity).reshape(len(uv), 2, 4)
 
 
 class _Projective:
@@ -234,24 +222,15 @@ class _Projective:
         self.linear = False
 
     @staticmethod
-    def predict(params, uv):
+    def _matrix(params):
         h = params
-        w = h[6] * uv[:, 0] + h[7] * uv[:, 1] + 1.0
-        x = (h[0] * uv[:, 0] + h[1] * uv[:, 1] + h[2]) / w
-        y = (h[3] * uv[:, 0] + h[4] * uv[:, 1] + h[5]) / w
-        return np.column_stack([x, y])
+        return np.array([h[0:3], h[3:6], [h[6], h[7], 1.0]])
+
+    def predict(self, params, uv):
+        return np.column_stack(_homography_apply(self._matrix(params), uv[:, 0], uv[:, 1]))
 
     def design(self, uv, params):
-        u, v = uv[:, 0], uv[:, 1]
-        h = params
-        w = h[6] * u + h[7] * v + 1.0
-        xy = self.predict(params, uv)
-        d = np.zeros((len(uv), 2, 8))
-        d[:, 0, 0], d[:, 0, 1], d[:, 0, 2] = u / w, v / w, 1.0 / w
-        d[:, 1, 3], d[:, 1, 4], d[:, 1, 5] = u / w, v / w, 1.0 / w
-        d[:, 0, 6], d[:, 0, 7] = -u * xy[:, 0] / w, -v * xy[:, 0] / w
-        d[:, 1, 6], d[:, 1, 7] = -u * xy[:, 1] / w, -v * xy[:, 1] / w
-        return d
+        return _homography_jacobian(self._matrix(params), uv).reshape(len(uv), 2, 8)
 
 
 def _predict(cand, params, uv):

@@ -87,7 +87,8 @@ class TransformConverter(Converter):
         ``check(values)`` raises a ValueError (that says why) if the
         parameter values read from a file do not make a usable transform.
     degrees : tuple of int, optional
-        The degrees a model with a ``degree`` (the polynomial) accepts.
+        The degrees of a model that takes a ``degree`` (the polynomial's,
+        which it checks itself); empty for the others.
 
     Examples
     --------
@@ -240,10 +241,17 @@ class TransformConverter(Converter):
         cls = self.model_class
         kwargs = {}
         if "degree" in node:
-            kwargs["degree"] = self._read_degree(node, tag)
+            if not self._degrees:
+                raise ValueError(f"the {tag} node has a degree, which a {cls.__name__} does not "
+                                 "take. " + _DAMAGED)
+            try:  # (the model checks its degree)
+                names = cls(degree=node["degree"]).param_names
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"the {tag} node's degree is not valid: {exc} " + _DAMAGED
+                                 ) from None
+            kwargs["degree"] = int(node["degree"])
             if node.get("domain") is not None:
                 kwargs["domain"] = self._read_domain(node["domain"], tag)
-            names = cls(degree=kwargs["degree"]).param_names
         else:
             names = cls.param_names
             if self._degrees:
@@ -289,15 +297,6 @@ class TransformConverter(Converter):
         if node.get("input_units_equivalencies"):
             model.input_units_equivalencies = node["input_units_equivalencies"]
         return model
-
-    def _read_degree(self, node, tag):
-        degree = node["degree"]
-        if isinstance(degree, (bool, np.bool_)) or not isinstance(
-                degree, (int, np.integer)) or degree not in self._degrees:
-            raise ValueError(f"the {tag} node's degree must be an integer from "
-                             f"{min(self._degrees, default=0)} to "
-                             f"{max(self._degrees, default=0)}; got {degree!r}. " + _DAMAGED)
-        return int(degree)
 
     @staticmethod
     def _read_domain(domain, tag):
