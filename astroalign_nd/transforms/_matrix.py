@@ -1,9 +1,10 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
-"""Matrix and point helpers shared by every transform model.
+"""Matrix helpers shared by every transform model.
 
 A leaf module: it imports no other module of the package.  Its public names
 (`apply_matrix`, `as_3x3`, `check_invertible`) are the helpers other stages
-use; `apply_matrix` is also ``astroalign_nd.transforms.apply_matrix``.
+use; `apply_matrix` is also ``astroalign_nd.transforms.apply_matrix``.  (The
+one check of point lists is ``astroalign_nd._validate.check_points``.)
 """
 
 from __future__ import annotations
@@ -13,22 +14,6 @@ from astropy import units as u
 from astropy.modeling import Parameter
 
 __all__ = ['apply_matrix', 'as_3x3', 'check_invertible']
-
-
-def _as_points(points, name):
-    try:
-        pts = np.asarray(points, dtype=float)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be an (N, 2) array of (x, y) positions (numbers); got "
-                        f"{type(points).__name__}.") from None
-    if pts.ndim != 2 or pts.shape[1] != 2:
-        raise ValueError(
-            f"{name} must be an (N, 2) array of (x, y) positions; got an array of shape "
-            f"{pts.shape}."
-        )
-    if not np.all(np.isfinite(pts)):
-        raise ValueError(f"{name} contains NaN or infinite positions; remove them first.")
-    return pts
 
 
 def _as_degrees(value, name="rotation"):

@@ -11,10 +11,11 @@ from __future__ import annotations
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
-from ._matrix import (apply_matrix, as_3x3, check_invertible, _as_degrees, _as_points,
-                      _check_parity, _check_parity_value, _check_spread, _radians, _rotate_shift,
+from ._matrix import (apply_matrix, as_3x3, check_invertible, _as_degrees, _check_parity,
+                      _check_parity_value, _check_spread, _radians, _rotate_shift,
                       _rotation_matrix, _rotation_parameters, _rotation_shift_parameters,
                       _weighted_lstsq)
+from ._pairs import _check_pairs
 
 __all__ = ['LinearTransform2D', 'TranslationTransform', 'EuclideanTransform',
            'SimilarityTransform', 'AffineTransform']
@@ -255,28 +256,7 @@ class LinearTransform2D(Model):
     @classmethod
     def _fit(cls, src, dst, *, weights=None, parity=None):
         """Fit and also return the linear parameter covariance and residuals."""
-        src = _as_points(src, "src")
-        dst = _as_points(dst, "dst")
-        if len(src) != len(dst):
-            raise ValueError(
-                f"src and dst must have the same length; got {len(src)} and {len(dst)}."
-            )
-        need = cls.min_points
-        if len(src) < need:
-            raise ValueError(
-                f"{cls.__name__} needs at least {need} point pairs; got {len(src)}."
-            )
-        w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=float)
-        if w.shape != (len(src),) or np.any(w < 0) or not np.all(np.isfinite(w)):
-            raise ValueError(
-                f"weights must be a finite, non-negative array of shape ({len(src)},), one "
-                f"per point pair; got shape {w.shape}."
-            )
-        if np.count_nonzero(w) < need:
-            raise ValueError(
-                f"{cls.__name__} needs at least {need} point pairs with non-zero weight; got "
-                f"{np.count_nonzero(w)}."
-            )
+        src, dst, w = _check_pairs(cls.__name__, src, dst, weights, cls.min_points)
         if parity is not None:
             _check_parity(parity)
         parities = [parity] if parity is not None else cls._parities
