@@ -5,7 +5,7 @@ import numpy as np
 from astropy.modeling import Model
 from .._kernels import compiled_kernels, run_split
 from ..transforms import ProjectiveTransform
-from ..transforms._matrix import as_3x3
+from ..transforms._matrix import as_3x3, is_singular
 from ..transforms.convert import as_matrix
 from .interpolation import _interp_numpy
 
@@ -48,14 +48,11 @@ def _parse_matrix(matrix, what="resample", shape_in=None):
     singular = ValueError(
         "matrix is singular (it cannot be inverted); pass the matrix of a valid "
         "source->target transform.")
+    if is_singular(m):
+        raise singular
     if not np.allclose(m[2], [0.0, 0.0, 1.0]):
         # A homography: resampled through its (exact) inverse as a coordinate map.
-        if abs(np.linalg.det(m)) < 1e-300 or np.linalg.cond(m) > 1e15:
-            raise singular
         return _nonlinear(_CoordinateMap.from_homography(m), what)
-    lin = m[:2, :2]
-    if np.linalg.det(lin) == 0.0 or np.linalg.cond(lin) > 1e12:
-        raise singular
     return m
 
 

@@ -2,7 +2,7 @@
 """Matrix helpers shared by every transform model.
 
 A leaf module: it imports no other module of the package.  Its public names
-(`apply_matrix`, `as_3x3`, `check_invertible`) are the helpers other stages
+(`apply_matrix`, `as_3x3`, `is_singular`, `check_invertible`) are the helpers other stages
 use; `apply_matrix` is also ``astroalign_nd.transforms.apply_matrix``.  (The
 one check of point lists is ``astroalign_nd._validate.check_points``.)
 """
@@ -13,7 +13,7 @@ import numpy as np
 from astropy import units as u
 from astropy.modeling import Parameter
 
-__all__ = ['apply_matrix', 'as_3x3', 'check_invertible']
+__all__ = ['apply_matrix', 'as_3x3', 'check_invertible', 'is_singular', 'SINGULAR_RTOL']
 
 
 def _as_degrees(value, name="rotation"):
@@ -122,14 +122,50 @@ def _check_spread(cls, pts, name):
             "their line. Give points that span an area, or fit a SimilarityTransform.")
 
 
+#: The one singularity threshold of the package's transforms (`is_singular`):
+#: ``|det| <= SINGULAR_RTOL * |M|**n`` for the n x n matrix tested (Frobenius norm).
+SINGULAR_RTOL = 1e-12
+
+
+def is_singular(matrix):
+    """
+    True if a transform's matrix has no usable inverse (or is not finite).
+
+    The test is ``|det L| <= SINGULAR_RTOL * |L|_F**2`` on the linear part
+    ``L`` -- about a condition number above 1e12, whatever the scale.  For an
+    affine matrix (a 2x2 one, or a 3x3 one with last row ``[0, 0, 1]``), ``L``
+    is its 2x2 block; for a homography ``[[A, t], [v, h33]]``, ``L = h33 A -
+    t v^T`` (``det H = det L / h33``), which, unlike ``H`` itself, does not
+    depend on the pixel unit.  (A homography with ``h33 = 0`` is tested as a
+    3x3 matrix, ``|det H| <= SINGULAR_RTOL * |H|_F**3``.)
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms._matrix import is_singular
+    >>> is_singular([[1.0, 2.0, 5.0], [2.0, 4.0, 0.0], [0.0, 0.0, 1.0]])
+    True
+    >>> is_singular([[1.0, 0.0, 1e5], [0.0, 1.0, 1e5], [1e-6, 0.0, 1.0]])  # a homography
+    False
+    """
+    m = np.asarray(matrix, dtype=float)
+    lin = m[:2, :2]
+    if m.shape == (3, 3) and (m[2, 0] != 0 or m[2, 1] != 0 or m[2, 2] != 1):
+        lin = m if m[2, 2] == 0 else m[2, 2] * lin - np.outer(m[:2, 2], m[2, :2])
+    with np.errstate(over="ignore", invalid="ignore"):
+        det = float(np.linalg.det(lin))
+        norm2 = float(np.sum(lin**2))
+    return not (np.isfinite(det) and np.isfinite(norm2)) or (
+        abs(det) <= SINGULAR_RTOL * max(norm2 ** (len(lin) / 2), 1e-300))
+
+
 def check_invertible(matrix, name, fitted=False):
     """
-    Refuse a singular linear part (zero scale, or points squashed onto a line).
+    Refuse a singular transform (zero scale, or points squashed onto a line).
 
     Parameters
     ----------
     matrix : (3, 3) or (2, 2) array-like
-        The matrix; its upper-left 2x2 block is tested.
+        The matrix, tested by `is_singular`.
     name : str
         What it is, for the message (``'AffineTransform'``).
     fitted : bool, optional
@@ -149,11 +185,7 @@ def check_invertible(matrix, name, fitted=False):
     ValueError: the AffineTransform is singular (its scale is zero or its matrix singular); it \
 has no inverse and cannot register an image.
     """
-    lin = np.asarray(matrix, float)[:2, :2]
-    with np.errstate(over="ignore", invalid="ignore"):
-        det = float(np.linalg.det(lin))
-        norm2 = float(np.sum(lin**2))
-    if not (np.isfinite(det) and np.isfinite(norm2)) or abs(det) <= 1e-12 * max(norm2, 1e-300):
+    if is_singular(matrix):
         why = ("the dst points are collinear or coincide, so the fit squashes the plane "
                "onto a line" if fitted else "its scale is zero or its matrix singular")
         raise ValueError(f"the {name} is singular ({why}); it has no inverse and cannot "

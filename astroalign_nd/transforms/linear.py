@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
-from ._matrix import (apply_matrix, as_3x3, check_invertible, _as_degrees, _check_parity,
-                      _check_parity_value, _check_spread, _radians, _rotate_shift,
-                      _rotation_matrix, _rotation_parameters, _rotation_shift_parameters,
-                      _weighted_lstsq)
+from ._matrix import (apply_matrix, as_3x3, check_invertible, is_singular, _as_degrees,
+                      _check_parity, _check_parity_value, _check_spread, _radians,
+                      _rotate_shift, _rotation_matrix, _rotation_parameters,
+                      _rotation_shift_parameters, _weighted_lstsq)
 from ._pairs import _check_pairs
 
 __all__ = ['LinearTransform2D', 'TranslationTransform', 'EuclideanTransform',
@@ -464,7 +464,7 @@ class SimilarityTransform(LinearTransform2D):
     def _from_matrix(cls, m):
         lin = m[:2, :2]
         det = np.linalg.det(lin)
-        if det == 0:
+        if is_singular(lin):
             raise ValueError("matrix is singular; it cannot be a similarity transform.")
         scale = np.sqrt(abs(det))
         return cls(scale=scale, **_rotation_parameters(
@@ -588,9 +588,8 @@ def _check_values(values):
         raise ValueError(f"its scale must be > 0; got {values['scale']!r}")
     if "a11" in values:
         lin = np.array([[values["a11"], values["a12"]], [values["a21"], values["a22"]]])
-        with np.errstate(over="ignore", invalid="ignore"):
-            det = float(np.linalg.det(lin))
-            norm2 = float(np.sum(lin**2))
-        if not (np.isfinite(det) and np.isfinite(norm2) and abs(det) > 1e-12 * norm2):
+        if is_singular(lin):
+            with np.errstate(over="ignore", invalid="ignore"):
+                det = float(np.linalg.det(lin))
             raise ValueError(f"it holds a singular or overflowing matrix (a11 a22 - a12 a21 = "
                              f"{det:g}); it cannot map an image")

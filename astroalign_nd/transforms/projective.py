@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
-from ._matrix import as_3x3
+from ._matrix import as_3x3, is_singular
 from ._pairs import _check_pairs, _scalar_values
 
 __all__ = ['ProjectiveTransform']
@@ -185,10 +185,7 @@ class ProjectiveTransform(Model):
 
 
 def _check_homography(m, fitted=False):
-    with np.errstate(over="ignore", invalid="ignore"):
-        det = float(np.linalg.det(m))
-    norm = float(np.linalg.norm(m))
-    if not np.isfinite(det) or abs(det) <= 1e-12 * norm ** 3:
+    if is_singular(m):
         why = ("the dst points are collinear or coincide" if fitted
                else "its matrix has no inverse")
         raise ValueError(f"the ProjectiveTransform is singular ({why}); it cannot register "
