@@ -84,8 +84,11 @@ def _compiled():
 
 
 def compiled_kernels():
-    """The compiled extension module (``astroalign_nd._ckernels``), or None if it is not built."""
-    return _ckernels
+    """
+    The compiled extension module (``astroalign_nd._ckernels``) for other stages' loops
+    (the resampling kernels), or None: not built, or ``conf.use_compiled`` is False.
+    """
+    return _ckernels if _compiled() else None
 
 
 def _after_fork_in_child():

@@ -3,7 +3,7 @@
 
 import numpy as np
 from astropy.modeling import Model
-from .._kernels import compiled_kernels, run_split
+from .._kernels import run_split
 from ..transforms import ProjectiveTransform
 from ..transforms._matrix import as_3x3, is_singular
 from ..transforms.convert import as_matrix
@@ -264,7 +264,7 @@ def _resample_map(job, cmap, conserve_flux):
                               xs, ys, job.fill, sdk, sdk * sdk if jac is not None else 1.0,
                               job.out[c, r0:r1], ov, job.masks[c, r0:r1], job.order)
                 continue
-            run_split(compiled_kernels().map_rows, r1 - r0,
+            run_split(job.kernels.map_rows, r1 - r0,
                       (job.data[c], job.var_plane(c), job.has_var, job.kind, job.okind,
                        job.bad8, job.has_mask, xs, ys, _DUMMY_MAP if jac is None else jac,
                        jac is not None, job.order, job.fill, 1.0, job.out[c, r0:r1], ov,
