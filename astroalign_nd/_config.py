@@ -41,7 +41,8 @@ class Conf(_astropy_config.ConfigNamespace):
         cfgtype="integer", module="astroalign_nd")
     use_compiled = _astropy_config.ConfigItem(
         True,
-        "Run the compiled (Cython) loops of detection and matching when they are built. "
+        "Run the compiled (Cython) loops of detection, matching and resampling when they are "
+        "built. "
         "False runs their NumPy versions: the same results, slower (for debugging).",
         cfgtype="boolean", module="astroalign_nd")
 

@@ -35,7 +35,7 @@ except ImportError:  # pragma: no cover - installed without a C compiler, or an 
 
 __all__ = ["bin_despike", "peak_candidates", "median", "finite_sample", "windowed_centroid",
            "adaptive_fwhm", "PointGrid",
-           "count_inliers", "num_threads",
+           "count_inliers", "num_threads", "compiled_kernels",
            "run_split", "GAUSS_SIGMA_TO_FWHM"]
 
 #: FWHM of a Gaussian in units of its sigma (detection and simulation share it).
@@ -97,6 +97,14 @@ _threads_chosen = threads_chosen  # the former name
 def _compiled():
     """Run the compiled loops: built, and not turned off by ``conf.use_compiled``."""
     return HAVE_COMPILED and conf.use_compiled
+
+
+def compiled_kernels():
+    """
+    The compiled extension module (``astroalign_nd._ckernels``) for other stages' loops
+    (the resampling kernels), or None: not built, or ``conf.use_compiled`` is False.
+    """
+    return _ckernels if _compiled() else None
 
 
 def _after_fork_in_child():

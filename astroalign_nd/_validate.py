@@ -45,9 +45,12 @@ def check_options(options):
     return {k: (check_option(k, v) if k in OPTIONS else v) for k, v in options.items()}
 
 
-def check_points(pts, name):
+def check_points(pts, name, *, max_coordinate=MAX_COORDINATE):
     """
     An (N, 2) array of finite pixel positions, within `MAX_COORDINATE`.
+
+    The one check of point lists: catalogs, and the pairs the models are
+    fitted to (``max_coordinate=None``: no limit).
 
     Returns
     -------
@@ -63,8 +66,8 @@ def check_points(pts, name):
     if arr.size and not np.all(np.isfinite(arr)):
         raise ValueError(f"the {name} positions must be finite; drop the rows holding NaN or "
                          "infinity.")
-    if arr.size and np.max(np.abs(arr)) > MAX_COORDINATE:
+    if max_coordinate is not None and arr.size and np.max(np.abs(arr)) > max_coordinate:
         raise ValueError(
-            f"the {name} positions must be pixel coordinates within +/-{MAX_COORDINATE:g}; "
+            f"the {name} positions must be pixel coordinates within +/-{max_coordinate:g}; "
             f"the largest is {np.max(np.abs(arr)):g}. Convert them to pixels first.")
     return arr

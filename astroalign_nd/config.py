@@ -28,6 +28,8 @@ import numbers
 
 import numpy as np
 
+from .transforms.registry import LINEAR_TYPES, NONLINEAR_TYPES
+
 __all__ = ["DetectionConfig", "MatchingConfig", "ModelConfig", "ResampleConfig",
            "RegistrationConfig", "OPTIONS", "check_option", "cli_fields", "split_options",
            "astroalign_advice", "DEFAULT_TOLERANCE", "DEFAULT_NEIGHBORS"]
@@ -379,8 +381,8 @@ class ModelConfig:
 
     transform_type: object = _option(
         "similarity", _Any(),
-        "model fitted between the images: translation, euclidean, similarity, affine, "
-        "or for wide fields with distortion projective or polynomial (see --degree) "
+        f"model fitted between the images: {', '.join(LINEAR_TYPES)}, or for wide fields "
+        f"with distortion {' or '.join(NONLINEAR_TYPES)} (see --degree) "
         "(default: %(default)s)",
         flag="--transform-type", metavar="TYPE")
     degree: object = _option(

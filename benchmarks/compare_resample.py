@@ -127,6 +127,17 @@ def _ccd_cases():
                       (140, 170)), dict(order="biquadratic")
 
 
+def _use_compiled(rs, compiled):
+    """Turn the compiled kernels on or off: ``conf.use_compiled``, and on older trees the
+    resampler's own switch (``_USE_COMPILED``, in ``resample`` or ``resample.core``)."""
+    from astroalign_nd import conf
+
+    conf.use_compiled = compiled
+    module = getattr(rs, "core", rs)
+    if hasattr(module, "_USE_COMPILED"):
+        module._USE_COMPILED = compiled
+
+
 def run(out):
     import astroalign_nd.resample as rs
     from astroalign_nd.ccddata import apply_transform
@@ -137,7 +148,7 @@ def run(out):
     numpy_cases = [(k, a, kw) for k, a, kw in cases
                    if k.startswith("map_") or k.startswith("float64_2_")]
     for compiled, group in ((True, cases), (False, numpy_cases)):
-        getattr(rs, "core", rs)._USE_COMPILED = compiled  # the module that holds the switch
+        _use_compiled(rs, compiled)
         for key, (d, m, order), kw in group:
             kw = dict(kw)
             o = resample(d, m, kw.pop("shape_out", (290, 310)), order=order, **kw)
@@ -145,7 +156,7 @@ def run(out):
             res[key + "_d"], res[key + "_m"] = o[0], o[2]
             if o[1] is not None:
                 res[key + "_v"] = o[1]
-    getattr(rs, "core", rs)._USE_COMPILED = True
+    _use_compiled(rs, True)
     for key, (tf, ccd, target), kw in _ccd_cases():
         o = apply_transform(tf, ccd, target, **kw)
         res[key + "_d"], res[key + "_m"] = o.data, o.mask

@@ -266,7 +266,7 @@ def test_polynomial_composes_and_copies():
 
 def test_polynomial_bad_input():
     for degree in (1, 6, 0):
-        with pytest.raises(ValueError, match="degree must be from 2 to 5"):
+        with pytest.raises(ValueError, match="degree must be an integer from 2 to 5"):
             PolynomialTransform(degree=degree)
     with pytest.raises(TypeError, match="integer"):
         PolynomialTransform(degree=2.5)
@@ -279,7 +279,7 @@ def test_polynomial_bad_input():
     src, dst = _pairs(barrel(), n=9)
     with pytest.raises(ValueError, match="at least 10"):
         PolynomialTransform.from_points(src, dst, degree=3)
-    with pytest.raises(ValueError, match="degree must be from 2 to 5"):
+    with pytest.raises(ValueError, match="degree must be an integer from 2 to 5"):
         PolynomialTransform.from_points(src, dst, degree=7)
     # Points on two lines do not determine a cubic.
     xs = np.linspace(0, 1000, 20)

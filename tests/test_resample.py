@@ -314,7 +314,7 @@ def test_numpy_fallback_matches_compiled(monkeypatch, noise_image, order):
     var = np.abs(img)
     m = similarity(1.03, 0.25, 2.0, 1.0)
     fast = run(img, m, (50, 50), order=order, variance=var, mask=mask, fill_value=-5)
-    monkeypatch.setattr(rs.core, "_USE_COMPILED", False)
+    monkeypatch.setattr(conf, "use_compiled", False)
     slow = run(img, m, (50, 50), order=order, variance=var, mask=mask, fill_value=-5)
     # Same positions, weights and summation order: the same bits.
     assert_array_equal(fast[2], slow[2])
@@ -326,7 +326,7 @@ def test_numpy_fallback_multichannel(monkeypatch, noise_image):
     rgb = np.stack([noise_image, -noise_image], axis=-1).astype(np.float32)
     m = similarity(0.8, -0.3, 12.0, 0.0)
     fast = run(rgb, m, (40, 40), order=1, variance=np.abs(rgb))
-    monkeypatch.setattr(rs.core, "_USE_COMPILED", False)
+    monkeypatch.setattr(conf, "use_compiled", False)
     slow = run(rgb, m, (40, 40), order=1, variance=np.abs(rgb))
     assert slow[0].dtype == np.float32
     assert_array_equal(fast[2], slow[2])

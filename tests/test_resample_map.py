@@ -19,7 +19,7 @@ from astropy.nddata import CCDData, StdDevUncertainty
 from numpy.testing import assert_allclose, assert_array_equal
 
 import astroalign_nd.resample as rs
-from astroalign_nd import apply_transform
+from astroalign_nd import apply_transform, conf
 from astroalign_nd.resample import resample, resample_exact
 
 # A shear x' = x + A (y - C1)^2, then a stretch of y varying with x',
@@ -229,10 +229,10 @@ def test_multichannel_and_numpy_path_agree(model, monkeypatch):
             one = resample(data[..., c], model, (200, 210), order=order, variance=var,
                            mask=mask, conserve_flux=True)
             assert_array_equal(one[0][~ref[2]], ref[0][..., c][~ref[2]])
-        monkeypatch.setattr(rs.core, "_USE_COMPILED", False)
+        monkeypatch.setattr(conf, "use_compiled", False)
         slow = resample(data, model, (200, 210), order=order, variance=var, mask=mask,
                         conserve_flux=True)
-        monkeypatch.setattr(rs.core, "_USE_COMPILED", True)
+        monkeypatch.setattr(conf, "use_compiled", True)
         assert_array_equal(slow[2], ref[2])
         assert_allclose(slow[0], ref[0], rtol=1e-5, atol=1e-6)
         assert_allclose(slow[1], ref[1], rtol=1e-5)
@@ -438,7 +438,7 @@ def test_output_kind_same_bits_as_numpy(model, monkeypatch, dtype):
     bad = rng.random((90, 100)) < 0.01
     m = np.array([[0.98, 0.1, 4.5], [-0.1, 0.98, -3.2], [0, 0, 1]])
     for compiled in (True, False):
-        monkeypatch.setattr(rs.core, "_USE_COMPILED", compiled)
+        monkeypatch.setattr(conf, "use_compiled", compiled)
         for t in (m, model):
             for order in range(4):
                 for plane in (data, data[..., 0]):

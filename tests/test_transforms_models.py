@@ -434,9 +434,9 @@ def test_from_points_non_finite(cls, bad):
     src = _points(6, seed=20)
     dst = src.copy()
     dst[2, 1] = bad
-    with pytest.raises(ValueError, match="NaN or infinite"):
+    with pytest.raises(ValueError, match="NaN or infinity"):
         cls.from_points(src, dst)
-    with pytest.raises(ValueError, match="NaN or infinite"):
+    with pytest.raises(ValueError, match="NaN or infinity"):
         cls.from_points(dst, src)
 
 

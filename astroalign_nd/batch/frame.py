@@ -12,6 +12,7 @@ from ..io import WRITERS, writer_for
 from ..registration import find_for_apply, quality_dict
 from ..resample import apply_transform
 from ..transforms import as_matrix, from_matrix
+from ..transforms.registry import transform_type_of
 from .results import FrameResult
 from .planning import _CANVAS_KEYS, _SOURCE_SHAPE_KEYS, _is_path, _skip_or_refuse
 
@@ -199,12 +200,9 @@ def _shifted(transform, offset, sign):
 
 
 def _type_of(transform):
-    from ..transforms.registry import TRANSFORM_TYPES
-
-    for name, cls in TRANSFORM_TYPES.items():
-        if type(transform) is cls:
-            return name
-    return None
+    """The registry name of the transform's own class (None for any other class)."""
+    entry = transform_type_of(transform, exact=True)
+    return None if entry is None else entry.name
 
 
 def _stream_jobs(items, namer):

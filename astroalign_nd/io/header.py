@@ -67,13 +67,12 @@ from astropy.io import fits
 from astropy.modeling import Model
 from astropy.utils.exceptions import AstropyUserWarning
 
+from .. import __version__
 from ..exceptions import warn
-from ..transforms.polynomial import DEGREES, PolynomialTransform, _exponents
+from ..transforms.polynomial import PolynomialTransform, monomials, polynomial_terms
 from ..transforms.projective import ProjectiveTransform
-from ..transforms.registry import TRANSFORM_TYPES, transform_class
-from ..transforms.linear import (AffineTransform, EuclideanTransform, LinearTransform2D,
-                                 SimilarityTransform)
-from ..transforms._matrix import _check_invertible
+from ..transforms.registry import TRANSFORM_REGISTRY, transform_type_of
+from ..transforms.linear import AffineTransform, EuclideanTransform, SimilarityTransform
 from ..transforms.convert import as_matrix
 
 __all__ = ["transform_to_header", "transform_from_header", "add_provenance",
@@ -88,29 +87,34 @@ QUALITY_KEYWORDS = (
     ("LFA", "log10_false_alarm", 3, "astroalign_nd: log10 false-alarm probability"),
 )
 
-_MATRIX_INDICES = ("00", "01", "02", "10", "11", "12")
-_PROJECTIVE_INDICES = ("20", "21")
+# The elements of the 3x3 matrix, row by row (a type's ``matrix_rows`` of them are stored).
+_MATRIX_ROWS = (("00", "01", "02"), ("10", "11", "12"), ("20", "21"))
+_MATRIX_INDICES = _MATRIX_ROWS[0] + _MATRIX_ROWS[1]
 _HUMAN_SUFFIXES = ("SCALE", "SCALX", "SCALY", "ROT", "SHEAR", "TX", "TY", "PAR")
-# The polynomial's own keywords: degree, reference pixel, domain, coefficients.
-_DOMAIN_SUFFIXES = ("DXMIN", "DXMAX", "DYMIN", "DYMAX")
-_COEFF_SUFFIXES = tuple(f"{ab}{p}{q}" for ab in "AB" for p, q in _exponents(DEGREES[-1]))
-_POLY_SUFFIXES = ("DEG", "CRP1", "CRP1S", "CRP2", "CRP2S", *_DOMAIN_SUFFIXES,
-                  *_COEFF_SUFFIXES, *(c + "S" for c in _COEFF_SUFFIXES))
-# Every suffix must fit the 8-character FITS keyword with the prefix.
-_MAX_PREFIX = 8 - max(len(s) for s in (*_HUMAN_SUFFIXES, *_POLY_SUFFIXES, "TYPE", "M00S"))
 _PREFIX_RE = re.compile(r"^[A-Z0-9_-]+$")
 _FITS_KEY = re.compile(r"^[A-Z0-9_-]{1,8}$")
 # The float cards round to >= 13 significant digits; the exact strings must agree.
 _CONSISTENCY_RTOL = 1e-12
 
 
+def _suffixes():
+    """Every keyword suffix this module may write (the registered types' hooks' too)."""
+    indices = [ij for row in _MATRIX_ROWS for ij in row]
+    hooks = [e.header for e in TRANSFORM_REGISTRY.values() if e.header is not None]
+    return list(dict.fromkeys(["TYPE", *(f"M{ij}" for ij in indices),
+                               *(f"M{ij}S" for ij in indices), *_HUMAN_SUFFIXES,
+                               *(s for h in hooks for s in h.suffixes)]))
+
+
 def _check_prefix(prefix):
     if not isinstance(prefix, str):
         raise TypeError(f"prefix must be a string; got {type(prefix).__name__}.")
     upper = prefix.upper()
-    if not (1 <= len(upper) <= _MAX_PREFIX) or not _PREFIX_RE.match(upper):
+    # Every suffix must fit the 8-character FITS keyword with the prefix.
+    max_prefix = 8 - max(len(s) for s in _suffixes())
+    if not (1 <= len(upper) <= max_prefix) or not _PREFIX_RE.match(upper):
         raise ValueError(
-            f"prefix must be 1 to {_MAX_PREFIX} characters among A-Z, 0-9, '_' and '-' so "
+            f"prefix must be 1 to {max_prefix} characters among A-Z, 0-9, '_' and '-' so "
             f"that every keyword (e.g. {upper or 'AAT'}SCALE) fits the 8-character FITS "
             f"limit; got {prefix!r}."
         )
@@ -119,17 +123,17 @@ def _check_prefix(prefix):
 
 def _keywords(prefix):
     """All the keywords this module may write, for a given prefix."""
-    indices = (*_MATRIX_INDICES, *_PROJECTIVE_INDICES)
-    names = ["TYPE", *(f"M{ij}" for ij in indices), *(f"M{ij}S" for ij in indices),
-             *_HUMAN_SUFFIXES, *_POLY_SUFFIXES]
-    return [prefix + name for name in names]
+    return [prefix + name for name in _suffixes()]
 
 
-def _type_name(model):
-    for name, cls in TRANSFORM_TYPES.items():
-        if isinstance(model, cls):
-            return name
-    return "affine"
+def _entry(model):
+    """The registry entry a model is stored as: any other (affine) astropy model as 'affine'."""
+    return transform_type_of(model) or TRANSFORM_REGISTRY["affine"]
+
+
+def _indices(entry):
+    """The matrix elements stored for a type."""
+    return tuple(ij for row in _MATRIX_ROWS[:entry.matrix_rows] for ij in row)
 
 
 def _model_matrix(model):
@@ -144,14 +148,13 @@ def _model_matrix(model):
             f"model holds {len(model)} parameter sets; a FITS header stores a single "
             "transform."
         )
-    if isinstance(model, (LinearTransform2D, ProjectiveTransform)):
-        matrix = model.matrix
-    elif isinstance(model, PolynomialTransform):
-        matrix = np.eye(3)  # the linear part, about crpix
-        matrix[:2, :2] = model.linear_matrix
-        matrix[:2, 2] = [model.translation_x.value, model.translation_y.value]
-    else:
+    entry = transform_type_of(model)
+    if entry is None:
         matrix = _affine_matrix(model)
+    elif entry.header is not None:
+        matrix = entry.header.matrix(model)  # (a polynomial: its linear part about crpix)
+    else:
+        matrix = model.matrix
     if not np.all(np.isfinite(matrix)):
         raise ValueError("the transform's matrix contains NaN or infinite values.")
     return matrix
@@ -179,14 +182,12 @@ def _degrees(angle):
     return 180.0 if degrees == -180.0 else degrees
 
 
-def _human_cards(type_name, model, matrix):
+def _human_cards(entry, model, matrix):
     """The readable ``(suffix, value, comment)`` cards of the transform."""
-    if type_name in ("projective", "polynomial"):
-        return [("TX", float(matrix[0, 2]), "[px] translation along x" + (
-            " of the reference pixel" if type_name == "polynomial" else "")),
-                ("TY", float(matrix[1, 2]), "[px] translation along y" + (
-                    " of the reference pixel" if type_name == "polynomial" else ""))]
-    if type_name == "affine":
+    if not entry.linear:
+        return [("TX", float(matrix[0, 2]), "[px] translation along x"),
+                ("TY", float(matrix[1, 2]), "[px] translation along y")]
+    if not entry.conformal:
         affine = AffineTransform.from_matrix(matrix)
         sx, sy = affine.scale
         cards = [
@@ -196,8 +197,9 @@ def _human_cards(type_name, model, matrix):
             ("SHEAR", _degrees(affine.shear), "[deg] shear angle"),
         ]
     else:
-        scale = model.scale.value if type_name == "similarity" else 1.0
-        rotation = model.rotation.value if type_name in ("euclidean", "similarity") else 0.0
+        # (A Parameter on the models that fit them, a number on the others.)
+        scale = getattr(model.scale, "value", model.scale)
+        rotation = getattr(model.rotation, "value", model.rotation)
         cards = [
             ("SCALE", float(scale), "[tgt px / src px] scale factor"),
             ("ROT", _degrees(rotation), "[deg] rotation, counter-clockwise"),
@@ -290,7 +292,7 @@ def transform_to_header(model: Model, header: fits.Header | Mapping | None = Non
             "the forward transform is stored (save to ASDF to keep the inverse).",
             AstropyUserWarning,
         )
-    type_name = _type_name(model)
+    entry = _entry(model)
 
     if header is None:
         out = fits.Header()
@@ -309,37 +311,46 @@ def transform_to_header(model: Model, header: fits.Header | Mapping | None = Non
         if key in present:
             out.remove(key, remove_all=True)
 
-    out[prefix + "TYPE"] = (type_name, "astroalign_nd transform class")
-    indices = _MATRIX_INDICES + (_PROJECTIVE_INDICES if type_name == "projective" else ())
-    what = "linear part (about AATCRP)" if type_name == "polynomial" else "transform matrix"
+    out[prefix + "TYPE"] = (entry.name, "astroalign_nd transform class")
+    indices = _indices(entry)
+    what = "linear part (about AATCRP)" if entry.header is not None else "transform matrix"
     for ij in indices:
         value = float(matrix[int(ij[0]), int(ij[1])])
         out[f"{prefix}M{ij}"] = (value, f"{what} element ({ij[0]},{ij[1]})")
     for ij in indices:
         value = float(matrix[int(ij[0]), int(ij[1])])
         out[f"{prefix}M{ij}S"] = (repr(value), f"{prefix}M{ij}, all digits")
-    if type_name == "polynomial":
-        _polynomial_cards(out, model, prefix)
-    for suffix, value, comment in _human_cards(type_name, model, matrix):
+    if entry.header is not None:
+        cards = entry.header.cards(model)
+    else:
+        cards = [(*card, False) for card in _human_cards(entry, model, matrix)]
+    for suffix, value, comment, exact in cards:
         out[prefix + suffix] = (value, comment)
+        if exact:
+            out[prefix + suffix + "S"] = (repr(value), f"{prefix}{suffix}, all digits")
     return out
 
 
-def _polynomial_cards(out, model, prefix):
-    """The degree, reference pixel, domain and coefficients of a PolynomialTransform."""
-    out[prefix + "DEG"] = (model.degree, "degree of the polynomial distortion")
-    for i, value in enumerate(model.crpix, start=1):
-        out[f"{prefix}CRP{i}"] = (value, f"[px] reference pixel {'xy'[i - 1]}, 0-based")
-        out[f"{prefix}CRP{i}S"] = (repr(value), f"{prefix}CRP{i}, all digits")
-    if model.domain is not None:
-        for suffix, value in zip(_DOMAIN_SUFFIXES, model.domain):
-            out[prefix + suffix] = (value, "[px] domain of the fitted inverse")
-    coef_a, coef_b = model.coefficients
-    for ab, coefs in (("A", coef_a), ("B", coef_b)):
-        for (p, q), value in coefs.items():
-            key = f"{prefix}{ab}{p}{q}"
-            out[key] = (value, f"distortion coefficient {ab}_{p}_{q}")
-            out[key + "S"] = (repr(value), f"{key}, all digits")
+class _Reader:
+    """A header's keywords by suffix, for a type's `HeaderHooks.read`."""
+
+    def __init__(self, header, prefix):
+        self.header, self.prefix = header, prefix
+
+    def key(self, suffix):
+        return self.prefix + suffix
+
+    def has(self, suffix):
+        return self.prefix + suffix in self.header
+
+    def get(self, suffix, default=None):
+        return self.header.get(self.prefix + suffix, default)
+
+    def exact(self, suffix, what):
+        return _read_exact(self.header, self.prefix + suffix, self.prefix + "TYPE", what)
+
+    def matrix(self):
+        return _read_matrix(self.header, self.prefix)
 
 
 def _read_matrix(header, prefix, indices=_MATRIX_INDICES):
@@ -683,16 +694,16 @@ def transform_from_header(header: fits.Header | Mapping, *,
             "when writing."
         )
     type_name = header[type_key]
-    if not isinstance(type_name, str) or type_name.strip().lower() not in TRANSFORM_TYPES:
+    if not isinstance(type_name, str) or type_name.strip().lower() not in TRANSFORM_REGISTRY:
         raise ValueError(
-            f"header keyword {type_key} must be one of {sorted(TRANSFORM_TYPES)}; got "
+            f"header keyword {type_key} must be one of {sorted(TRANSFORM_REGISTRY)}; got "
             f"{type_name!r}."
         )
-    cls = transform_class(type_name.strip().lower())
-    if cls is PolynomialTransform:
-        return _read_polynomial(header, prefix)
-    indices = _MATRIX_INDICES + (_PROJECTIVE_INDICES if cls is ProjectiveTransform else ())
-    matrix = _read_matrix(header, prefix, indices)
+    entry = TRANSFORM_REGISTRY[type_name.strip().lower()]
+    if entry.header is not None:
+        return entry.header.read(_Reader(header, prefix))
+    cls = entry.cls
+    matrix = _read_matrix(header, prefix, _indices(entry))
     try:
         model = cls.from_matrix(matrix)
     except ValueError as exc:
@@ -725,45 +736,6 @@ def _from_written_parameters(header, prefix, model, matrix):
     except (ValueError, TypeError):
         return model
     return written if np.array_equal(written.matrix, matrix) else model
-
-
-def _read_polynomial(header, prefix):
-    type_key = prefix + "TYPE"
-    degree = header.get(prefix + "DEG")
-    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or (
-            degree not in DEGREES):
-        raise ValueError(f"header keyword {prefix}DEG must be the polynomial's degree, an "
-                         f"integer from 2 to 5; got {degree!r}.")
-    m = _read_matrix(header, prefix)
-    params = {"a11": m[0, 0], "a12": m[0, 1], "a21": m[1, 0], "a22": m[1, 1],
-              "translation_x": m[0, 2], "translation_y": m[1, 2]}
-    crpix = [_read_exact(header, f"{prefix}CRP{i}", type_key, "the reference pixel")
-             for i in (1, 2)]
-    for ab in "AB":
-        for p, q in _exponents(int(degree)):
-            params[f"{ab}_{p}_{q}"] = _read_exact(header, f"{prefix}{ab}{p}{q}", type_key,
-                                                  f"the degree-{degree} polynomial")
-    extra = [prefix + c for c in _COEFF_SUFFIXES
-             if prefix + c in header and int(c[1]) + int(c[2]) > degree]
-    if extra:
-        raise ValueError(f"header has {extra}, terms beyond {prefix}DEG = {degree}; was "
-                         f"{prefix}DEG edited?")
-    present = [prefix + k in header for k in _DOMAIN_SUFFIXES]
-    domain = None
-    if any(present):
-        if not all(present):
-            raise ValueError(f"header has only some of {[prefix + k for k in _DOMAIN_SUFFIXES]}"
-                             "; give all four (the inverse's domain) or none.")
-        domain = [header[prefix + k] for k in _DOMAIN_SUFFIXES]
-    try:
-        model = PolynomialTransform(degree=int(degree), crpix=crpix, domain=domain, **params)
-        m3 = np.eye(3)
-        m3[:2, :2] = model.linear_matrix
-        _check_invertible(m3, "PolynomialTransform's linear part")
-    except (ValueError, TypeError) as exc:
-        raise ValueError(f"the header's polynomial keywords are not a valid "
-                         f"PolynomialTransform ({exc}).") from None
-    return model
 
 
 def add_history(header, text):
@@ -837,8 +809,6 @@ def add_provenance(header: fits.Header, model: Model, *,
     >>> "AATTYPE" in hdr  # the given header is not modified
     False
     """
-    from .. import __version__
-
     quality = check_quality(quality)
     out = transform_to_header(model, header, prefix=prefix, copy=copy)
     m = _model_matrix(model)  # for a polynomial, its linear part about crpix
@@ -889,8 +859,8 @@ def _solve(model, target, start, iterations=30):
 def _poly_fit(d, values, degree):
     """Coefficients ``{(p, q): (cx, cy)}`` of a full polynomial of ``degree`` in ``d``."""
     s = max(float(np.max(np.abs(d))), 1.0)
-    exps = [(p, n - p) for n in range(degree + 1) for p in range(n, -1, -1)]
-    design = np.column_stack([(d[:, 0] / s) ** p * (d[:, 1] / s) ** q for p, q in exps])
+    exps = polynomial_terms(degree)
+    design = monomials(d[:, 0] / s, d[:, 1] / s, exps)
     coef, *_ = np.linalg.lstsq(design, values, rcond=None)
     return {e: coef[k] / s ** sum(e) for k, e in enumerate(exps)}
 

@@ -3,15 +3,9 @@
 
 import functools
 import numpy as np
+from ..transforms import apply_matrix
 
 __all__ = ["bounding_frame", "overlap_counts"]
-
-
-def _apply(matrix, pts):
-    """(N, 2) points mapped by a 3x3 affine matrix (its last row is not read)."""
-    # The product of transforms' own helper, kept here so that matching needs no
-    # private name of transforms.
-    return pts @ matrix[:2, :2].T + matrix[:2, 2]
 
 
 @functools.lru_cache(maxsize=32)
@@ -33,7 +27,7 @@ def _frame_area_fraction(m, src_frame, dst_frame, n_grid=48):
     """Overlap of the source frame mapped into the target frame (fraction, area)."""
     (x0, x1, y0, y1) = dst_frame
     inv = np.linalg.inv(m)
-    q = _apply(inv, _frame_grid(dst_frame, n_grid))
+    q = apply_matrix(inv, _frame_grid(dst_frame, n_grid))
     sx0, sx1, sy0, sy1 = src_frame
     inside = (q[:, 0] >= sx0) & (q[:, 0] <= sx1) & (q[:, 1] >= sy0) & (q[:, 1] <= sy1)
     frac = inside.mean()
@@ -43,7 +37,7 @@ def _frame_area_fraction(m, src_frame, dst_frame, n_grid=48):
 def _overlap_box(m, src_frame, dst_frame, n_grid=24):
     """Bounding box (x0, x1, y0, y1) in the target of the source frame's footprint there."""
     grid = _frame_grid(dst_frame, n_grid)
-    inside = grid[_in_frame(_apply(np.linalg.inv(m), grid), src_frame)]
+    inside = grid[_in_frame(apply_matrix(np.linalg.inv(m), grid), src_frame)]
     if len(inside) == 0:
         return dst_frame
     (ox0, oy0), (ox1, oy1) = inside.min(axis=0), inside.max(axis=0)
@@ -116,7 +110,7 @@ def overlap_counts(matrix, source_points, target_points, source_frame, target_fr
     >>> overlap_counts(shift, stars, stars, (0, 100, 0, 100), (0, 100, 0, 100))
     (2, 1)
     """
-    n_source = int(np.sum(_in_frame(_apply(matrix, source_points), target_frame)))
-    n_target = int(np.sum(_in_frame(_apply(np.linalg.inv(matrix), target_points),
+    n_source = int(np.sum(_in_frame(apply_matrix(matrix, source_points), target_frame)))
+    n_target = int(np.sum(_in_frame(apply_matrix(np.linalg.inv(matrix), target_points),
                                     source_frame)))
     return n_source, n_target

@@ -10,7 +10,7 @@ from .._validate import OPTIONS, check_options, check_points
 from ..config import DEFAULT_TOLERANCE
 from .asterisms import build_asterisms
 from ..exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
-from ..transforms.registry import transform_class
+from ..transforms.registry import transform_class, transform_type_of
 from .result import MatchResult
 from .geometry import _overlap_box, bounding_frame
 from .verify import _log10_false_alarm, _model_misfit, _predicted_error, _refine
@@ -281,7 +281,7 @@ def _prepare(src_pts, dst_pts, settings, n_control, prior_trials):
     src_pts = check_points(src_pts, "source")
     dst_pts = check_points(dst_pts, "target")
     cls = transform_class(settings["transform_type"])
-    transform_type = cls.__name__.replace("Transform", "").lower()
+    transform_type = transform_type_of(cls).name
     opts = check_options({k: v for k, v in settings.items() if k in OPTIONS})
     for name, pts in (("source", src_pts), ("target", dst_pts)):
         if len(pts) < 3:

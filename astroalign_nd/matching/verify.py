@@ -5,10 +5,11 @@ import numpy as np
 from scipy.special import betainc
 from .._kernels import median as _median
 from ..transforms.linear import AffineTransform
+from ..transforms import apply_matrix
 from ..transforms.fitting import fit_transform
-from ..transforms.registry import transform_class
-from .geometry import _apply, _frame_area_fraction, bounding_frame, overlap_counts
-from .pairing import _mutual_matches
+from ..transforms.registry import transform_class, transform_type_of
+from .geometry import _frame_area_fraction, bounding_frame, overlap_counts
+from .pairing import mutual_matches
 
 __all__ = []
 
@@ -109,12 +110,12 @@ def _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol):
         for _ in range(3):
             # Match, fit, drop the pairs far off the fit (chance pairs pull a
             # local fit away from the field), refit; repeat with the new model.
-            si, dj = _mutual_matches(_apply(m, src_pts[inside]), dst_pts, dst_tree, tol)
+            si, dj = mutual_matches(apply_matrix(m, src_pts[inside]), dst_tree, tol)
             if len(si) < need:
                 break
             s_in, d_in = src_pts[inside[si]], dst_pts[dj]
             m_new, _ = cls.fit_matrix(s_in, d_in, np.ones(len(si)), 1)
-            r = np.hypot(*(_apply(m_new, s_in) - d_in).T)
+            r = np.hypot(*(apply_matrix(m_new, s_in) - d_in).T)
             good = r <= max(3.0 * _median(r), 0.1 * tol)
             if need <= good.sum() < len(si):
                 m_new, _ = cls.fit_matrix(s_in[good], d_in[good], np.ones(good.sum()), 1)
@@ -140,7 +141,8 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
     si, dj, resid, cov, tolerance used)``, or None.
     """
     cls = transform_class(transform_type)
-    fit_parity = parity if transform_type in ("similarity", "euclidean") else 1
+    # Models with a parity are fitted with the hypothesis's; the others take it from the data.
+    fit_parity = parity if transform_type_of(cls).parity else 1
     m = m0
     if seed is not None and cls.n_dof > 4:
         m = _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol)
@@ -167,7 +169,7 @@ def _pair_variances(m, src, dst, src_err, dst_err):
         var = scale2 * src_err ** 2 + dst_err ** 2
     else:
         var = np.full(len(src), 0.01)
-    resid = _apply(m, src) - dst
+    resid = apply_matrix(m, src) - dst
     r2 = np.einsum("ij,ij->i", resid, resid)
     return r2, var * _inflation(r2, var)
 
@@ -186,7 +188,7 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
     cur_tol = tol
     last = prev = None
     for _ in range(n_iter):
-        si, dj = _mutual_matches(_apply(m, src_pts), dst_pts, dst_tree, cur_tol)
+        si, dj = mutual_matches(apply_matrix(m, src_pts), dst_tree, cur_tol)
         if len(si) < need:
             break
         r2, total = _pair_variances(m, src_pts[si], dst_pts[dj],
@@ -223,7 +225,7 @@ def _random_pairs(last, src_pts, dst_pts, tol):
     si, dj, total, _ = last
     if 4.0 * np.sqrt(_median(total)) > tol and len(si) >= 4:
         aff, _ = AffineTransform.fit_matrix(src_pts[si], dst_pts[dj], 1.0 / total, 1)
-        r = _apply(aff, src_pts[si]) - dst_pts[dj]
+        r = apply_matrix(aff, src_pts[si]) - dst_pts[dj]
         return bool(4.0 * np.sqrt(_median(np.einsum("ij,ij->i", r, r)) / 1.386) > tol)
     return False
 
@@ -233,7 +235,8 @@ def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
     si, dj, total, used_tol = last
     try:
         model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls,
-                                          parity=fit_parity if cls.n_dof in (3, 4) else None,
+                                          parity=fit_parity if transform_type_of(cls).parity
+                                          else None,
                                           weights=1.0 / total)
     except ValueError:  # collinear or coincident stars: no transform to trust
         return None
@@ -260,11 +263,11 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame):
     else:
         var = np.full(n, 0.01)
     aff, _ = AffineTransform.fit_matrix(src, dst, 1.0 / var, 1)
-    r_aff = _apply(aff, src) - dst
+    r_aff = apply_matrix(aff, src) - dst
     r2_aff = np.einsum("ij,ij->i", r_aff, r_aff)
     # Weights from the better (affine) model, with its own jitter.
     var = var + _jitter(r2_aff / 2.0, var, n - k_aff / 2.0)
-    r_mod = _apply(model.matrix, src) - dst
+    r_mod = apply_matrix(model.matrix, src) - dst
     chi_mod = np.sum(np.einsum("ij,ij->i", r_mod, r_mod) / var)
     chi_aff = np.sum(r2_aff / var)
     dof_aff = 2 * n - k_aff
@@ -276,8 +279,8 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame):
     x0, x1, y0, y1 = frame if frame is not None else bounding_frame(dst)
     corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
     inv_aff = np.linalg.inv(aff)
-    pre = _apply(inv_aff, corners)
-    return float(np.max(np.hypot(*(_apply(model.matrix, pre) - corners).T)))
+    pre = apply_matrix(inv_aff, corners)
+    return float(np.max(np.hypot(*(apply_matrix(model.matrix, pre) - corners).T)))
 
 
 def _predicted_error(model, cov, frame):
@@ -294,7 +297,7 @@ def _predicted_error(model, cov, frame):
     # Errors are largest at the frame's corners, in target pixels; map them
     # back to source pixels, where the model's parameters act.
     inv = np.linalg.inv(model.matrix)
-    corners = _apply(inv, np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]]))
+    corners = apply_matrix(inv, np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]]))
     # Finite differences through the model's static ``evaluate`` with perturbed
     # parameter values (copying an astropy model costs ~2 ms each).
     values = {n: float(getattr(model, n).value) for n in model.param_names}

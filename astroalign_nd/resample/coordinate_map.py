@@ -2,7 +2,11 @@
 """Non-linear transforms as a coordinate map: the output-to-input pixel positions, band by band."""
 
 import numpy as np
-from .._kernels import _ckernels, run_split
+from astropy.modeling import Model
+from .._kernels import run_split
+from ..transforms import ProjectiveTransform
+from ..transforms._matrix import as_3x3, is_singular
+from ..transforms.convert import as_matrix
 from .interpolation import _interp_numpy
 
 __all__ = []
@@ -15,12 +19,6 @@ def _parse_matrix(matrix, what="resample", shape_in=None):
     ``shape_in``, the source's ``(ny, nx)``, is the domain of a polynomial
     model that has none).
     """
-    from astropy.modeling import Model
-
-    from ..transforms import ProjectiveTransform
-    from ..transforms._matrix import _as_3x3
-    from ..transforms.convert import as_matrix
-
     if isinstance(matrix, _CoordinateMap):  # already parsed (by apply_transform)
         return _nonlinear(matrix, what)
     if isinstance(matrix, ProjectiveTransform):
@@ -42,7 +40,7 @@ def _parse_matrix(matrix, what="resample", shape_in=None):
             "matrix must be a 3x3 (or 2x3) array of numbers, e.g. transform.matrix; "
             f"got {type(matrix).__name__}."
         ) from None
-    m = _as_3x3(m)
+    m = as_3x3(m)
     # cos(90 deg) is 6e-17, not 0: snap such round-off to the integer, or an exact
     # quarter turn maps edge pixels a hair outside the source and masks them.
     near = np.abs(m - np.round(m)) < 1e-12
@@ -50,14 +48,11 @@ def _parse_matrix(matrix, what="resample", shape_in=None):
     singular = ValueError(
         "matrix is singular (it cannot be inverted); pass the matrix of a valid "
         "source->target transform.")
+    if is_singular(m):
+        raise singular
     if not np.allclose(m[2], [0.0, 0.0, 1.0]):
         # A homography: resampled through its (exact) inverse as a coordinate map.
-        if abs(np.linalg.det(m)) < 1e-300 or np.linalg.cond(m) > 1e15:
-            raise singular
         return _nonlinear(_CoordinateMap.from_homography(m), what)
-    lin = m[:2, :2]
-    if np.linalg.det(lin) == 0.0 or np.linalg.cond(lin) > 1e12:
-        raise singular
     return m
 
 
@@ -269,7 +264,7 @@ def _resample_map(job, cmap, conserve_flux):
                               xs, ys, job.fill, sdk, sdk * sdk if jac is not None else 1.0,
                               job.out[c, r0:r1], ov, job.masks[c, r0:r1], job.order)
                 continue
-            run_split(_ckernels.map_rows, r1 - r0,
+            run_split(job.kernels.map_rows, r1 - r0,
                       (job.data[c], job.var_plane(c), job.has_var, job.kind, job.okind,
                        job.bad8, job.has_mask, xs, ys, _DUMMY_MAP if jac is None else jac,
                        jac is not None, job.order, job.fill, 1.0, job.out[c, r0:r1], ov,

@@ -3,14 +3,11 @@
 
 from dataclasses import dataclass
 import numpy as np
-from .._kernels import HAVE_COMPILED, _ckernels, run_split
+from .._kernels import compiled_kernels, run_split
 from .coordinate_map import _CoordinateMap, _inverse_coefficients, _parse_matrix, _resample_map
 from .interpolation import _parse_order, _resample_numpy
 
 __all__ = ['resample']
-
-# Set to False (e.g. by a test's monkeypatch) to force the pure-NumPy path.
-_USE_COMPILED = True
 
 # Output rows per thread, at least: below ~256x256 output pixels one thread does
 # it all (waking a second one costs more than the work).
@@ -111,13 +108,13 @@ def _parse_fill(fill_value):
 _VARIANCE_KINDS = {"variance": 0, "stddev": 1, "inverse": 2}
 
 
-def _run_affine(data, var, has_var, kind, okind, bad8, has_mask, coeffs, order, fill, sd, sv,
-                out, out_var, mask, rows_per_thread, parallel, start, n):
-    """Output rows ``start:start + n`` of one channel, on the compiled affine kernels."""
+def _run_affine(kernels, data, var, has_var, kind, okind, bad8, has_mask, coeffs, order, fill, sd,
+                sv, out, out_var, mask, rows_per_thread, parallel, start, n):
+    """Output rows ``start:start + n`` of one channel, on the compiled affine ``kernels``."""
     if order == 1:
-        kernel, extra = _ckernels.bilinear_rows, (fill, sd, sv)
+        kernel, extra = kernels.bilinear_rows, (fill, sd, sv)
     else:
-        kernel, extra = _ckernels.resample_rows, (order, fill, sd, sv)
+        kernel, extra = kernels.resample_rows, (order, fill, sd, sv)
     run_split(kernel, n, (data, var, has_var, kind, okind, bad8, has_mask, coeffs) + extra
               + (out, out_var, mask.view(np.uint8)),
               min_per_thread=rows_per_thread, parallel=parallel, start=start)
@@ -182,7 +179,9 @@ class _Job:
     ``data`` and ``var`` are channels first; ``kind`` and ``okind`` the
     kernels' ``var_kind`` of the variance plane read and written; ``bad8``
     the mask as bytes (a dummy when ``has_mask`` is False); ``dummy`` the
-    tiny typed array the compiled kernels take for an absent plane.
+    tiny typed array the compiled kernels take for an absent plane;
+    ``kernels`` the compiled module, None on the NumPy path
+    (``astroalign_nd.conf.use_compiled = False``, or not built).
     """
 
     data: np.ndarray
@@ -192,7 +191,7 @@ class _Job:
     okind: int
     bad8: np.ndarray
     has_mask: bool
-    compiled: bool
+    kernels: object
     convert: bool
     order: int
     fill: float
@@ -217,8 +216,8 @@ class _Job:
         # variance (``_output_kind``, for apply_transform's uncertainty classes):
         # the kernels convert each pixel as they store it, saving a pass.
         okind = _VARIANCE_KINDS[output_kind] if has_var else 0
-        compiled = _USE_COMPILED and HAVE_COMPILED
-        if not compiled and (kind or bad is not None):
+        kernels = compiled_kernels()  # (read once: the whole call takes one path)
+        if kernels is None and (kind or bad is not None):
             # NumPy path: whole-frame working copies (it is the slow path anyway).
             if kind:
                 var_cf = _to_variance(var_cf, variance_kind, dtype)
@@ -237,12 +236,16 @@ class _Job:
         return cls(data=data_cf, var=var_cf, variance_kind=variance_kind, kind=kind,
                    okind=okind,
                    bad8=np.empty((1, 1), np.uint8) if bad is None else bad.view(np.uint8),
-                   has_mask=bad is not None, compiled=compiled, convert=convert, order=order,
+                   has_mask=bad is not None, kernels=kernels, convert=convert, order=order,
                    fill=fill, sd=sd, parallel=parallel,
                    out=np.empty((nc,) + shape, dtype=dtype),
                    out_var=np.empty((nc,) + shape, dtype=dtype) if has_var else None,
                    masks=np.empty((nc,) + shape, dtype=bool), dummy=np.empty((1, 1), dtype),
                    rows_per_thread=max(1, _MIN_PIXELS_PER_THREAD // shape[1]))
+
+    @property
+    def compiled(self):
+        return self.kernels is not None
 
     @property
     def has_var(self):
@@ -290,7 +293,7 @@ def _resample_affine_bands(job, coeffs):
                              out=scratch[:s1 - s0])
             band_coeffs = coeffs.copy()
             band_coeffs[5] -= s0  # source row s0 is row 0 of the band
-            _run_affine(job.data[c, s0:s1], v, True, 0, job.okind,
+            _run_affine(job.kernels, job.data[c, s0:s1], v, True, 0, job.okind,
                         job.bad8[s0:s1] if job.has_mask else job.bad8, job.has_mask,
                         band_coeffs, job.order, job.fill, sd, sd * sd, job.out[c],
                         job.out_var[c], job.masks[c], job.rows_per_thread, job.parallel, r0,
@@ -306,7 +309,8 @@ def _resample_affine(job, coeffs):
             args = (job.data[c], job.var_plane(c), job.has_var, coeffs)
             _resample_numpy(*args, job.fill, sd, sd * sd, *outs, job.masks[c], order=job.order)
             continue
-        _run_affine(job.data[c], job.var_plane(c), job.has_var, job.kind, job.okind, job.bad8,
+        _run_affine(job.kernels, job.data[c], job.var_plane(c), job.has_var, job.kind, job.okind,
+                    job.bad8,
                     job.has_mask, coeffs, job.order, job.fill, sd, sd * sd, *outs, job.masks[c],
                     job.rows_per_thread, job.parallel, 0, job.out.shape[1])
 

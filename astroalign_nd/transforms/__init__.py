@@ -30,43 +30,61 @@ The non-linear models, `ProjectiveTransform` (a homography) and
 `PolynomialTransform` (SIP-style distortion), live beside the linear ones;
 `fit_nonlinear` and `extend_match` choose among them (model selection).
 
+The types by name are the entries of `TRANSFORM_REGISTRY`
+(`register_transform_type` adds one); every list of names derives from it.
+
 The modules, bottom up: ``_matrix`` (matrix and point helpers, a leaf),
 ``linear``, ``projective`` and ``polynomial`` (the models), ``registry``
 (the types by name), ``fitting`` and ``convert``, and ``selection``
-(model selection for distortion).
+(model selection for distortion).  Names are imported on first use, so
+that reading the registry's names (``astroalign-nd --help``) stays cheap.
 """
 
-from .linear import (LinearTransform2D, TranslationTransform, EuclideanTransform,
-                     SimilarityTransform, AffineTransform)
-from .projective import ProjectiveTransform
-from .polynomial import PolynomialTransform
-from .registry import TRANSFORM_TYPES, LINEAR_TYPES, transform_class
-from .fitting import fit_transform
-from .convert import (as_matrix, from_matrix, to_skimage, from_skimage, to_astropy_affine,
-                      from_astropy_affine)
-from .selection import NONLINEAR_TYPES, check_degree, fit_nonlinear, extend_match, DistortionFit
+import importlib
 
-__all__ = [
-    'LinearTransform2D',
-    'TranslationTransform',
-    'EuclideanTransform',
-    'SimilarityTransform',
-    'AffineTransform',
-    'ProjectiveTransform',
-    'PolynomialTransform',
-    'TRANSFORM_TYPES',
-    'LINEAR_TYPES',
-    'transform_class',
-    'fit_transform',
-    'as_matrix',
-    'from_matrix',
-    'to_skimage',
-    'from_skimage',
-    'to_astropy_affine',
-    'from_astropy_affine',
-    'NONLINEAR_TYPES',
-    'check_degree',
-    'fit_nonlinear',
-    'extend_match',
-    'DistortionFit',
-]
+# name -> submodule that defines it
+_LAZY = {
+    'LinearTransform2D': 'linear',
+    'TranslationTransform': 'linear',
+    'EuclideanTransform': 'linear',
+    'SimilarityTransform': 'linear',
+    'AffineTransform': 'linear',
+    'ProjectiveTransform': 'projective',
+    'PolynomialTransform': 'polynomial',
+    'TransformType': 'registry',
+    'HeaderHooks': 'registry',
+    'TRANSFORM_REGISTRY': 'registry',
+    'TRANSFORM_TYPES': 'registry',
+    'LINEAR_TYPES': 'registry',
+    'NONLINEAR_TYPES': 'registry',
+    'register_transform_type': 'registry',
+    'unregister_transform_type': 'registry',
+    'transform_class': 'registry',
+    'transform_type_of': 'registry',
+    'fit_transform': 'fitting',
+    'as_matrix': 'convert',
+    'from_matrix': 'convert',
+    'to_skimage': 'convert',
+    'from_skimage': 'convert',
+    'to_astropy_affine': 'convert',
+    'from_astropy_affine': 'convert',
+    'apply_matrix': '_matrix',
+    'check_degree': 'selection',
+    'fit_nonlinear': 'selection',
+    'extend_match': 'selection',
+    'DistortionFit': 'selection',
+}
+
+__all__ = list(_LAZY)
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value  # later look-ups skip this function
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

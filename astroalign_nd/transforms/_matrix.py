@@ -1,7 +1,10 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
-"""Matrix and point helpers shared by every transform model.
+"""Matrix helpers shared by every transform model.
 
-A leaf module: it imports no other module of the package.
+A leaf module: it imports no other module of the package.  Its public names
+(`apply_matrix`, `as_3x3`, `is_singular`, `check_invertible`) are the helpers other stages
+use; `apply_matrix` is also ``astroalign_nd.transforms.apply_matrix``.  (The
+one check of point lists is ``astroalign_nd._validate.check_points``.)
 """
 
 from __future__ import annotations
@@ -10,23 +13,7 @@ import numpy as np
 from astropy import units as u
 from astropy.modeling import Parameter
 
-__all__ = []
-
-
-def _as_points(points, name):
-    try:
-        pts = np.asarray(points, dtype=float)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be an (N, 2) array of (x, y) positions (numbers); got "
-                        f"{type(points).__name__}.") from None
-    if pts.ndim != 2 or pts.shape[1] != 2:
-        raise ValueError(
-            f"{name} must be an (N, 2) array of (x, y) positions; got an array of shape "
-            f"{pts.shape}."
-        )
-    if not np.all(np.isfinite(pts)):
-        raise ValueError(f"{name} contains NaN or infinite positions; remove them first.")
-    return pts
+__all__ = ['apply_matrix', 'as_3x3', 'check_invertible', 'is_singular', 'SINGULAR_RTOL']
 
 
 def _as_degrees(value, name="rotation"):
@@ -54,8 +41,23 @@ def _check_parity_value(parity):
         )
 
 
-def _as_3x3(matrix):
-    """A finite 3x3 float matrix from a 3x3 or 2x3 (affine) array-like."""
+def as_3x3(matrix):
+    """
+    A finite 3x3 float matrix from a 3x3 or 2x3 (affine) array-like.
+
+    Raises
+    ------
+    ValueError
+        For another shape, or NaN or infinite values.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms._matrix import as_3x3
+    >>> as_3x3([[1, 0, 5], [0, 1, -2]])
+    array([[ 1.,  0.,  5.],
+           [ 0.,  1., -2.],
+           [ 0.,  0.,  1.]])
+    """
     m = np.asarray(matrix, dtype=float)
     if m.shape == (2, 3):
         m = np.vstack([m, [0.0, 0.0, 1.0]])
@@ -66,8 +68,36 @@ def _as_3x3(matrix):
     return m
 
 
-def _apply(matrix, pts):
-    return pts @ matrix[:2, :2].T + matrix[:2, 2]
+def apply_matrix(matrix, points):
+    """
+    Map points through the affine part of a 3x3 homogeneous matrix.
+
+    The fast path for loops over many points and matrices: no checks, and
+    the last row of ``matrix`` is not used (a projective matrix needs its
+    `~astroalign_nd.transforms.ProjectiveTransform`).
+
+    Parameters
+    ----------
+    matrix : (3, 3) or (2, 3) ndarray
+        Source-to-target matrix, e.g. ``transform.matrix``.
+    points : (N, 2) ndarray
+        ``(x, y)`` positions.
+
+    Returns
+    -------
+    mapped : (N, 2) ndarray
+        ``matrix[:2, :2] @ (x, y) + matrix[:2, 2]`` for each point.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import SimilarityTransform, apply_matrix
+    >>> t = SimilarityTransform(scale=2.0, rotation=90.0, translation_x=10.0)
+    >>> apply_matrix(t.matrix, np.array([[1.0, 0.0], [0.0, 1.0]])).round(12)
+    array([[10.,  2.],
+           [ 8.,  0.]])
+    """
+    return points @ matrix[:2, :2].T + matrix[:2, 2]
 
 
 def _check_spread(cls, pts, name):
@@ -92,13 +122,70 @@ def _check_spread(cls, pts, name):
             "their line. Give points that span an area, or fit a SimilarityTransform.")
 
 
-def _check_invertible(matrix, name, fitted=False):
-    """Refuse a singular linear part (zero scale, or points squashed onto a line)."""
-    lin = np.asarray(matrix, float)[:2, :2]
+#: The one singularity threshold of the package's transforms (`is_singular`):
+#: ``|det| <= SINGULAR_RTOL * |M|**n`` for the n x n matrix tested (Frobenius norm).
+SINGULAR_RTOL = 1e-12
+
+
+def is_singular(matrix):
+    """
+    True if a transform's matrix has no usable inverse (or is not finite).
+
+    The test is ``|det L| <= SINGULAR_RTOL * |L|_F**2`` on the linear part
+    ``L`` -- about a condition number above 1e12, whatever the scale.  For an
+    affine matrix (a 2x2 one, or a 3x3 one with last row ``[0, 0, 1]``), ``L``
+    is its 2x2 block; for a homography ``[[A, t], [v, h33]]``, ``L = h33 A -
+    t v^T`` (``det H = det L / h33``), which, unlike ``H`` itself, does not
+    depend on the pixel unit.  (A homography with ``h33 = 0`` is tested as a
+    3x3 matrix, ``|det H| <= SINGULAR_RTOL * |H|_F**3``.)
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms._matrix import is_singular
+    >>> is_singular([[1.0, 2.0, 5.0], [2.0, 4.0, 0.0], [0.0, 0.0, 1.0]])
+    True
+    >>> is_singular([[1.0, 0.0, 1e5], [0.0, 1.0, 1e5], [1e-6, 0.0, 1.0]])  # a homography
+    False
+    """
+    m = np.asarray(matrix, dtype=float)
+    lin = m[:2, :2]
+    if m.shape == (3, 3) and (m[2, 0] != 0 or m[2, 1] != 0 or m[2, 2] != 1):
+        lin = m if m[2, 2] == 0 else m[2, 2] * lin - np.outer(m[:2, 2], m[2, :2])
     with np.errstate(over="ignore", invalid="ignore"):
         det = float(np.linalg.det(lin))
         norm2 = float(np.sum(lin**2))
-    if not (np.isfinite(det) and np.isfinite(norm2)) or abs(det) <= 1e-12 * max(norm2, 1e-300):
+    return not (np.isfinite(det) and np.isfinite(norm2)) or (
+        abs(det) <= SINGULAR_RTOL * max(norm2 ** (len(lin) / 2), 1e-300))
+
+
+def check_invertible(matrix, name, fitted=False):
+    """
+    Refuse a singular transform (zero scale, or points squashed onto a line).
+
+    Parameters
+    ----------
+    matrix : (3, 3) or (2, 2) array-like
+        The matrix, tested by `is_singular`.
+    name : str
+        What it is, for the message (``'AffineTransform'``).
+    fitted : bool, optional
+        The matrix was fitted to points: the message says why it is singular.
+
+    Raises
+    ------
+    ValueError
+        If the matrix is singular or not finite.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms._matrix import check_invertible
+    >>> check_invertible([[1.0, 2.0], [2.0, 4.0]], "AffineTransform")
+    Traceback (most recent call last):
+    ...
+    ValueError: the AffineTransform is singular (its scale is zero or its matrix singular); it \
+has no inverse and cannot register an image.
+    """
+    if is_singular(matrix):
         why = ("the dst points are collinear or coincide, so the fit squashes the plane "
                "onto a line" if fitted else "its scale is zero or its matrix singular")
         raise ValueError(f"the {name} is singular ({why}); it has no inverse and cannot "

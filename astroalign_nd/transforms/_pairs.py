@@ -1,19 +1,19 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
-"""Checks of point pairs and parameter values shared by the non-linear models."""
+"""Checks of point pairs and parameter values shared by the models."""
 
 from __future__ import annotations
 
 import numpy as np
+from .._validate import check_points
 
 __all__ = []
 
 
 def _check_pairs(cls_name, src, dst, weights, need):
     """Validated (src, dst, weights) for a fit needing ``need`` point pairs."""
-    from ._matrix import _as_points
-
-    src = _as_points(src, "src")
-    dst = _as_points(dst, "dst")
+    # (No coordinate limit: a fit may be given any positions.)
+    src = check_points(src, "src", max_coordinate=None)
+    dst = check_points(dst, "dst", max_coordinate=None)
     if len(src) != len(dst):
         raise ValueError(
             f"src and dst must have the same length; got {len(src)} and {len(dst)}.")

@@ -10,7 +10,7 @@ from .polynomial import PolynomialTransform
 from .projective import ProjectiveTransform
 from .linear import (AffineTransform, EuclideanTransform, LinearTransform2D, SimilarityTransform,
                      TranslationTransform)
-from ._matrix import _apply
+from ._matrix import apply_matrix
 from .registry import transform_class
 
 __all__ = ['as_matrix', 'from_matrix', 'to_skimage', 'from_skimage', 'to_astropy_affine',
@@ -58,7 +58,7 @@ def as_matrix(transform: Any) -> np.ndarray:
             m = np.eye(3)
             m[:2, 2] = [xo[0], yo[0]]
             m[:2, :2] = [[xo[1] - xo[0], xo[2] - xo[0]], [yo[1] - yo[0], yo[2] - yo[0]]]
-            pred = _apply(m, pts[3:4])[0]
+            pred = apply_matrix(m, pts[3:4])[0]
             if np.allclose(pred, [xo[3], yo[3]], rtol=1e-9, atol=1e-6):
                 return m
             raise ValueError(f"{type(transform).__name__} is not an affine transform.")

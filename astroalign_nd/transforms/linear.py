@@ -11,10 +11,11 @@ from __future__ import annotations
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
-from ._matrix import (_apply, _as_3x3, _as_degrees, _as_points, _check_invertible, _check_parity,
-                      _check_parity_value, _check_spread, _radians, _rotate_shift,
-                      _rotation_matrix, _rotation_parameters, _rotation_shift_parameters,
-                      _weighted_lstsq)
+from ._matrix import (apply_matrix, as_3x3, check_invertible, is_singular, _as_degrees,
+                      _check_parity, _check_parity_value, _check_spread, _radians,
+                      _rotate_shift, _rotation_matrix, _rotation_parameters,
+                      _rotation_shift_parameters, _weighted_lstsq)
+from ._pairs import _check_pairs
 
 __all__ = ['LinearTransform2D', 'TranslationTransform', 'EuclideanTransform',
            'SimilarityTransform', 'AffineTransform']
@@ -131,7 +132,7 @@ class LinearTransform2D(Model):
     def inverse(self):
         """The analytic inverse, a model of the same class (target -> source)."""
         m = self.matrix
-        _check_invertible(m, type(self).__name__)
+        check_invertible(m, type(self).__name__)
         return type(self).from_matrix(np.linalg.inv(m))
 
     # -- construction ----------------------------------------------------------
@@ -146,7 +147,7 @@ class LinearTransform2D(Model):
             If the matrix cannot be represented by this class (for example a
             sheared matrix given to `SimilarityTransform`).
         """
-        m = _as_3x3(matrix)
+        m = as_3x3(matrix)
         if not np.allclose(m[2], [0.0, 0.0, 1.0]):
             raise ValueError(
                 "matrix is projective (last row is not [0, 0, 1]); only affine-family "
@@ -255,41 +256,20 @@ class LinearTransform2D(Model):
     @classmethod
     def _fit(cls, src, dst, *, weights=None, parity=None):
         """Fit and also return the linear parameter covariance and residuals."""
-        src = _as_points(src, "src")
-        dst = _as_points(dst, "dst")
-        if len(src) != len(dst):
-            raise ValueError(
-                f"src and dst must have the same length; got {len(src)} and {len(dst)}."
-            )
-        need = cls.min_points
-        if len(src) < need:
-            raise ValueError(
-                f"{cls.__name__} needs at least {need} point pairs; got {len(src)}."
-            )
-        w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=float)
-        if w.shape != (len(src),) or np.any(w < 0) or not np.all(np.isfinite(w)):
-            raise ValueError(
-                f"weights must be a finite, non-negative array of shape ({len(src)},), one "
-                f"per point pair; got shape {w.shape}."
-            )
-        if np.count_nonzero(w) < need:
-            raise ValueError(
-                f"{cls.__name__} needs at least {need} point pairs with non-zero weight; got "
-                f"{np.count_nonzero(w)}."
-            )
+        src, dst, w = _check_pairs(cls.__name__, src, dst, weights, cls.min_points)
         if parity is not None:
             _check_parity(parity)
         parities = [parity] if parity is not None else cls._parities
         best = None
         for p in parities:
             matrix, design, theta = cls._linear_fit(src, dst, w, p)
-            resid = _apply(matrix, src) - dst
+            resid = apply_matrix(matrix, src) - dst
             sse = float(np.sum(w * np.sum(resid**2, axis=1)))
             if best is None or sse < best[0] - 1e-12 * max(1.0, best[0]):
                 best = (sse, matrix, design, resid)
         sse, matrix, design, resid = best
         _check_spread(cls, src[w > 0], "src")
-        _check_invertible(matrix, cls.__name__, fitted=True)
+        check_invertible(matrix, cls.__name__, fitted=True)
         return cls._from_matrix(matrix), design, resid
 
     _parities = (1,)
@@ -484,7 +464,7 @@ class SimilarityTransform(LinearTransform2D):
     def _from_matrix(cls, m):
         lin = m[:2, :2]
         det = np.linalg.det(lin)
-        if det == 0:
+        if is_singular(lin):
             raise ValueError("matrix is singular; it cannot be a similarity transform.")
         scale = np.sqrt(abs(det))
         return cls(scale=scale, **_rotation_parameters(
@@ -593,3 +573,23 @@ class AffineTransform(LinearTransform2D):
         design[1::2, 2:4] = src
         design[1::2, 5] = 1.0
         return design
+
+
+def _check_values(values):
+    """
+    Refuse parameter values (read from a file) that make no usable model: a
+    parity other than +1 or -1, a scale that is not positive, a singular
+    linear part ``a11 .. a22`` (the affine and polynomial models').
+    """
+    if "parity" in values and values["parity"] not in (1.0, -1.0):
+        raise ValueError(f"its parity must be +1 (proper) or -1 (mirrored); got "
+                         f"{values['parity']!r}")
+    if "scale" in values and not values["scale"] > 0:
+        raise ValueError(f"its scale must be > 0; got {values['scale']!r}")
+    if "a11" in values:
+        lin = np.array([[values["a11"], values["a12"]], [values["a21"], values["a22"]]])
+        if is_singular(lin):
+            with np.errstate(over="ignore", invalid="ignore"):
+                det = float(np.linalg.det(lin))
+            raise ValueError(f"it holds a singular or overflowing matrix (a11 a22 - a12 a21 = "
+                             f"{det:g}); it cannot map an image")

@@ -3,31 +3,84 @@
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
+from ._matrix import check_invertible
+from .linear import AffineTransform
 from ._pairs import _check_pairs, _scalar_values
+from .registry import TRANSFORM_REGISTRY, HeaderHooks
 
 __all__ = ['PolynomialTransform']
 
-#: The polynomial degrees a `PolynomialTransform` accepts.
-DEGREES = (2, 3, 4, 5)
+#: The polynomial degrees a `PolynomialTransform` accepts (its registry entry's).
+DEGREES = TRANSFORM_REGISTRY["polynomial"].degrees
 
 # -- polynomial (SIP) ------------------------------------------------------------------
 
 
+def polynomial_terms(degree, lowest=0):
+    """
+    The exponents ``(p, q)`` of the terms ``x**p y**q`` of total degree ``lowest`` to ``degree``.
+
+    By total degree, then ``p`` descending: the order of the
+    `PolynomialTransform` coefficients (``lowest=2``: its distortion terms)
+    and of every polynomial design matrix of the package.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms.polynomial import polynomial_terms
+    >>> polynomial_terms(2)
+    [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]
+    >>> polynomial_terms(3, lowest=3)
+    [(3, 0), (2, 1), (1, 2), (0, 3)]
+    """
+    return [(p, n - p) for n in range(lowest, degree + 1) for p in range(n, -1, -1)]
+
+
+def monomials(x, y, terms):
+    """
+    The design matrix of polynomial terms: column ``k`` is ``x**p * y**q`` for ``terms[k]``.
+
+    Parameters
+    ----------
+    x, y : (N,) ndarray
+        The coordinates (scaled by the caller to about 1, for conditioning).
+    terms : list of (int, int)
+        Exponents, e.g. `polynomial_terms`.
+
+    Returns
+    -------
+    design : (N, len(terms)) ndarray
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms.polynomial import monomials, polynomial_terms
+    >>> monomials(np.array([2.0]), np.array([3.0]), polynomial_terms(2))
+    array([[1., 2., 3., 4., 6., 9.]])
+    """
+    return np.column_stack([x ** p * y ** q for p, q in terms])
+
+
 def _exponents(degree):
-    """The (p, q) of the distortion terms, 2 <= p + q <= degree, by degree then p descending."""
-    return [(p, n - p) for n in range(2, degree + 1) for p in range(n, -1, -1)]
+    """The (p, q) of the distortion terms, 2 <= p + q <= degree."""
+    return polynomial_terms(degree, lowest=2)
 
 
-def _check_degree(degree):
-    if isinstance(degree, (bool, np.bool_)) or not isinstance(degree, (int, np.integer)):
-        raise TypeError(f"degree must be an integer from 2 to 5; got {degree!r}.")
+def _check_degree(degree, auto=False):
+    """
+    The degree as an int, or a TypeError or ValueError: the one check of a
+    polynomial degree (``auto``: the message offers ``'auto'`` as well).
+    """
+    what = f"an integer from {DEGREES[0]} to {DEGREES[-1]}" + (" or 'auto'" if auto else "")
+    if isinstance(degree, (bool, np.bool_)) or not isinstance(degree, numbers.Integral):
+        raise TypeError(f"degree must be {what}; got {degree!r}.")
     if int(degree) not in DEGREES:
-        raise ValueError(
-            f"degree must be from 2 to 5 (the polynomial distortion terms); got {degree}. "
-            "For degree 1 use an AffineTransform.")
+        raise ValueError(f"degree must be {what}; got {degree!r}. (Degree 1 is "
+                         "transform_type='affine': an AffineTransform.)")
     return int(degree)
 
 
@@ -232,8 +285,6 @@ class PolynomialTransform(Model):
         The `~astroalign_nd.transforms.AffineTransform` this model is without its
         distortion terms, in source pixels ``(x, y)``: ``x' = a (x - crpix) + t``.
         """
-        from .linear import AffineTransform
-
         v = self._values()
         lin = self.linear_matrix
         shift = np.array([v["translation_x"], v["translation_y"]]) - lin @ np.array(
@@ -365,8 +416,6 @@ class PolynomialTransform(Model):
     @classmethod
     def _fit(cls, src, dst, *, degree=3, weights=None, crpix=None, domain=None, parity=None):
         """Fit; also return the Jacobian of the positions and the residuals."""
-        from ._matrix import _check_invertible
-
         degree = _check_degree(degree)
         need = cls.min_points_for(degree)
         src, dst, w = _check_pairs(f"A degree-{degree} PolynomialTransform", src, dst,
@@ -384,8 +433,8 @@ class PolynomialTransform(Model):
         u = src[keep] - c
         # Scale to ~1 so that the monomials up to degree 5 stay well conditioned.
         s = max(float(np.max(np.abs(u))), 1.0)
-        full = [(p, n - p) for n in range(degree + 1) for p in range(n, -1, -1)]
-        design = np.column_stack([(u[:, 0] / s) ** p * (u[:, 1] / s) ** q for p, q in full])
+        full = polynomial_terms(degree)
+        design = monomials(u[:, 0] / s, u[:, 1] / s, full)
         sw = np.sqrt(w[keep])
         coef, _, _, sv = np.linalg.lstsq(design * sw[:, None], dst[keep] * sw[:, None],
                                          rcond=None)
@@ -399,8 +448,7 @@ class PolynomialTransform(Model):
         lin = np.array([[coef[1, 0], coef[2, 0]], [coef[1, 1], coef[2, 1]]])
         m = np.eye(3)
         m[:2, :2] = lin
-        _check_invertible(m, f"degree-{degree} PolynomialTransform's linear part",
-                          fitted=True)
+        check_invertible(m, f"degree-{degree} PolynomialTransform's linear part", fitted=True)
         high = np.linalg.solve(lin, coef[3:].T)  # (2, n_terms): rows f, g
         exps = _exponents(degree)
         params = {"a11": lin[0, 0], "a12": lin[0, 1], "a21": lin[1, 0], "a22": lin[1, 1],
@@ -457,3 +505,76 @@ def _distortion(u, v, exps, coef_a, coef_b):
         f += np.multiply(m, a, out=term)
         g += np.multiply(m, b, out=term)
     return f, g
+
+
+# -- the FITS header keywords (`astroalign_nd.io.header`) ---------------------------------
+
+_DOMAIN_SUFFIXES = ("DXMIN", "DXMAX", "DYMIN", "DYMAX")
+_COEFF_SUFFIXES = tuple(f"{ab}{p}{q}" for ab in "AB" for p, q in _exponents(DEGREES[-1]))
+
+
+def _header_matrix(model):
+    """The linear part about ``crpix``, with the shift of ``crpix``: the ``M`` keywords."""
+    matrix = np.eye(3)
+    matrix[:2, :2] = model.linear_matrix
+    matrix[:2, 2] = [model.translation_x.value, model.translation_y.value]
+    return matrix
+
+
+def _header_cards(model):
+    """The degree, reference pixel, domain and coefficients, and the readable shift."""
+    cards = [("DEG", model.degree, "degree of the polynomial distortion", False)]
+    for i, value in enumerate(model.crpix, start=1):
+        cards.append((f"CRP{i}", value, f"[px] reference pixel {'xy'[i - 1]}, 0-based", True))
+    for suffix, value in zip(_DOMAIN_SUFFIXES, model.domain or ()):
+        cards.append((suffix, value, "[px] domain of the fitted inverse", False))
+    coef_a, coef_b = model.coefficients
+    for ab, coefs in (("A", coef_a), ("B", coef_b)):
+        for (p, q), value in coefs.items():
+            cards.append((f"{ab}{p}{q}", value, f"distortion coefficient {ab}_{p}_{q}", True))
+    m = _header_matrix(model)
+    return cards + [(f"T{axis}", float(m[i, 2]), f"[px] translation along {axis.lower()} of "
+                     "the reference pixel", False) for i, axis in enumerate("XY")]
+
+
+def _from_header(reader):
+    """The `PolynomialTransform` of a header's keywords (``reader``: see `HeaderHooks`)."""
+    try:
+        degree = _check_degree(reader.get("DEG"))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"header keyword {reader.key('DEG')} must be the polynomial's degree "
+                         f"({exc})") from None
+    m = reader.matrix()
+    params = {"a11": m[0, 0], "a12": m[0, 1], "a21": m[1, 0], "a22": m[1, 1],
+              "translation_x": m[0, 2], "translation_y": m[1, 2]}
+    crpix = [reader.exact(f"CRP{i}", "the reference pixel") for i in (1, 2)]
+    for ab in "AB":
+        for p, q in _exponents(degree):
+            params[f"{ab}_{p}_{q}"] = reader.exact(f"{ab}{p}{q}",
+                                                   f"the degree-{degree} polynomial")
+    extra = [reader.key(c) for c in _COEFF_SUFFIXES
+             if reader.has(c) and int(c[1]) + int(c[2]) > degree]
+    if extra:
+        raise ValueError(f"header has {extra}, terms beyond {reader.key('DEG')} = {degree}; was "
+                         f"{reader.key('DEG')} edited?")
+    present = [reader.has(k) for k in _DOMAIN_SUFFIXES]
+    domain = None
+    if any(present):
+        if not all(present):
+            raise ValueError(f"header has only some of {[reader.key(k) for k in _DOMAIN_SUFFIXES]}"
+                             "; give all four (the inverse's domain) or none.")
+        domain = [reader.get(k) for k in _DOMAIN_SUFFIXES]
+    try:
+        model = PolynomialTransform(degree=int(degree), crpix=crpix, domain=domain, **params)
+        check_invertible(_header_matrix(model), "PolynomialTransform's linear part")
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"the header's polynomial keywords are not a valid "
+                         f"PolynomialTransform ({exc}).") from None
+    return model
+
+
+#: How `~astroalign_nd.io.transform_to_header` stores a `PolynomialTransform`.
+HEADER_HOOKS = HeaderHooks(
+    matrix=_header_matrix, cards=_header_cards, read=_from_header,
+    suffixes=("DEG", "CRP1", "CRP1S", "CRP2", "CRP2S", *_DOMAIN_SUFFIXES, *_COEFF_SUFFIXES,
+              *(c + "S" for c in _COEFF_SUFFIXES), "TX", "TY"))

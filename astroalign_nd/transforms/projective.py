@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
+from ._matrix import as_3x3, is_singular
 from ._pairs import _check_pairs, _scalar_values
 
 __all__ = ['ProjectiveTransform']
@@ -110,9 +111,7 @@ class ProjectiveTransform(Model):
         >>> t.matrix.tolist()
         [[1.0, 0.0, 2.0], [0.0, 1.0, 0.0], [0.0, 0.001, 1.0]]
         """
-        from ._matrix import _as_3x3
-
-        m = _as_3x3(matrix)
+        m = as_3x3(matrix)
         scale = np.max(np.abs(m))
         if scale == 0 or abs(m[2, 2]) <= 1e-14 * scale:
             raise ValueError(
@@ -186,14 +185,20 @@ class ProjectiveTransform(Model):
 
 
 def _check_homography(m, fitted=False):
-    with np.errstate(over="ignore", invalid="ignore"):
-        det = float(np.linalg.det(m))
-    norm = float(np.linalg.norm(m))
-    if not np.isfinite(det) or abs(det) <= 1e-12 * norm ** 3:
+    if is_singular(m):
         why = ("the dst points are collinear or coincide" if fitted
                else "its matrix has no inverse")
         raise ValueError(f"the ProjectiveTransform is singular ({why}); it cannot register "
                          "an image.")
+
+
+def _check_values(values):
+    """Refuse parameter values (read from a file) that make a singular homography."""
+    h = [values[f"h{i}{j}"] for i in (1, 2, 3) for j in (1, 2, 3) if (i, j) != (3, 3)]
+    try:
+        _check_homography(np.array([h[0:3], h[3:6], [h[6], h[7], 1.0]]))
+    except ValueError as exc:
+        raise ValueError(f"it holds a singular homography ({exc})") from None
 
 
 def _invert_homography(m):
@@ -244,12 +249,17 @@ def _dlt(src, dst, w):
     return h / h[2, 2]
 
 
+def _homography_apply(h, x, y):
+    """``(x', y')`` of the homography ``h`` (3x3, ``h[2, 2] = 1``) at ``(x, y)``."""
+    den = h[2, 0] * x + h[2, 1] * y + 1.0
+    return (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / den, (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / den
+
+
 def _homography_jacobian(h, src):
     """d(x', y') / d(h11 ... h32), rows interleaved (x'_0, y'_0, x'_1, ...)."""
     x, y = src[:, 0], src[:, 1]
     den = h[2, 0] * x + h[2, 1] * y + 1.0
-    xp = (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / den
-    yp = (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / den
+    xp, yp = _homography_apply(h, x, y)
     n = len(src)
     jac = np.zeros((2 * n, 8))
     jac[0::2, 0:3] = np.column_stack([x, y, np.ones(n)]) / den[:, None]
@@ -266,9 +276,7 @@ def _polish_homography(h, src, dst, w, iterations=20):
 
     def residual(t):
         m = np.array([t[0:3], t[3:6], [t[6], t[7], 1.0]])
-        den = m[2, 0] * src[:, 0] + m[2, 1] * src[:, 1] + 1.0
-        xp = (m[0, 0] * src[:, 0] + m[0, 1] * src[:, 1] + m[0, 2]) / den
-        yp = (m[1, 0] * src[:, 0] + m[1, 1] * src[:, 1] + m[1, 2]) / den
+        xp, yp = _homography_apply(m, src[:, 0], src[:, 1])
         return m, np.column_stack([xp, yp]).ravel() - dst.ravel()
 
     m, r = residual(theta)

@@ -47,20 +47,25 @@ are built by `~astroalign_nd.transforms.fit_transform` on the final pairs,
 like the linear ones.
 """
 
-import numbers
 from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import betainc
 from ..exceptions import PoorCoverageError, PoorFitWarning, TooFewSourcesError, warn
+from ..matching.pairing import mutual_matches
+from ..matching.result import MatchResult
+from .convert import as_matrix
+from .fitting import fit_transform
+from .linear import SimilarityTransform
+from .polynomial import DEGREES, _check_degree, monomials, polynomial_terms
+from .projective import _homography_apply, _homography_jacobian
+from .registry import NONLINEAR_TYPES, TRANSFORM_REGISTRY, transform_type_of
 
 __all__ = ['NONLINEAR_TYPES', 'check_degree', 'fit_nonlinear', 'extend_match', 'DistortionFit']
 
-#: The transform types handled by this stage.
-NONLINEAR_TYPES = ("projective", "polynomial")
-
-#: Polynomial degrees offered (the SIP convention's useful range).
-DEGREES = (2, 3, 4, 5)
+#: The non-linear types (`NONLINEAR_TYPES`) this stage has candidate models for:
+#: another registered one needs its own here.
+_GROWN = ("projective", "polynomial")
 
 #: Chi-square (2 degrees of freedom) above which a pair is clipped: p = 3e-4.
 CLIP_CHI2 = 16.0
@@ -149,28 +154,15 @@ def check_degree(transform_type, degree):
             return "auto"
         if degree.strip().isdigit():
             degree = int(degree)
-    if isinstance(degree, (bool, np.bool_)) or not isinstance(degree, numbers.Integral):
-        raise TypeError(f"degree must be an integer from 2 to 5 or 'auto'; got {degree!r}.")
-    if int(degree) not in DEGREES:
-        raise ValueError(f"degree must be an integer from 2 to 5 or 'auto'; got {degree!r}. "
-                         "(Degree 1 is transform_type='affine'.)")
-    return int(degree)
+    return _check_degree(degree, auto=True)
 
 
 def nonlinear_name(transform_type):
-    """'projective' or 'polynomial' for this stage's types (names or classes), else None."""
-    if isinstance(transform_type, str):
-        name = transform_type.lower()
-        return name if name in NONLINEAR_TYPES else None
-    if isinstance(transform_type, type):
-        from .polynomial import PolynomialTransform
-        from .projective import ProjectiveTransform
-
-        if issubclass(transform_type, ProjectiveTransform):
-            return "projective"
-        if issubclass(transform_type, PolynomialTransform):
-            return "polynomial"
-    return None
+    """The registry name of a non-linear type (a name or a class), else None."""
+    if not isinstance(transform_type, (str, type)):
+        return None
+    entry = transform_type_of(transform_type)
+    return None if entry is None or entry.linear else entry.name
 
 
 def is_nonlinear(transform_type):
@@ -180,13 +172,11 @@ def is_nonlinear(transform_type):
 # -- the candidate models, as design matrices ---------------------------------------
 
 
+# Each candidate's design matrix is its model's own: the polynomial terms of
+# `PolynomialTransform`, the similarity's and the homography's Jacobians.
+
 def _n_terms(degree):
-    return (degree + 1) * (degree + 2) // 2
-
-
-def _terms(degree):
-    """Exponents (p, q) of u**p v**q, total degree 0 to ``degree``."""
-    return [(n - q, q) for n in range(degree + 1) for q in range(n + 1)]
+    return len(polynomial_terms(degree))
 
 
 class _Poly:
@@ -194,14 +184,14 @@ class _Poly:
 
     def __init__(self, degree):
         self.degree = degree
-        self.terms = _terms(degree)
+        self.terms = polynomial_terms(degree)
         self.k = 2 * len(self.terms)
         self.name = "affine" if degree == 1 else f"polynomial degree {degree}"
         self.linear = True
 
     def design(self, uv, params=None):
         """(N, 2, k) derivatives of (x', y') with respect to the parameters."""
-        base = np.column_stack([uv[:, 0] ** p * uv[:, 1] ** q for p, q in self.terms])
+        base = monomials(uv[:, 0], uv[:, 1], self.terms)
         t = len(self.terms)
         d = np.zeros((len(uv), 2, self.k))
         d[:, 0, :t] = base
@@ -219,12 +209,8 @@ class _Similarity:
         self.linear = True
 
     def design(self, uv, params=None):
-        u, v = uv[:, 0], self.parity * uv[:, 1]
-        d = np.zeros((len(uv), 2, 4))
-        one = np.ones(len(uv))
-        d[:, 0, 0], d[:, 0, 1], d[:, 0, 2] = u, -v, one
-        d[:, 1, 0], d[:, 1, 1], d[:, 1, 3] = v, u, one
-        return d
+        # (rows x', y' of each star, as SimilarityTransform's fit has them)
+        return SimilarityTransform._design(uv, None, self.parity).reshape(len(uv), 2, 4)
 
 
 class _Projective:
@@ -236,24 +222,15 @@ class _Projective:
         self.linear = False
 
     @staticmethod
-    def predict(params, uv):
+    def _matrix(params):
         h = params
-        w = h[6] * uv[:, 0] + h[7] * uv[:, 1] + 1.0
-        x = (h[0] * uv[:, 0] + h[1] * uv[:, 1] + h[2]) / w
-        y = (h[3] * uv[:, 0] + h[4] * uv[:, 1] + h[5]) / w
-        return np.column_stack([x, y])
+        return np.array([h[0:3], h[3:6], [h[6], h[7], 1.0]])
+
+    def predict(self, params, uv):
+        return np.column_stack(_homography_apply(self._matrix(params), uv[:, 0], uv[:, 1]))
 
     def design(self, uv, params):
-        u, v = uv[:, 0], uv[:, 1]
-        h = params
-        w = h[6] * u + h[7] * v + 1.0
-        xy = self.predict(params, uv)
-        d = np.zeros((len(uv), 2, 8))
-        d[:, 0, 0], d[:, 0, 1], d[:, 0, 2] = u / w, v / w, 1.0 / w
-        d[:, 1, 3], d[:, 1, 4], d[:, 1, 5] = u / w, v / w, 1.0 / w
-        d[:, 0, 6], d[:, 0, 7] = -u * xy[:, 0] / w, -v * xy[:, 0] / w
-        d[:, 1, 6], d[:, 1, 7] = -u * xy[:, 1] / w, -v * xy[:, 1] / w
-        return d
+        return _homography_jacobian(self._matrix(params), uv).reshape(len(uv), 2, 8)
 
 
 def _predict(cand, params, uv):
@@ -312,22 +289,6 @@ def _projective_start(aff_params):
 # -- pairing ------------------------------------------------------------------------
 
 
-def _mutual(pred, dst_pts, tree, tol):
-    """Mutual nearest neighbours within ``tol``: (source indices, target indices)."""
-    if len(pred) == 0:
-        return np.zeros(0, int), np.zeros(0, int)
-    d, j = tree.query(pred, distance_upper_bound=tol)
-    ok = np.isfinite(d)
-    si, dj = np.flatnonzero(ok), j[ok]
-    if len(si) == 0:
-        return si, dj
-    # Keep, for each target star, only its nearest predicted source star.
-    order = np.lexsort((d[si], dj))
-    first = np.r_[True, dj[order][1:] != dj[order][:-1]]
-    keep = order[first]
-    return si[keep], dj[keep]
-
-
 class _Pairs:
     """How source and target stars are paired: by position, or as given."""
 
@@ -341,7 +302,7 @@ class _Pairs:
             r = np.hypot(*(pred - self.dst[idx]).T)
             ok = r <= tol
             return idx[ok], idx[ok]
-        si, dj = _mutual(pred, self.dst, self.tree, tol)
+        si, dj = mutual_matches(pred, self.tree, tol)
         return idx[si], dj
 
 # -- the robust fit -----------------------------------------------------------------
@@ -571,8 +532,9 @@ def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degr
         Treat rows of ``src_pts`` and ``dst_pts`` as given pairs instead of
         pairing stars by position.
     linear_type : str, optional
-        The linear candidate of ``degree='auto'`` ('similarity' includes a
-        similarity before the affine model; default: affine only).
+        The linear match's type: with ``degree='auto'``, a conformal one
+        ('similarity', 'euclidean', 'translation') adds a similarity
+        candidate before the affine model (default: affine only).
 
     Returns
     -------
@@ -721,6 +683,9 @@ def _prepare(src_pts, dst_pts, linear, *, transform_type, degree, source_errors,
         raise ValueError(f"transform_type must be one of {list(NONLINEAR_TYPES)}; got "
                          f"{transform_type!r}.")
     transform_type = nonlinear_name(transform_type)
+    if transform_type not in _GROWN:
+        raise ValueError(f"fit_nonlinear grows {list(_GROWN)} models; it has no candidate "
+                         f"model for transform_type={transform_type!r}.")
     degree = check_degree("polynomial", degree) if transform_type == "polynomial" else None
     src = np.asarray(src_pts, float).reshape(-1, 2)
     dst = np.asarray(dst_pts, float).reshape(-1, 2)
@@ -875,7 +840,8 @@ def _candidate_pool(prob, p, linear_type):
         return [(_Poly(prob.degree), prob.degree, "polynomial")]
     pool = []
     parity = 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1
-    if linear_type in ("similarity", "euclidean", "translation"):
+    linear_entry = transform_type_of(linear_type) if isinstance(linear_type, str) else None
+    if linear_entry is not None and linear_entry.conformal:
         pool.append((_Similarity(parity), 1, "similarity"))
     pool.append((_Poly(1), 1, "affine"))
     for d in DEGREES:
@@ -1017,18 +983,16 @@ def _warn_trust(prob, choice, p, trust):
 def _build(prob, choice, p, trust, significance):
     """The model object, through the same fitting function as the linear models,
     and the `DistortionFit`."""
-    from .fitting import fit_transform
-
     name, deg, degree = choice.name, choice.deg, prob.degree
     s_pts, d_pts = prob.src[p.si], prob.dst[p.dj]
     if name == "polynomial":
         model, cov, resid = _fit_polynomial(fit_transform, s_pts, d_pts, deg, p.w, prob.centre,
                                             prob.frame)
     else:
-        kind = {"similarity": "similarity", "affine": "affine", "projective": "projective"}[name]
+        # (The candidates' labels are registry names: similarity, affine, projective.)
         kw = ({"parity": 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1}
-              if kind == "similarity" else {})
-        model, cov, resid = fit_transform(s_pts, d_pts, kind, weights=p.w, **kw)
+              if TRANSFORM_REGISTRY[name].parity else {})
+        model, cov, resid = fit_transform(s_pts, d_pts, name, weights=p.w, **kw)
     info = dict(model=name, degree=deg, requested_degree=degree if name != "projective" else None,
                 selection=("F-test, BIC and blocked cross-validation" if degree == "auto"
                            else None), significance=significance,
@@ -1106,8 +1070,6 @@ def _fit_polynomial(fit_transform, src, dst, degree, w, centre, frame):
 
 
 def _as_matrix(linear):
-    from .convert import as_matrix
-
     m = np.asarray(as_matrix(linear), float)
     if m.shape != (3, 3) or not np.all(np.isfinite(m)):
         raise ValueError("linear must be a finite 3x3 matrix or a linear transform model.")
@@ -1173,8 +1135,6 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
     >>> type(grown.transform).__name__, len(grown.source_index) > len(linear.source_index)
     ('PolynomialTransform', True)
     """
-    from ..matching.result import MatchResult
-
     n = max(int(n_fit), int(result.n_sources_used or 0))
     if n_control is None:
         n_control = (result.n_sources_used, result.n_sources_used)
@@ -1197,8 +1157,7 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
                         degree=degree, seed_points=result.source_points,
                         source_errors=src_err, target_errors=dst_err, source_frame=src_frame,
                         tolerance=tolerance, significance=significance,
-                        linear_type=type(result.transform).__name__.replace(
-                            "Transform", "").lower())
+                        linear_type=transform_type_of(result.transform).name)
     out = MatchResult(
         transform=fit.transform, source_index=fit.source_index, target_index=fit.target_index,
         residuals=fit.residuals, rms=fit.rms, covariance=fit.covariance,

@@ -4,9 +4,10 @@ ASDF converters of the astroalign_nd transform models.
 
 One implementation, `TransformConverter`, on asdf's public
 ``asdf.extension.Converter`` API, serves every model class; `CONVERTERS`
-is the table of what differs between them (class, tag, how its parameters
-are checked on reading).  asdf matches Python types exactly, so each class
-has its own converter instance and tag.
+holds one per entry of the transform registry
+(`~astroalign_nd.transforms.TRANSFORM_REGISTRY`) with an ASDF tag: its
+class, tag and check of the values read come from the entry.  asdf matches
+Python types exactly, so each class has its own converter instance and tag.
 
 A node holds every model parameter as a plain number (for
 `~astroalign_nd.PolynomialTransform` also its ``degree`` and ``domain``),
@@ -21,6 +22,11 @@ import importlib
 
 import numpy as np
 from asdf.extension import Converter
+
+# The registry names its classes by import path and imports nothing heavy:
+# asdf loads this module at start-up (``asdf.AsdfFile()``), and the model
+# classes are imported only when a model is read or written.
+from astroalign_nd.transforms.registry import TRANSFORM_REGISTRY
 
 __all__ = ["TransformConverter", "CONVERTERS"]
 
@@ -64,39 +70,6 @@ def _read_number(value, tag, name):
     return float(array)
 
 
-# -- per-class checks of the values read (the table's last column) -----------------------
-
-def _check_linear(values, tag):
-    """Parameter values that give a valid, invertible linear transform."""
-    if "parity" in values and values["parity"] not in (1.0, -1.0):
-        raise ValueError(
-            f"the {tag} node's parity must be +1 (proper) or -1 (mirrored); got "
-            f"{values['parity']!r}. " + _DAMAGED)
-    if "scale" in values and not values["scale"] > 0:
-        raise ValueError(f"the {tag} node's scale must be > 0; got {values['scale']!r}. "
-                         + _DAMAGED)
-    if "a11" in values:
-        lin = np.array([[values["a11"], values["a12"]], [values["a21"], values["a22"]]])
-        with np.errstate(over="ignore", invalid="ignore"):
-            det = float(np.linalg.det(lin))
-            norm2 = float(np.sum(lin**2))
-        if not (np.isfinite(det) and np.isfinite(norm2) and abs(det) > 1e-12 * norm2):
-            raise ValueError(
-                f"the {tag} node holds a singular or overflowing matrix (a11 a22 - a12 a21 "
-                f"= {det:g}); it cannot map an image. " + _DAMAGED)
-
-
-def _check_projective(values, tag):
-    from astroalign_nd.transforms.projective import _check_homography
-
-    h = [values[f"h{i}{j}"] for i in (1, 2, 3) for j in (1, 2, 3) if (i, j) != (3, 3)]
-    try:
-        _check_homography(np.array([h[0:3], h[3:6], [h[6], h[7], 1.0]]))
-    except ValueError as exc:
-        raise ValueError(f"the {tag} node holds a singular homography ({exc}). "
-                         + _DAMAGED) from None
-
-
 class TransformConverter(Converter):
     """
     ASDF converter of one astroalign_nd transform class.
@@ -111,8 +84,11 @@ class TransformConverter(Converter):
         The tag's name, e.g. ``'affine_transform'`` (every ``1.*`` version
         is read).
     check : callable, optional
-        ``check(values, tag)`` raises a ValueError if the parameter values
-        read from a file do not make a usable transform.
+        ``check(values)`` raises a ValueError (that says why) if the
+        parameter values read from a file do not make a usable transform.
+    degrees : tuple of int, optional
+        The degrees of a model that takes a ``degree`` (the polynomial's,
+        which it checks itself); empty for the others.
 
     Examples
     --------
@@ -127,11 +103,42 @@ class TransformConverter(Converter):
     True
     """
 
-    def __init__(self, class_path, tag_name, check=None):
+    def __init__(self, class_path, tag_name, check=None, degrees=()):
         self._class_path = class_path
         self._tags = (f"{_TAG_BASE}/{tag_name}-1.*",)
         self._check = check
+        self._degrees = tuple(degrees)
         self._class = None
+
+    @classmethod
+    def for_type(cls, entry):
+        """
+        The converter of a transform type of the registry (it must have an ``asdf_tag``).
+
+        Parameters
+        ----------
+        entry : `~astroalign_nd.transforms.TransformType`
+
+        Returns
+        -------
+        converter : `TransformConverter`
+
+        Examples
+        --------
+        >>> from astroalign_nd.io.asdf.converters import TransformConverter
+        >>> from astroalign_nd.transforms import TRANSFORM_REGISTRY
+        >>> TransformConverter.for_type(TRANSFORM_REGISTRY["euclidean"]).types
+        ('astroalign_nd.transforms.linear.EuclideanTransform',)
+        """
+        if not entry.asdf_tag:
+            raise ValueError(f"transform type {entry.name!r} has no asdf_tag.")
+
+        def check(values):
+            # Looked up when a file is read: resolving it imports the model's module.
+            if entry.check_values is not None:
+                entry.check_values(values)
+
+        return cls(entry.class_path, entry.asdf_tag, check, entry.degrees)
 
     @property
     def tags(self):
@@ -234,13 +241,20 @@ class TransformConverter(Converter):
         cls = self.model_class
         kwargs = {}
         if "degree" in node:
-            kwargs["degree"] = self._read_degree(node, tag)
+            if not self._degrees:
+                raise ValueError(f"the {tag} node has a degree, which a {cls.__name__} does not "
+                                 "take. " + _DAMAGED)
+            try:  # (the model checks its degree)
+                names = cls(degree=node["degree"]).param_names
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"the {tag} node's degree is not valid: {exc} " + _DAMAGED
+                                 ) from None
+            kwargs["degree"] = int(node["degree"])
             if node.get("domain") is not None:
                 kwargs["domain"] = self._read_domain(node["domain"], tag)
-            names = cls(degree=kwargs["degree"]).param_names
         else:
             names = cls.param_names
-            if cls.__name__ == "PolynomialTransform":
+            if self._degrees:
                 raise ValueError(f"the {tag} node has no degree. " + _DAMAGED)
         missing = [name for name in names if name not in node]
         if missing:
@@ -253,7 +267,11 @@ class TransformConverter(Converter):
                              f"{kwargs.get('degree')}. " + _DAMAGED)
         values = {name: _read_number(node[name], tag, name) for name in names}
         if self._check is not None:
-            self._check(values, tag)
+            try:
+                self._check(values)
+            except ValueError as exc:
+                raise ValueError(f"the {tag} node is not a valid {cls.__name__}: {exc}. "
+                                 + _DAMAGED) from None
         model = cls(**kwargs, **values)
 
         if "name" in node:
@@ -281,17 +299,6 @@ class TransformConverter(Converter):
         return model
 
     @staticmethod
-    def _read_degree(node, tag):
-        from astroalign_nd.transforms.polynomial import DEGREES
-
-        degree = node["degree"]
-        if isinstance(degree, (bool, np.bool_)) or not isinstance(
-                degree, (int, np.integer)) or degree not in DEGREES:
-            raise ValueError(f"the {tag} node's degree must be an integer from 2 to 5; got "
-                             f"{degree!r}. " + _DAMAGED)
-        return int(degree)
-
-    @staticmethod
     def _read_domain(domain, tag):
         items = np.ravel(np.asarray(domain, dtype=object))
         values = [_read_number(v, tag, "domain") for v in items]
@@ -302,18 +309,6 @@ class TransformConverter(Converter):
         return tuple(values)
 
 
-#: One converter per model class: (class, tag name, check of the values read).
-_TABLE = (
-    ("astroalign_nd.transforms.linear.TranslationTransform", "translation_transform",
-     _check_linear),
-    ("astroalign_nd.transforms.linear.EuclideanTransform", "euclidean_transform", _check_linear),
-    ("astroalign_nd.transforms.linear.SimilarityTransform", "similarity_transform", _check_linear),
-    ("astroalign_nd.transforms.linear.AffineTransform", "affine_transform", _check_linear),
-    ("astroalign_nd.transforms.projective.ProjectiveTransform", "projective_transform",
-     _check_projective),
-    ("astroalign_nd.transforms.polynomial.PolynomialTransform", "polynomial_transform",
-     _check_linear),
-)
-
-#: The converters of the extension, built from the table above.
-CONVERTERS = tuple(TransformConverter(*row) for row in _TABLE)
+#: The converters of the extension: one per registered type with an ASDF tag.
+CONVERTERS = tuple(TransformConverter.for_type(e) for e in TRANSFORM_REGISTRY.values()
+                   if e.asdf_tag)

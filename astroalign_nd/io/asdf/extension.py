@@ -4,11 +4,18 @@ The ASDF extension of astroalign_nd.
 
 `get_extensions` and `get_resource_mappings` are the targets of the
 ``asdf.extensions`` and ``asdf.resource_mappings`` entry points declared in
-``pyproject.toml``.  Both build their objects when asdf calls them, not at
-import, so loading this module is cheap.
+``pyproject.toml``.  Loading this module is cheap: the converters come from
+the transform registry, which names the model classes by import path; they
+are imported when a model is read or written.
 """
 
 import importlib.resources
+
+from asdf.extension import ManifestExtension
+from asdf.resource import DirectoryResourceMapping
+
+from astroalign_nd.transforms.registry import TRANSFORM_REGISTRY
+from .converters import CONVERTERS
 
 __all__ = [
     "ASTROALIGN_ND_MANIFEST_URIS",
@@ -27,14 +34,11 @@ ASTROALIGN_ND_MANIFEST_URIS = [
     f"{_URI_BASE}/manifests/astroalign_nd-1.0.0",
 ]
 
-#: Tag of each transform class in the current manifest.
+#: Tag of each transform class in the current manifest (the built-in types of
+#: the registry; a test checks them against the manifest).
 ASTROALIGN_ND_TAG_URIS = {
-    "TranslationTransform": f"{_URI_BASE}/tags/translation_transform-1.0.0",
-    "EuclideanTransform": f"{_URI_BASE}/tags/euclidean_transform-1.0.0",
-    "SimilarityTransform": f"{_URI_BASE}/tags/similarity_transform-1.0.0",
-    "AffineTransform": f"{_URI_BASE}/tags/affine_transform-1.0.0",
-    "ProjectiveTransform": f"{_URI_BASE}/tags/projective_transform-1.0.0",
-    "PolynomialTransform": f"{_URI_BASE}/tags/polynomial_transform-1.0.0",
+    entry.class_path.rsplit(".", 1)[-1]: f"{_URI_BASE}/tags/{entry.asdf_tag}-1.0.0"
+    for entry in TRANSFORM_REGISTRY.values() if entry.asdf_tag
 }
 
 
@@ -46,11 +50,9 @@ def get_converters():
     -------
     converters : list of ``asdf.extension.Converter``
         One ``astroalign_nd.io.asdf.converters.TransformConverter`` per
-        transform class (the table ``converters._TABLE``).
+        registered transform type with an ASDF tag (``converters.CONVERTERS``).
     """
-    from .converters import _TABLE, TransformConverter
-
-    return [TransformConverter(*row) for row in _TABLE]
+    return list(CONVERTERS)
 
 
 def get_extensions():
@@ -66,8 +68,6 @@ def get_extensions():
     extensions : list of ``asdf.extension.ManifestExtension``
         One extension per manifest in `ASTROALIGN_ND_MANIFEST_URIS`.
     """
-    from asdf.extension import ManifestExtension
-
     converters = get_converters()
     return [
         ManifestExtension.from_uri(uri, converters=converters)
@@ -87,8 +87,6 @@ def get_resource_mappings():
     mappings : list of ``asdf.resource.DirectoryResourceMapping``
         The mappings of the ``schemas`` and ``manifests`` directories.
     """
-    from asdf.resource import DirectoryResourceMapping
-
     root = importlib.resources.files(__package__) / "resources"
     return [
         DirectoryResourceMapping(root / "schemas", f"{_URI_BASE}/schemas", recursive=True),
