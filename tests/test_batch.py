@@ -524,7 +524,7 @@ def test_generator_on_dask_is_fed_as_workers_free_up(night):
             yield CCDData.read(p), f"n{k}.fits"  # (frame, file name) pairs
 
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address=":0") as cluster:
         with distributed.Client(cluster) as client:
             seen = []
             result = register_batch(frames(), ref, client=client,

@@ -221,7 +221,7 @@ def test_batch_on_a_dask_scheduler(files, tmp_path, capsys):
     distributed = pytest.importorskip("dask.distributed")
     ref, srcs, _ = files
     with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address=":0") as cluster:
         code = main(["batch", *srcs, "-r", ref, "--output-dir", str(tmp_path),
                      "--scheduler", cluster.scheduler_address, "--canvas", "union"])
     text = capsys.readouterr().out
