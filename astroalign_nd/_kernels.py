@@ -550,6 +550,11 @@ def count_inliers(mats, src, grid):
     from scipy.spatial import cKDTree
 
     tree = cKDTree(grid.points)
-    pred = np.einsum("kij,nj->kni", mats[:, :2, :2], src) + mats[:, None, :2, 2]
-    d, _ = tree.query(pred.reshape(-1, 2), distance_upper_bound=grid.radius)
-    return np.isfinite(d).reshape(len(mats), -1).sum(axis=1)
+    pred = (np.einsum("kij,nj->kni", mats[:, :2, :2], src) + mats[:, None, :2, 2]).reshape(-1, 2)
+    # cKDTree refuses NaN/inf queries; such points match nothing (as in the compiled loop).
+    finite = np.isfinite(pred).all(axis=1)
+    hit = np.zeros(len(pred), dtype=bool)
+    if finite.any():
+        d, _ = tree.query(pred[finite], distance_upper_bound=grid.radius)
+        hit[finite] = np.isfinite(d)
+    return hit.reshape(len(mats), -1).sum(axis=1)
