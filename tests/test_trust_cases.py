@@ -19,7 +19,7 @@ import astroalign_nd
 from astroalign_nd.detection import find_sources
 from astroalign_nd.matching import match_points
 from astroalign_nd.simulate import (TRUST_CASES, resampled_copy, simulate_image,
-                                    simulate_pair, simulate_trust_case)
+                                    simulate_trust_case)
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 FRAME = (0.0, 511.0, 0.0, 511.0)
