@@ -306,6 +306,11 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame, tol=None, predicted=
             misfit, departure = departure, 0.0  # real stars, inadequate model: a warning
     if tol is None:
         return misfit, 0.0, None
+    if k_model < k_aff and 2 * n - k_model < 8:
+        # Three to five stars fix a rotation-like model, but leave too few
+        # residuals to judge their own scatter: only the affine model (which
+        # extrapolates its shear from them) is held to the witnesses then.
+        return misfit, 0.0, None
     jack = _jackknife_error(model, src, dst, 1.0 / var, corners)
     witnesses = [
         (departure, f"an affine fit of the same {n} stars lies {departure:.2f} px from it "
