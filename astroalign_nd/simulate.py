@@ -51,6 +51,9 @@ __all__ = [
     "add_overscan",
     "to_8bit",
     "bayer_bin",
+    "resampled_copy",
+    "simulate_trust_case",
+    "TRUST_CASES",
 ]
 
 # Number of stamp elements processed at once by `render_stars` (bounds memory:
@@ -455,6 +458,33 @@ def _add_artifacts(img, n_hot_pixels, n_cosmic_rays, rng):
         np.add.at(flat, rr[ok] * nx + cc[ok], vals[ok])
 
 
+def _check_trail(trail):
+    """``(length, angle)`` of a star trail, or None for round stars."""
+    if trail is None:
+        return None
+    try:
+        length, angle = (float(v) for v in trail)
+    except (TypeError, ValueError):
+        raise TypeError(f"trail must be (length, angle) in pixels and degrees, or None; "
+                        f"got {trail!r}.") from None
+    if not (np.isfinite(length) and np.isfinite(angle)) or not 0.0 <= length <= 1000.0:
+        raise ValueError(f"trail length must be finite, from 0 to 1000 pixels, and the angle "
+                         f"finite; got {trail!r}.")
+    return None if length == 0.0 else (length, angle)
+
+
+def _trail_points(x, y, flux, fwhm, trail):
+    """Each star as points 0.25 px apart along its trail, sharing its flux."""
+    length, angle = trail
+    k = int(np.ceil(length / 0.25)) + 1
+    t = np.linspace(-0.5 * length, 0.5 * length, k)
+    c, s = np.cos(np.deg2rad(angle)), np.sin(np.deg2rad(angle))
+    xs = (x[:, None] + c * t).ravel()
+    ys = (y[:, None] + s * t).ravel()
+    fwhm = np.broadcast_to(np.asarray(fwhm, float), x.shape)
+    return xs, ys, np.repeat(flux / k, k), np.repeat(fwhm, k)
+
+
 def _check_image_options(background, gradient, read_noise, gain, saturation, n_hot_pixels,
                          n_cosmic_rays, name_prefix=""):
     background = _check_real(background, name_prefix + "background", minimum=0.0,
@@ -476,7 +506,7 @@ def _check_image_options(background, gradient, read_noise, gain, saturation, n_h
 
 def simulate_image(shape, x, y, flux, *, fwhm=3.0, psf="gaussian", beta=3.0, background=100.0,
                    gradient=0.0, read_noise=5.0, gain=1.0, saturation=None, n_hot_pixels=0,
-                   n_cosmic_rays=0, noise=True, seed=None, dtype=np.float32):
+                   n_cosmic_rays=0, noise=True, seed=None, dtype=np.float32, trail=None):
     """
     Simulate one CCD-like frame of the given stars.
 
@@ -533,6 +563,12 @@ def simulate_image(shape, x, y, flux, *, fwhm=3.0, psf="gaussian", beta=3.0, bac
         bit-identical image.
     dtype : numpy dtype, optional
         Floating-point type of the image (default float32).
+    trail : (float, float), optional
+        ``(length, angle)``: trail every star over ``length`` pixels at
+        ``angle`` degrees (counter-clockwise from +x), as a tracking error,
+        wind or field rotation does.  Each star's light is spread uniformly
+        along a segment centred on its position, so that its centroid stays
+        at ``(x, y)``.  ``None`` (default) or length 0: round stars.
 
     Returns
     -------
@@ -562,6 +598,9 @@ def simulate_image(shape, x, y, flux, *, fwhm=3.0, psf="gaussian", beta=3.0, bac
     noise = _check_noise(noise)
     rng_noise, rng_artifacts = _spawn(seed, 2)
 
+    trail = _check_trail(trail)
+    if trail is not None:
+        x, y, flux, fwhm = _trail_points(x, y, flux, fwhm, trail)
     img = _background_image(shape, background, gradient, dtype)
     _render_into(img, x, y, flux, fwhm, psf, beta)
     if noise is not None:
@@ -1183,7 +1222,7 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
                   gradient=0.0, flux_range=(300.0, 3e5), flux_index=1.5, read_noise=5.0,
                   gain=1.0, saturation=None, n_hot_pixels=0, n_cosmic_rays=0,
                   missing_fraction=0.0, n_transients=0, noise=True, seed=None,
-                  dtype=np.float32, distortion=None):
+                  dtype=np.float32, distortion=None, trail=None, target_trail=None):
     """
     Simulate a source/target image pair of one star field with a known transform.
 
@@ -1283,6 +1322,11 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
         the largest distance, over the source frame's corners, between the
         true mapping and ``transform``.  ``None`` (default): no distortion,
         bit-identical to a pair simulated without this option.
+    trail, target_trail : (float, float), optional
+        ``(length, angle)`` of the star trails in the source and the target
+        frame (pixels, degrees counter-clockwise from +x; see
+        `simulate_image`).  The catalogs keep the trails' centres.  ``None``
+        (default): round stars in that frame.
 
     Returns
     -------
@@ -1360,12 +1404,14 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
                                                    lo, hi, xs.size)
 
     source = simulate_image(shape, xs[present_src], ys[present_src], flux[present_src],
-                            fwhm=fwhm, background=background, seed=rng_src, **common)
+                            fwhm=fwhm, background=background, seed=rng_src, trail=trail,
+                            **common)
     # The target: the field's stars through the mapping, and the transients.
     target = simulate_image(
         target_shape, *(np.concatenate([a[present_tgt], b])
                         for a, b in ((xt, tr_x), (yt, tr_y), (flux, tr_flux))),
-        fwhm=target_fwhm, background=target_background, seed=rng_tgt, **common,
+        fwhm=target_fwhm, background=target_background, seed=rng_tgt, trail=target_trail,
+        **common,
     )
 
     meta = _pair_meta(
@@ -1684,3 +1730,165 @@ def bayer_bin(pair, *, gains=(0.55, 1.0, 1.0, 0.75)):
                          source_stars=stars(pair.source_stars),
                          target_stars=stars(pair.target_stars),
                          transients=stars(pair.transients), meta=meta, mapping=mapping)
+
+
+def resampled_copy(image, *, rotation=2.0, translation=(35.0, -12.0), order=3, noise=0.02,
+                   seed=None):
+    """
+    A rotated, shifted and resampled copy of a frame, as an aligned or drizzled frame is.
+
+    The copy is ``scipy.ndimage.affine_transform`` of ``image`` (spline of
+    ``order``, pixels from outside the frame set to its median), plus
+    Gaussian noise of ``noise`` times the frame's standard deviation.  The
+    resampling smooths what was sharp in the frame (cosmic rays, hot
+    pixels) into star-like blobs: the case of a resampled frame registered
+    against a raw one.
+
+    Parameters
+    ----------
+    image : 2-D ndarray
+        The raw frame (not modified).
+    rotation : float, optional
+        Counter-clockwise rotation about the frame centre, degrees.
+    translation : (float, float), optional
+        Shift ``(dx, dy)`` of the frame centre, pixels.
+    order : int, optional
+        Spline order of the resampling (0 to 5).
+    noise : float, optional
+        Standard deviation of the added noise, as a fraction of the frame's.
+    seed : int, `numpy.random.Generator` or None, optional
+        Seed of the noise.
+
+    Returns
+    -------
+    copy : 2-D float32 ndarray
+        The resampled copy, of the frame's shape.
+    transform : `~astroalign_nd.transforms.SimilarityTransform`
+        The true transform, frame pixels -> copy pixels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.simulate import resampled_copy, simulate_field
+    >>> image, stars = simulate_field((128, 128), n_stars=20, seed=0)
+    >>> copy, truth = resampled_copy(image, seed=1)
+    >>> copy.shape, round(float(truth.rotation_deg), 6)
+    ((128, 128), 2.0)
+    >>> xt, yt = truth(63.5, 63.5)  # the centre moves by the translation
+    >>> round(float(xt) - 63.5, 6), round(float(yt) - 63.5, 6)
+    (35.0, -12.0)
+    """
+    from scipy.ndimage import affine_transform
+
+    img = np.asarray(_check_frame(image), dtype=np.float64)
+    rotation = _check_real(rotation, "rotation")
+    shift, ok = _finite_pair(translation)
+    if not ok:
+        raise ValueError(f"translation must be two finite numbers (dx, dy); got {translation!r}.")
+    dx, dy = shift
+    noise = _check_real(noise, "noise", minimum=0.0)
+    if isinstance(order, (bool, np.bool_)) or not isinstance(order, numbers.Integral) \
+            or not 0 <= order <= 5:
+        raise ValueError(f"order must be an integer from 0 to 5; got {order!r}.")
+    ny, nx = img.shape
+    c = np.array([(nx - 1) / 2.0, (ny - 1) / 2.0])
+    th = np.deg2rad(rotation)
+    a = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    m = np.eye(3)
+    m[:2, :2] = a
+    m[:2, 2] = c + np.array([dx, dy]) - a @ c
+    inv = np.linalg.inv(m)
+    # affine_transform maps output (row, col) to input (row, col): swap x and y.
+    swap = np.array([[0, 1], [1, 0]])
+    finite = np.isfinite(img)
+    fill = float(np.median(img[finite])) if finite.any() else 0.0
+    out = affine_transform(np.where(finite, img, fill), swap @ inv[:2, :2] @ swap,
+                           offset=swap @ inv[:2, 2], order=int(order), mode="constant",
+                           cval=fill)
+    if noise:
+        sigma = noise * float(np.std(img[finite]))
+        out += np.random.default_rng(seed).normal(0.0, sigma, out.shape)
+    return out.astype(np.float32), from_matrix(m, "similarity")
+
+
+#: The cases of issue 26 that `simulate_trust_case` makes (see there).
+TRUST_CASES = ("trailed", "sparse_8bit", "resampled_copy")
+
+
+def simulate_trust_case(case, *, seed=None):
+    """
+    One pair of a hard case for the trust of a registration (issue 26).
+
+    Cases (each draw of ``seed`` varies the field, the transform and the
+    artefacts within the ranges given):
+
+    ``'trailed'``
+        512x512 float frames of 20-40 stars; the source frame's stars
+        trailed over 4-10 px at a random angle (a tracking error), the
+        target's round.  Random rotation, shift up to 10% of the frame.
+    ``'sparse_8bit'``
+        512x512 8-bit frames (`to_8bit`) of 9-19 stars, as a finder or
+        all-sky camera gives; one frame slightly trailed (1.5-3 px), the
+        scale 0.998-1.002, random rotation and shift up to 30 px.
+    ``'resampled_copy'``
+        A 512x512 raw frame of 60-120 stars with 150 cosmic rays and 50 hot
+        pixels, against its copy rotated by 2 degrees and shifted by
+        (35, -12) px with `resampled_copy` (order 3, noise 2% of the frame's
+        standard deviation).
+
+    Parameters
+    ----------
+    case : str
+        One of `TRUST_CASES`.
+    seed : int or None, optional
+        The same seed gives the same pair.
+
+    Returns
+    -------
+    `SimulatedPair`
+        Its ``transform`` is the truth; ``meta['case']`` names the case.
+
+    Examples
+    --------
+    >>> from astroalign_nd.simulate import simulate_trust_case
+    >>> pair = simulate_trust_case("sparse_8bit", seed=3)
+    >>> pair.source.dtype, 9 <= len(pair.source_stars) <= 19
+    (dtype('uint8'), True)
+    """
+    if case not in TRUST_CASES:
+        raise ValueError(f"case must be one of {TRUST_CASES}; got {case!r}.")
+    rng = np.random.default_rng(seed)
+    shape = (512, 512)
+    if case == "trailed":
+        pair = simulate_pair(shape, n_stars=int(rng.integers(20, 41)),
+                             flux_range=(3e3, 3e5), fwhm=float(rng.uniform(2.5, 3.5)),
+                             trail=(float(rng.uniform(4.0, 10.0)),
+                                    float(rng.uniform(0.0, 180.0))),
+                             seed=rng)
+    elif case == "sparse_8bit":
+        pair = simulate_pair(
+            shape, n_stars=int(rng.integers(9, 20)), rotation=float(rng.uniform(0.0, 360.0)),
+            scale=float(rng.uniform(0.998, 1.002)),
+            translation=tuple(float(v) for v in rng.uniform(-30.0, 30.0, 2)),
+            flux_range=(5e3, 5e5), fwhm=float(rng.uniform(2.0, 3.0)),
+            target_trail=(float(rng.uniform(1.5, 3.0)), float(rng.uniform(0.0, 180.0))),
+            seed=rng)
+        pair.source, pair.target = to_8bit(pair.source), to_8bit(pair.target)
+    else:
+        image, stars = simulate_field(shape, n_stars=int(rng.integers(60, 121)),
+                                      flux_range=(1e3, 3e5), n_cosmic_rays=150,
+                                      n_hot_pixels=50, seed=rng)
+        copy, truth = resampled_copy(image, seed=rng)
+        xt, yt = truth(np.asarray(stars["x"]), np.asarray(stars["y"]))
+        inside = _inside(xt, yt, shape)
+        pair = SimulatedPair(
+            source=image, target=copy, transform=truth,
+            truth_matrix=np.array(truth.matrix, dtype=float), source_stars=stars,
+            target_stars=_star_table(xt[inside], yt[inside],
+                                     np.asarray(stars["flux"])[inside],
+                                     np.asarray(stars["id"])[inside]),
+            transients=_star_table(np.empty(0), np.empty(0), np.empty(0),
+                                   np.empty(0, np.int64)),
+            meta={"shape": shape, "target_shape": shape})
+    pair.meta["case"] = case
+    return pair

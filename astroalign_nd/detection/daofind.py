@@ -247,7 +247,42 @@ def _daofind(finder, data, mask):
     return {c: np.asarray(tab[c], float) for c in _DAO_COLUMNS}
 
 
+#: DAOStarFinder's roundness limits by default (those of `find_sources`).
+_DEFAULT_ROUNDNESS = (-1.0, 1.0)
+
+
 def _measure(data, mask, cand, fwhm, noise, b, opts):
+    """
+    Stage 3 (`_measure_at`), with a second look for trailed stars.
+
+    Trailed or elongated stars (tracking errors, wind, field rotation) have
+    DAOStarFinder roundness beyond the default limits of +-1 and are all
+    dropped, leaving a handful of sources, or noise peaks in their place.
+    When the default limits keep too few of the candidates, the candidates
+    are measured again without them; that list is used if its strong
+    sources are an elongated population (median roundness above 0.5, where
+    round stars give 0.1 to 0.2) and outnumber the first list's.  The
+    population's own limits (`_population_inliers`) then judge each
+    source, so that cosmic rays, which are not trailed like the stars, are
+    still dropped.
+    """
+    tab = _measure_at(data, mask, cand, fwhm, noise, b, opts)
+    if (opts["roundness_range"] is None
+            or tuple(opts["roundness_range"]) != _DEFAULT_ROUNDNESS
+            or not _too_few(tab, cand, opts["n_sources"])):
+        return tab
+    trailed = _measure_at(data, mask, cand, fwhm, noise, b, {**opts, "roundness_range": None})
+    strong = np.asarray(trailed["snr"]) >= 10.0
+    if strong.sum() < 3:
+        return tab
+    r = np.maximum(np.abs(trailed["roundness1"]), np.abs(trailed["roundness2"]))[strong]
+    if np.median(r) > 0.5 and strong.sum() > np.sum(np.asarray(tab["snr"]) >= 10.0):
+        trailed.meta["trailed"] = True
+        return trailed
+    return tab
+
+
+def _measure_at(data, mask, cand, fwhm, noise, b, opts):
     """
     Stage 3: measure the candidates with DAOStarFinder at a given FWHM.
 

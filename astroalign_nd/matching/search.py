@@ -267,7 +267,6 @@ class _Search:
     batch_size: int
     max_hypotheses: int
     prior_trials: int
-    max_predicted: float
     dst_tree: object = None  # the target points' k-d tree and grid, built once
     grid: object = None
 
@@ -313,13 +312,7 @@ def _prepare(src_pts, dst_pts, settings, n_control, prior_trials):
         max_false_alarm=opts["max_false_alarm"],
         accept_at=min(opts["accept_matches"], n_possible), n_possible=n_possible,
         batch_size=opts["batch_size"], max_hypotheses=opts["max_hypotheses"],
-        prior_trials=prior_trials,
-        # An affine fit extrapolates its shear and anisotropic scale from the
-        # matched stars: when they fix it only to a 3-sigma position error above
-        # the matching radius somewhere in the overlap of the frames (stars
-        # clustered in a corner), it is refused.  Rotation-like models keep the
-        # PoorFitWarning: a few widely spread stars (3 are enough) fix them.
-        max_predicted=tolerance / 3.0 if cls.n_dof > 4 else np.inf)
+        prior_trials=prior_trials)
 
 
 #: The former private name, kept until every caller uses the public one.
@@ -400,7 +393,8 @@ class _Candidate:
     lfa: float            # log10 false-alarm probability
     h: int                # the hypothesis it came from
     pred: float           # largest predicted 1-sigma position error in the overlap
-    ok: bool              # passes the false-alarm and predicted-error tests
+    inconsistent: object  # why the stars do not support the model over the frame, or None
+    ok: bool              # passes the false-alarm and self-consistency tests
 
     def rank(self):
         # A trustworthy candidate beats any other; then the less likely chance.
@@ -439,9 +433,16 @@ def _evaluate(s, hyp, h, n_scored):
                              s.dst_frame, n_scored + s.prior_trials, hyp.tri_rms[h],
                              hyp.tri_size[h], s.invariant_radius, s.n_dof)
     # Where the registered image has data: the overlap of the two frames.
-    pred = _predicted_error(model, cov, _overlap_box(model.matrix, s.src_frame, s.dst_frame))
+    box = _overlap_box(model.matrix, s.src_frame, s.dst_frame)
+    pred = _predicted_error(model, cov, box)
+    # Does the match check itself over the overlap: richer model, leave-one-out
+    # and residual scatter all within the matching radius?
+    _, _, inconsistent = _model_misfit(
+        model, s.src_pts[si], s.dst_pts[dj], None if s.src_err is None else s.src_err[si],
+        None if s.dst_err is None else s.dst_err[dj], box, s.tolerance, pred)
     return _Candidate(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h,
-                      pred=pred, ok=bool(lfa <= s.log_limit and pred <= s.max_predicted))
+                      pred=pred, inconsistent=inconsistent,
+                      ok=bool(lfa <= s.log_limit and inconsistent is None))
 
 
 @dataclass
@@ -512,10 +513,10 @@ def _failure_message(s, progress, n_tri):
         detail = (f"; the best candidate matched {len(best.si)} stars but its false-alarm "
                   f"probability is 10^{best.lfa:.1f} (limit {s.max_false_alarm:g})")
     elif best is not None:
-        detail = (f"; the best candidate matched {len(best.si)} stars, but they fix the "
-                  f"transform only to {best.pred:.1f} px (1 sigma) somewhere in the frame "
-                  f"(limit tolerance / 3 = {s.max_predicted:.2f} px): they cover too small a "
-                  "part of it for an affine model; try transform_type='similarity'")
+        hint = ("; they may cover too small a part of the frame for an affine model: try "
+                "transform_type='similarity'") if s.n_dof > 4 else ""
+        detail = (f"; the best candidate matched {len(best.si)} stars (false-alarm "
+                  f"probability 10^{best.lfa:.1f}), but {best.inconsistent}{hint}")
     return (
         f"no trustworthy transform found: the source gave {len(s.src_pts)} sources and the "
         f"target {len(s.dst_pts)}; {n_tri} triangle matches gave {progress.n_scored} "
@@ -543,9 +544,9 @@ def _result(c, s, n_tri, n_scored):
             f"error of up to {predicted:.2f} px over the frame ({len(si)} matched stars, RMS "
             f"{rms:.2f} px). Check it, or give more or brighter stars (n_sources, nsigma).",
             PoorFitWarning)
-    misfit = _model_misfit(c.model, src_pts[si], dst_pts[dj],
-                           None if src_err is None else src_err[si],
-                           None if dst_err is None else dst_err[dj], dst_frame)
+    misfit, _, _ = _model_misfit(c.model, src_pts[si], dst_pts[dj],
+                                 None if src_err is None else src_err[si],
+                                 None if dst_err is None else dst_err[dj], dst_frame)
     if misfit > 0.5:
         name = type(c.model).__name__
         warn(

@@ -243,44 +243,115 @@ def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
     return model, si, dj, resid, cov, used_tol
 
 
-def _model_misfit(model, src, dst, src_err, dst_err, frame):
-    """
-    How far the fitted model is from an affine fit of the same stars.
+def _corners(frame, dst):
+    x0, x1, y0, y1 = frame if frame is not None else bounding_frame(dst)
+    return np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
 
-    Returns the largest difference (target pixels) between the two models
-    over the target frame, if the affine fit is significantly better
-    (F-test, p < 1e-6), else 0.  A rotation-like model that leaves
-    systematic residuals (shear, anisotropic scale, field distortion) shows
-    up here instead of being returned silently.
+
+def _model_misfit(model, src, dst, src_err, dst_err, frame, tol=None, predicted=0.0):
+    """
+    Is the fitted model consistent with its own matched stars, over the frame?
+
+    Three witnesses, each an estimate of how far the answer can be from the
+    truth at the frame's corners (target pixels):
+
+    * the richer model: an affine fit of the same stars.  If it is
+      significantly better (F-test, p < 1e-6), the stars are real and the
+      model inadequate (shear, distortion): its departure is the returned
+      ``misfit``, which the caller warns about.  If it is not significant,
+      the stars cannot tell the model from an affine one that far away:
+      the departure is an uncertainty of the answer;
+    * leave-one-out: the jackknife spread of the corners' positions when
+      each star in turn is left out (3 sigma), which wrong pairs or biased
+      centroids inflate whatever the errors claim;
+    * the residual scatter, through the covariance of the parameters
+      (``predicted``, 1 sigma; 3 sigma is used).
+
+    With ``tol`` (the matching radius), a match whose witnesses say that it
+    can be off by more than ``tol`` somewhere in ``frame`` is inconsistent.
+
+    Returns
+    -------
+    misfit : float
+        The significant departure from the affine fit (0 if not significant).
+    bound : float
+        The largest of the witnesses' errors (target px).
+    reason : str or None
+        What was inconsistent, when ``bound > tol``; else None.
     """
     n = len(src)
     k_model, k_aff = type(model).n_dof, 6
-    if k_model >= k_aff or 2 * n <= k_aff + 2:
-        return 0.0
+    corners = _corners(frame, dst)
     if src_err is not None and dst_err is not None:
         s2 = abs(np.linalg.det(model.matrix[:2, :2]))
         var = s2 * src_err**2 + dst_err**2
     else:
         var = np.full(n, 0.01)
-    aff, _ = AffineTransform.fit_matrix(src, dst, 1.0 / var, 1)
-    r_aff = apply_matrix(aff, src) - dst
-    r2_aff = np.einsum("ij,ij->i", r_aff, r_aff)
-    # Weights from the better (affine) model, with its own jitter.
-    var = var + _jitter(r2_aff / 2.0, var, n - k_aff / 2.0)
-    r_mod = apply_matrix(model.matrix, src) - dst
-    chi_mod = np.sum(np.einsum("ij,ij->i", r_mod, r_mod) / var)
-    chi_aff = np.sum(r2_aff / var)
-    dof_aff = 2 * n - k_aff
-    f_stat = ((chi_mod - chi_aff) / (k_aff - k_model)) / max(chi_aff / dof_aff, 1e-300)
-    # Survival function of F(d1, d2): I_x(d2/2, d1/2) with x = d2 / (d2 + d1 F).
-    d1, d2 = k_aff - k_model, dof_aff
-    if f_stat <= 0 or betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f_stat)) >= 1e-6:
+    misfit = departure = 0.0
+    if k_model < k_aff and 2 * n > k_aff + 2:
+        aff, _ = AffineTransform.fit_matrix(src, dst, 1.0 / var, 1)
+        r_aff = apply_matrix(aff, src) - dst
+        r2_aff = np.einsum("ij,ij->i", r_aff, r_aff)
+        # Weights from the better (affine) model, with its own jitter.
+        var_j = var + _jitter(r2_aff / 2.0, var, n - k_aff / 2.0)
+        r_mod = apply_matrix(model.matrix, src) - dst
+        chi_mod = np.sum(np.einsum("ij,ij->i", r_mod, r_mod) / var_j)
+        chi_aff = np.sum(r2_aff / var_j)
+        dof_aff = 2 * n - k_aff
+        f_stat = ((chi_mod - chi_aff) / (k_aff - k_model)) / max(chi_aff / dof_aff, 1e-300)
+        # Survival function of F(d1, d2): I_x(d2/2, d1/2) with x = d2 / (d2 + d1 F).
+        d1, d2 = k_aff - k_model, dof_aff
+        pre = apply_matrix(np.linalg.inv(aff), corners)
+        departure = float(np.max(np.hypot(*(apply_matrix(model.matrix, pre) - corners).T)))
+        if f_stat > 0 and betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f_stat)) < 1e-6:
+            misfit, departure = departure, 0.0  # real stars, inadequate model: a warning
+    if tol is None:
+        return misfit, 0.0, None
+    if k_model < k_aff and 2 * n - k_model < 8:
+        # Three to five stars fix a rotation-like model, but leave too few
+        # residuals to judge their own scatter: only the affine model (which
+        # extrapolates its shear from them) is held to the witnesses then.
+        return misfit, 0.0, None
+    jack = _jackknife_error(model, src, dst, 1.0 / var, corners)
+    witnesses = [
+        (departure, f"an affine fit of the same {n} stars lies {departure:.2f} px from it "
+                    "(not a significant improvement: the stars cannot tell them apart)"),
+        (3.0 * jack, f"leaving one star out moves the frame's corners by {jack:.2f} px "
+                     f"(1 sigma, {n} stars)"),
+        (3.0 * predicted, f"the residual scatter gives a 1-sigma error of {predicted:.2f} px"),
+    ]
+    bound = max(w for w, _ in witnesses)
+    if bound <= tol:
+        return misfit, bound, None
+    said = "; ".join(text for w, text in witnesses if w > tol)
+    return misfit, bound, (f"its {n} matched stars are inconsistent with it: {said}, so that it "
+                           f"can be off by {bound:.1f} px over the frame (more than the "
+                           f"tolerance, {tol:.2f} px)")
+
+
+def _jackknife_error(model, src, dst, w, corners, n_max=60):
+    """
+    Jackknife (leave-one-out) 1-sigma error of the model at ``corners``.
+
+    Left out for more than ``n_max`` stars, where one star moves nothing
+    and the covariance is reliable (0).
+    """
+    n = len(src)
+    cls = type(model)
+    if n > n_max or n <= max(cls.min_points, 3):
         return 0.0
-    x0, x1, y0, y1 = frame if frame is not None else bounding_frame(dst)
-    corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
-    inv_aff = np.linalg.inv(aff)
-    pre = apply_matrix(inv_aff, corners)
-    return float(np.max(np.hypot(*(apply_matrix(model.matrix, pre) - corners).T)))
+    parity = 1 if np.linalg.det(model.matrix[:2, :2]) > 0 else -1
+    pre = apply_matrix(np.linalg.inv(model.matrix), corners)  # corners in source pixels
+    preds = np.empty((n, len(corners), 2))
+    keep = np.ones(n, bool)
+    for i in range(n):
+        keep[i] = False
+        m_i, _ = cls.fit_matrix(src[keep], dst[keep], w[keep], parity)
+        preds[i] = apply_matrix(m_i, pre)
+        keep[i] = True
+    dev = preds - preds.mean(axis=0)
+    var = (n - 1) / n * np.einsum("ikj,ikj->k", dev, dev)
+    return float(np.sqrt(np.max(var)))
 
 
 def _predicted_error(model, cov, frame):
