@@ -2,17 +2,17 @@
 """
 Checks of inputs shared by the stages: star positions and counts.
 
-The options' accepted ranges live in `astroalign_nd.config`, as the
-metadata of its dataclasses' fields; `OPTIONS` and `check_option` are
-re-exported from there, and `check_options` checks a dict of them.
+A leaf module: it imports no other module of the package, so that every
+stage can use it.  The options' accepted ranges live in
+`astroalign_nd.config`, as the metadata of its dataclasses' fields (with
+``OPTIONS``, ``check_option`` and ``check_options``).
 """
+
+import numbers
 
 import numpy as np
 
-from .config import OPTIONS, _Int, check_option
-
-__all__ = ["OPTIONS", "check_options", "check_option", "check_count", "check_points",
-           "MAX_TRIANGLES", "MAX_COORDINATE"]
+__all__ = ["check_count", "check_points", "MAX_TRIANGLES", "MAX_COORDINATE"]
 
 #: Largest number of triangles built for one image (about 100 bytes each
 #: with their invariants and k-d tree): larger requests get a ValueError
@@ -26,23 +26,12 @@ MAX_COORDINATE = 1e9
 
 def check_count(value, name, lo=3):
     """A star count: an integer >= ``lo`` (3 by default: a triangle), named in the message."""
-    try:
-        return _Int(lo, None).convert(value)
-    except (TypeError, ValueError) as exc:
-        raise type(exc)(f"{name} must be an integer >= {lo} (a triangle needs 3 stars); got "
-                        f"{value!r}.") from None
-
-
-def check_options(options):
-    """
-    Check a dict of options against `OPTIONS` (unknown names are left to the caller).
-
-    Returns
-    -------
-    options : dict
-        The same keys, values normalised.
-    """
-    return {k: (check_option(k, v) if k in OPTIONS else v) for k, v in options.items()}
+    message = f"{name} must be an integer >= {lo} (a triangle needs 3 stars); got {value!r}."
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise TypeError(message)
+    if int(value) < lo:
+        raise ValueError(message)
+    return int(value)
 
 
 def check_points(pts, name, *, max_coordinate=MAX_COORDINATE):

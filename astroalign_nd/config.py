@@ -28,7 +28,8 @@ import numbers
 
 import numpy as np
 
-from .transforms.registry import LINEAR_TYPES, NONLINEAR_TYPES
+from .transforms.registry import (LINEAR_TYPES, NONLINEAR_TYPES, check_degree, is_nonlinear,
+                                  transform_class)
 
 __all__ = ["DetectionConfig", "MatchingConfig", "ModelConfig", "ResampleConfig",
            "RegistrationConfig", "OPTIONS", "check_option", "cli_fields", "split_options",
@@ -393,11 +394,6 @@ class ModelConfig:
         flag="--degree", metavar="N")
 
     def __post_init__(self):
-        # The transform registry imports the models (astropy.modeling): only
-        # when a config is made, so that the command line's --help stays fast.
-        from .transforms.selection import check_degree, is_nonlinear
-        from .transforms.registry import transform_class
-
         object.__setattr__(self, "degree", check_degree(self.transform_type, self.degree))
         # Not a field: derived from transform_type, checked once here.
         object.__setattr__(self, "_nonlinear", is_nonlinear(self.transform_type))
@@ -679,3 +675,15 @@ def _shown(value):
     if isinstance(value, float):
         return f"{value:g}".replace("e-0", "e-").replace("e+0", "e+")
     return str(value)
+
+
+def check_options(options):
+    """
+    Check a dict of options against `OPTIONS` (unknown names are left to the caller).
+
+    Returns
+    -------
+    options : dict
+        The same keys, values normalised.
+    """
+    return {k: (check_option(k, v) if k in OPTIONS else v) for k, v in options.items()}

@@ -182,7 +182,7 @@ def adversarial_case(seed):
         return (lambda: aand.find_transform(a, b, transform_type=tt)), [a, b], \
             f"degenerate catalogs {a.shape} {b.shape} {tt}"
     if kind == 1:  # random option values
-        from astroalign_nd._validate import OPTIONS
+        from astroalign_nd.config import OPTIONS
 
         names = sorted(OPTIONS)
         opts = {names[int(rng.integers(len(names)))]: _bad_value(rng)

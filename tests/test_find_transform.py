@@ -393,7 +393,7 @@ def test_every_detection_and_matching_option_is_routed_and_checked():
     import inspect
 
     from astroalign_nd import registration
-    from astroalign_nd._validate import OPTIONS
+    from astroalign_nd.config import OPTIONS
     from astroalign_nd.detection import find_sources
 
     det = set(inspect.signature(find_sources).parameters) - {"image", "mask", "n_sources"}

@@ -18,7 +18,8 @@ from itertools import combinations
 from math import comb
 import numpy as np
 from scipy.spatial import cKDTree
-from .._validate import MAX_TRIANGLES, check_option, check_points
+from .._validate import MAX_TRIANGLES, check_points
+from ..config import check_option
 
 __all__ = ['Asterisms', 'build_asterisms', 'check_triangle_budget']
 

@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 from .._kernels import PointGrid, count_inliers
-from .._validate import OPTIONS, check_options, check_points
+from .._validate import check_points
+from ..config import OPTIONS, check_options
 from ..config import DEFAULT_TOLERANCE
 from .asterisms import build_asterisms
 from ..exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
@@ -88,7 +89,7 @@ def match_points(src_pts, dst_pts, *, transform_type="similarity", tolerance=3.0
         attribute holds the number of hypotheses tried.
     ValueError, TypeError
         If an option is outside its range (one message per option, from
-        ``astroalign_nd._validate.OPTIONS``), the positions are not finite
+        ``astroalign_nd.config.OPTIONS``), the positions are not finite
         pixel coordinates, or the triangles would exceed the memory budget.
 
     Notes

@@ -69,7 +69,7 @@ _LAZY = {
     'to_astropy_affine': 'convert',
     'from_astropy_affine': 'convert',
     'apply_matrix': '_matrix',
-    'check_degree': 'selection',
+    'check_degree': 'registry',
     'fit_nonlinear': 'selection',
     'extend_match': 'selection',
     'DistortionFit': 'selection',

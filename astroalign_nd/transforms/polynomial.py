@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import numbers
 
 import numpy as np
 from astropy.modeling import Model, Parameter
@@ -11,7 +10,7 @@ from numpy.typing import ArrayLike
 from ._matrix import check_invertible
 from .linear import AffineTransform
 from ._pairs import _check_pairs, _scalar_values
-from .registry import TRANSFORM_REGISTRY, HeaderHooks
+from .registry import TRANSFORM_REGISTRY, HeaderHooks, _check_degree
 
 __all__ = ['PolynomialTransform']
 
@@ -68,20 +67,6 @@ def monomials(x, y, terms):
 def _exponents(degree):
     """The (p, q) of the distortion terms, 2 <= p + q <= degree."""
     return polynomial_terms(degree, lowest=2)
-
-
-def _check_degree(degree, auto=False):
-    """
-    The degree as an int, or a TypeError or ValueError: the one check of a
-    polynomial degree (``auto``: the message offers ``'auto'`` as well).
-    """
-    what = f"an integer from {DEGREES[0]} to {DEGREES[-1]}" + (" or 'auto'" if auto else "")
-    if isinstance(degree, (bool, np.bool_)) or not isinstance(degree, numbers.Integral):
-        raise TypeError(f"degree must be {what}; got {degree!r}.")
-    if int(degree) not in DEGREES:
-        raise ValueError(f"degree must be {what}; got {degree!r}. (Degree 1 is "
-                         "transform_type='affine': an AffineTransform.)")
-    return int(degree)
 
 
 def _check_domain(domain):

@@ -27,13 +27,16 @@ so that the names are cheap to read (``astroalign-nd --help`` lists them).
 from __future__ import annotations
 
 import importlib
+import numbers
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Callable
 
+import numpy as np
+
 __all__ = ['TransformType', 'HeaderHooks', 'TRANSFORM_REGISTRY', 'TRANSFORM_TYPES',
            'LINEAR_TYPES', 'NONLINEAR_TYPES', 'register_transform_type',
-           'unregister_transform_type', 'transform_class', 'transform_type_of']
+           'unregister_transform_type', 'transform_class', 'transform_type_of', 'check_degree']
 
 
 def _resolve(ref):
@@ -453,3 +456,79 @@ for _name, _path, _kw in (
     _kw.setdefault("check_values", _T + "linear:_check_values")
     register_transform_type(_name, _T + _path, asdf_tag=f"{_name}_transform", **_kw)
 del _name, _path, _kw
+
+
+# -- the degree and the kind of a requested type (light: no model is imported) --------
+
+
+def _check_degree(degree, auto=False):
+    """
+    The degree as an int, or a TypeError or ValueError: the one check of a
+    polynomial degree (``auto``: the message offers ``'auto'`` as well).
+    """
+    _DEGREES = TRANSFORM_REGISTRY["polynomial"].degrees
+    what = f"an integer from {_DEGREES[0]} to {_DEGREES[-1]}" + (" or 'auto'" if auto else "")
+    if isinstance(degree, (bool, np.bool_)) or not isinstance(degree, numbers.Integral):
+        raise TypeError(f"degree must be {what}; got {degree!r}.")
+    if int(degree) not in _DEGREES:
+        raise ValueError(f"degree must be {what}; got {degree!r}. (Degree 1 is "
+                         "transform_type='affine': an AffineTransform.)")
+    return int(degree)
+
+
+def check_degree(transform_type, degree):
+    """
+    The validated ``degree`` for ``transform_type``.
+
+    Parameters
+    ----------
+    transform_type : str or type
+        The requested transform type.
+    degree : int, 'auto' or None
+        Polynomial degree (2 to 5) or ``'auto'``; only for
+        ``transform_type='polynomial'`` (None there means 3).
+
+    Returns
+    -------
+    degree : int, 'auto' or None
+
+    Raises
+    ------
+    ValueError, TypeError
+        For a degree out of range, or given with another transform type.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms import check_degree
+    >>> check_degree("polynomial", None), check_degree("polynomial", "auto")
+    (3, 'auto')
+    >>> check_degree("similarity", None) is None
+    True
+    """
+    is_poly = nonlinear_name(transform_type) == "polynomial"
+    if degree is None:
+        return 3 if is_poly else None
+    if not is_poly:
+        raise ValueError(
+            f"degree={degree!r} applies to transform_type='polynomial' only; got "
+            f"transform_type={transform_type!r}. Pass transform_type='polynomial' or drop "
+            "degree.")
+    if isinstance(degree, str):
+        if degree.lower() == "auto":
+            return "auto"
+        if degree.strip().isdigit():
+            degree = int(degree)
+    return _check_degree(degree, auto=True)
+
+
+def nonlinear_name(transform_type):
+    """The registry name of a non-linear type (a name or a class), else None."""
+    if not isinstance(transform_type, (str, type)):
+        return None
+    entry = transform_type_of(transform_type)
+    return None if entry is None or entry.linear else entry.name
+
+
+def is_nonlinear(transform_type):
+    """True for the transform types of this stage ('projective', 'polynomial')."""
+    return nonlinear_name(transform_type) is not None

@@ -57,7 +57,8 @@ from ..matching.result import MatchResult
 from .convert import as_matrix
 from .fitting import fit_transform
 from .linear import SimilarityTransform
-from .polynomial import DEGREES, _check_degree, monomials, polynomial_terms
+from .polynomial import DEGREES, monomials, polynomial_terms
+from .registry import check_degree, is_nonlinear, nonlinear_name
 from .projective import _homography_apply, _homography_jacobian
 from .registry import NONLINEAR_TYPES, TRANSFORM_REGISTRY, transform_type_of
 
@@ -111,63 +112,6 @@ CV_ALL_DEGREES_PAIRS = 200
 #: pixels off any linear model away from the centre.
 SEARCH_TOLERANCE_FACTOR = 2.5
 
-
-def check_degree(transform_type, degree):
-    """
-    The validated ``degree`` for ``transform_type``.
-
-    Parameters
-    ----------
-    transform_type : str or type
-        The requested transform type.
-    degree : int, 'auto' or None
-        Polynomial degree (2 to 5) or ``'auto'``; only for
-        ``transform_type='polynomial'`` (None there means 3).
-
-    Returns
-    -------
-    degree : int, 'auto' or None
-
-    Raises
-    ------
-    ValueError, TypeError
-        For a degree out of range, or given with another transform type.
-
-    Examples
-    --------
-    >>> from astroalign_nd.transforms import check_degree
-    >>> check_degree("polynomial", None), check_degree("polynomial", "auto")
-    (3, 'auto')
-    >>> check_degree("similarity", None) is None
-    True
-    """
-    is_poly = nonlinear_name(transform_type) == "polynomial"
-    if degree is None:
-        return 3 if is_poly else None
-    if not is_poly:
-        raise ValueError(
-            f"degree={degree!r} applies to transform_type='polynomial' only; got "
-            f"transform_type={transform_type!r}. Pass transform_type='polynomial' or drop "
-            "degree.")
-    if isinstance(degree, str):
-        if degree.lower() == "auto":
-            return "auto"
-        if degree.strip().isdigit():
-            degree = int(degree)
-    return _check_degree(degree, auto=True)
-
-
-def nonlinear_name(transform_type):
-    """The registry name of a non-linear type (a name or a class), else None."""
-    if not isinstance(transform_type, (str, type)):
-        return None
-    entry = transform_type_of(transform_type)
-    return None if entry is None or entry.linear else entry.name
-
-
-def is_nonlinear(transform_type):
-    """True for the transform types of this stage ('projective', 'polynomial')."""
-    return nonlinear_name(transform_type) is not None
 
 # -- the candidate models, as design matrices ---------------------------------------
 
