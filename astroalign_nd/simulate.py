@@ -1848,7 +1848,7 @@ def simulate_trust_case(case, *, seed=None):
     Parameters
     ----------
     case : str
-        One of `TRUST_CASES`.
+        One of ``TRUST_CASES`` (``"trailed"``, ``"sparse_8bit"``, ``"resampled_copy"``).
     seed : int or None, optional
         The same seed gives the same pair.
 
