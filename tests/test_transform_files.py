@@ -83,3 +83,11 @@ def test_not_a_file_format(tmp_path):
     (tmp_path / "junk.asdf").write_bytes(b"not asdf at all")
     with pytest.raises(ValueError, match="junk.asdf"):
         read_transform(tmp_path / "junk.asdf")
+
+
+def test_bad_paths_are_clear(tmp_path):
+    with pytest.raises(TypeError, match="path must be a file name"):
+        read_transform(None)
+    with pytest.raises(FileNotFoundError, match="does not exist; create it first"):
+        write_transform(tmp_path / "missing" / "t.asdf", MODELS["similarity"])
+    assert list(tmp_path.iterdir()) == []

@@ -28,6 +28,9 @@ ASDF_KEY = "transform"
 
 
 def _format(path):
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"path must be a file name (str or path-like) ending in .asdf or "
+                        f".fits; got {type(path).__name__}.")
     name = os.fspath(path).lower()
     if name.endswith(".asdf"):
         return "asdf"

@@ -64,6 +64,10 @@ class _PrivateFolder:
 
     def __init__(self, path):
         folder, base = os.path.split(os.path.abspath(path))
+        if not os.path.isdir(folder):
+            raise FileNotFoundError(f"cannot write {path!r}: its folder {folder!r} does not "
+                                    "exist; create it first, or give a path in an existing "
+                                    "folder.")
         # The final name's ending is kept, so writers that choose a format or a compression
         # from it (``.fits.gz``) behave as for the final name; the length stays bounded.
         self.name = "part" + _suffix(base)
