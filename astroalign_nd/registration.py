@@ -292,12 +292,15 @@ def _detect_both(src, ns, dst, nd):
             if not ref._parsed.is_catalog and n not in ref._stars]
     if len(todo) < 2 or src is dst or num_threads() < 2:
         return
-    # Both detections ignore the same warnings; one block here restores the
-    # caller's filters, which the threads' own (not thread-safe) blocks
-    # could otherwise leave changed.
+    # The warning filters are one global list, and ``catch_warnings`` blocks
+    # in two threads restore each other's lists in any order (photutils
+    # ignores NumPy's RuntimeWarnings inside its own).  So this block holds
+    # every filter either thread sets, which then holds whatever order the
+    # threads exit in, and restores the caller's filters at the end.
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", _no_detections_warning())
         warnings.simplefilter("ignore", AstropyWarning)
+        warnings.simplefilter("ignore", RuntimeWarning)
         later = side_pool().submit(dst.stars, nd)
         try:
             src.stars(ns)

@@ -357,7 +357,9 @@ def _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts):
         exclude_border=False,
         xycoords=np.round(centers),
     )
-    with warnings.catch_warnings():
+    # NumPy's error state, unlike the warning filters, is per thread: empty
+    # tiles divide by zero in photutils' measures whatever thread this is.
+    with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", AstropyWarning)
         return _daofind(finder, mosaic, mmask if mmask.any() else None), ncol
 
