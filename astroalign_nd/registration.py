@@ -511,7 +511,9 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
     transform : `~astroalign_nd.transforms.LinearTransform2D` or non-linear model
         The source-to-target model.  ``transform.meta['quality']`` holds the
         number of matched stars, the RMS residual (pixels), the parameter
-        covariance and the log10 false-alarm probability; for the
+        covariance, the log10 false-alarm probability and ``error_bound``
+        (how far off, 3 sigma, the matched stars say the transform can be
+        over the overlap; see `~astroalign_nd.matching.MatchResult`); for the
         'projective' and 'polynomial' types also ``model``, ``degree``,
         ``predicted_error_max`` and ``predicted_error_rms`` (the 1-sigma
         error of the mapping over the frame, from the covariance) and
@@ -561,6 +563,7 @@ def _quality_dict(result: MatchResult) -> dict:
         n_target=int(result.n_target),
         n_triangle_matches=int(result.n_triangle_matches),
         n_hypotheses=int(result.n_hypotheses),
+        error_bound=float(result.error_bound),
     )
     info = result.extra.get("model_selection")
     if info is not None:
@@ -723,7 +726,7 @@ def quality_dict(result: MatchResult) -> dict:
     >>> from astroalign_nd.simulate import simulate_pair
     >>> pair = simulate_pair((256, 256), n_stars=100, rotation=30.0, seed=1)
     >>> sorted(quality_dict(find_match(pair.source, pair.target)))[:3]
-    ['covariance', 'log10_false_alarm', 'n_hypotheses']
+    ['covariance', 'error_bound', 'log10_false_alarm']
     """
     return _quality_dict(result)
 

@@ -9,6 +9,7 @@ absent.  Every registration is checked against the known transform, in
 pixels over the overlap.
 """
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ import pytest
 from scipy import ndimage
 
 from _helpers import frame_error
-from astroalign_nd import find_sources, find_transform
+from astroalign_nd import PoorFitWarning, find_sources, find_transform
 from astroalign_nd.simulate import (add_nebulosity, add_overscan, bayer_bin, simulate_pair,
                                     to_8bit)
 
@@ -105,7 +106,17 @@ def test_paper_worked_example(seed):
                          target_fwhm=3.53, flux_range=(200, 500), background=0.5,
                          read_noise=0.71, noise="gaussian", gain=1e6, scale=1.5,
                          rotation=-30.0, seed=seed)
-    registers(pair.source, pair.target, pair.truth_matrix, tol=1.0)
+    # Six to eight matched stars: an answer up to 1 px off over the frame must
+    # say so (seed 1: 0.97 px off, bound 2.7 px); a precise one must not.
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always", PoorFitWarning)
+        t = registers(pair.source, pair.target, pair.truth_matrix, tol=1.0)
+    err = frame_error(t, pair.truth_matrix, np.shape(pair.target))
+    warned = any(issubclass(w.category, PoorFitWarning) for w in seen)
+    assert t.meta["quality"]["error_bound"] >= err
+    assert warned == (t.meta["quality"]["error_bound"] > 1.0)
+    if err > 0.5:
+        assert warned, f"{err:.2f} px off without a warning"
 
 
 def test_sparse_eight_stars():

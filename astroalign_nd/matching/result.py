@@ -41,6 +41,12 @@ class MatchResult:
     predicted_error : float
         Largest 1-sigma position error (pixels) over the target frame,
         propagated from the covariance.
+    error_bound : float
+        How far off (pixels, 3 sigma) the match's own stars say it can be
+        over the overlap: the largest of leave-one-out, an affine fit of the
+        same stars and the covariance.  Matches above
+        ``min(tolerance, 3)`` px are refused; above 1 px a
+        `~astroalign_nd.PoorFitWarning` is issued.
     source_points, target_points : (K, 2) ndarray
         The matched positions (``source_index`` and ``target_index`` rows
         of the point lists).
@@ -81,6 +87,7 @@ class MatchResult:
     n_hypotheses: int
     model_misfit: float = 0.0
     predicted_error: float = 0.0
+    error_bound: float = 0.0
     source_points: np.ndarray = None
     target_points: np.ndarray = None
     n_sources_used: int = None

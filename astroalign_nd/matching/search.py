@@ -14,7 +14,8 @@ from ..exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundEr
 from ..transforms.registry import transform_class, transform_type_of
 from .result import MatchResult
 from .geometry import _overlap_box, bounding_frame
-from .verify import _log10_false_alarm, _model_misfit, _predicted_error, _refine
+from .verify import (MAX_ERROR_BOUND, WARN_ERROR_BOUND, _log10_false_alarm, _model_misfit,
+                     _predicted_error, _refine)
 from .triangles import hypothesis_matrices, match_triangles
 
 __all__ = ['match_points', 'search_tolerance']
@@ -394,6 +395,7 @@ class _Candidate:
     lfa: float            # log10 false-alarm probability
     h: int                # the hypothesis it came from
     pred: float           # largest predicted 1-sigma position error in the overlap
+    bound: float          # how far off the self-consistency witnesses say it can be (px)
     inconsistent: object  # why the stars do not support the model over the frame, or None
     ok: bool              # passes the false-alarm and self-consistency tests
 
@@ -438,11 +440,15 @@ def _evaluate(s, hyp, h, n_scored):
     pred = _predicted_error(model, cov, box)
     # Does the match check itself over the overlap: richer model, leave-one-out
     # and residual scatter all within the matching radius?
-    _, _, inconsistent = _model_misfit(
+    # The limit is the matching radius, but never above MAX_ERROR_BOUND: a
+    # radius widened for trailed or bloated stars does not widen what is
+    # trusted (an answer that can be 4 px off is refused, not returned).
+    _, bound, inconsistent = _model_misfit(
         model, s.src_pts[si], s.dst_pts[dj], None if s.src_err is None else s.src_err[si],
-        None if s.dst_err is None else s.dst_err[dj], box, s.tolerance, pred)
+        None if s.dst_err is None else s.dst_err[dj], box, min(s.tolerance, MAX_ERROR_BOUND),
+        pred)
     return _Candidate(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h,
-                      pred=pred, inconsistent=inconsistent,
+                      pred=pred, bound=bound, inconsistent=inconsistent,
                       ok=bool(lfa <= s.log_limit and inconsistent is None))
 
 
@@ -545,6 +551,14 @@ def _result(c, s, n_tri, n_scored):
             f"error of up to {predicted:.2f} px over the frame ({len(si)} matched stars, RMS "
             f"{rms:.2f} px). Check it, or give more or brighter stars (n_sources, nsigma).",
             PoorFitWarning)
+    elif c.bound > WARN_ERROR_BOUND:
+        # The covariance trusts the residuals; leave-one-out and the affine
+        # fit do not, and they say the answer can be more than 1 px off.
+        warn(
+            f"the transform is uncertain: its {len(si)} matched stars (RMS {rms:.2f} px) "
+            f"leave it uncertain by up to {c.bound:.2f} px over the overlap (3 sigma, by "
+            "leaving one star out and by an affine fit of the same stars). Check it, or give "
+            "more or brighter stars (n_sources, nsigma).", PoorFitWarning)
     misfit, _, _ = _model_misfit(c.model, src_pts[si], dst_pts[dj],
                                  None if src_err is None else src_err[si],
                                  None if dst_err is None else dst_err[dj], dst_frame)
@@ -559,5 +573,6 @@ def _result(c, s, n_tri, n_scored):
         transform=c.model, source_index=si, target_index=dj, residuals=resid,
         rms=rms, covariance=c.cov, log10_false_alarm=c.lfa, n_source=len(src_pts),
         n_target=len(dst_pts), n_triangle_matches=n_tri, n_hypotheses=n_scored,
-        model_misfit=misfit, predicted_error=predicted, source_points=src_pts[si],
+        model_misfit=misfit, predicted_error=predicted, error_bound=c.bound,
+        source_points=src_pts[si],
         target_points=dst_pts[dj])

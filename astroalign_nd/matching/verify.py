@@ -248,6 +248,16 @@ def _corners(frame, dst):
     return np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
 
 
+#: The largest error (px) over the overlap that a match may admit by its own
+#: witnesses (`_model_misfit`) and still be returned, whatever the matching
+#: radius: a radius widened for trailed or bloated stars widens the search,
+#: not what is trusted.
+MAX_ERROR_BOUND = 3.0
+
+#: Above this error bound (px), a returned match comes with a PoorFitWarning.
+WARN_ERROR_BOUND = 1.0
+
+
 def _model_misfit(model, src, dst, src_err, dst_err, frame, tol=None, predicted=0.0):
     """
     Is the fitted model consistent with its own matched stars, over the frame?
