@@ -12,7 +12,8 @@ Each case is drawn by `astroalign_nd.simulate.simulate_trust_case` (seeds
   plus 2% noise.
 
 Every tool runs with its defaults on the same images (aafitrans on
-astroalign's detections, as its README does; see ``bench_real.py``).  An
+astroalign's detections, as its README does, and as ``aafitrans-nd`` on
+astroalign_nd's; see ``bench_real.py``).  An
 outcome is
 
 * **solved**: a transform whose largest error over the overlap of the frames
@@ -41,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_real import METHODS, call, error  # noqa: E402
+from bench_real import METHODS, RUNNERS, call, error  # noqa: E402
 
 from astroalign_nd.simulate import TRUST_CASES, simulate_trust_case  # noqa: E402
 
@@ -51,7 +52,8 @@ def main(argv=None):
     ap.add_argument("--n", type=int, default=200, help="pairs per case (default 200)")
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--cases", nargs="*", default=list(TRUST_CASES), choices=TRUST_CASES)
-    ap.add_argument("--methods", nargs="*", default=list(METHODS), choices=METHODS)
+    ap.add_argument("--methods", nargs="*", default=list(METHODS) + ["aafitrans-nd"],
+                    choices=list(RUNNERS))
     ap.add_argument("--wrong", type=float, default=1.0,
                     help="largest error (px) of a solved pair (default 1)")
     ap.add_argument("--timeout", type=int, default=60, help="seconds per call (default 60)")

@@ -128,6 +128,11 @@ def _read_asdf(path):
                 warnings.simplefilter("error", asdf.exceptions.AsdfConversionWarning)
                 with asdf.open(path, lazy_load=False, memmap=False) as af:
                     tree = {k: v for k, v in af.tree.items() if not k.startswith("asdf_")}
+        except asdf.exceptions.ValidationError as exc:
+            # Before asdf 6, a value the schema refuses (parity 0, a list for the
+            # scale) stops here, before our converter sees it.
+            where = "/".join(str(p) for p in exc.path) or "the tree"
+            raise ValueError(f"a damaged ASDF transform file: {where}: {exc.message}.") from None
         except (asdf.exceptions.AsdfWarning, OSError, KeyError, TypeError) as exc:
             raise ValueError(f"not a readable ASDF transform file ({exc}).") from None
     if isinstance(tree.get(ASDF_KEY), Model):
