@@ -167,6 +167,7 @@ def _apply_stage(job, cfg, t0, src_path=None):
     else:
         shape, offset, wcs = job.canvas
         ccd = apply_transform(job.transform, src, tuple(shape), quality=job.quality,
+                              target_name=canvas_name(cfg.reference, shape, offset),
                               **cfg.apply_options)
         if wcs is not None:
             ccd.wcs = wcs
@@ -187,6 +188,16 @@ def _apply_stage(job, cfg, t0, src_path=None):
                        seconds=time.perf_counter() - t0)
 
 # -- the union canvas ------------------------------------------------------------------------
+
+
+def canvas_name(reference, shape, offset):
+    """
+    How a frame's HISTORY names the union canvas: the reference's name, the
+    canvas size and where the reference's pixel (0, 0) falls on it.
+    """
+    name = getattr(getattr(reference, "_parsed", reference), "name", "the reference")
+    return (f"the {shape[1]}x{shape[0]} union canvas of {name} (its pixel (0, 0) at "
+            f"canvas pixel ({-int(offset[0])}, {-int(offset[1])}))")
 
 
 def _shifted(transform, offset, sign):

@@ -4,16 +4,29 @@
 import argparse
 import contextlib
 import sys
-from .errors import _PROG, _error, _expected_errors
+import textwrap
+from .errors import _PROG, _error, _expected_errors, cli_words, exit_code, exit_codes_text
 from .commands import _cmd_batch, _cmd_demo, _cmd_register
 from .options import _registration_options
 
 __all__ = ['main']
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, except that the exit-code table keeps one line per code."""
+
+    def _fill_text(self, text, width, indent):
+        if not text.startswith("exit codes:"):
+            return super()._fill_text(text, width, indent)
+        lines = text.splitlines()
+        return "\n".join([indent + lines[0]] + [
+            textwrap.fill(line.strip(), width, initial_indent=indent + "  ",
+                          subsequent_indent=indent + " " * 7) for line in lines[1:]])
+
+
 def _build_parser():
     parser = argparse.ArgumentParser(
-        prog=_PROG,
+        prog=_PROG, formatter_class=_HelpFormatter, epilog=exit_codes_text(),
         description="Register (align) astronomical images by matching star triangles. "
         "Inputs are FITS images; outputs are FITS images written as CCDData, "
         "with mask and uncertainty when the inputs have them.",
@@ -53,7 +66,8 @@ _COMMANDS = {
 def _add_command(sub, name, func, parents=()):
     """The subparser of the subcommand ``name``, which ``main`` runs through ``func``."""
     help_line, description = _COMMANDS[name]
-    p = sub.add_parser(name, parents=list(parents), help=help_line, description=description)
+    p = sub.add_parser(name, parents=list(parents), help=help_line, description=description,
+                       epilog=exit_codes_text(), formatter_class=_HelpFormatter)
     p.set_defaults(func=func)
     return p
 
@@ -189,9 +203,11 @@ def main(argv=None):
     -------
     int
         The exit code: 0 on success, 1 if some frames of ``batch`` failed,
-        2 on a usage or registration error, 130 when interrupted (SIGINT,
-        Ctrl-C) and 143 when terminated (SIGTERM); ``batch`` stops its
-        workers and prints (and writes, with ``--summary``) what was done.
+        2 on a usage error (or any error other than these), 3 when the
+        registration is refused (no trustworthy transform), 130 when
+        interrupted (SIGINT, Ctrl-C) and 143 when terminated (SIGTERM);
+        ``batch`` stops its workers and prints (and writes, with
+        ``--summary``) what was done.  See :ref:`cli-exit-codes`.
     """
     parser = _build_parser()
     try:
@@ -218,7 +234,7 @@ def main(argv=None):
     import warnings
 
     def one_line_warning(message, category, filename, lineno, file=None, line=None):
-        print(f"{_PROG}: warning: {message}", file=sys.stderr)
+        print(f"{_PROG}: warning: {cli_words(str(message))}", file=sys.stderr)
 
     old_showwarning = warnings.showwarning
     warnings.showwarning = one_line_warning
@@ -226,7 +242,7 @@ def main(argv=None):
         with _interrupt_signals():
             return args.func(args)
     except errors as exc:
-        return _error(str(exc) or type(exc).__name__)
+        return _error(str(exc) or type(exc).__name__, exit_code(exc))
     except MemoryError as exc:
         return _error(f"out of memory{': ' + str(exc) if str(exc) else ''}; try a smaller "
                       "--max-sources or --n-sources, --bin-factor, or fewer --workers.")
