@@ -72,6 +72,11 @@ class FrameResult:
         The input path as given, None for in-memory inputs.
     shape : tuple or None
         The source frame's ``(ny, nx)``, where it was needed (``canvas='union'``).
+    points : tuple of two (K, 2) ndarray or None
+        The matched star positions, ``(source_points, reference_points)``
+        in source and reference pixels, as `~astroalign_nd.find_transform`
+        returns them (None for a skipped or failed frame): what the
+        diagnostic figures draw without searching again.
 
     Examples
     --------
@@ -95,6 +100,7 @@ class FrameResult:
     ccd: object = field(default=None, repr=False)
     source: str = None
     shape: tuple = field(default=None, repr=False)  # the source frame's (ny, nx)
+    points: tuple = field(default=None, repr=False)  # matched (source, reference) positions
     _grid: tuple = field(default=None, repr=False)  # (shape, offset) of a kept output
 
     @property

@@ -6,7 +6,7 @@ import contextlib
 import sys
 import textwrap
 from .errors import _PROG, _error, _expected_errors, cli_words, exit_code, exit_codes_text
-from .commands import _cmd_batch, _cmd_demo, _cmd_register
+from .commands import _cmd_batch, _cmd_demo, _cmd_register, demo_description
 from .options import _registration_options
 
 __all__ = ['main']
@@ -49,17 +49,15 @@ _COMMANDS = {
     "batch": (
         "register several images onto one target",
         "Register each SOURCE onto TARGET, writing DIR/<name>_aligned.fits for "
-        "each, and print each frame's line as soon as it is done. Give the target with "
-        "-r/--reference (sources first, as in register and in the Python API "
+        "each and the reference itself on the same grid as DIR/<target name>_reference.fits "
+        "(to stack it with the rest), and print each frame's line as soon as it is done. "
+        "Give the target with -r/--reference (sources first, as in register and in the Python API "
         "register_batch(sources, target)); without -r, the first image is the target (the "
         "older form 'batch TARGET SOURCES...'). A frame that fails is reported and the "
         "others go on; the exit code is 1 if any frame failed."),
     "demo": (
         "simulate a pair of star fields, register them and compare with the truth",
-        "Simulate a 512x512 star-field pair related by a known similarity "
-        "transform (rotation 17 deg, scale 1.05, shift (12.3, -7.7) px), write "
-        "DIR/source.fits and DIR/target.fits, register the source onto the target, write "
-        "DIR/aligned.fits and report the error of the recovered transform."),
+        demo_description()),
 }
 
 
@@ -103,7 +101,14 @@ def _add_batch_command(sub, reg_opts):
                    "every frame (for dithered and mosaic sets)")
     p.add_argument("--summary", metavar="FILE.ecsv", default=None,
                    help="write one row per frame (name, status, matches, RMS, false alarm, "
-                   "seconds, error) to this ECSV (or .csv) table")
+                   "shift, rotation, scale, seconds, error), the reference's first, to this "
+                   "ECSV (or .csv) table")
+    p.add_argument("--plot", metavar="DIR", default=None,
+                   help="also write a diagnostic figure of each frame registered "
+                   "(DIR/<name>_aligned.png: matched stars, invariants, residuals, "
+                   "difference image; from the match found, no new search) and the night's "
+                   "summary (DIR/night_summary.png: drift, rotation, RMS and matched stars "
+                   "against frame), once the batch is done; needs matplotlib")
     p.add_argument("--workers", type=int, default=0, metavar="N",
                    help="run the frames in N local worker processes (default: one after the "
                    "other in this process)")
@@ -121,7 +126,8 @@ def _add_demo_command(sub):
     p.add_argument("--output-dir", required=True, metavar="DIR",
                    help="folder for source.fits, target.fits and aligned.fits "
                    "(created if needed)")
-    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace existing files that an earlier demo did not write")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
 
 

@@ -260,7 +260,8 @@ def _nonlinear_provenance(header, transform, cmap, quality, names):
 
 #: `apply_transform`'s keywords as its error message lists them: the resampling
 #: config's fields, and the inputs' own.
-_ACCEPTED = ", ".join(f.name for f in fields(ResampleConfig)) + ", unit, quality, hdu and target_name"
+_ACCEPTED = (", ".join(f.name for f in fields(ResampleConfig))
+             + ", unit, quality, hdu and target_name")
 
 
 def _check_options(unexpected, order, method):
