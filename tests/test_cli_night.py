@@ -91,7 +91,7 @@ def test_union_batch_fill_reference_summary_history(night, tmp_path):
     # The union frames' HISTORY names the reference and the canvas.
     history = " ".join(" ".join(frame0.meta["HISTORY"]).split())
     assert "union canvas of ref.fits" in history and "grid of shape" not in history
-    assert "reference -> " in stdout
+    assert "reference ref.fits: written -> " in stdout
     # The summary: the reference first, then each frame's shift/rotation/scale onto the
     # reference against the truth.
     t = Table.read(summary)

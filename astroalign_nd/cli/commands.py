@@ -1,6 +1,7 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """The commands: register, batch and demo."""
 
+import dataclasses
 import os
 import sys
 from .errors import _CLIError, cli_words
@@ -121,7 +122,7 @@ def _frame_line(f):
     if f.status == "failed":
         return f"{f.name}: FAILED ({cli_words(f.error or '')})"
     if f.status == "reference":
-        return f"{f.name}: reference -> {f.output}"
+        return f"{f.name}: written -> {f.output}"
     q = f.quality or {}
     fig = []
     if "n_matches" in q:
@@ -131,6 +132,8 @@ def _frame_line(f):
     if "log10_false_alarm" in q:
         fig.append(f"log10 FA {q['log10_false_alarm']:.1f}")
     what = "ok" if f.status == "registered" else "skipped (complete output there)"
+    if not f.quality and f.status == "skipped":  # the reference, kept
+        return f"{f.name}: {what} -> {f.output}"
     return f"{f.name}: {what} -> {f.output} ({', '.join(fig)}; {f.seconds:.1f} s)"
 
 
@@ -203,6 +206,8 @@ def _summary_table(result, reference=None):
 
     table = result.to_table()
     if reference is not None:
+        if reference.ok:  # written, or kept (--skip-existing): the row says what it is
+            reference = dataclasses.replace(reference, status="reference")
         ref = BatchResult([reference], canvas_shape=result.canvas_shape,
                           canvas_offset=result.canvas_offset).to_table()
         table = vstack([ref, table], metadata_conflicts="silent")
