@@ -9,7 +9,7 @@ from .errors import _PROG, _error, _expected_errors, cli_words, exit_code, exit_
 from .commands import _cmd_batch, _cmd_demo, _cmd_register, demo_description
 from .options import _registration_options
 
-__all__ = ['main']
+__all__ = ['main', 'build_parser']
 
 
 class _HelpFormatter(argparse.HelpFormatter):
@@ -24,7 +24,16 @@ class _HelpFormatter(argparse.HelpFormatter):
                           subsequent_indent=indent + " " * 7) for line in lines[1:]])
 
 
-def _build_parser():
+def build_parser():
+    """
+    The ``astroalign-nd`` argument parser, with every subcommand and option.
+
+    The documentation's command-line reference is generated from it.
+
+    Returns
+    -------
+    parser : `argparse.ArgumentParser`
+    """
     parser = argparse.ArgumentParser(
         prog=_PROG, formatter_class=_HelpFormatter, epilog=exit_codes_text(),
         description="Register (align) astronomical images by matching star triangles. "
@@ -131,6 +140,9 @@ def _add_demo_command(sub):
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
 
 
+#: The former private name (tests use it).
+_build_parser = build_parser
+
 _SIGINT = 2  # signal.SIGINT, the same number on every platform
 
 
@@ -215,7 +227,7 @@ def main(argv=None):
         ``batch`` stops its workers and prints (and writes, with
         ``--summary``) what was done.  See :ref:`cli-exit-codes`.
     """
-    parser = _build_parser()
+    parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, or argparse's own usage error (code 2)
