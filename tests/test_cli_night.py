@@ -331,3 +331,19 @@ def test_demo_help_is_true_and_the_readme_command_runs_twice(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "already exists" in err and "--overwrite" in err
     assert not (foreign / "source.fits").exists()
+
+
+def test_the_docs_exit_code_table_is_the_command_lines():
+    """docs/cli.rst shows the table that --help prints (one table for every command)."""
+    from astroalign_nd.cli.errors import EXIT_CODES
+
+    page = os.path.join(WORKTREE, "docs", "cli.rst")
+    if not os.path.isfile(page):
+        pytest.skip("the documentation sources are not here (installed package)")
+    with open(page, encoding="utf-8") as fh:
+        text = fh.read()
+    table = text[text.index(".. _cli-exit-codes:"):text.index("Options\n=======")]
+    rows = " ".join(table.split())
+    for code, meaning in EXIT_CODES:
+        words = " ".join(meaning.replace("--skip-existing", "``--skip-existing``").split())
+        assert f"{code} {words}" in rows, code
