@@ -765,6 +765,19 @@ def save_night_figure(path, result, *, overwrite=False, dpi=100):
     -------
     path : str
         The file written.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.batch import register_batch
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> from astroalign_nd.visualization import save_night_figure
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=3.0, seed=1)
+    >>> result = register_batch([pair.source], pair.target)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     out = save_night_figure(os.path.join(folder, "night.png"), result)
+    ...     os.path.getsize(out) > 0
+    True
     """
     check_plot_path(path, overwrite)
     fig = _agg_figure((8, 9))

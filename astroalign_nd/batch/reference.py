@@ -92,8 +92,9 @@ def reference_on_canvas(target: Any, result: BatchResult | None = None, *,
 
 def reference_output(target, output_dir, suffix="_reference"):
     """The path of the reference's output: ``<output_dir>/<reference name><suffix>.fits``."""
-    name = os.path.basename(os.fspath(target)) if isinstance(target, (str, os.PathLike)) \
-        else "reference"
+    if not isinstance(target, (str, os.PathLike)):  # in memory: no name to add to
+        return os.path.join(os.fspath(output_dir), _output_name("reference", ""))
+    name = os.path.basename(os.fspath(target))
     return os.path.join(os.fspath(output_dir), _output_name(_stem(name), suffix))
 
 
@@ -101,7 +102,8 @@ def write_reference(target: Any, result: BatchResult, output_dir: str | os.PathL
                     overwrite: bool = False, skip_existing: bool = False,
                     suffix: str = "_reference", **options: Any) -> FrameResult:
     """
-    Write `reference_on_canvas` to ``<output_dir>/<name><suffix>.fits``.
+    Write `reference_on_canvas` to ``<output_dir>/<name><suffix>.fits``
+    (``<output_dir>/reference.fits`` for a reference given in memory).
 
     Never raises for the file: like a frame of the batch, a reference that
     cannot be written is reported as failed.
@@ -126,6 +128,19 @@ def write_reference(target: Any, result: BatchResult, output_dir: str | os.PathL
     frame : `~astroalign_nd.batch.FrameResult`
         Status 'reference' (written), 'skipped' or 'failed'; its transform
         is the shift from the reference onto the grid.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.batch import register_batch, write_reference
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=3.0, seed=1)
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     result = register_batch([pair.source], pair.target, output_dir=tmp)
+    ...     ref = write_reference(pair.target, result, tmp)
+    ...     written = sorted(os.listdir(tmp))
+    >>> ref.status, written
+    ('reference', ['frame0_aligned.fits', 'reference.fits'])
     """
     t0 = time.perf_counter()
     path = reference_output(target, output_dir, suffix)
