@@ -3,12 +3,15 @@
 The ONE input parser: everything the public functions accept becomes a
 `ParsedInput`.
 
-Accepted: 2-D (or channels-last 3-D) ndarrays, numpy masked arrays,
+Accepted: 2-D ndarrays and colour cubes (channels last, ``(ny, nx, 3)``,
+or channels first, ``(3, ny, nx)``, as stacked colour FITS files hold them;
+`is_channels_first`), numpy masked arrays,
 `~astropy.nddata.NDData` / `~astropy.nddata.CCDData`, FITS HDUs and
 HDULists, ``(array, header)`` and ``(array, WCS)`` tuples (as reproject
 takes them), file paths (FITS read as `~astropy.nddata.CCDData.read` reads
 them: data, ``MASK``, ``UNCERT`` and ``FLAGS``, unit from ``BUNIT``;
-JPEG/PNG/TIFF through scikit-image), and catalogs: an
+JPEG/PNG/TIFF through scikit-image, rows flipped so that row 0 is the
+bottom row as in FITS, `bottom_up`), and catalogs: an
 `~astropy.table.Table` with x/y columns or an (N, 2) array of positions.
 The caller's objects are never modified: arrays are only read, and
 anything derived is a new array.
@@ -35,7 +38,8 @@ from astropy.nddata import NDData
 from astropy.table import Table
 from astropy.wcs import WCS, FITSFixedWarning
 
-__all__ = ["ParsedInput", "parse_input", "image_and_mask", "iter_frames", "batch_frames"]
+__all__ = ["ParsedInput", "parse_input", "image_and_mask", "iter_frames", "batch_frames",
+           "bottom_up", "FLIP_HISTORY", "is_channels_first"]
 
 _X_NAMES = ("x", "x_centroid", "xcentroid", "x_0", "x_fit", "xcen", "X_IMAGE")
 _Y_NAMES = ("y", "y_centroid", "ycentroid", "y_0", "y_fit", "ycen", "Y_IMAGE")
@@ -67,6 +71,10 @@ class ParsedInput:
         'array', 'masked', 'nddata', 'fits', 'tuple', 'image-file' or 'catalog'.
     name : str
         A short description for messages and history.
+    channels_first : bool
+        The input was a channels-first cube ``(nchan, ny, nx)``; ``data``
+        holds it channels last, as every stage takes it, and the output is
+        written back channels first.
     """
 
     data: object = None
@@ -79,6 +87,7 @@ class ParsedInput:
     points: object = None
     kind: str = "array"
     name: str = "array"
+    channels_first: bool = False
 
     @property
     def is_catalog(self):
@@ -97,6 +106,32 @@ class ParsedInput:
         return self.data
 
 
+def is_channels_first(arr):
+    """
+    True for a channels-first cube, ``(nchan, ny, nx)`` with 1 to 4 channels.
+
+    Stacked colour FITS files hold their planes first (``NAXIS3 = 3``);
+    image files and most arrays hold them last, ``(ny, nx, nchan)``.  A
+    cube counts as channels-first when its first axis has 1 to 4 planes
+    and its last axis is longer than 4 (a channels-last image has 1 to 4
+    there).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd._input import is_channels_first
+    >>> is_channels_first(np.zeros((3, 50, 60))), is_channels_first(np.zeros((50, 60, 3)))
+    (True, False)
+    """
+    shape = np.shape(arr)
+    return len(shape) == 3 and shape[0] in (1, 2, 3, 4) and shape[2] > 4
+
+
+def _plane_shape(arr):
+    """``(ny, nx)`` of an image in either layout."""
+    return tuple(arr.shape[1:]) if is_channels_first(arr) else tuple(arr.shape[:2])
+
+
 def _check_image_array(arr, name):
     if arr.dtype.kind not in "biuf":
         raise TypeError(
@@ -105,12 +140,14 @@ def _check_image_array(arr, name):
         )
     if arr.ndim == 3 and arr.shape[2] in (1, 2, 3, 4) and min(arr.shape[:2]) > 4:
         pass  # channels last (RGB, RGBA...)
+    elif is_channels_first(arr) and min(arr.shape[1:]) > 4:
+        pass  # channels first, as stacked colour FITS files hold them
     elif arr.ndim != 2:
         raise ValueError(
-            f"{name} must be a 2-D image, a channels-last (ny, nx, nchan) image, or an (N, 2) "
-            f"array of positions; got shape {arr.shape}."
+            f"{name} must be a 2-D image, a colour image (ny, nx, nchan) or (nchan, ny, nx) "
+            f"with 1 to 4 channels, or an (N, 2) array of positions; got shape {arr.shape}."
         )
-    if min(arr.shape[:2]) < 8:
+    if min(_plane_shape(arr)) < 8:
         raise ValueError(
             f"{name} is too small to find stars in (shape {arr.shape}); images need at least "
             "8x8 pixels. For a list of positions pass an (N, 2) array."
@@ -127,11 +164,11 @@ def _user_mask(data, mask):
     pass over large images.
     """
     if mask is None or np.ndim(mask) == 0:
-        return None if mask is None or not bool(mask) else np.ones(data.shape[:2], bool)
+        return None if mask is None or not bool(mask) else np.ones(_plane_shape(data), bool)
     m = np.asarray(mask, dtype=bool)
-    if m.ndim == 3:
-        m = m.any(axis=2)
-    if m.shape != data.shape[:2]:
+    if m.ndim == 3:  # one mask for every channel: bad in one is bad in all
+        m = m.any(axis=0 if is_channels_first(data) else 2)
+    if m.shape != _plane_shape(data):
         raise ValueError(
             f"mask shape {np.shape(mask)} does not match the image shape {data.shape}."
         )
@@ -214,7 +251,7 @@ def _add_extensions(p, hdul):
     from astropy.nddata import InverseVariance, StdDevUncertainty, VarianceUncertainty
 
     names = {h.name for h in hdul}
-    shape = p.data.shape[:2]
+    shape = _plane_shape(p.data)
     if "MASK" in names and np.shape(hdul["MASK"].data)[:2] == shape:
         p.mask = _user_mask(p.data, np.asarray(hdul["MASK"].data).astype(bool))
     if "UNCERT" in names and np.shape(hdul["UNCERT"].data) == p.data.shape:
@@ -222,7 +259,7 @@ def _add_extensions(p, hdul):
                "InverseVariance": InverseVariance}.get(
             hdul["UNCERT"].header.get("UTYPE"), StdDevUncertainty)
         p.uncertainty = cls(np.array(hdul["UNCERT"].data))
-    if "FLAGS" in names and np.shape(hdul["FLAGS"].data)[:2] == shape:
+    if "FLAGS" in names and _plane_shape(np.asarray(hdul["FLAGS"].data)) == shape:
         p.flags = np.array(hdul["FLAGS"].data)
 
 
@@ -334,6 +371,36 @@ def _native_in_place(arr):
     return arr.astype(arr.dtype.newbyteorder("="))
 
 
+#: The HISTORY card of an image read from a JPEG/PNG/TIFF file (see `bottom_up`).
+FLIP_HISTORY = "astroalign_nd: image-file rows flipped, row 0 = bottom (as in FITS)"
+
+
+def bottom_up(arr):
+    """
+    The rows of an image file's array in FITS order: row 0 at the bottom.
+
+    JPEG, PNG, TIFF, BMP and GIF files store the top row first; FITS (and
+    DS9, and ``imshow(origin='lower')``) put row 0 at the bottom.  Flipped
+    once, here, so that an image file registers, plots and is written as
+    it looks (a new C-contiguous array: the reader's is not kept).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd._input import bottom_up
+    >>> bottom_up(np.array([[1, 2], [3, 4]]))
+    array([[3, 4],
+           [1, 2]])
+    """
+    return np.ascontiguousarray(arr[::-1])
+
+
+def _flipped_header():
+    header = fits.Header()
+    header["HISTORY"] = FLIP_HISTORY
+    return header
+
+
 def _read_path(path, name, hdu=None, unit=None):
     path = os.fspath(path)
     if not os.path.exists(path):
@@ -349,9 +416,10 @@ def _read_path(path, name, hdu=None, unit=None):
                              f"({type(exc).__name__}: {exc}).") from None
         if arr.ndim == 3 and arr.shape[2] == 4:
             arr = arr[..., :3]  # drop alpha
-        p = ParsedInput(data=_check_image_array(arr, name), mask=None, unit=_as_unit(unit),
-                        kind="image-file", name=os.path.basename(path))
-        return p
+        _check_image_array(arr, name)
+        return ParsedInput(data=bottom_up(arr), mask=None, unit=_as_unit(unit),
+                           meta=_flipped_header(), kind="image-file",
+                           name=os.path.basename(path))
     try:
         p = _read_fits(path, name, hdu, unit)
     except (OSError, KeyError, IndexError, SyntaxError, fits.VerifyError) as exc:
@@ -453,7 +521,28 @@ def parse_input(obj: Any, name: str = "input", *, hdu: int | str | tuple | None 
         return obj
     if isinstance(getattr(obj, "_parsed", None), ParsedInput):  # a Reference
         return obj._parsed
-    return _in_native_order(_parse(obj, name, hdu, unit))
+    return _channels_last(_in_native_order(_parse(obj, name, hdu, unit)))
+
+
+def _channels_last(p):
+    """
+    A channels-first cube as every stage takes it: ``(ny, nx, nchan)``
+    views of its data, uncertainty and flags, with ``channels_first`` set so
+    that the output is written back in the input's layout.
+    """
+    if p.data is None or not is_channels_first(p.data):
+        return p
+    p.data = np.moveaxis(p.data, 0, -1)
+    unc = p.uncertainty
+    if unc is not None and is_channels_first(getattr(unc, "array", None)):
+        p.uncertainty = type(unc)(np.moveaxis(unc.array, 0, -1), unit=unc.unit, copy=False)
+    if isinstance(p.flags, np.ndarray) and is_channels_first(p.flags):
+        p.flags = np.moveaxis(p.flags, 0, -1)
+    if p.wcs is not None and p.wcs.pixel_n_dim != 2:  # a cube's WCS: its sky axes
+        celestial = p.wcs.celestial
+        p.wcs = celestial if celestial.pixel_n_dim == 2 else None
+    p.channels_first = True
+    return p
 
 
 def _native_copy(arr):

@@ -436,7 +436,12 @@ class ResampleConfig:
         False, None,
         "scale the resampled values by the pixel-area change so that total flux is kept",
         flag="--conserve-flux", action="store_true")
-    fill_value: float = _option(np.nan, None)
+    fill_value: float = _option(
+        np.nan, None,
+        "value written to output pixels that have no data (outside the source's footprint, "
+        "or masked); the mask marks them whatever the value. Give 0 to stack the frames "
+        "with tools that do not read the mask (default: {default})",
+        flag="--fill-value", type=float, metavar="VALUE", cli_default=None)
     method: str = _option("interpolate", None)
     parallel: bool = _option(True, None)
     add_keyword: bool = _option(True, None)

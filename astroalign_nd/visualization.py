@@ -13,7 +13,9 @@ Diagnostic plots of a registration.
   stretch;
 * `plot_registration`: all of them in one figure, and
   `save_diagnostic_figure`, which writes it to a file (the command line's
-  ``register --plot``).
+  ``register --plot``, and ``batch --plot DIR`` for each frame);
+* `plot_night`: a batch's drift, rotation, RMS and matched stars against
+  frame, and `save_night_figure` (``batch --plot DIR``'s night summary).
 
 The functions take what `~astroalign_nd.find_transform` and
 `~astroalign_nd.register` return (the transform, the matched points, the
@@ -39,7 +41,8 @@ from .registration import find_transform
 from .resample.nddata import apply_transform
 
 __all__ = ["plot_matches", "plot_invariants", "plot_residuals", "plot_difference",
-           "plot_registration", "save_diagnostic_figure", "match_colors"]
+           "plot_registration", "save_diagnostic_figure", "match_colors", "plot_night",
+           "save_night_figure", "NO_DATA_COLOR"]
 
 #: Options of `plot_registration` used to resample the source (when ``aligned`` is not
 #: given) rather than to find the transform.
@@ -153,12 +156,42 @@ def _zscale_norm(data):
     return ImageNormalize(good, interval=ZScaleInterval())
 
 
-def _show(ax, data, cmap="gray"):
-    import matplotlib
+#: The colour of pixels without data (masked, or outside the source's footprint).
+NO_DATA_COLOR = "#4a6fa5"
 
-    cmap = matplotlib.colormaps[cmap].with_extremes(bad="#4a6fa5")
-    return ax.imshow(data, origin="lower", cmap=cmap, norm=_zscale_norm(data),
-                     interpolation="nearest")
+
+def _show(ax, data, cmap="gray", norm=None):
+    """``data`` with a zscale stretch (or ``norm``), and a legend entry for its no-data pixels."""
+    import matplotlib
+    from matplotlib.patches import Patch
+
+    cmap = matplotlib.colormaps[cmap].with_extremes(bad=NO_DATA_COLOR)
+    im = ax.imshow(data, origin="lower", cmap=cmap, norm=norm or _zscale_norm(data),
+                   interpolation="nearest")
+    if not np.all(np.isfinite(data)):
+        ax.legend(handles=[Patch(facecolor=NO_DATA_COLOR, label="no data (masked)")],
+                  loc="lower right", fontsize="small", framealpha=0.8)
+    return im
+
+
+def _symmetric_norm(data):
+    """A colour scale symmetric about 0, as wide as the zscale range of ``data``."""
+    from astropy.visualization import ImageNormalize, ZScaleInterval
+
+    good = data[np.isfinite(data)]
+    lo, hi = ZScaleInterval().get_limits(good) if good.size else (-1.0, 1.0)
+    half = max(abs(lo), abs(hi)) or 1.0
+    return ImageNormalize(vmin=-half, vmax=half)
+
+
+def _display_name(image, default):
+    """A file's name (or a parsed input's), for titles; ``default`` for arrays."""
+    if isinstance(image, (str, os.PathLike)):
+        return os.path.basename(os.fspath(image))
+    name = getattr(image, "name", None)
+    if getattr(image, "kind", None) in ("fits", "image-file") and name:
+        return name
+    return default
 
 
 def plot_matches(source, target, points, *, axes=None, marker_size=80.0, show_images=True):
@@ -209,7 +242,8 @@ def plot_matches(source, target, points, *, axes=None, marker_size=80.0, show_im
         if data is not None:
             ax.set_xlim(-0.5, data.shape[1] - 0.5)
             ax.set_ylim(-0.5, data.shape[0] - 0.5)
-        _label(ax, f"{name}: {len(pts)} matched stars")
+        shown = _display_name(image, name)
+        _label(ax, f"{name}{'' if shown == name else ' ' + shown}\n{len(pts)} matched stars")
     return ax_src, ax_dst
 
 
@@ -374,12 +408,15 @@ def plot_residuals(transform, points, *, ax=None, scale=None, shape=None):
 
 def plot_difference(aligned, target, *, ax=None, colorbar=True):
     """
-    Show the registered frame minus the target, with a zscale stretch.
+    Show the registered frame minus the target, centred and on a symmetric scale.
 
+    The median of the difference is subtracted (a sky level that differs
+    between the frames), and the colour scale runs from ``-v`` to ``+v``
+    (``v`` from a zscale of the difference), so that mid-grey is zero.
     Stars that are well registered cancel to noise (if the two frames have
     the same seeing and exposure); a misregistration leaves pairs of
     positive and negative residuals.  Pixels masked in either frame (outside
-    the source's footprint) are drawn in blue.
+    the source's footprint) are drawn in blue, named in the legend.
 
     Parameters
     ----------
@@ -397,7 +434,7 @@ def plot_difference(aligned, target, *, ax=None, colorbar=True):
     -------
     ax : `~matplotlib.axes.Axes`
         With one image, normalized by `~astropy.visualization.ImageNormalize`
-        with a `~astropy.visualization.ZScaleInterval`.
+        symmetric about zero.
 
     Examples
     --------
@@ -417,9 +454,12 @@ def plot_difference(aligned, target, *, ax=None, colorbar=True):
         raise ValueError(f"aligned (shape {a.shape}) is not on the target's pixel grid (shape "
                          f"{t.shape}); pass the output of register(source, target).")
     ax = _new_axes(ax)
-    im = _show(ax, a - t)
+    diff = a - t
+    if np.isfinite(diff).any():
+        diff -= np.nanmedian(diff)
+    im = _show(ax, diff, norm=_symmetric_norm(diff))
     if colorbar:
-        ax.figure.colorbar(im, ax=ax, shrink=0.8, label="aligned - target")
+        ax.figure.colorbar(im, ax=ax, shrink=0.8, label="aligned - target - median")
     _label(ax, "aligned - target")
     return ax
 
@@ -519,6 +559,7 @@ def plot_registration(source, target, transform=None, points=None, aligned=None,
     axes[1, 2].text(0.02, 0.98, _quality_text(transform), va="top", ha="left",
                     family="monospace", transform=axes[1, 2].transAxes)
     axes[1, 2].set_title("transform (source -> target)")
+    fig.suptitle(f"{_display_name(source, 'source')} -> {_display_name(target, 'target')}")
     return fig
 
 
@@ -600,14 +641,145 @@ def save_diagnostic_figure(path, source, target, aligned=None, *, overwrite=Fals
     """
     check_not_input(path, (source, target))
     check_plot_path(path, overwrite)
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(14, 9), layout="constrained")
-    FigureCanvasAgg(fig)
+    fig = _agg_figure((14, 9))
     plot_registration(source, target, aligned=aligned, fig=fig, **options)
+    return _save(fig, path, overwrite, dpi)
+
+
+def _night_table(result):
+    """The per-frame table of a batch (a `~astroalign_nd.batch.BatchResult` or its table)."""
+    table = result.to_table() if hasattr(result, "to_table") else result
+    missing = {"name", "status", "n_matches", "rms", "shift_x", "shift_y", "rotation"} - set(
+        getattr(table, "colnames", ()))
+    if missing:
+        raise TypeError("plot_night needs a BatchResult or its to_table(); got "
+                        f"{type(result).__name__} without the columns {sorted(missing)}.")
+    return table
+
+
+def plot_night(result, *, fig=None):
+    """
+    A batch at a glance: drift, rotation, RMS and matched stars against frame.
+
+    Four panels share the frame axis (input order): the shift of each frame
+    onto the reference (x and y, px), its rotation (deg), the RMS of the
+    fit (px) and the number of matched stars.  Failed frames leave a gap,
+    marked by a red cross on the frame axis.
+
+    Parameters
+    ----------
+    result : `~astroalign_nd.batch.BatchResult` or `~astropy.table.Table`
+        What `~astroalign_nd.register_batch` returned, or its ``to_table()``
+        (a ``--summary`` file read back).
+    fig : `~matplotlib.figure.Figure`, optional
+        The figure to draw on (cleared first); a new pyplot figure by default.
+
+    Returns
+    -------
+    fig : `~matplotlib.figure.Figure`
+        With four Axes.
+
+    Examples
+    --------
+    >>> from astroalign_nd.batch import register_batch
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> from astroalign_nd.visualization import plot_night
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=3.0, seed=1)
+    >>> fig = plot_night(register_batch([pair.source, pair.source], pair.target))
+    >>> [ax.get_ylabel() for ax in fig.axes]
+    ['shift [px]', 'rotation [deg]', 'RMS [px]', 'matched stars']
+    """
+    table = _night_table(result)
+    if fig is None:
+        _matplotlib()
+        import matplotlib.pyplot as plt
+
+        fig = plt.figure(figsize=(8, 9), layout="constrained")
+    else:
+        fig.clear()
+    axes = fig.subplots(4, 1, sharex=True)
+    k = np.arange(len(table))
+    failed = np.asarray(table["status"]) == "failed"
+    axes[0].plot(k, table["shift_x"], "o-", label="x")
+    axes[0].plot(k, table["shift_y"], "s-", label="y")
+    axes[0].legend(loc="best", fontsize="small")
+    for ax, col, label in ((axes[1], "rotation", "rotation [deg]"),
+                           (axes[2], "rms", "RMS [px]"),
+                           (axes[3], "n_matches", "matched stars")):
+        values = np.asarray(table[col], dtype=float)
+        if col == "n_matches":
+            values = np.where(failed, np.nan, values)
+        ax.plot(k, values, "o-", color="C2" if col == "rms" else "C0")
+        ax.set_ylabel(label)
+    axes[0].set_ylabel("shift [px]")
+    for ax in axes:
+        if failed.any():
+            ax.plot(k[failed], np.zeros(failed.sum()), "x", color="red",
+                    transform=ax.get_xaxis_transform(), clip_on=False)
+        ax.grid(alpha=0.3)
+    if len(k) <= 20:  # the frames' names, when they fit
+        axes[-1].set_xticks(k, [str(n) for n in table["name"]], rotation=60, ha="right",
+                            fontsize="small")
+    axes[-1].set_xlabel("frame")
+    n_ok = int((~failed).sum())
+    fig.suptitle(f"{n_ok} of {len(k)} frames registered"
+                 + (f", {int(failed.sum())} failed (red crosses)" if failed.any() else ""))
+    return fig
+
+
+def _save(fig, path, overwrite, dpi):
+    """Write ``fig`` to ``path`` atomically, in the format of its ending."""
     path = os.fspath(path)
     fmt = os.path.splitext(path)[1][1:].lower()
     with atomic_write(path, overwrite=overwrite) as tmp:
         fig.savefig(tmp, format=fmt, dpi=dpi)
     return path
+
+
+def _agg_figure(figsize):
+    """A figure drawn with the Agg backend: no pyplot window, no global state."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save_night_figure(path, result, *, overwrite=False, dpi=100):
+    """
+    Write the figure of `plot_night` to a file (atomically, without pyplot).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The image file; its ending gives the format.
+    result : `~astroalign_nd.batch.BatchResult` or `~astropy.table.Table`
+        As in `plot_night`.
+    overwrite : bool, optional
+        Replace ``path`` if it exists (default False: `FileExistsError`).
+    dpi : float, optional
+        Resolution of raster formats.
+
+    Returns
+    -------
+    path : str
+        The file written.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.batch import register_batch
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> from astroalign_nd.visualization import save_night_figure
+    >>> pair = simulate_pair((256, 256), n_stars=100, rotation=3.0, seed=1)
+    >>> result = register_batch([pair.source], pair.target)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     out = save_night_figure(os.path.join(folder, "night.png"), result)
+    ...     os.path.getsize(out) > 0
+    True
+    """
+    check_plot_path(path, overwrite)
+    fig = _agg_figure((8, 9))
+    plot_night(result, fig=fig)
+    return _save(fig, path, overwrite, dpi)

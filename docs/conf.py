@@ -56,6 +56,8 @@ exclude_patterns.append("**.ipynb_checkpoints")  # noqa: F405
 # myst-nb at every build: no outputs are stored, so none can go stale, and no program
 # outside pip (nbsphinx needs pandoc) is needed.
 extensions.append("myst_nb")  # noqa: F405
+# The command-line reference (cli.rst) is generated from the parser itself.
+extensions.append("sphinxarg.ext")  # noqa: F405
 nb_execution_mode = "force"
 nb_execution_timeout = 300
 nb_execution_raise_on_error = True

@@ -263,7 +263,9 @@ def test_callback_streams_and_table(tmp_path, night):
     result.to_table().write(path)
     t = Table.read(path)
     assert list(t.colnames) == ["name", "status", "ok", "n_matches", "rms",
-                                "log10_false_alarm", "seconds", "error", "output", "source"]
+                                "log10_false_alarm", "shift_x", "shift_y", "rotation", "scale",
+                                "seconds", "error", "output", "source"]
+    assert np.isnan(t["shift_x"][1]) and abs(t["scale"][0] - 1) < 0.01
     assert list(t["status"]) == ["registered", "failed", "registered"]
     assert t["n_matches"][0] >= 10 and t["rms"][0] < 1 and t["log10_false_alarm"][0] < -6
     assert "not found" in t["error"][1]

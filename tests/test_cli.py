@@ -95,8 +95,11 @@ def test_batch_resume_summary_and_exit_codes(files, tmp_path, capsys):
     assert "s0.fits: skipped" in text and "s2.fits: ok" in text
     assert "1 of 3 frames registered, 2 skipped" in text
     t = Table.read(summary)
-    assert list(t["name"]) == ["s0.fits", "s1.fits", "s2.fits"]
-    assert list(t["status"]) == ["skipped", "skipped", "registered"]
+    # The reference first (kept from the first run: on the same grid), then the frames.
+    assert list(t["name"]) == ["ref.fits", "s0.fits", "s1.fits", "s2.fits"]
+    assert list(t["status"]) == ["reference", "skipped", "skipped", "registered"]
+    assert "ref.fits: skipped (complete output there) -> " in text
+    t = t[1:]
     assert set(t.colnames) >= {"name", "status", "n_matches", "rms", "log10_false_alarm",
                                "seconds", "error"}
     assert np.all(t["n_matches"] >= 10) and np.all(t["rms"] < 1)
@@ -244,10 +247,15 @@ def test_cli_demo_and_overwrite(tmp_path, capsys):
     first = capsys.readouterr()
     assert "max position error" in first.out
 
+    # Since issue 29 the demo replaces the files an earlier demo wrote (the README's
+    # command runs again); a file it did not write is refused without --overwrite.
+    assert main(["demo", "--output-dir", str(tmp_path)]) == 0
+    assert "max position error" in capsys.readouterr().out
+    CCDData(np.zeros((8, 8)), unit="adu").write(aligned, overwrite=True)
     mtime = aligned.stat().st_mtime_ns
     code = main(["demo", "--output-dir", str(tmp_path)])
     second = capsys.readouterr()
-    assert code != 0
+    assert code == 2
     assert "already exists" in second.err and "--overwrite" in second.err
     assert "Traceback" not in second.err + second.out
     assert aligned.stat().st_mtime_ns == mtime

@@ -246,7 +246,9 @@ def test_png_path(small_pair, tmp_path):
     paths = []
     for name, img in (("s", small_pair.source), ("t", small_pair.target)):
         p = tmp_path / f"{name}.png"
-        skio.imsave(p, np.clip(img, 0, 65535).astype(np.uint16), check_contrast=False)
+        # Image files hold the top row first; they are read bottom-up (row 0 = the bottom,
+        # as in FITS): the file holds the array's rows in reverse.
+        skio.imsave(p, np.clip(img, 0, 65535).astype(np.uint16)[::-1], check_contrast=False)
         paths.append(p)
     t, _ = find_transform(*paths)
     assert frame_error(t, small_pair.truth_matrix, small_pair.target.shape) < 0.1

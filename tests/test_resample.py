@@ -232,8 +232,10 @@ def test_dtypes(noise_image):
     out64 = run(noise_image, m, (40, 40))[0]
     assert out64.dtype == np.float64
     assert_allclose(out, out64, rtol=1e-6, equal_nan=True)
-    ints = run(np.arange(100, dtype=np.int16).reshape(10, 10), np.eye(3), (10, 10))[0]
-    assert ints.dtype == np.float64 and ints[3, 4] == 34.0
+    # Integers run in float32 since issue 29 (they were float64): half the output size.
+    for kind in (np.int16, np.uint16, np.int32, np.uint8):
+        ints = run(np.arange(100, dtype=kind).reshape(10, 10), np.eye(3), (10, 10))[0]
+        assert ints.dtype == np.float32 and ints[3, 4] == 34.0
     big_endian = run(noise_image.astype(">f4"), m, (40, 40))[0]
     assert big_endian.dtype == np.float32
     assert_array_equal(big_endian, out)

@@ -164,12 +164,17 @@ def test_plot_residuals_arrows(pair, fit):
 
 
 def test_plot_difference_zscale(pair, fit):
+    """Centred (median 0) on a scale symmetric about 0, zscale-wide; no-data in the legend."""
     _, _, aligned = fit
     ax = vis.plot_difference(aligned, pair.target)
     (im,) = [a for a in ax.get_children() if isinstance(a, AxesImage)]
     assert isinstance(im.norm, ImageNormalize)
-    assert isinstance(im.norm.interval, ZScaleInterval)
+    assert im.norm.vmin == pytest.approx(-im.norm.vmax) and im.norm.vmax > 0
     expected = np.where(aligned.mask, np.nan, aligned.data) - pair.target
+    expected -= np.nanmedian(expected)
+    lo, hi = ZScaleInterval().get_limits(expected[np.isfinite(expected)])
+    assert im.norm.vmax == pytest.approx(max(abs(lo), abs(hi)))
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["no data (masked)"]
     shown = np.ma.filled(np.ma.asarray(im.get_array(), dtype=float), np.nan)
     np.testing.assert_allclose(shown, expected, equal_nan=True)
     assert len(ax.figure.axes) == 2  # the image and its colour bar

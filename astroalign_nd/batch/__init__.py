@@ -14,5 +14,7 @@ from .results import FrameResult, BatchResult
 from .core import register_batch
 from .planning import plan_outputs
 from .canvas import union_canvas
+from .reference import reference_on_canvas, write_reference
 
-__all__ = ['FrameResult', 'BatchResult', 'register_batch', 'plan_outputs', 'union_canvas']
+__all__ = ['FrameResult', 'BatchResult', 'register_batch', 'plan_outputs', 'union_canvas',
+           'reference_on_canvas', 'write_reference']

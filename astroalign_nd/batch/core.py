@@ -377,7 +377,7 @@ def _run_union(jobs, items, outputs, cfg, client, workers, report, margin, infli
         jobs2.append(_Job(i, items[i][0], res.name, outputs[i], stage="apply",
                           transform=_shifted(res.transform, offset, sign=-1),
                           quality=res.quality, canvas=(shape, offset, wcs),
-                          source_shape=res.shape))
+                          source_shape=res.shape, points=res.points))
     seconds = {i: found[i].seconds for i in found}
     with closing(_execute(jobs2, cfg, client, workers, inflight=inflight)) as run:
         for job, res in run:

@@ -52,6 +52,7 @@ class _Job:
     canvas: tuple = None  # (shape, (x0, y0), wcs) for the 'apply' stage
     source_shape: tuple = None
     before: object = None  # the output's _stat_key when the batch first sent the frame out
+    points: tuple = None  # the matched positions, carried to the result
 
 
 def _failed(job, exc, t0, src_path=None):
@@ -135,13 +136,15 @@ def _run(job, cfg):
         src, _, result = find_for_apply(job.source, cfg.reference, cfg.options, hdu=cfg.hdu,
                                         unit=cfg.unit)
         transform, quality = result.transform, quality_dict(result)
+        points = (result.source_points, result.target_points)
         if job.stage == "find":
             return FrameResult(name=job.name, status="registered", transform=transform,
                                quality=quality, source=src_path, output=job.output,
-                               shape=src.shape, seconds=time.perf_counter() - t0)
+                               shape=src.shape, seconds=time.perf_counter() - t0,
+                               points=points)
         # A copy: the caller's job list must not keep the frame's pixels alive.
         job = replace(job, source=src, transform=transform, quality=quality,
-                      canvas=None, source_shape=src.shape)
+                      canvas=None, source_shape=src.shape, points=points)
         return _apply_stage(job, cfg, t0, src_path)
     except Exception as exc:  # noqa: BLE001 - report every failure, keep going
         return _failed(job, exc, t0, src_path)
@@ -167,6 +170,7 @@ def _apply_stage(job, cfg, t0, src_path=None):
     else:
         shape, offset, wcs = job.canvas
         ccd = apply_transform(job.transform, src, tuple(shape), quality=job.quality,
+                              target_name=canvas_name(cfg.reference, shape, offset),
                               **cfg.apply_options)
         if wcs is not None:
             ccd.wcs = wcs
@@ -184,9 +188,19 @@ def _apply_stage(job, cfg, t0, src_path=None):
         ccd = None  # memory stays flat: nothing of the frame is kept
     return FrameResult(name=job.name, status="registered", transform=job.transform,
                        quality=job.quality, output=job.output, ccd=ccd, source=src_path,
-                       seconds=time.perf_counter() - t0)
+                       seconds=time.perf_counter() - t0, points=job.points)
 
 # -- the union canvas ------------------------------------------------------------------------
+
+
+def canvas_name(reference, shape, offset):
+    """
+    How a frame's HISTORY names the union canvas: the reference's name, the
+    canvas size and where the reference's pixel (0, 0) falls on it.
+    """
+    name = getattr(getattr(reference, "_parsed", reference), "name", "the reference")
+    return (f"the {shape[1]}x{shape[0]} union canvas of {name} (its pixel (0, 0) at "
+            f"canvas pixel ({-int(offset[0])}, {-int(offset[1])}))")
 
 
 def _shifted(transform, offset, sign):

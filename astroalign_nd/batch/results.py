@@ -6,11 +6,38 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import numpy as np
 from astropy.table import Table
+from ..transforms.convert import as_matrix
 
 __all__ = ['FrameResult', 'BatchResult']
 
 #: Status of a frame in a `BatchResult`.
 _STATUSES = ("registered", "skipped", "failed")
+
+
+def transform_figures(transform, offset=(0, 0)):
+    """
+    ``(shift_x, shift_y, rotation_deg, scale)`` of a frame's transform, onto
+    reference pixels (``offset``: the canvas's, added back), from its
+    linear part; NaNs when there is none.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.batch.results import transform_figures
+    >>> m = np.array([[0.0, -2.0, 5.0], [2.0, 0.0, -1.0], [0.0, 0.0, 1.0]])
+    >>> [round(v, 6) for v in transform_figures(m, offset=(10, 20))]
+    [15.0, 19.0, 90.0, 2.0]
+    """
+    if transform is None:
+        return (np.nan,) * 4
+    linear = getattr(transform, "linear_part", None)  # a distortion model: without it
+    try:
+        m = np.asarray(as_matrix(transform if linear is None else linear), dtype=float)
+    except (TypeError, ValueError):
+        return (np.nan,) * 4
+    return (float(m[0, 2] + offset[0]), float(m[1, 2] + offset[1]),
+            float(np.degrees(np.arctan2(m[1, 0], m[0, 0]))),
+            float(np.sqrt(abs(np.linalg.det(m[:2, :2])))))
 
 
 @dataclass
@@ -45,6 +72,11 @@ class FrameResult:
         The input path as given, None for in-memory inputs.
     shape : tuple or None
         The source frame's ``(ny, nx)``, where it was needed (``canvas='union'``).
+    points : tuple of two (K, 2) ndarray or None
+        The matched star positions, ``(source_points, reference_points)``
+        in source and reference pixels, as `~astroalign_nd.find_transform`
+        returns them (None for a skipped or failed frame): what the
+        diagnostic figures draw without searching again.
 
     Examples
     --------
@@ -68,6 +100,7 @@ class FrameResult:
     ccd: object = field(default=None, repr=False)
     source: str = None
     shape: tuple = field(default=None, repr=False)  # the source frame's (ny, nx)
+    points: tuple = field(default=None, repr=False)  # matched (source, reference) positions
     _grid: tuple = field(default=None, repr=False)  # (shape, offset) of a kept output
 
     @property
@@ -133,21 +166,28 @@ class BatchResult:
 
         Columns: ``name``, ``status``, ``ok`` (registered or skipped:
         the output is there), ``n_matches``, ``rms`` (px),
-        ``log10_false_alarm``, ``seconds``, ``error``, ``output`` and
-        ``source``.  Write it with ``result.to_table().write('night.ecsv')``.
+        ``log10_false_alarm``, ``shift_x`` and ``shift_y`` (px),
+        ``rotation`` (deg) and ``scale`` of the source-to-reference
+        transform (its linear part, whatever the canvas; NaN for a failed
+        frame), ``seconds``, ``error``, ``output`` and ``source``.  Write it
+        with ``result.to_table().write('night.ecsv')``.
         """
         rows = []
         for f in self.frames:
             q = f.quality or {}
             rows.append((f.name, f.status, f.ok, int(q.get("n_matches", 0)),
                          float(q.get("rms", np.nan)),
-                         float(q.get("log10_false_alarm", np.nan)), float(f.seconds),
+                         float(q.get("log10_false_alarm", np.nan)),
+                         *transform_figures(f.transform, self.canvas_offset), float(f.seconds),
                          f.error or "", f.output or "", f.source or ""))
         t = Table(rows=rows or None,
                   names=("name", "status", "ok", "n_matches", "rms", "log10_false_alarm",
+                         "shift_x", "shift_y", "rotation", "scale",
                          "seconds", "error", "output", "source"),
-                  dtype=(str, str, bool, int, float, float, float, str, str, str))
-        t["rms"].unit = "pix"
+                  dtype=(str, str, bool, int, float, float, float, float, float, float,
+                         float, str, str, str))
+        t["rms"].unit = t["shift_x"].unit = t["shift_y"].unit = "pix"
+        t["rotation"].unit = "deg"
         t["seconds"].unit = "s"
         if self.canvas_shape is not None:
             t.meta["canvas_shape"] = list(self.canvas_shape)

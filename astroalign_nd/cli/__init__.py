@@ -13,10 +13,14 @@ Subcommands
     Simulate a star-field pair with a known transform, register it and
     report how close the recovered transform is to the truth.
 
-Exit codes: 0 on success (frames skipped by ``--skip-existing`` included), 1
-when some frames of a ``batch`` failed, 2 on a usage or registration error or
-any other error, out of memory included (one line on standard error, without
-a traceback).
+Exit codes, the same for every command (``--help`` lists them too): 0 on
+success (frames skipped by ``--skip-existing`` included), 1 when some frames
+of a ``batch`` failed, 2 on a usage error (an input given as the output
+included) or any other error, out of memory included, 3 when the
+registration is refused (no trustworthy transform found), 130 and 143 when
+interrupted by SIGINT (Ctrl-C) and SIGTERM.  Errors are one line on standard
+error, without a traceback, and their hints name the command line's options
+(``--n-sources``), not the Python keywords.
 
 The package itself is imported lazily, inside the subcommands, so that
 ``astroalign-nd --help`` stays fast.

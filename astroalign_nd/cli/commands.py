@@ -1,9 +1,10 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """The commands: register, batch and demo."""
 
+import dataclasses
 import os
 import sys
-from .errors import _CLIError
+from .errors import _CLIError, cli_words
 from .options import _registration_kwargs
 
 __all__ = []
@@ -119,7 +120,9 @@ def _cmd_register(args):
 
 def _frame_line(f):
     if f.status == "failed":
-        return f"{f.name}: FAILED ({f.error})"
+        return f"{f.name}: FAILED ({cli_words(f.error or '')})"
+    if f.status == "reference":
+        return f"{f.name}: written -> {f.output}"
     q = f.quality or {}
     fig = []
     if "n_matches" in q:
@@ -129,6 +132,8 @@ def _frame_line(f):
     if "log10_false_alarm" in q:
         fig.append(f"log10 FA {q['log10_false_alarm']:.1f}")
     what = "ok" if f.status == "registered" else "skipped (complete output there)"
+    if not f.quality and f.status == "skipped":  # the reference, kept
+        return f"{f.name}: {what} -> {f.output}"
     return f"{f.name}: {what} -> {f.output} ({', '.join(fig)}; {f.seconds:.1f} s)"
 
 
@@ -193,13 +198,30 @@ def _frame_reporter(n, bar):
     return report
 
 
-def _write_summary(result, path):
+def _summary_table(result, reference=None):
+    """The per-frame table of a batch, the reference's row first (when it was written)."""
+    from astropy.table import vstack
+
+    from astroalign_nd.batch import BatchResult
+
+    table = result.to_table()
+    if reference is not None:
+        if reference.ok:  # written, or kept (--skip-existing): the row says what it is
+            reference = dataclasses.replace(reference, status="reference")
+        ref = BatchResult([reference], canvas_shape=result.canvas_shape,
+                          canvas_offset=result.canvas_offset).to_table()
+        table = vstack([ref, table], metadata_conflicts="silent")
+        table.meta.update(result.to_table().meta)
+    return table
+
+
+def _write_summary(result, path, reference=None):
     """The per-frame table of a batch, as ECSV (or CSV by the extension)."""
     from astroalign_nd.io.write import atomic_write
 
     fmt = "ascii.ecsv" if path.lower().endswith(".ecsv") else "ascii.csv"
     with atomic_write(path, overwrite=True) as tmp:
-        result.to_table().write(tmp, format=fmt, overwrite=True)
+        _summary_table(result, reference).write(tmp, format=fmt, overwrite=True)
     print(f"wrote {path}")
 
 
@@ -218,7 +240,7 @@ def _interrupted_summary(result, exc):
         line += f", {len(failed)} failed"
     line += (f"; interrupted ({why}): {len(not_done)} not done. Run the same command with "
              "--skip-existing to finish.")
-    return "\n".join([line] + [f"  FAILED {f.name}: {f.error}" for f in failed])
+    return cli_words("\n".join([line] + [f"  FAILED {f.name}: {f.error}" for f in failed]))
 
 
 def _cmd_batch(args):
@@ -226,6 +248,7 @@ def _cmd_batch(args):
 
     target, sources = _batch_frames(args)
     _check_batch_options(args)
+    plots = _check_plot_dir(args, target, sources) if args.plot is not None else None
     progress = args.progress if args.progress is not None else sys.stderr.isatty()
     client = None
     client_class = _dask_client_class() if args.scheduler else None
@@ -266,10 +289,129 @@ def _cmd_batch(args):
         ny, nx = result.canvas_shape
         print(f"canvas: {nx}x{ny} px, pixel (0, 0) at reference pixel "
               f"{tuple(int(v) for v in result.canvas_offset)}")
-    print(result.summary())
+    reference = _write_reference(args, target, result)
+    print(cli_words(result.summary()))
     if args.summary is not None:
-        _write_summary(result, args.summary)
-    return 1 if result.failed else 0
+        _write_summary(result, args.summary, reference)
+    if args.plot is not None:
+        _batch_figures(args, target, result, plots)
+    return 1 if result.failed or reference.status == "failed" else 0
+
+
+def _write_reference(args, target, result):
+    """The reference on the output grid, next to the frames (a line, and the summary's row)."""
+    from astroalign_nd.batch import write_reference
+
+    kwargs = _registration_kwargs(args)
+    options = dict(hdu=kwargs["hdu"], unit=args.unit)
+    if "fill_value" in kwargs:
+        options["fill_value"] = kwargs["fill_value"]
+    reference = write_reference(target, result, args.output_dir, overwrite=args.overwrite,
+                                skip_existing=args.skip_existing, **options)
+    print(f"reference {_frame_line(reference)}", flush=True)
+    return reference
+
+
+def _figure_path(plot_dir, output):
+    """A frame's figure: its output's name, ending in .png."""
+    stem = os.path.basename(output)
+    for ext in (".fits.gz", ".fits", ".fit", ".fts"):
+        if stem.lower().endswith(ext):
+            stem = stem[: -len(ext)]
+            break
+    return os.path.join(plot_dir, stem + ".png")
+
+
+#: The night summary figure of ``batch --plot DIR``.
+_NIGHT_FIGURE = "night_summary.png"
+
+
+def _check_plot_dir(args, target, sources):
+    """
+    Before any work: matplotlib there, DIR usable, and no figure to be
+    written already there (unless --overwrite; --skip-existing keeps them).
+    Returns the figure of each planned output, by output path.
+    """
+    from astroalign_nd.batch import plan_outputs
+    from astroalign_nd.visualization import check_plot_path
+
+    _check_output_dir(args.plot)
+    outputs, _ = plan_outputs(sources, args.output_dir, protected=[target])
+    plots = {out: _figure_path(args.plot, out) for out in outputs}
+    for path in [*plots.values(), os.path.join(args.plot, _NIGHT_FIGURE)]:
+        if os.path.exists(path) and args.skip_existing and not args.overwrite:
+            continue
+        try:
+            check_plot_path(path, args.overwrite)
+        except FileExistsError:
+            raise _CLIError(f"figure {path!r} already exists; pass --overwrite to replace "
+                            "it (or --skip-existing to keep it).") from None
+    return plots
+
+
+def _batch_figures(args, target, result, plots):
+    """A figure for each frame registered in this run (no new search), and the night's."""
+    from astroalign_nd.batch.frame import _shifted
+    from astroalign_nd.visualization import save_diagnostic_figure, save_night_figure
+
+    hdu = _registration_kwargs(args)["hdu"]
+    for f in result.frames:
+        path = plots.get(f.output)
+        if f.status != "registered" or f.points is None or path is None:
+            continue
+        # The figure compares on the reference's grid: a union canvas's frame is
+        # resampled again there (from the transform found, not a new search).
+        union = args.canvas == "union"
+        transform = _shifted(f.transform, result.canvas_offset, sign=+1) if union \
+            else f.transform
+        aligned = None if union else f.output
+        if isinstance(getattr(transform, "meta", None), dict) and f.quality:
+            transform.meta.setdefault("quality", f.quality)  # for the figure's text
+        try:
+            save_diagnostic_figure(path, f.source, target, aligned, overwrite=True, hdu=hdu,
+                                   transform=transform, points=f.points)
+        except (ValueError, TypeError, OSError) as exc:
+            print(f"{f.name}: no figure ({cli_words(str(exc))})")
+            continue
+        print(f"wrote {path}")
+    night = os.path.join(args.plot, _NIGHT_FIGURE)
+    print("wrote " + save_night_figure(night, result, overwrite=True))
+
+
+#: The demo's pair (`~astroalign_nd.simulate.simulate_pair`'s arguments); its help says so.
+DEMO_PAIR = dict(shape=(512, 512), n_stars=300, rotation=17.0, scale=1.05,
+                 translation=(12.3, -7.7))
+
+#: Header keyword of the demo's files: a later demo replaces them.
+_DEMO_KEY = "AADEMO"
+
+
+def demo_description():
+    """The demo's ``--help`` text, from `DEMO_PAIR`."""
+    p = DEMO_PAIR
+    ny, nx = p["shape"]
+    dx, dy = p["translation"]
+    return (f"Simulate a {nx}x{ny} star field ({p['n_stars']} stars) and a second view of it "
+            f"related by a known similarity transform: rotated by {p['rotation']:g} deg and "
+            f"scaled by {p['scale']:g} about the frame centre, the centre shifted by "
+            f"({dx:g}, {dy:g}) px (the transform printed is the same one, written about pixel "
+            "(0, 0), hence its larger translation). Write DIR/source.fits and "
+            "DIR/target.fits, register the source onto the target, write DIR/aligned.fits "
+            "and report the error of the recovered transform. Running the demo again "
+            "replaces the files an earlier demo wrote (other files under those names only "
+            "with --overwrite).")
+
+
+def _is_demo_output(path):
+    """``path`` is a FITS file an earlier demo wrote (its header says so)."""
+    from astropy.io import fits
+
+    if not os.path.isfile(path):
+        return False
+    try:
+        return fits.getval(path, _DEMO_KEY, ext=0) is True
+    except (OSError, KeyError, IndexError, ValueError):
+        return False
 
 
 def _cmd_demo(args):
@@ -284,24 +426,21 @@ def _cmd_demo(args):
     paths = {name: os.path.join(out_dir, f"{name}.fits")
              for name in ("source", "target", "aligned")}
     _check_output_dir(out_dir)
-    for path in paths.values():
-        _check_writable(path, args.overwrite)
+    # The demo's own earlier outputs are replaced (the README's command runs again); any
+    # other file under those names is kept unless --overwrite.
+    replace = {name: args.overwrite or _is_demo_output(path) for name, path in paths.items()}
+    for name, path in paths.items():
+        _check_writable(path, replace[name])
 
-    pair = simulate_pair(
-        shape=(512, 512),
-        n_stars=300,
-        rotation=17.0,
-        scale=1.05,
-        translation=(12.3, -7.7),
-        seed=args.seed,
-    )
-    source = CCDData(pair.source, unit=u.adu)
-    target = CCDData(pair.target, unit=u.adu)
-    write_ccddata(source, paths["source"], overwrite=args.overwrite)
-    write_ccddata(target, paths["target"], overwrite=args.overwrite)
+    pair = simulate_pair(seed=args.seed, **DEMO_PAIR)
+    meta = {_DEMO_KEY: (True, "written by astroalign-nd demo")}
+    source = CCDData(pair.source, unit=u.adu, meta=dict(meta))
+    target = CCDData(pair.target, unit=u.adu, meta=dict(meta))
+    write_ccddata(source, paths["source"], overwrite=replace["source"])
+    write_ccddata(target, paths["target"], overwrite=replace["target"])
 
-    aligned = astroalign_nd.register(source, target)
-    write_ccddata(aligned, paths["aligned"], overwrite=args.overwrite)
+    aligned = astroalign_nd.register(source, target)  # the source's header: AADEMO too
+    write_ccddata(aligned, paths["aligned"], overwrite=replace["aligned"])
 
     # The registered frame records how it was made: rebuild the transform.
     recovered = astroalign_nd.transform_from_header(aligned.meta)

@@ -1,7 +1,11 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
-"""The command line's errors and their exit codes."""
+"""The command line's errors, its exit codes, and its hints in its own option names."""
 
+import re
 import sys
+
+from ..config import (DetectionConfig, MatchingConfig, ModelConfig, RegistrationConfig,
+                      ResampleConfig, cli_fields)
 
 __all__ = []
 
@@ -9,6 +13,25 @@ _PROG = "astroalign-nd"
 
 #: Errors reported as ``astroalign-nd: error: <message>`` rather than with a traceback.
 _USER_ERRORS = (ValueError, TypeError, OSError)
+
+#: The exit codes of every command, and what each means (``--help`` and the docs show it).
+EXIT_OK, EXIT_FRAMES_FAILED, EXIT_USAGE, EXIT_REFUSED = 0, 1, 2, 3
+EXIT_CODES = (
+    (EXIT_OK, "success (batch: every frame registered, or skipped by --skip-existing)"),
+    (EXIT_FRAMES_FAILED, "batch: some frames failed (each is reported; the others were "
+     "written)"),
+    (EXIT_USAGE, "usage error: a bad option or value, an input that cannot be read, an "
+     "output that cannot be written or that is one of the inputs, or any other error"),
+    (EXIT_REFUSED, "registration refused: no trustworthy transform (too few stars, no "
+     "match, or a match that does not pass the checks); nothing was written"),
+    (130, "interrupted (SIGINT, Ctrl-C); batch writes what was done"),
+    (143, "terminated (SIGTERM); batch writes what was done"),
+)
+
+
+def exit_codes_text():
+    """The table of exit codes as ``--help`` prints it (the epilog of every command)."""
+    return "exit codes:\n" + "\n".join(f"  {code:<4d} {text}" for code, text in EXIT_CODES)
 
 
 class _CLIError(Exception):
@@ -21,9 +44,58 @@ def _expected_errors():
 
     return (AstroalignError, _CLIError) + _USER_ERRORS
 
+
+def exit_code(exc):
+    """3 for a refused registration (an `~astroalign_nd.AstroalignError`), else 2."""
+    from astroalign_nd import AstroalignError
+
+    return EXIT_REFUSED if isinstance(exc, AstroalignError) else EXIT_USAGE
+
+# -- hints in the command line's words -------------------------------------------------------
+
+
+#: Keywords without an underscore that are not also common words ("order", "degree").
+_PLAIN_KEYWORDS = ("fwhm", "nsigma", "tolerance", "hdu")
+
+
+def _flags():
+    """The library's keyword -> the command line's option, for every option it offers."""
+    flags = {"hdu": "--hdu"}
+    for config in (ModelConfig, ResampleConfig, RegistrationConfig, DetectionConfig,
+                   MatchingConfig):
+        for name, flag, kwargs in cli_fields(config):
+            if kwargs.get("action") == "store_false":  # --no-mirror: not the keyword's name
+                continue
+            if "_" in name or name in _PLAIN_KEYWORDS:
+                flags[name] = flag
+    return flags
+
+
+_FLAGS = _flags()
+#: A keyword as a word (not inside another name or option), with ``=value`` if given.
+_KEYWORD = re.compile(r"(?<![\w\-.'\"])(" + "|".join(sorted(_FLAGS, key=len, reverse=True))
+                      + r")\b(=)?")
+
+
+def cli_words(message):
+    """
+    ``message`` with the library's keywords as the command line's options.
+
+    The library's hints name its keywords (``try more sources
+    (n_sources)``, ``pass fwhm=<width>``); printed by the command line,
+    they name its options (``--n-sources``, ``--fwhm <width>``).
+
+    Examples
+    --------
+    >>> from astroalign_nd.cli.errors import cli_words
+    >>> cli_words("try more sources (n_sources), or pass fwhm=<their width>.")
+    'try more sources (--n-sources), or pass --fwhm <their width>.'
+    """
+    return _KEYWORD.sub(lambda m: _FLAGS[m.group(1)] + (" " if m.group(2) else ""), message)
+
 # -- entry point -----------------------------------------------------------------------------
 
 
-def _error(message):
-    print(f"{_PROG}: error: {message}", file=sys.stderr)
-    return 2
+def _error(message, code=EXIT_USAGE):
+    print(f"{_PROG}: error: {cli_words(message)}", file=sys.stderr)
+    return code

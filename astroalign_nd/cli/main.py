@@ -4,16 +4,38 @@
 import argparse
 import contextlib
 import sys
-from .errors import _PROG, _error, _expected_errors
-from .commands import _cmd_batch, _cmd_demo, _cmd_register
+import textwrap
+from .errors import _PROG, _error, _expected_errors, cli_words, exit_code, exit_codes_text
+from .commands import _cmd_batch, _cmd_demo, _cmd_register, demo_description
 from .options import _registration_options
 
-__all__ = ['main']
+__all__ = ['main', 'build_parser']
 
 
-def _build_parser():
+class _HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, except that the exit-code table keeps one line per code."""
+
+    def _fill_text(self, text, width, indent):
+        if not text.startswith("exit codes:"):
+            return super()._fill_text(text, width, indent)
+        lines = text.splitlines()
+        return "\n".join([indent + lines[0]] + [
+            textwrap.fill(line.strip(), width, initial_indent=indent + "  ",
+                          subsequent_indent=indent + " " * 7) for line in lines[1:]])
+
+
+def build_parser():
+    """
+    The ``astroalign-nd`` argument parser, with every subcommand and option.
+
+    The documentation's command-line reference is generated from it.
+
+    Returns
+    -------
+    parser : `argparse.ArgumentParser`
+    """
     parser = argparse.ArgumentParser(
-        prog=_PROG,
+        prog=_PROG, formatter_class=_HelpFormatter, epilog=exit_codes_text(),
         description="Register (align) astronomical images by matching star triangles. "
         "Inputs are FITS images; outputs are FITS images written as CCDData, "
         "with mask and uncertainty when the inputs have them.",
@@ -36,24 +58,23 @@ _COMMANDS = {
     "batch": (
         "register several images onto one target",
         "Register each SOURCE onto TARGET, writing DIR/<name>_aligned.fits for "
-        "each, and print each frame's line as soon as it is done. Give the target with "
-        "-r/--reference (sources first, as in register and in the Python API "
+        "each and the reference itself on the same grid as DIR/<target name>_reference.fits "
+        "(to stack it with the rest), and print each frame's line as soon as it is done. "
+        "Give the target with -r/--reference (sources first, as in register and in the Python API "
         "register_batch(sources, target)); without -r, the first image is the target (the "
         "older form 'batch TARGET SOURCES...'). A frame that fails is reported and the "
         "others go on; the exit code is 1 if any frame failed."),
     "demo": (
         "simulate a pair of star fields, register them and compare with the truth",
-        "Simulate a 512x512 star-field pair related by a known similarity "
-        "transform (rotation 17 deg, scale 1.05, shift (12.3, -7.7) px), write "
-        "DIR/source.fits and DIR/target.fits, register the source onto the target, write "
-        "DIR/aligned.fits and report the error of the recovered transform."),
+        demo_description()),
 }
 
 
 def _add_command(sub, name, func, parents=()):
     """The subparser of the subcommand ``name``, which ``main`` runs through ``func``."""
     help_line, description = _COMMANDS[name]
-    p = sub.add_parser(name, parents=list(parents), help=help_line, description=description)
+    p = sub.add_parser(name, parents=list(parents), help=help_line, description=description,
+                       epilog=exit_codes_text(), formatter_class=_HelpFormatter)
     p.set_defaults(func=func)
     return p
 
@@ -89,7 +110,14 @@ def _add_batch_command(sub, reg_opts):
                    "every frame (for dithered and mosaic sets)")
     p.add_argument("--summary", metavar="FILE.ecsv", default=None,
                    help="write one row per frame (name, status, matches, RMS, false alarm, "
-                   "seconds, error) to this ECSV (or .csv) table")
+                   "shift, rotation, scale, seconds, error), the reference's first, to this "
+                   "ECSV (or .csv) table")
+    p.add_argument("--plot", metavar="DIR", default=None,
+                   help="also write a diagnostic figure of each frame registered "
+                   "(DIR/<name>_aligned.png: matched stars, invariants, residuals, "
+                   "difference image; from the match found, no new search) and the night's "
+                   "summary (DIR/night_summary.png: drift, rotation, RMS and matched stars "
+                   "against frame), once the batch is done; needs matplotlib")
     p.add_argument("--workers", type=int, default=0, metavar="N",
                    help="run the frames in N local worker processes (default: one after the "
                    "other in this process)")
@@ -107,9 +135,13 @@ def _add_demo_command(sub):
     p.add_argument("--output-dir", required=True, metavar="DIR",
                    help="folder for source.fits, target.fits and aligned.fits "
                    "(created if needed)")
-    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace existing files that an earlier demo did not write")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
 
+
+#: The former private name (tests use it).
+_build_parser = build_parser
 
 _SIGINT = 2  # signal.SIGINT, the same number on every platform
 
@@ -189,11 +221,13 @@ def main(argv=None):
     -------
     int
         The exit code: 0 on success, 1 if some frames of ``batch`` failed,
-        2 on a usage or registration error, 130 when interrupted (SIGINT,
-        Ctrl-C) and 143 when terminated (SIGTERM); ``batch`` stops its
-        workers and prints (and writes, with ``--summary``) what was done.
+        2 on a usage error (or any error other than these), 3 when the
+        registration is refused (no trustworthy transform), 130 when
+        interrupted (SIGINT, Ctrl-C) and 143 when terminated (SIGTERM);
+        ``batch`` stops its workers and prints (and writes, with
+        ``--summary``) what was done.  See :ref:`cli-exit-codes`.
     """
-    parser = _build_parser()
+    parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, or argparse's own usage error (code 2)
@@ -218,7 +252,7 @@ def main(argv=None):
     import warnings
 
     def one_line_warning(message, category, filename, lineno, file=None, line=None):
-        print(f"{_PROG}: warning: {message}", file=sys.stderr)
+        print(f"{_PROG}: warning: {cli_words(str(message))}", file=sys.stderr)
 
     old_showwarning = warnings.showwarning
     warnings.showwarning = one_line_warning
@@ -226,7 +260,7 @@ def main(argv=None):
         with _interrupt_signals():
             return args.func(args)
     except errors as exc:
-        return _error(str(exc) or type(exc).__name__)
+        return _error(str(exc) or type(exc).__name__, exit_code(exc))
     except MemoryError as exc:
         return _error(f"out of memory{': ' + str(exc) if str(exc) else ''}; try a smaller "
                       "--max-sources or --n-sources, --bin-factor, or fewer --workers.")

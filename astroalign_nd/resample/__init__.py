@@ -105,8 +105,8 @@ coordinate map the factor is the local ``|det|`` of the map's Jacobian
 """
 
 from .interpolation import ORDERS
-from .core import resample
+from .core import resample, working_dtype
 from .exact import resample_exact
 from .nddata import apply_transform
 
-__all__ = ['ORDERS', 'resample', 'resample_exact', 'apply_transform']
+__all__ = ['ORDERS', 'resample', 'resample_exact', 'apply_transform', 'working_dtype']

@@ -7,7 +7,7 @@ from .._kernels import compiled_kernels, run_split
 from .coordinate_map import _CoordinateMap, _inverse_coefficients, _parse_matrix, _resample_map
 from .interpolation import _parse_order, _resample_numpy
 
-__all__ = ['resample']
+__all__ = ['resample', 'working_dtype']
 
 # Output rows per thread, at least: below ~256x256 output pixels one thread does
 # it all (waking a second one costs more than the work).
@@ -30,6 +30,27 @@ def _parse_shape_out(shape_out, nchan):
             f"shape_out must be the (ny, nx) shape of the target image; got {shape_out!r}."
         )
     return shape
+
+
+def working_dtype(dtype):
+    """
+    The type an image of ``dtype`` is resampled (and returned) in.
+
+    float64 (and longer floats) stay float64; everything else (integers of
+    any size, booleans, float16, float32, either byte order) runs in
+    float32: a resampled value is no longer an integer, float32 holds every
+    16-bit value exactly and keeps 7 significant digits (far below any
+    pixel's noise), and the output is half the size of float64.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.resample.core import working_dtype
+    >>> working_dtype(np.int16), working_dtype(">f4"), working_dtype(np.float64)
+    (<class 'numpy.float32'>, <class 'numpy.float32'>, <class 'numpy.float64'>)
+    """
+    dtype = np.dtype(dtype)
+    return np.float64 if dtype.kind == "f" and dtype.itemsize >= 8 else np.float32
 
 
 def _prepare(data, variance, mask, shape_out, keep_var_dtype=False):
@@ -59,8 +80,7 @@ def _prepare(data, variance, mask, shape_out, keep_var_dtype=False):
     if arr.size == 0:
         # (The compiled kernels index the first pixel: there must be one.)
         raise ValueError(f"data is empty (shape {arr.shape}); pass an image with pixels.")
-    # float32 (either byte order) in -> float32 out; anything else runs in float64.
-    dtype = np.float32 if arr.dtype.kind == "f" and arr.dtype.itemsize == 4 else np.float64
+    dtype = working_dtype(arr.dtype)
     multichannel = arr.ndim == 3
 
     def channels_first(a, keep_dtype=False):
@@ -327,8 +347,9 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     ----------
     data : array-like, shape (ny, nx) or (ny, nx, nchan)
         The source image; 3-D input is channels-last (e.g. RGB) and every
-        channel is resampled with the same weights.  float32 data is
-        processed and returned as float32, anything else as float64.  A
+        channel is resampled with the same weights.  float64 data is
+        processed and returned as float64, anything else (integers,
+        float32) as float32 (see `working_dtype`).  A
         `numpy.ma.MaskedArray` contributes its mask to ``mask``.
     matrix : (3, 3) or (2, 3) array-like, or transform
         The *source -> target* pixel transform: a homogeneous matrix, e.g.

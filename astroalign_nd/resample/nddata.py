@@ -39,7 +39,7 @@ from ..config import ResampleConfig, astroalign_advice
 from ..io.header import add_provenance, check_quality, header_from_meta, header_without_wcs
 from .coordinate_map import _MAP_BAND_PIXELS, _CoordinateMap, _parse_matrix
 from .interpolation import ORDERS
-from .core import resample
+from .core import resample, working_dtype
 from .exact import resample_exact
 from ..transforms.linear import LinearTransform2D
 from ..transforms import ProjectiveTransform
@@ -260,7 +260,8 @@ def _nonlinear_provenance(header, transform, cmap, quality, names):
 
 #: `apply_transform`'s keywords as its error message lists them: the resampling
 #: config's fields, and the inputs' own.
-_ACCEPTED = ", ".join(f.name for f in fields(ResampleConfig)) + ", unit, quality and hdu"
+_ACCEPTED = (", ".join(f.name for f in fields(ResampleConfig))
+             + ", unit, quality, hdu and target_name")
 
 
 def _check_options(unexpected, order, method):
@@ -300,9 +301,8 @@ def _source_variance(src, method):
     unc = src.uncertainty
     kind = "variance"
     if method == "exact":
-        # float32 data is resampled in float32 (see `resample`): so is its variance.
-        dtype = np.float32 if data.dtype.kind == "f" and data.dtype.itemsize == 4 \
-            else np.float64
+        # The variance is resampled in the data's working type (see `resample`).
+        dtype = working_dtype(data.dtype)
         variance = _variance_of(unc, dtype)
     else:
         _variance_of(unc, None, check_only=True)
@@ -365,7 +365,7 @@ def _blank_uncertainty(var_out, mask_out, bad, m, shape_out, method, order, para
     var_out[reached & valid] = np.nan
 
 
-def _output_header(src, dst, transform, m, quality, add_keyword, **names):
+def _output_header(src, dst, transform, m, quality, add_keyword, target_name=None, **names):
     """The source's header as FITS cards, without its WCS, and the registration's keywords."""
     # Non-FITS keys become HIERARCH cards; the WCS cards describe the old grid.
     # (The header is this function's own: stripped and completed without copies, which cost
@@ -373,8 +373,7 @@ def _output_header(src, dst, transform, m, quality, add_keyword, **names):
     header = header_without_wcs(header_from_meta(src.meta), copy=False)
     if not add_keyword:
         return header
-    names = dict(source_name=src.name, target_name=dst.name if dst is not None else "shape",
-                 **names)
+    names = dict(source_name=src.name, target_name=str(target_name), **names)
     if not isinstance(m, _CoordinateMap):
         model = transform if isinstance(transform, LinearTransform2D) else from_matrix(m)
         return add_provenance(header, model, quality=quality, copy=False, **names)
@@ -396,7 +395,7 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
                     fill_value: float = np.nan, method: str = "interpolate", unit: Any = None,
                     parallel: bool = True, quality: dict | None = None,
                     hdu: int | str | None = None, add_keyword: bool = True,
-                    **unexpected: Any) -> CCDData:
+                    target_name: str | None = None, **unexpected: Any) -> CCDData:
     """
     Resample ``source`` onto the pixel grid of ``target``.
 
@@ -410,7 +409,8 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
         through its coordinate map (see `~astroalign_nd.resample.resample`);
         ``method='exact'`` takes affine transforms only.
     source : array-like, `~astropy.nddata.NDData`, HDU, path or tuple
-        The image to resample (2-D or channels-last multichannel).  A FITS
+        The image to resample (2-D, or a colour cube, channels last or
+        first: the output keeps the source's layout).  A FITS
         path is read as `~astropy.nddata.CCDData.read` reads it (``MASK``,
         ``UNCERT``, ``FLAGS`` extensions, unit from ``BUNIT``); an
         ``(array, header)`` or ``(array, WCS)`` tuple as reproject takes it.
@@ -449,6 +449,10 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
         transform and fit keywords and HISTORY cards of
         `~astroalign_nd.io.add_provenance`.  False leaves the source's
         header as it was (without its celestial WCS cards).
+    target_name : str, optional
+        How the HISTORY card names the output grid ("registered a.fits onto
+        the pixel grid of <target_name>"); by default the target's file
+        name, or its shape when ``target`` is an ``(ny, nx)`` tuple.
 
     Returns
     -------
@@ -517,10 +521,27 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     if var_out is not None:
         uncertainty = _uncertainty_like(src.uncertainty, var_out, out_unit,
                                         converted=method != "exact")
-    header = _output_header(src, dst, transform, m, quality, add_keyword,
+    if target_name is None:  # a shape tuple: its size
+        target_name = dst.name if dst is not None else f"a {shape_out[1]}x{shape_out[0]} grid"
+    header = _output_header(src, dst, transform, m, quality, add_keyword, target_name,
                             order=order_name, conserve_flux=conserve_flux)
     full_mask = mask_out if out.ndim == 2 else np.broadcast_to(
         mask_out[..., None], out.shape).copy()
     flags = None if src.flags is None else _resample_flags(src.flags, m, shape_out)
+    if src.channels_first:  # written back in the caller's layout, (nchan, ny, nx)
+        out, full_mask, flags, uncertainty = _channels_first(out, full_mask, flags,
+                                                             uncertainty)
     return CCDData(out, unit=out_unit, mask=full_mask, uncertainty=uncertainty, meta=header,
                    wcs=_output_wcs(src, dst, m, shape_out), flags=flags)
+
+
+def _channels_first(data, mask, flags, uncertainty):
+    """The resampled planes of a channels-first input, back in its layout (contiguous)."""
+    def first(a):
+        return a if a is None or np.ndim(a) != 3 else np.ascontiguousarray(np.moveaxis(a, -1, 0))
+
+    if uncertainty is not None:
+        uncertainty = type(uncertainty)(first(uncertainty.array), unit=uncertainty.unit,
+                                        copy=False)
+    flags = first(flags) if isinstance(flags, np.ndarray) else flags
+    return first(data), first(mask), flags, uncertainty
