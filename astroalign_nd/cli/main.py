@@ -7,6 +7,7 @@ import sys
 from .errors import _PROG, _error, _expected_errors
 from .commands import _cmd_batch, _cmd_demo, _cmd_register
 from .options import _registration_options
+from .stack import add_stack_commands
 
 __all__ = ['main']
 
@@ -23,6 +24,7 @@ def _build_parser():
     reg_opts = _registration_options()
     _add_register_command(sub, reg_opts)
     _add_batch_command(sub, reg_opts)
+    add_stack_commands(sub, reg_opts)
     _add_demo_command(sub)
     return parser
 
