@@ -2063,7 +2063,7 @@ def simulate_sequence(shape=(256, 256), *, n_frames=10, n_stars=150, max_shift=1
     --------
     >>> from astroalign_nd.simulate import simulate_sequence
     >>> seq = simulate_sequence((128, 128), n_frames=3, n_stars=50, noise_sigma=5.0, seed=1)
-    >>> len(seq.frames), seq.frames[1].uncertainty.array[0, 0], seq.shifts[0].tolist()
+    >>> len(seq.frames), float(seq.frames[1].uncertainty.array[0, 0]), seq.shifts[0].tolist()
     (3, 5.0, [0.0, 0.0])
     """
     from astropy.nddata import CCDData, StdDevUncertainty

@@ -102,7 +102,7 @@ def _none(value):
 
 def _cmd_stack(args):
     from astroalign_nd import AstroalignError
-    from astroalign_nd.stack import stack
+    from astroalign_nd.stacking import stack
 
     images = [_check_input(p) for p in args.images]
     reference = _check_input(args.reference) if args.reference else None
@@ -134,13 +134,19 @@ def _cmd_stack(args):
     return _SOME_FAILED if h["NREJECT"] else 0
 
 
+class _Break(KeyboardInterrupt):
+    """Ctrl-Break, ended as SIGTERM ends the command (exit 143): ``main`` reads ``signum``."""
+
+    def __init__(self, signum):
+        super().__init__("SIGTERM (Ctrl-Break)")
+        self.signum = signum
+
+
 @contextlib.contextmanager
 def _break_signal():
     """Windows: Ctrl-Break (what a parent can send a child) stops the watch as SIGTERM does."""
     import signal
     import threading
-
-    from .main import _Terminated
 
     brk = getattr(signal, "SIGBREAK", None)
     if brk is None or threading.current_thread() is not threading.main_thread():
@@ -148,7 +154,7 @@ def _break_signal():
         return
 
     def stop(signum, frame):
-        raise _Terminated(getattr(signal, "SIGTERM", 15))
+        raise _Break(getattr(signal, "SIGTERM", 15))
 
     old = signal.signal(brk, stop)
     try:
@@ -159,7 +165,7 @@ def _break_signal():
 
 def _cmd_watch(args):
     from astroalign_nd import AstroalignError
-    from astroalign_nd.stack import watch_folder
+    from astroalign_nd.stacking import watch_folder
 
     reference = _check_input(args.reference)
     if not os.path.isdir(args.folder):

@@ -20,9 +20,10 @@ import numpy as np
 from astropy.io import fits
 from astropy.stats import sigma_clipped_stats
 
-__all__ = ["CombineOptions", "FrameStats", "frame_stats", "array_stats", "read_rows", "combine_files",
-           "normalise", "frame_weights", "reject", "combine", "frame_variance", "rows_per_strip", "robust_sigma", "STACK_METHODS",
-           "CLIP_METHODS", "NORMALIZE_METHODS"]
+__all__ = ["CombineOptions", "FrameStats", "frame_stats", "array_stats", "read_rows",
+           "combine_files", "normalise", "frame_weights", "reject", "combine", "frame_variance",
+           "rows_per_strip", "robust_sigma", "STACK_METHODS", "CLIP_METHODS",
+           "NORMALIZE_METHODS", "MIN_MAD_VALUES"]
 
 #: The combinations: weighted mean, median, and the sum (the mean times the number of frames).
 STACK_METHODS = ("average", "median", "sum")
@@ -120,7 +121,7 @@ def robust_sigma(values):
     Examples
     --------
     >>> import numpy as np
-    >>> from astroalign_nd.stack.combine import robust_sigma
+    >>> from astroalign_nd.stacking.combine import robust_sigma
     >>> rng = np.random.default_rng(0)
     >>> bool(abs(robust_sigma(rng.normal(0.0, 2.0, 100_000)) - 2.0) < 0.05)
     True
@@ -255,7 +256,7 @@ def rows_per_strip(n_frames, nx, memory_limit):
 
     Examples
     --------
-    >>> from astroalign_nd.stack.combine import rows_per_strip
+    >>> from astroalign_nd.stacking.combine import rows_per_strip
     >>> rows_per_strip(10, 1000, 64e6)
     100
     """

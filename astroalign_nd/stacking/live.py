@@ -7,17 +7,17 @@ file-system notification library, the same on every platform).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from typing import Any, Callable
 
 import numpy as np
-from astropy.io import fits
 from astropy.nddata import CCDData, StdDevUncertainty
 
 from .._input import parse_input
-from ..config import RegistrationConfig
-from ..io import write_output
+from ..config import RegistrationConfig, ResampleConfig
+from ..io import FITSWriter, write_output
 from ..io.write import FITS_EXTENSIONS, check_not_input, check_output_path
 from ..registration import prepare_target, register_and_match
 from .core import _check_options
@@ -45,7 +45,7 @@ class LiveStack:
     (the spread is the running standard deviation of the values kept at
     that pixel, but never less than the frame's own uncertainty), so that
     a satellite trail or cosmic ray in one frame does not stay, wherever
-    it falls.  Memory: about ``60 + 10 * n_start`` bytes per pixel of the
+    it falls.  Memory: about ``60 + 12 * n_start`` bytes per pixel of the
     reference.  The frames are assumed calibrated.
 
     Parameters
@@ -56,8 +56,11 @@ class LiveStack:
     sigma : float, optional
         The clipping limit (default 3); None for no clipping.
     n_start : int, optional
-        Frames held and clipped together before the running clipping
-        starts (default 3, at least 3).
+        Each pixel's values held and clipped together (about their median)
+        before the running clipping starts there (default 5, at least 3;
+        the stack clips the values held as soon as there are three, but
+        five tell a trail and a cosmic ray in two of the first frames from
+        the sky).
     normalize : {'offset', 'scale', None}, optional
         As in `~astroalign_nd.stack`.
     weights : {'variance', None}, optional
@@ -76,7 +79,7 @@ class LiveStack:
 
     Examples
     --------
-    >>> from astroalign_nd.stack import LiveStack
+    >>> from astroalign_nd.stacking import LiveStack
     >>> from astroalign_nd.simulate import simulate_sequence
     >>> seq = simulate_sequence((128, 128), n_frames=4, n_stars=60, seed=3)
     >>> live = LiveStack(seq.frames[0])
@@ -87,7 +90,7 @@ class LiveStack:
     (4, 'frame3')
     """
 
-    def __init__(self, reference: Any, *, sigma: float | None = 3.0, n_start: int = 3,
+    def __init__(self, reference: Any, *, sigma: float | None = 3.0, n_start: int = 5,
                  normalize: str | None = "offset", weights: str | None = "variance",
                  gain: float | None = None, read_noise: float | None = None,
                  hdu: int | str | None = None, unit: Any = None, order: str | int = "bilinear",
@@ -103,7 +106,9 @@ class LiveStack:
             read_noise
         self.hdu, self.unit = hdu, unit
         self.options = dict(options, order=order)
-        config = RegistrationConfig.from_keywords(**options)
+        resample = {f.name for f in dataclasses.fields(ResampleConfig)}
+        config = RegistrationConfig.from_keywords(
+            **{k: v for k, v in options.items() if k not in resample})
         self._ref = prepare_target(reference, config, hdu)
         parsed = parse_input(reference, "reference", hdu=hdu, unit=unit)
         if parsed.data is None or parsed.data.ndim != 2:
@@ -170,7 +175,7 @@ class LiveStack:
             As `~astroalign_nd.stack` returns it (``flags``: the frames
             reaching each pixel).
         """
-        value, variance, coverage = self._acc.value(self._stats)
+        value, variance, coverage = self._acc.value(self._stats, self.opts)
         reach = coverage > 0
         value, variance = np.where(reach, value, np.nan), np.where(reach, variance, np.nan)
         used = [dict(name=n, offset=st.offset, scale=st.scale, weight=st.weight,
@@ -266,16 +271,25 @@ class _Running:
         self.started |= full
         self.n_held[full] = 0
 
-    def value(self, stats):
-        """The stack: the running sums, plus the values held where it has not started."""
+    def value(self, stats, opts):
+        """
+        The stack: the running sums, plus the values held where it has not
+        started (clipped together once there are three).
+        """
         weights = np.array([s.weight for s in stats])
         wsum, wx, w2v = self.wsum.copy(), self.wx.copy(), self.w2v.copy()
-        for j in range(self.n_start):
-            at = (~self.started) & (self.n_held > j)
-            w = weights[self.held_k[j][at]]
-            wsum[at] += w
-            wx[at] += w * self.held_x[j][at]
-            w2v[at] += w * w * self.held_v[j][at]
+        at = (~self.started) & (self.n_held > 0)
+        n_held = self.n_held[at]
+        valid = np.arange(self.n_start)[:, None] < n_held
+        hx = self.held_x[:, at].astype(np.float64)
+        hv = self.held_v[:, at].astype(np.float64)
+        keep = valid
+        if opts.clip:
+            keep = np.where(n_held >= 3, reject(hx, hv, valid, opts), valid)
+        w = np.where(keep, weights[np.maximum(self.held_k[:, at], 0)], 0.0)
+        wsum[at] += w.sum(axis=0)
+        wx[at] += (w * np.where(keep, hx, 0.0)).sum(axis=0)
+        w2v[at] += (w * w * np.where(keep, hv, 0.0)).sum(axis=0)
         with np.errstate(invalid="ignore", divide="ignore"):
             return wx / wsum, w2v / (wsum * wsum), self.coverage
 
@@ -317,7 +331,7 @@ def write_with_retry(ccd, path, *, overwrite=True, tries=_RETRY_TRIES):
     >>> import os, tempfile
     >>> import numpy as np
     >>> from astropy.nddata import CCDData
-    >>> from astroalign_nd.stack.live import write_with_retry
+    >>> from astroalign_nd.stacking.live import write_with_retry
     >>> with tempfile.TemporaryDirectory() as folder:
     ...     path = os.path.join(folder, "stack.fits")
     ...     write_with_retry(CCDData(np.ones((3, 3)), unit="adu"), path)
@@ -343,15 +357,10 @@ def _is_fits_name(name):
 def _complete_fits(path):
     """True if ``path`` parses as a FITS file whose data blocks are all there."""
     try:
-        with fits.open(path, memmap=False) as hdul:
-            hdul.verify("silentfix")
-            for hdu in hdul:
-                if hdu.header.get("NAXIS", 0) and hdu.data is None:
-                    return False
-            size = sum(h.filebytes() for h in hdul)  # what the headers say the file holds
-        return os.path.getsize(path) >= size
+        _, shape = FITSWriter().read_done(path)  # the check a resumed batch makes
     except Exception:  # noqa: BLE001 - any failure to parse: not (yet) a complete file
         return False
+    return shape is not None
 
 
 class _Poller:

@@ -62,7 +62,7 @@ def stack_header(meta, used, rejected, settings):
 
     Examples
     --------
-    >>> from astroalign_nd.stack.header import stack_header
+    >>> from astroalign_nd.stacking.header import stack_header
     >>> h = stack_header({}, [{"name": "a.fits"}, {"name": "b.fits"}],
     ...                  [("c.fits", "TooFewSourcesError: 2 stars")], {})
     >>> h["NCOMBINE"], h["IMCMB002"], h["AAREJ001"]

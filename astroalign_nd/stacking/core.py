@@ -157,6 +157,8 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     items, hdu = batch_frames(frames, hdu)
     if isinstance(items, Iterator):
         items = list(items)
+    # In-memory frames are named by their place among the frames, in the header too.
+    items = [(f, f"frame{k}" if label is None else label) for k, (f, label) in enumerate(items)]
     ref_item, others, n_frames = _split_reference(items, reference)
     weights = _check_weights(weights, n_frames)
     _check_outputs(output, overwrite, items, ref_item)
