@@ -1987,6 +1987,15 @@ class SimulatedSequence:
         Each frame's ``(dx, dy)`` offset onto the reference.
     meta : dict
         The settings used.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.simulate import simulate_sequence
+    >>> seq = simulate_sequence((128, 128), n_frames=3, n_stars=50, seed=2)
+    >>> dx, dy = seq.shifts[1]
+    >>> bool(np.allclose(seq.transforms[1].matrix[:2, 2], [dx, dy]))
+    True
     """
 
     frames: list

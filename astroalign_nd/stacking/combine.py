@@ -36,7 +36,7 @@ NORMALIZE_METHODS = (None, "offset", "scale")
 #: variance and validity, and the temporaries of the median and the clipping).
 _BYTES_PER_VALUE = 64
 #: Pixels sampled for a frame's sky statistics (a regular subsample: deterministic).
-_SKY_SAMPLES = 400_000
+_SKY_SAMPLES = 100_000
 _MAD_TO_SIGMA = 1.482602218505602
 #: Values at a pixel from which sigma clipping also trusts their MAD for the spread.
 MIN_MAD_VALUES = 6
@@ -263,11 +263,19 @@ def rows_per_strip(n_frames, nx, memory_limit):
     return max(1, int(memory_limit // (_BYTES_PER_VALUE * max(n_frames, 1) * max(nx, 1))))
 
 
-def _nanmedian(a, axis=0):
-    """np.nanmedian without its all-NaN warning (such pixels are handled by the caller)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmedian(a, axis=axis)
+def _nanmedian(a):
+    """
+    The median along axis 0, ignoring NaN (NaN where all are): a sort of the
+    few values of each pixel, several times faster than `numpy.nanmedian`
+    along a short axis.
+    """
+    s = np.sort(a, axis=0)  # NaN sort last
+    k = np.count_nonzero(~np.isnan(a), axis=0)
+    lo = np.maximum(k - 1, 0) // 2
+    hi = k // 2
+    med = 0.5 * (np.take_along_axis(s, lo[None], axis=0)[0]
+                 + np.take_along_axis(s, np.minimum(hi, a.shape[0] - 1)[None], axis=0)[0])
+    return np.where(k > 0, med, np.nan)
 
 
 def _sigma_clip(x, var, valid, opts):

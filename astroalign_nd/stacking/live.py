@@ -448,6 +448,24 @@ def watch_folder(folder: str | os.PathLike, reference: Any, output: str | os.Pat
     -------
     live : `LiveStack`
         Its ``used`` and ``rejected`` list the frames.
+
+    Examples
+    --------
+    Three frames already in the folder (a script would copy them in as
+    they come); the watch stops after 0.2 s without a new one:
+
+    >>> import os, tempfile
+    >>> from astroalign_nd.io import write_ccddata
+    >>> from astroalign_nd.simulate import simulate_sequence
+    >>> from astroalign_nd.stacking import watch_folder
+    >>> seq = simulate_sequence((128, 128), n_frames=3, n_stars=60, seed=3)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     for k, frame in enumerate(seq.frames):
+    ...         write_ccddata(frame, os.path.join(folder, f"f{k}.fits"))
+    ...     live = watch_folder(folder, os.path.join(folder, "f0.fits"),
+    ...                         os.path.join(folder, "stack.fits"), interval=0.05, timeout=0.2)
+    >>> live.used, live.rejected
+    (['f0.fits (reference)', 'f1.fits', 'f2.fits'], [])
     """
     folder, output = os.fspath(folder), os.fspath(output)
     interval = _check_seconds(interval, "interval", allow_zero=False)
