@@ -372,3 +372,27 @@ def test_stack_command(ten, tmp_path, capsys):
     h = fits.getheader(out)
     assert [h[f"IMCMB{k:03d}"] for k in (1, 2, 3)] == ["frame00.fits (reference)",
                                                        "frame01.fits", "frame02.fits"]
+
+
+def test_write_with_retry_waits_for_a_viewer(monkeypatch, tmp_path):
+    """Windows: a viewer holding the stack open makes the rename fail for a while."""
+    import astroalign_nd.stacking.live as live_mod
+
+    real, calls = live_mod.write_output, []
+
+    def busy(ccd, path, overwrite=False):
+        calls.append(path)
+        if len(calls) < 3:
+            raise PermissionError("the file is open in another program")
+        real(ccd, path, overwrite=overwrite)
+
+    monkeypatch.setattr(live_mod, "write_output", busy)
+    monkeypatch.setattr(live_mod, "_RETRY_SECONDS", 0.01)
+    path = str(tmp_path / "stack.fits")
+    live_mod.write_with_retry(CCDData(np.ones((4, 4)), unit="adu"), path)
+    assert len(calls) == 3 and os.path.isfile(path)
+    calls.clear()
+    monkeypatch.setattr(live_mod, "write_output", lambda *a, **k: (_ for _ in ()).throw(
+        PermissionError("still open")))
+    with pytest.raises(PermissionError, match="still open"):
+        live_mod.write_with_retry(CCDData(np.ones((4, 4)), unit="adu"), path, tries=2)

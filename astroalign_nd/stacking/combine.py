@@ -183,14 +183,19 @@ def read_rows(path, r0, r1):
     return data, var, valid
 
 
-def frame_stats(path):
+def frame_stats(path, memory_limit=512e6):
     """
     The sky, noise and median variance of a registered frame (see `FrameStats`).
+
+    The frame is read a strip of rows at a time (within ``memory_limit``
+    bytes), and a regular subsample of its valid pixels is kept.
 
     Parameters
     ----------
     path : str
         A registered FITS file.
+    memory_limit : float, optional
+        Bytes.
 
     Returns
     -------
@@ -202,8 +207,22 @@ def frame_stats(path):
         If the frame has no valid pixel.
     """
     with fits.open(path, memmap=True) as hdul:
-        ny = hdul[0].data.shape[0]
-    return array_stats(*read_rows(path, 0, ny))
+        ny, nx = hdul[0].data.shape[:2]
+    step = max(1, (ny * nx) // _SKY_SAMPLES)
+    rows = rows_per_strip(1, nx, memory_limit)
+    values, variances, n_valid, has_var = [], [], 0, True
+    for r0 in range(0, ny, rows):
+        data, var, valid = read_rows(path, r0, min(ny, r0 + rows))
+        n_valid += int(valid.sum())
+        values.append(data[valid][::step])
+        has_var = has_var and var is not None
+        if has_var:
+            variances.append(var[valid][::step])
+    data = np.concatenate(values)
+    var = np.concatenate(variances) if has_var else None
+    stats = array_stats(data, var, np.ones(data.shape, dtype=bool))
+    stats.n_valid = n_valid
+    return stats
 
 
 def array_stats(data, var, valid):

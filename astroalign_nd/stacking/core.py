@@ -177,7 +177,8 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
             raise TransformNotFoundError(
                 "no frame could be registered onto the reference: "
                 + "; ".join(f"{n}: {e}" for n, e in rejected))
-        used, stats = _measure(frames_, rejected, opts, weights, gain, read_noise)
+        used, stats = _measure(frames_, rejected, opts, weights, gain, read_noise,
+                               memory_limit)
         value, variance, coverage = combine_files(
             [frames_[i][1] for i in used], stats, result.canvas_shape, opts, gain=gain,
             read_noise=read_noise, memory_limit=memory_limit)
@@ -346,7 +347,7 @@ def _reference_name(item):
     return f"{name} (reference)"
 
 
-def _measure(frames, rejected, opts, weights, gain, read_noise):
+def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit):
     """
     Each frame's statistics, normalisation and weight; a frame that cannot
     be measured joins ``rejected``.  Returns the indices used and their stats.
@@ -355,7 +356,7 @@ def _measure(frames, rejected, opts, weights, gain, read_noise):
     ref_sky = None
     for i, (name, path, _) in enumerate(frames):
         try:
-            st = frame_stats(path)
+            st = frame_stats(path, memory_limit)
             ref_sky = st.sky if ref_sky is None else ref_sky
             normalise(st, ref_sky, opts.normalize)
         except ValueError as exc:
