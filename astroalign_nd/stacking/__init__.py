@@ -3,7 +3,7 @@
 Stacking: register frames onto a reference and combine them.
 
 `stack` registers (through `~astroalign_nd.register_batch`) and combines
-(`~astroalign_nd.stacking.combine`: sky normalisation, sigma or min/max
+(``astroalign_nd.stacking.combine``: sky normalisation, sigma or min/max
 clipping, weights, the combined uncertainty, a strip of rows at a time
 within a memory limit).  `LiveStack` adds frames one at a time to a
 running stack with clipping against it, and `watch_folder` feeds it the
