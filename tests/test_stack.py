@@ -291,6 +291,15 @@ def _read_stack(path):
         return hdul[0].header["NCOMBINE"]
 
 
+#: The command as a terminal runs it: Ctrl-C raises KeyboardInterrupt, even when the test
+#: process (a worker pool of an earlier test) left SIGINT ignored for its children.
+_TERMINAL_CLI = (
+    "import signal, sys\n"
+    "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+    "from astroalign_nd.cli.main import main\n"
+    "sys.exit(main(sys.argv[1:]))\n")
+
+
 def _copy_and_read(paths, watched, out, proc, errlog):
     """Copy the frames in one by one, reading the stack back all the while."""
     deadline = time.monotonic() + 90
@@ -326,7 +335,7 @@ def test_watch_command_live_and_sigint(ten, tmp_path):
     log, errlog = tmp_path / "out.txt", tmp_path / "err.txt"
     with open(log, "wb") as fo, open(errlog, "wb") as fe:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "astroalign_nd.cli", "watch", str(watched), "-r", paths[0],
+            [sys.executable, "-c", _TERMINAL_CLI, "watch", str(watched), "-r", paths[0],
              "--stack", str(out), "--interval", "0.1"], stdout=fo, stderr=fe, env=env)
         try:
             counts = _copy_and_read(paths, watched, out, proc, errlog)
