@@ -9,7 +9,8 @@ The pipeline, one subpackage per stage: `~astroalign_nd.detection` (sources)
 `~astroalign_nd.transforms` (models, fits, model selection) ->
 `~astroalign_nd.resample` (pixels, and CCDData in and out).
 `~astroalign_nd.registration` strings them together; `~astroalign_nd.io`
-reads and writes, `~astroalign_nd.batch` runs many frames.
+reads and writes, `~astroalign_nd.batch` runs many frames and
+`~astroalign_nd.stacking` stacks them.
 
 Code written for astroalign 2.6 runs on this package's engine with
 ``from astroalign_nd import compat as aa`` (`astroalign_nd.compat`).
@@ -37,6 +38,7 @@ _LAZY = {
     "Reference": "registration",
     "apply_transform": "resample",
     "register_batch": "batch",
+    "stack": "stacking",
     "LinearTransform2D": "transforms",
     "TranslationTransform": "transforms",
     "EuclideanTransform": "transforms",

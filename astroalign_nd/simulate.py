@@ -54,6 +54,9 @@ __all__ = [
     "resampled_copy",
     "simulate_trust_case",
     "TRUST_CASES",
+    "simulate_sequence",
+    "SimulatedSequence",
+    "add_satellite_trail",
 ]
 
 # Number of stamp elements processed at once by `render_stars` (bounds memory:
@@ -1901,3 +1904,216 @@ def simulate_trust_case(case, *, seed=None):
             meta={"shape": shape, "target_shape": shape})
     pair.meta["case"] = case
     return pair
+
+
+# -- sequences of frames (stacking) ---------------------------------------------
+
+def add_satellite_trail(image, start, end, *, width=2.0, amplitude=500.0):
+    """
+    A copy of ``image`` with a satellite (or aircraft) trail across it.
+
+    The trail is a straight band with a Gaussian profile across it (FWHM
+    ``width`` pixels) and a constant ``amplitude`` (counts at its centre)
+    along it, from ``start`` to ``end`` (``(x, y)`` pixel positions, which
+    may lie outside the frame).
+
+    Parameters
+    ----------
+    image : 2-D ndarray
+    start, end : (float, float)
+    width : float, optional
+        FWHM of the trail's profile, pixels (default 2).
+    amplitude : float, optional
+        Counts at the trail's centre line (default 500).
+
+    Returns
+    -------
+    image : 2-D ndarray
+        A new array (``image`` is not modified), float.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.simulate import add_satellite_trail
+    >>> img = add_satellite_trail(np.zeros((50, 60)), (0, 10), (59, 40), amplitude=100.0)
+    >>> round(float(img.max()))
+    100
+    """
+    image = _check_frame(image)
+    points = []
+    for name, value in (("start", start), ("end", end)):
+        xy, ok = _finite_pair(value)
+        if not ok:
+            raise ValueError(f"{name} must be a finite (x, y) pixel position; got {value!r}.")
+        points.append(xy)
+    (x0, y0), (x1, y1) = points
+    width = _check_real(width, "width", minimum=0.0, strict=True,
+                        hint=" Pass the trail's FWHM in pixels, e.g. 2.")
+    amplitude = _check_real(amplitude, "amplitude", hint=" Pass counts, e.g. 500.")
+    length = np.hypot(x1 - x0, y1 - y0)
+    if length == 0:
+        raise ValueError("the trail's start and end are the same point; give two points.")
+    yy, xx = np.mgrid[0:image.shape[0], 0:image.shape[1]]
+    ux, uy = (x1 - x0) / length, (y1 - y0) / length
+    along = (xx - x0) * ux + (yy - y0) * uy
+    across = (xx - x0) * uy - (yy - y0) * ux
+    sig = width * _FWHM_TO_SIGMA
+    band = amplitude * np.exp(-0.5 * (across / sig) ** 2)
+    band[(along < 0) | (along > length)] = 0.0
+    out = np.array(image, dtype=np.result_type(image.dtype, np.float32))
+    out += band.astype(out.dtype)
+    return out
+
+
+@dataclass(eq=False)
+class SimulatedSequence:
+    """
+    A simulated sequence of frames of one field, with its truth.
+
+    Attributes
+    ----------
+    frames : list of `~astropy.nddata.CCDData`
+        The frames (the first is the reference), each with a
+        `~astropy.nddata.StdDevUncertainty` holding its true noise (unless
+        the sequence was made with ``uncertainty=False``).
+    truth : 2-D ndarray
+        The noiseless reference frame: its sky and stars, without
+        artefacts (on the reference's grid).
+    transforms : list of `~astroalign_nd.transforms.LinearTransform2D`
+        Each frame's true frame-to-reference transform (identity first).
+    sky : list of float
+        Each frame's sky level.
+    shifts : (n_frames, 2) ndarray
+        Each frame's ``(dx, dy)`` offset onto the reference.
+    meta : dict
+        The settings used.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.simulate import simulate_sequence
+    >>> seq = simulate_sequence((128, 128), n_frames=3, n_stars=50, seed=2)
+    >>> dx, dy = seq.shifts[1]
+    >>> bool(np.allclose(seq.transforms[1].matrix[:2, 2], [dx, dy]))
+    True
+    """
+
+    frames: list
+    truth: np.ndarray
+    transforms: list
+    sky: list
+    shifts: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+
+def _sequence_frame(shape, x, y, flux, fwhm, sky, noise_sigma, read_noise, gain, rng, n_cr):
+    """One frame of a sequence: the noiseless model, and the noisy frame with its sigma."""
+    model = simulate_image(shape, x, y, flux, fwhm=fwhm, background=sky, noise=False,
+                           dtype=np.float64)
+    if noise_sigma is None:
+        sigma = np.sqrt(np.maximum(model, 0.0) / gain + read_noise ** 2)
+    else:
+        sigma = np.full(shape, float(noise_sigma))
+    frame = model + sigma * rng.standard_normal(shape)
+    _add_artifacts(frame, 0, n_cr, rng)
+    return model, frame.astype(np.float32), sigma.astype(np.float32)
+
+
+def simulate_sequence(shape=(256, 256), *, n_frames=10, n_stars=150, max_shift=12,
+                      integer_shifts=True, fwhm=3.0, flux_range=(300.0, 5e3),
+                      background=100.0, sky_drift=0.0, noise_sigma=None, read_noise=5.0,
+                      gain=1.0, n_cosmic_rays=0, uncertainty=True, seed=None):
+    """
+    Simulate a dithered sequence of frames of one star field (for stacking).
+
+    Frame ``k`` is the reference field seen shifted by ``shifts[k]``
+    (frame ``k``'s pixel ``(x, y)`` is the reference's ``(x + dx, y + dy)``),
+    with its own sky level and noise; the first frame is the reference
+    (shift 0).
+
+    Parameters
+    ----------
+    shape : tuple of int, optional
+        Every frame's ``(ny, nx)``.
+    n_frames : int, optional
+        Number of frames (default 10).
+    n_stars : int, optional
+        Stars in the reference frame (about as many in the others).
+    max_shift : float, optional
+        Shifts are drawn uniformly within ``+-max_shift`` pixels per axis.
+    integer_shifts : bool, optional
+        Whole-pixel shifts (default True): the registered frames are then
+        the truth plus noise, without interpolation error.
+    fwhm : float, optional
+        PSF FWHM, pixels.
+    flux_range : (float, float), optional
+        Star fluxes, see `draw_fluxes`.
+    background : float, optional
+        The reference's sky level, counts.
+    sky_drift : float, optional
+        Each other frame's sky is ``background * (1 + u)``, ``u`` uniform in
+        ``+-sky_drift`` (a night's changing sky).
+    noise_sigma : float, optional
+        Gaussian noise of this sigma everywhere (counts); default: the
+        Poisson noise of ``value / gain`` plus ``read_noise``, as a Gaussian.
+    read_noise, gain : float, optional
+        Counts, and electrons per count (default 5 and 1).
+    n_cosmic_rays : int, optional
+        Cosmic-ray hits per frame (see `simulate_image`).
+    uncertainty : bool, optional
+        Give each frame its true noise sigma as a `~astropy.nddata.StdDevUncertainty`.
+    seed : int, `numpy.random.Generator` or None, optional
+
+    Returns
+    -------
+    sequence : `SimulatedSequence`
+
+    Examples
+    --------
+    >>> from astroalign_nd.simulate import simulate_sequence
+    >>> seq = simulate_sequence((128, 128), n_frames=3, n_stars=50, noise_sigma=5.0, seed=1)
+    >>> len(seq.frames), float(seq.frames[1].uncertainty.array[0, 0]), seq.shifts[0].tolist()
+    (3, 5.0, [0.0, 0.0])
+    """
+    from astropy.nddata import CCDData, StdDevUncertainty
+
+    shape = _check_shape(shape)
+    n_frames = _check_count(n_frames, "n_frames")
+    if n_frames < 1:
+        raise ValueError("n_frames must be at least 1.")
+    max_shift = _check_real(max_shift, "max_shift", minimum=0.0)
+    sky_drift = _check_real(sky_drift, "sky_drift", minimum=0.0, maximum=1.0, strict_max=True)
+    if noise_sigma is not None:
+        noise_sigma = _check_real(noise_sigma, "noise_sigma", minimum=0.0, strict=True)
+    rng_stars, rng_frames = _spawn(seed, 2)
+    ny, nx = shape
+    shifts = rng_stars.uniform(-max_shift, max_shift, (n_frames, 2))
+    if integer_shifts:
+        shifts = np.round(shifts)
+    shifts[0] = 0.0
+    # Stars over the reference grid widened by the largest shift (every frame is filled).
+    pad = max_shift + 3.0 * fwhm
+    area = (nx + 2 * pad) * (ny + 2 * pad)
+    n_all = int(round(n_stars * area / (nx * ny)))
+    xs = rng_stars.uniform(-pad, nx - 1 + pad, n_all)
+    ys = rng_stars.uniform(-pad, ny - 1 + pad, n_all)
+    (lo, hi), alpha = _check_flux_range(flux_range, 1.5)
+    flux = _draw_fluxes(rng_stars, n_all, lo, hi, alpha)
+    skies = [float(background)] + [
+        float(background * (1.0 + rng_stars.uniform(-sky_drift, sky_drift)))
+        for _ in range(n_frames - 1)]
+    frames, transforms, truth = [], [], None
+    for k in range(n_frames):
+        dx, dy = shifts[k]
+        model, img, sig = _sequence_frame(shape, xs - dx, ys - dy, flux, fwhm, skies[k],
+                                          noise_sigma, read_noise, gain, rng_frames,
+                                          n_cosmic_rays)
+        truth = model if k == 0 else truth
+        unc = StdDevUncertainty(sig) if uncertainty else None
+        frames.append(CCDData(img, unit="adu", uncertainty=unc, meta={"SKYTRUE": skies[k]}))
+        transforms.append(from_matrix(np.array([[1.0, 0, dx], [0, 1.0, dy], [0, 0, 1.0]])))
+    meta = dict(shape=shape, n_frames=n_frames, n_stars=n_stars, max_shift=max_shift,
+                fwhm=fwhm, background=background, sky_drift=sky_drift,
+                noise_sigma=noise_sigma, read_noise=read_noise, gain=gain, seed=seed)
+    return SimulatedSequence(frames=frames, truth=truth, transforms=transforms, sky=skies,
+                             shifts=shifts, meta=meta)

@@ -8,6 +8,7 @@ import textwrap
 from .errors import _PROG, _error, _expected_errors, cli_words, exit_code, exit_codes_text
 from .commands import _cmd_batch, _cmd_demo, _cmd_register, demo_description
 from .options import _registration_options
+from .stack import add_stack_commands
 
 __all__ = ['main', 'build_parser']
 
@@ -45,6 +46,7 @@ def build_parser():
     reg_opts = _registration_options()
     _add_register_command(sub, reg_opts)
     _add_batch_command(sub, reg_opts)
+    add_stack_commands(sub, reg_opts)
     _add_demo_command(sub)
     return parser
 

@@ -1,0 +1,412 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""`stack`: register frames onto a reference and combine them."""
+
+from __future__ import annotations
+
+import numbers
+import os
+import tempfile
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+from astropy.nddata import CCDData, StdDevUncertainty
+
+from .._input import batch_frames, parse_input
+from ..batch import BatchResult, register_batch
+from ..exceptions import TransformNotFoundError, warn
+from ..io import write_ccddata, write_output
+from ..io.write import check_not_input, check_output_path
+from ..io.writers import output_suffixes
+from .combine import (CLIP_METHODS, NORMALIZE_METHODS, STACK_METHODS, CombineOptions,
+                      combine_files, frame_stats, frame_weights, normalise)
+from .header import stack_header
+
+__all__ = ["stack"]
+
+#: Default working memory of the combination, bytes.
+DEFAULT_MEMORY_LIMIT = 512e6
+
+
+def stack(frames: Any, reference: Any = None, *, method: str = "average",
+          clip: str | None = "sigma", sigma: float = 3.0, sigma_low: float | None = None,
+          sigma_high: float | None = None, maxiters: int = 3, nlow: int = 1, nhigh: int = 1,
+          normalize: str | None = "offset", weights: Any = "variance",
+          gain: float | None = None, read_noise: float | None = None,
+          canvas: str = "reference", memory_limit: float = DEFAULT_MEMORY_LIMIT,
+          output: str | os.PathLike | None = None, overwrite: bool = False,
+          aligned_dir: str | os.PathLike | None = None, temp_dir: str | None = None,
+          workers: int | None = None, progress: bool = False, hdu: int | str | None = None,
+          unit: Any = None, order: str | int = "bilinear", dtype: Any = np.float32,
+          **options: Any) -> CCDData:
+    """
+    Register frames onto a reference and combine them into one deep image.
+
+    Each frame is registered as `~astroalign_nd.register_batch` registers
+    it (onto the reference's grid, or onto the union canvas), its sky level
+    is brought to the reference's, values far from the other frames' are
+    rejected pixel by pixel (cosmic rays, satellite and aircraft trails,
+    hot pixels), and the rest are combined with their weights, a strip of
+    rows at a time within ``memory_limit``.  The frames are assumed
+    calibrated (bias, dark and flat already applied, e.g. with ccdproc):
+    the stack does not calibrate them.
+
+    Parameters
+    ----------
+    frames : iterable
+        The frames: paths, arrays, NDData/CCDData, ``(frame, file name)``
+        pairs, or a `~ccdproc.ImageFileCollection`, as
+        `~astroalign_nd.register_batch` takes them.  Paths are best for
+        many frames (the registered frames go to temporary files, never
+        all in memory).
+    reference : optional
+        The frame whose grid the stack is on (default: the first frame).
+        It is in the stack: given both here and among ``frames`` (the same
+        object or the same file) it is used once, unregistered.
+    method : {'average', 'median', 'sum'}, optional
+        'average' (default): the weighted mean.  'median': the median (its
+        uncertainty is ``sqrt(pi / 2)`` times the mean's).  'sum': the mean
+        times the number of frames, so that a pixel some frames miss is
+        not darker.
+    clip : {'sigma', 'minmax', None}, optional
+        Rejection before combining.  'sigma' (default): values more than
+        ``sigma_low``/``sigma_high`` spreads below/above the pixel's median
+        are dropped, for up to ``maxiters`` rounds; the spread is the
+        values' MAD standard deviation, but never less than the frames'
+        median uncertainty at that pixel.  'minmax': the ``nlow`` lowest
+        and ``nhigh`` highest values of each pixel are dropped (ccdproc's
+        ``clip_extrema``).  A pixel whose values would all go keeps them.
+    sigma, sigma_low, sigma_high : float, optional
+        Sigma clipping's limits (``sigma`` for both by default, 3).
+    maxiters : int, optional
+        Sigma clipping's rounds at most (default 3).
+    nlow, nhigh : int, optional
+        Min/max clipping's counts (default 1 and 1).
+    normalize : {'offset', 'scale', None}, optional
+        Bring each frame's sky (its sigma-clipped median) to the
+        reference's before the rejection, so that a night's changing sky
+        does not decide which frames are clipped: 'offset' (default)
+        subtracts the difference (moonlight, twilight: sky added), 'scale'
+        multiplies by the ratio (thin cloud: transparency; needs positive
+        sky levels), None leaves the frames as they are.
+    weights : 'variance', None or sequence of float, optional
+        'variance' (default): each frame weighs the inverse of its median
+        pixel variance (per frame, not per pixel: per-pixel weights from a
+        Poisson variance would favour the pixels that came out low).
+        None: equal weights.  A sequence: one weight per frame, the
+        reference's first when it is not one of ``frames``.
+    gain, read_noise : float, optional
+        For frames without an uncertainty: their variance is
+        ``max(value, 0) / gain + (read_noise / gain) ** 2`` (``gain`` in
+        electrons per count, ``read_noise`` in electrons, as ccdproc's
+        ``create_deviation``).  Without ``gain``, such a frame's variance
+        is its measured sky noise squared.  Frames with an uncertainty
+        use their own, propagated through the registration.
+    canvas : {'reference', 'union'}, optional
+        The stack's grid, as in `~astroalign_nd.register_batch`.
+    memory_limit : float, optional
+        Bytes of working memory for the combination (default 512 MB).
+    output : str or path, optional
+        Also write the stack to this FITS file (atomically).
+    overwrite : bool, optional
+        Replace ``output`` (and files in ``aligned_dir``) if they exist.
+    aligned_dir : str or path, optional
+        Keep the registered frames in this folder (default: a temporary
+        folder, removed at the end).
+    temp_dir : str, optional
+        Where the temporary folder goes (default: the system's).
+    workers, progress, hdu, unit, order, **options
+        As in `~astroalign_nd.register_batch` (``transform_type``,
+        detection and matching options...).
+    dtype : numpy dtype, optional
+        Of the output's data and uncertainty (default float32).
+
+    Returns
+    -------
+    stacked : `~astropy.nddata.CCDData`
+        The combined image; ``uncertainty`` a `~astropy.nddata.StdDevUncertainty`
+        combined from the frames'; ``mask`` True only where no frame
+        reaches (a pixel masked in some frames is combined from the others);
+        ``flags`` the number of frames reaching each pixel; ``meta`` the
+        reference's header with ``NCOMBINE``, ``IMCMBnnn`` (every frame
+        combined, with its sky offset ``AASKYnnn``, scale ``AASCLnnn``,
+        weight ``AAWGTnnn`` and rejected pixels ``AANRJnnn``) and
+        ``AAREJnnn`` (every frame left out, and why).
+
+    Raises
+    ------
+    ValueError, TypeError
+        For bad arguments, before any work.
+    FileExistsError
+        If ``output`` exists and ``overwrite`` is False.
+    TransformNotFoundError
+        If no frame but the reference could be registered.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd import stack
+    >>> from astroalign_nd.simulate import simulate_sequence
+    >>> seq = simulate_sequence((128, 128), n_frames=4, n_stars=60, seed=3)
+    >>> stacked = stack(seq.frames)
+    >>> stacked.meta["NCOMBINE"], stacked.shape, int(stacked.mask.sum())
+    (4, (128, 128), 0)
+    """
+    opts = _check_options(method, clip, sigma, sigma_low, sigma_high, maxiters, nlow, nhigh,
+                          normalize, canvas, memory_limit, gain, read_noise)
+    items, hdu = batch_frames(frames, hdu)
+    if isinstance(items, Iterator):
+        items = list(items)
+    # In-memory frames are named by their place among the frames, in the header too.
+    items = [(f, f"frame{k}" if label is None else label) for k, (f, label) in enumerate(items)]
+    ref_item, others, n_frames = _split_reference(items, reference)
+    weights = _check_weights(weights, n_frames)
+    _check_outputs(output, overwrite, items, ref_item)
+    ref = parse_input(ref_item[0], "reference", hdu=hdu, unit=unit)
+    if ref.data is None or ref.data.ndim != 2:
+        raise ValueError("the reference must be a 2-D image (stack one colour channel at a "
+                         "time).")
+    with _aligned_folder(aligned_dir, temp_dir) as folder:
+        result = _register([it for it, _ in others], ref, folder, canvas, overwrite, workers,
+                           progress, hdu, unit, order, options, ref_item[0])
+        frames_ = [(_reference_name(ref_item), _reference_on_canvas(ref, result, folder),
+                    ref_item[1])]
+        frames_ += [(f.name, f.output, k) for f, (_, k) in zip(result.frames, others) if f.ok]
+        rejected = [(f.name, f.error) for f in result.failed]
+        if others and not result.succeeded:
+            raise TransformNotFoundError(
+                "no frame could be registered onto the reference: "
+                + "; ".join(f"{n}: {e}" for n, e in rejected))
+        used, stats = _measure(frames_, rejected, opts, weights, gain, read_noise,
+                               memory_limit)
+        value, variance, coverage = combine_files(
+            [frames_[i][1] for i in used], stats, result.canvas_shape, opts, gain=gain,
+            read_noise=read_noise, memory_limit=memory_limit)
+        wcs = _canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
+    ccd = _stacked(value, variance, coverage, ref, wcs, dtype, [frames_[i][0] for i in used],
+                   stats, rejected, opts)
+    if output is not None:
+        write_output(ccd, output, overwrite=overwrite)
+    return ccd
+
+
+def _check_options(method, clip, sigma, sigma_low, sigma_high, maxiters, nlow, nhigh,
+                   normalize, canvas, memory_limit, gain, read_noise):
+    """The combination's options, refused with a clear message before any work."""
+    for name, value, allowed in (("method", method, STACK_METHODS), ("clip", clip, CLIP_METHODS),
+                                 ("normalize", normalize, NORMALIZE_METHODS),
+                                 ("canvas", canvas, ("reference", "union"))):
+        if value not in allowed:
+            raise ValueError(f"{name} must be one of {', '.join(map(repr, allowed))}; got "
+                             f"{value!r}.")
+    low = _positive(sigma if sigma_low is None else sigma_low, "sigma_low")
+    high = _positive(sigma if sigma_high is None else sigma_high, "sigma_high")
+    for name, value, least in (("maxiters", maxiters, 1), ("nlow", nlow, 0),
+                               ("nhigh", nhigh, 0)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
+            raise ValueError(f"{name} must be an integer >= {least}; got {value!r}.")
+    _positive(memory_limit, "memory_limit")
+    if gain is not None:
+        _positive(gain, "gain")
+    if read_noise is not None:
+        _positive(read_noise, "read_noise", zero=True)
+    return CombineOptions(method=method, clip=clip, sigma_low=low, sigma_high=high,
+                          maxiters=int(maxiters), nlow=int(nlow), nhigh=int(nhigh),
+                          normalize=normalize)
+
+
+def _positive(value, name, zero=False):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a number; got {type(value).__name__}.")
+    if not np.isfinite(value) or value < 0 or (value == 0 and not zero):
+        what = ">= 0" if zero else "> 0"
+        raise ValueError(f"{name} must be finite and {what}; got {value!r}.")
+    return float(value)
+
+
+def _is_path(obj):
+    return isinstance(obj, (str, os.PathLike))
+
+
+def _same(a, b):
+    """The same frame: the same object, or the same file."""
+    if a is b:
+        return True
+    if _is_path(a) and _is_path(b):
+        return os.path.realpath(os.fspath(a)) == os.path.realpath(os.fspath(b))
+    return False
+
+
+def _split_reference(items, reference):
+    """
+    ``((reference, its index), [(item, index)...] of the others, number of frames)``:
+    the reference taken out of the frames; its index is 0 when it is not one of them
+    (the others' indices then start at 1), as ``weights`` counts them.
+    """
+    if reference is None:
+        if not items:
+            raise ValueError("frames is empty: give at least one frame (the first is the "
+                             "reference unless reference= is given).")
+        return (items[0][0], 0, items[0][1]), [(it, k) for k, it in enumerate(items)][1:], \
+            len(items)
+    if isinstance(reference, list):
+        raise TypeError("reference must be one frame, not a list of frames.")
+    at = next((k for k, it in enumerate(items) if _same(it[0], reference)), None)
+    shift = 1 if at is None else 0
+    others = [(it, k + shift) for k, it in enumerate(items) if k != at]
+    label = os.fspath(reference) if _is_path(reference) else None
+    return (reference, 0 if at is None else at, label), others, len(items) + shift
+
+
+def _check_weights(weights, n_frames):
+    """``weights`` as 'variance', None or an array of one per frame (refused otherwise)."""
+    if weights is None or (isinstance(weights, str) and weights == "variance"):
+        return weights
+    if isinstance(weights, str):
+        raise ValueError(f"weights must be 'variance', None or one number per frame; got "
+                         f"{weights!r}.")
+    try:
+        w = np.asarray(weights, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise TypeError(f"weights must be 'variance', None or a sequence of numbers; got "
+                        f"{type(weights).__name__}.") from None
+    if w.size != n_frames or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+        raise ValueError(f"weights must be one finite number >= 0 per frame ({n_frames}, the "
+                         f"reference's first when it is not one of the frames), not all 0; "
+                         f"got {weights!r}.")
+    return w
+
+
+def _check_outputs(output, overwrite, items, ref_item):
+    """``output`` can be written and is not an input (checked before any work)."""
+    if output is None:
+        return
+    inputs = [it[0] for it in items] + [ref_item[0]]
+    check_not_input(output, inputs)
+    check_output_path(output, overwrite, extensions=output_suffixes())
+
+
+class _aligned_folder:
+    """The folder of the registered frames: the user's (kept) or a temporary one."""
+
+    def __init__(self, aligned_dir, temp_dir):
+        self.keep = aligned_dir is not None
+        self.path, self.tmp = (os.fspath(aligned_dir) if self.keep else None), None
+        if temp_dir is not None and not os.path.isdir(temp_dir):
+            raise NotADirectoryError(f"temp_dir {temp_dir!r} is not a folder.")
+        self.temp_dir = temp_dir
+
+    def __enter__(self):
+        if self.keep:
+            os.makedirs(self.path, exist_ok=True)
+            return self.path
+        self.tmp = tempfile.TemporaryDirectory(prefix="aastack-", dir=self.temp_dir)
+        return self.tmp.name
+
+    def __exit__(self, *exc):
+        if self.tmp is not None:
+            self.tmp.cleanup()
+
+
+def _register(others, ref, folder, canvas, overwrite, workers, progress, hdu, unit, order,
+              options, reference):
+    """`register_batch` of the frames other than the reference, into ``folder``."""
+    frames = [frame if (_is_path(frame) or label is None) else (frame, label)
+              for frame, label in others]
+    if not frames:
+        return BatchResult([], canvas_shape=tuple(ref.data.shape), canvas_offset=(0, 0))
+    return register_batch(frames, reference, output_dir=folder, overwrite=overwrite,
+                          canvas=canvas, workers=workers, progress=progress, hdu=hdu,
+                          unit=unit, order=order, **options)
+
+
+def _reference_on_canvas(ref, result, folder):
+    """The reference, placed on the canvas (whole pixels: no resampling), as a file."""
+    (ny, nx), (x0, y0) = result.canvas_shape, result.canvas_offset
+    data = np.full((ny, nx), np.nan, dtype=np.float32)
+    mask = np.ones((ny, nx), dtype=bool)
+    rows = slice(-y0, -y0 + ref.data.shape[0])
+    cols = slice(-x0, -x0 + ref.data.shape[1])
+    data[rows, cols] = ref.data
+    own = ~np.isfinite(ref.data) if ref.mask is None else (ref.mask | ~np.isfinite(ref.data))
+    mask[rows, cols] = own
+    unc = None
+    if ref.uncertainty is not None:
+        arr = np.full((ny, nx), np.nan, dtype=np.float64)
+        arr[rows, cols] = np.asarray(ref.uncertainty.array, dtype=np.float64)
+        unc = type(ref.uncertainty)(arr)
+    ccd = CCDData(data, mask=mask, uncertainty=unc, unit=ref.unit or "adu")
+    path = os.path.join(folder, ".reference_on_canvas.fits")
+    write_ccddata(ccd, path, overwrite=True)
+    return path
+
+
+def _reference_name(item):
+    label = item[2]
+    name = os.path.basename(label) if label else "reference"
+    return f"{name} (reference)"
+
+
+def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit):
+    """
+    Each frame's statistics, normalisation and weight; a frame that cannot
+    be measured joins ``rejected``.  Returns the indices used and their stats.
+    """
+    used, stats = [], []
+    ref_sky = None
+    for i, (name, path, _) in enumerate(frames):
+        try:
+            st = frame_stats(path, memory_limit)
+            ref_sky = st.sky if ref_sky is None else ref_sky
+            normalise(st, ref_sky, opts.normalize)
+        except ValueError as exc:
+            if i == 0:
+                raise ValueError(f"the reference cannot be stacked: {exc}") from None
+            rejected.append((name, f"ValueError: {exc}"))
+            continue
+        used.append(i)
+        stats.append(st)
+    if weights is not None and not isinstance(weights, str):
+        weights = weights[[frames[i][2] for i in used]]
+    frame_weights(stats, weights, gain, read_noise)
+    return used, stats
+
+
+def _canvas_wcs(wcs, offset, shape):
+    """The reference's WCS on the canvas (its reference pixel shifted by the offset)."""
+    if wcs is None:
+        return None
+    w = wcs.deepcopy()
+    w.wcs.crpix = [w.wcs.crpix[0] - offset[0], w.wcs.crpix[1] - offset[1]]
+    w.pixel_shape = (shape[1], shape[0])
+    return w
+
+
+def _settings(opts, n_used):
+    s = {"AASTKMTH": (opts.method, "astroalign_nd stack: combination"),
+         "AASTKCLP": (opts.clip or "none", "rejection"),
+         "AASTKNRM": (opts.normalize or "none", "sky normalisation")}
+    if opts.clip == "sigma":
+        s["AASTKSLO"] = (opts.sigma_low, "sigma clipping: low limit")
+        s["AASTKSHI"] = (opts.sigma_high, "sigma clipping: high limit")
+    elif opts.clip == "minmax":
+        s["AASTKNLO"] = (opts.nlow, "min/max clipping: lowest dropped")
+        s["AASTKNHI"] = (opts.nhigh, "min/max clipping: highest dropped")
+    return s
+
+
+def _stacked(value, variance, coverage, ref, wcs, dtype, names, stats, rejected, opts):
+    """The stack as a CCDData: data, uncertainty, mask, coverage and header."""
+    used = [dict(name=n, offset=st.offset, scale=st.scale, weight=st.weight,
+                 n_rejected=st.n_rejected) for n, st in zip(names, stats)]
+    header = stack_header(ref.meta, used, rejected, _settings(opts, len(names)))
+    mask = coverage == 0
+    if mask.any():
+        n_masked = int(mask.sum())
+        if n_masked == mask.size:
+            warn("no frame reaches any pixel of the stack.")
+    with np.errstate(invalid="ignore"):
+        std = np.sqrt(variance)
+    return CCDData(value.astype(dtype), unit=ref.unit or "adu", mask=mask,
+                   uncertainty=StdDevUncertainty(std.astype(dtype)), flags=coverage,
+                   wcs=wcs, meta=header)

@@ -1,0 +1,84 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""The header of a stack: every frame used and every frame rejected, and why."""
+
+from __future__ import annotations
+
+from astropy.io import fits
+
+from ..io.header import header_from_meta, header_without_wcs
+
+__all__ = ["stack_header", "MAX_LISTED"]
+
+#: Structural cards of the reference's file: the stack's own are written with its data.
+_STRUCTURAL = ("SIMPLE", "BITPIX", "NAXIS", "NAXIS1", "NAXIS2", "NAXIS3", "EXTEND", "BZERO",
+               "BSCALE", "BLANK", "DATAMIN", "DATAMAX", "NCOMBINE", "NREJECT")
+_LISTS = ("IMCMB", "AASKY", "AASCL", "AAWGT", "AANRJ", "AAREJ")
+
+#: Frames listed with numbered keywords (``IMCMB001``...); beyond, in HISTORY only.
+MAX_LISTED = 999
+
+
+def _used_cards(header, used):
+    """``IMCMBnnn`` (IRAF's name of a combined frame) and its normalisation and weight."""
+    numbered = len(used) <= MAX_LISTED
+    for k, frame in enumerate(used, start=1):
+        if not numbered:
+            header.add_history(f"stacked: {frame['name']}")
+            continue
+        header[f"IMCMB{k:03d}"] = (frame["name"], "frame combined")
+        if "offset" in frame:
+            header[f"AASKY{k:03d}"] = (round(float(frame["offset"]), 6),
+                                       "sky offset subtracted")
+            header[f"AASCL{k:03d}"] = (round(float(frame["scale"]), 8), "scale applied")
+        if "weight" in frame:
+            header[f"AAWGT{k:03d}"] = (float(f"{frame['weight']:.6g}"), "relative weight")
+        if "n_rejected" in frame:
+            header[f"AANRJ{k:03d}"] = (int(frame["n_rejected"]), "pixels rejected")
+
+
+def stack_header(meta, used, rejected, settings):
+    """
+    The header of a stack.
+
+    Parameters
+    ----------
+    meta : dict-like
+        The reference's header (its WCS cards are dropped: the stack's WCS
+        is written from its ``wcs``).
+    used : list of dict
+        One per frame combined: ``name``, and optionally ``offset``,
+        ``scale``, ``weight``, ``n_rejected``.
+    rejected : list of (str, str)
+        ``(name, reason)`` of each frame left out.
+    settings : dict
+        ``{keyword: (value, comment)}`` of the combination's settings.
+
+    Returns
+    -------
+    header : `~astropy.io.fits.Header`
+        ``NCOMBINE``, ``NREJECT``, ``IMCMBnnn`` (each frame used),
+        ``AAREJnnn`` (``'name: reason'`` of each frame left out) and the
+        settings, with HISTORY lines saying the same.
+
+    Examples
+    --------
+    >>> from astroalign_nd.stacking.header import stack_header
+    >>> h = stack_header({}, [{"name": "a.fits"}, {"name": "b.fits"}],
+    ...                  [("c.fits", "TooFewSourcesError: 2 stars")], {})
+    >>> h["NCOMBINE"], h["IMCMB002"], h["AAREJ001"]
+    (2, 'b.fits', 'c.fits: TooFewSourcesError: 2 stars')
+    """
+    header = header_without_wcs(header_from_meta(meta))
+    # A stack of stacks: the old lists are not this one's; nor the file's structure.
+    for key in [k for k in header.keys() if k.startswith(_LISTS) or k in _STRUCTURAL]:
+        del header[key]
+    header["NCOMBINE"] = (len(used), "number of frames combined")
+    header["NREJECT"] = (len(rejected), "number of frames left out")
+    for key, (value, comment) in settings.items():
+        header[key] = (value, comment)
+    _used_cards(header, used)
+    for k, (name, reason) in enumerate(rejected, start=1):
+        if len(rejected) <= MAX_LISTED:
+            header[f"AAREJ{k:03d}"] = (f"{name}: {reason}", "frame left out: why")
+        header.add_history(f"left out {name}: {reason}")
+    return fits.Header(header)

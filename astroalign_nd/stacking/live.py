@@ -1,0 +1,531 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Live stacking: frames added one at a time to a running stack, with
+clipping against it; and a folder watched for new frames (polling: no
+file-system notification library, the same on every platform).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from typing import Any, Callable
+
+import numpy as np
+from astropy.nddata import CCDData, StdDevUncertainty
+
+from .._input import parse_input
+from ..config import RegistrationConfig, ResampleConfig
+from ..io import FITSWriter, write_output
+from ..io.write import FITS_EXTENSIONS, check_not_input, check_output_path
+from ..registration import prepare_target, register_and_match
+from .core import _check_options
+from .combine import array_stats, frame_variance, normalise, reject
+from .header import stack_header
+
+__all__ = ["LiveStack", "watch_folder", "write_with_retry"]
+
+#: Seconds and tries of `write_with_retry` (a viewer holding the file open, on Windows).
+_RETRY_SECONDS, _RETRY_TRIES = 0.2, 25
+#: Polls a complete-looking file that does not parse is waited for before it counts as bad.
+_UNREADABLE_POLLS = 3
+
+
+class LiveStack:
+    """
+    A running stack on the reference's grid, one frame at a time.
+
+    Each frame added is registered onto the reference (prepared once), its
+    sky brought to the reference's (``normalize``), and combined into a
+    running weighted mean.  Clipping against the running stack: each pixel's
+    first ``n_start`` values are held and clipped together about their
+    median (as `~astroalign_nd.stack` clips); after them, a pixel of a new frame
+    more than ``sigma`` times the spread from the running mean is rejected
+    (the spread is the running standard deviation of the values kept at
+    that pixel, but never less than the frame's own uncertainty), so that
+    a satellite trail or cosmic ray in one frame does not stay, wherever
+    it falls.  Memory: about ``60 + 12 * n_start`` bytes per pixel of the
+    reference.  The frames are assumed calibrated.
+
+    Parameters
+    ----------
+    reference
+        The reference frame (anything `~astroalign_nd.register` takes):
+        the stack's grid and its first frame.
+    sigma : float, optional
+        The clipping limit (default 3); None for no clipping.
+    n_start : int, optional
+        Each pixel's values held and clipped together (about their median)
+        before the running clipping starts there (default 5, at least 3;
+        the stack clips the values held as soon as there are three, but
+        five tell a trail and a cosmic ray in two of the first frames from
+        the sky).
+    normalize : {'offset', 'scale', None}, optional
+        As in `~astroalign_nd.stack`.
+    weights : {'variance', None}, optional
+        As in `~astroalign_nd.stack` (per frame, from its median variance).
+    gain, read_noise : float, optional
+        As in `~astroalign_nd.stack`, for frames without an uncertainty.
+    hdu, unit, order, **options
+        As in `~astroalign_nd.register`.
+
+    Attributes
+    ----------
+    used : list of str
+        The frames in the stack (the reference first).
+    rejected : list of (str, str)
+        The frames that failed, and why.
+
+    Examples
+    --------
+    >>> from astroalign_nd.stacking import LiveStack
+    >>> from astroalign_nd.simulate import simulate_sequence
+    >>> seq = simulate_sequence((128, 128), n_frames=4, n_stars=60, seed=3)
+    >>> live = LiveStack(seq.frames[0])
+    >>> for k, frame in enumerate(seq.frames[1:], start=1):
+    ...     live.add(frame, name=f"frame{k}")
+    >>> ccd = live.result()
+    >>> ccd.meta["NCOMBINE"], live.used[-1]
+    (4, 'frame3')
+    """
+
+    def __init__(self, reference: Any, *, sigma: float | None = 3.0, n_start: int = 5,
+                 normalize: str | None = "offset", weights: str | None = "variance",
+                 gain: float | None = None, read_noise: float | None = None,
+                 hdu: int | str | None = None, unit: Any = None, order: str | int = "bilinear",
+                 name: str = "reference", **options: Any):
+        self.opts = _check_options("average", None if sigma is None else "sigma",
+                                   3.0 if sigma is None else sigma, None, None, 3, 1, 1,
+                                   normalize, "reference", 1.0, gain, read_noise)
+        if isinstance(n_start, bool) or not isinstance(n_start, int) or n_start < 3:
+            raise ValueError(f"n_start must be an integer >= 3; got {n_start!r}.")
+        if weights not in ("variance", None):
+            raise ValueError(f"weights must be 'variance' or None; got {weights!r}.")
+        self.n_start, self.weights, self.gain, self.read_noise = n_start, weights, gain, \
+            read_noise
+        self.hdu, self.unit = hdu, unit
+        self.options = dict(options, order=order)
+        resample = {f.name for f in dataclasses.fields(ResampleConfig)}
+        config = RegistrationConfig.from_keywords(
+            **{k: v for k, v in options.items() if k not in resample})
+        self._ref = prepare_target(reference, config, hdu)
+        parsed = parse_input(reference, "reference", hdu=hdu, unit=unit)
+        if parsed.data is None or parsed.data.ndim != 2:
+            raise ValueError("the reference must be a 2-D image.")
+        self.shape, self.wcs, self.meta = parsed.data.shape, parsed.wcs, parsed.meta
+        self.unit_out = parsed.unit or "adu"
+        self.used, self.rejected, self._stats = [], [], []
+        self._acc, self._ref_sky = _Running(self.shape, n_start), None
+        valid = np.isfinite(parsed.data) & (True if parsed.mask is None else ~parsed.mask)
+        var = _variance(parsed.uncertainty)
+        self._add_arrays(np.asarray(parsed.data, dtype=np.float64), var, valid, name)
+
+    def add(self, frame: Any, name: str | None = None) -> None:
+        """
+        Register ``frame`` onto the reference and add it to the stack.
+
+        Parameters
+        ----------
+        frame
+            A path, array, NDData/CCDData...
+        name : str, optional
+            Its name in the header (default: the file name, or ``frame<n>``).
+
+        Raises
+        ------
+        Exception
+            Whatever registering it raised (`~astroalign_nd.AstroalignError`,
+            `ValueError`...): the stack is then unchanged.
+        """
+        if name is None:
+            name = os.path.basename(os.fspath(frame)) if isinstance(
+                frame, (str, os.PathLike)) else f"frame{len(self.used) + len(self.rejected)}"
+        ccd, _ = register_and_match(frame, self._ref, hdu=self.hdu, unit=self.unit,
+                                    **self.options)
+        data = np.asarray(ccd.data, dtype=np.float64)
+        valid = np.isfinite(data) & (True if ccd.mask is None else ~np.asarray(ccd.mask))
+        self._add_arrays(data, _variance(ccd.uncertainty), valid, name)
+
+    def _add_arrays(self, data, var, valid, name):
+        st = array_stats(data, var, valid)
+        self._ref_sky = st.sky if self._ref_sky is None else self._ref_sky
+        normalise(st, self._ref_sky, self.opts.normalize)
+        var = frame_variance(data, var, st, self.gain, self.read_noise)
+        x = data * st.scale - st.offset
+        var = var * st.scale ** 2
+        valid = valid & np.isfinite(var)
+        st.weight = 1.0 if self.weights is None else 1.0 / max(float(np.median(var[valid])),
+                                                               1e-300)
+        self._stats.append(st)
+        self.used.append(name)
+        self._acc.add(x, var, valid, len(self._stats) - 1, self._stats, self.opts)
+
+    def fail(self, name: str, reason: str) -> None:
+        """Record a frame that could not be added (listed in the header)."""
+        self.rejected.append((name, reason))
+
+    def result(self) -> CCDData:
+        """
+        The stack so far.
+
+        Returns
+        -------
+        stacked : `~astropy.nddata.CCDData`
+            As `~astroalign_nd.stack` returns it (``flags``: the frames
+            reaching each pixel).
+        """
+        value, variance, coverage = self._acc.value(self._stats, self.opts)
+        reach = coverage > 0
+        value, variance = np.where(reach, value, np.nan), np.where(reach, variance, np.nan)
+        used = [dict(name=n, offset=st.offset, scale=st.scale, weight=st.weight,
+                     n_rejected=st.n_rejected) for n, st in zip(self.used, self._stats)]
+        settings = {"AASTKMTH": ("live average", "astroalign_nd live stack"),
+                    "AASTKCLP": (self.opts.clip or "none", "rejection vs the running stack"),
+                    "AASTKNRM": (self.opts.normalize or "none", "sky normalisation")}
+        header = stack_header(self.meta, used, self.rejected, settings)
+        with np.errstate(invalid="ignore"):
+            std = np.sqrt(variance)
+        return CCDData(value.astype(np.float32), unit=self.unit_out, mask=~reach,
+                       uncertainty=StdDevUncertainty(std.astype(np.float32)), flags=coverage,
+                       wcs=self.wcs, meta=header)
+
+
+class _Running:
+    """
+    Per-pixel running sums (the weighted mean and its variance, the values'
+    mean and spread), and each pixel's first ``n_start`` values held until
+    they can be clipped together: a pixel is clipped against the running
+    stack only once it has a stack to be clipped against.
+    """
+
+    def __init__(self, shape, n_start):
+        self.n_start = n_start
+        self.wsum, self.wx, self.w2v = np.zeros(shape), np.zeros(shape), np.zeros(shape)
+        self.n = np.zeros(shape, dtype=np.int32)
+        self.mean, self.m2 = np.zeros(shape), np.zeros(shape)  # Welford, for the spread
+        self.coverage = np.zeros(shape, dtype=np.int16)
+        self.started = np.zeros(shape, dtype=bool)
+        # The held values: float32 keeps the memory at about 10 bytes per pixel per frame.
+        self.held_x = np.zeros((n_start,) + tuple(shape), dtype=np.float32)
+        self.held_v = np.zeros((n_start,) + tuple(shape), dtype=np.float32)
+        self.held_k = np.full((n_start,) + tuple(shape), -1, dtype=np.int32)
+        self.n_held = np.zeros(shape, dtype=np.int8)
+
+    def take(self, where, x, var, w):
+        """Add the values ``x`` (with variance ``var``, weight ``w``) at pixels ``where``."""
+        self.wsum[where] += w
+        self.wx[where] += w * x
+        self.w2v[where] += w * w * var
+        n_new = self.n[where] + 1
+        delta = x - self.mean[where]
+        self.mean[where] += delta / n_new
+        self.m2[where] += delta * (x - self.mean[where])
+        self.n[where] = n_new
+
+    def add(self, x, var, valid, k, stats, opts):
+        """Frame ``k``'s values: clipped against the stack where it has started, else held."""
+        st = stats[k]
+        self.coverage += valid.astype(np.int16)
+        run = valid & self.started
+        xs, vs = x[run], var[run]
+        if opts.clip == "sigma":
+            with np.errstate(invalid="ignore", divide="ignore"):
+                spread = np.fmax(np.sqrt(self.m2[run] / np.maximum(self.n[run] - 1, 1)),
+                                 np.sqrt(vs))
+                mean = self.mean[run]
+                far = (xs - mean > opts.sigma_high * spread) | (mean - xs > opts.sigma_low
+                                                                * spread)
+            st.n_rejected += int(far.sum())
+            run[run] = ~far
+            xs, vs = x[run], var[run]
+        self.take(run, xs, vs, st.weight)
+        self._hold(x, var, valid & ~self.started, k, stats, opts)
+
+    def _hold(self, x, var, hold, k, stats, opts):
+        """Hold frame ``k``'s values at ``hold``; clip and add the pixels that have enough."""
+        slot = self.n_held[hold].astype(np.intp)
+        rows, cols = np.nonzero(hold)
+        self.held_x[slot, rows, cols] = x[hold]
+        self.held_v[slot, rows, cols] = var[hold]
+        self.held_k[slot, rows, cols] = k
+        self.n_held[hold] += 1
+        full = hold & (self.n_held == self.n_start)
+        if not full.any():
+            return
+        hx = self.held_x[:, full].astype(np.float64)
+        hv = self.held_v[:, full].astype(np.float64)
+        hk = self.held_k[:, full]
+        keep = reject(hx, hv, np.ones(hx.shape, dtype=bool), opts) if opts.clip else \
+            np.ones(hx.shape, dtype=bool)
+        weights = np.array([s.weight for s in stats])
+        where = np.nonzero(full)
+        for j in range(self.n_start):  # in order: the values' running mean as if one by one
+            kj = keep[j]
+            sub = tuple(w[kj] for w in where)
+            mask = np.zeros(full.shape, dtype=bool)
+            mask[sub] = True
+            self.take(mask, hx[j][kj], hv[j][kj], weights[hk[j][kj]])
+        for kk in np.unique(hk[~keep]):
+            stats[kk].n_rejected += int(((hk == kk) & ~keep).sum())
+        self.started |= full
+        self.n_held[full] = 0
+
+    def value(self, stats, opts):
+        """
+        The stack: the running sums, plus the values held where it has not
+        started (clipped together once there are three).
+        """
+        weights = np.array([s.weight for s in stats])
+        wsum, wx, w2v = self.wsum.copy(), self.wx.copy(), self.w2v.copy()
+        at = (~self.started) & (self.n_held > 0)
+        n_held = self.n_held[at]
+        valid = np.arange(self.n_start)[:, None] < n_held
+        hx = self.held_x[:, at].astype(np.float64)
+        hv = self.held_v[:, at].astype(np.float64)
+        keep = valid
+        if opts.clip:
+            keep = np.where(n_held >= 3, reject(hx, hv, valid, opts), valid)
+        w = np.where(keep, weights[np.maximum(self.held_k[:, at], 0)], 0.0)
+        wsum[at] += w.sum(axis=0)
+        wx[at] += (w * np.where(keep, hx, 0.0)).sum(axis=0)
+        w2v[at] += (w * w * np.where(keep, hv, 0.0)).sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return wx / wsum, w2v / (wsum * wsum), self.coverage
+
+
+def _variance(uncertainty):
+    """An NDUncertainty as a float64 variance array (None without one)."""
+    if uncertainty is None:
+        return None
+    name = type(uncertainty).__name__
+    u = np.asarray(uncertainty.array, dtype=np.float64)
+    if name == "StdDevUncertainty":
+        return u * u
+    if name == "InverseVariance":
+        with np.errstate(divide="ignore"):
+            return np.where(u > 0, 1.0 / np.where(u > 0, u, 1.0), np.inf)
+    if name == "VarianceUncertainty":
+        return u.copy()
+    raise ValueError(f"a stack needs StdDevUncertainty, VarianceUncertainty or "
+                     f"InverseVariance; got {name}.")
+
+
+def write_with_retry(ccd, path, *, overwrite=True, tries=_RETRY_TRIES):
+    """
+    Write ``ccd`` atomically, retrying while the old file cannot be replaced.
+
+    On Windows a viewer that holds the file open makes the final rename fail
+    with `PermissionError`; the write is retried every 0.2 s, ``tries``
+    times, and a reader always sees the old or the new file, never a part.
+
+    Parameters
+    ----------
+    ccd : `~astropy.nddata.CCDData`
+    path : str
+    overwrite : bool, optional
+    tries : int, optional
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from astropy.nddata import CCDData
+    >>> from astroalign_nd.stacking.live import write_with_retry
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = os.path.join(folder, "stack.fits")
+    ...     write_with_retry(CCDData(np.ones((3, 3)), unit="adu"), path)
+    ...     write_with_retry(CCDData(np.zeros((3, 3)), unit="adu"), path)
+    ...     print(os.listdir(folder))
+    ['stack.fits']
+    """
+    for attempt in range(tries):
+        try:
+            write_output(ccd, path, overwrite=overwrite)
+            return
+        except PermissionError:
+            if attempt == tries - 1:
+                raise
+            time.sleep(_RETRY_SECONDS)
+
+
+def _is_fits_name(name):
+    low = name.lower()
+    return low.endswith(FITS_EXTENSIONS) and not name.startswith(".")
+
+
+def _complete_fits(path):
+    """True if ``path`` parses as a FITS file whose data blocks are all there."""
+    try:
+        _, shape = FITSWriter().read_done(path)  # the check a resumed batch makes
+    except Exception:  # noqa: BLE001 - any failure to parse: not (yet) a complete file
+        return False
+    return shape is not None
+
+
+class _Poller:
+    """The new files of a folder: stable across two polls, then parsed, each once."""
+
+    def __init__(self, folder, ignore):
+        self.folder = folder
+        self.ignore = {os.path.realpath(p) for p in ignore}
+        self.seen, self.last, self.bad_polls = set(), {}, {}
+
+    def scan(self):
+        """``(ready, unreadable)``: paths complete now, and paths that never parse."""
+        try:
+            names = sorted(os.listdir(self.folder))
+        except OSError:
+            return [], []
+        ready, unreadable, now = [], [], {}
+        for name in names:
+            path = os.path.join(self.folder, name)
+            real = os.path.realpath(path)
+            if real in self.seen or real in self.ignore or not _is_fits_name(name):
+                continue
+            try:
+                st = os.stat(path)
+            except OSError:
+                continue
+            key = (st.st_size, st.st_mtime_ns)
+            now[real] = key
+            if self.last.get(real) != key or st.st_size == 0:
+                continue  # still being written (or just appeared)
+            if _complete_fits(path):
+                ready.append(path)
+                self.seen.add(real)
+            else:
+                self.bad_polls[real] = self.bad_polls.get(real, 0) + 1
+                if self.bad_polls[real] >= _UNREADABLE_POLLS:
+                    unreadable.append(path)
+                    self.seen.add(real)
+        self.last = now
+        return ready, unreadable
+
+
+def watch_folder(folder: str | os.PathLike, reference: Any, output: str | os.PathLike, *,
+                 interval: float = 2.0, max_frames: int | None = None,
+                 timeout: float | None = None, overwrite: bool = False,
+                 callback: Callable[[str, str | None], Any] | None = None,
+                 **options: Any) -> LiveStack:
+    """
+    Stack the FITS frames that appear in ``folder``, as they appear.
+
+    The folder is polled every ``interval`` seconds (no file-system
+    notification: the same on every platform).  A new file is taken once
+    it is complete: the same size and time across two polls, and a FITS
+    file that parses in full.  Each is registered and added to a
+    `LiveStack`, and the stack is rewritten to ``output`` atomically after
+    each frame (a reader sees the old stack or the new one, never part of
+    a file; on Windows the write is retried while a viewer holds the file).
+    Hidden files (the package's temporary files among them), ``output``
+    and the reference are ignored; a frame that fails is listed in the
+    header and the watch goes on.  Interrupted (`KeyboardInterrupt`), it
+    writes the stack and re-raises.
+
+    Parameters
+    ----------
+    folder : str or path
+    reference
+        The reference frame (its grid; the stack's first frame).
+    output : str or path
+        The stack's FITS file (written at once, with the reference alone).
+    interval : float, optional
+        Seconds between polls (default 2).
+    max_frames : int, optional
+        Stop after this many new frames (added or failed).
+    timeout : float, optional
+        Stop when no new frame has come for this many seconds.
+    overwrite : bool, optional
+        Replace ``output`` if it exists at the start (default False:
+        `FileExistsError`).
+    callback : callable, optional
+        ``callback(path, error)`` after each frame (``error`` None if added).
+    **options
+        As in `LiveStack`.
+
+    Returns
+    -------
+    live : `LiveStack`
+        Its ``used`` and ``rejected`` list the frames.
+
+    Examples
+    --------
+    Three frames already in the folder (a script would copy them in as
+    they come); the watch stops after 0.2 s without a new one:
+
+    >>> import os, tempfile
+    >>> from astroalign_nd.io import write_ccddata
+    >>> from astroalign_nd.simulate import simulate_sequence
+    >>> from astroalign_nd.stacking import watch_folder
+    >>> seq = simulate_sequence((128, 128), n_frames=3, n_stars=60, seed=3)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     for k, frame in enumerate(seq.frames):
+    ...         write_ccddata(frame, os.path.join(folder, f"f{k}.fits"))
+    ...     live = watch_folder(folder, os.path.join(folder, "f0.fits"),
+    ...                         os.path.join(folder, "stack.fits"), interval=0.05, timeout=0.2)
+    >>> live.used, live.rejected
+    (['f0.fits (reference)', 'f1.fits', 'f2.fits'], [])
+    """
+    folder, output = os.fspath(folder), os.fspath(output)
+    interval = _check_seconds(interval, "interval", allow_zero=False)
+    timeout = None if timeout is None else _check_seconds(timeout, "timeout")
+    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(
+            max_frames, int) or max_frames < 1):
+        raise ValueError(f"max_frames must be a positive integer; got {max_frames!r}.")
+    if not os.path.isdir(folder):
+        raise NotADirectoryError(f"folder {folder!r} does not exist or is not a folder.")
+    inputs = [reference] if isinstance(reference, (str, os.PathLike)) else []
+    check_not_input(output, inputs)
+    check_output_path(output, overwrite)
+    name = (os.path.basename(os.fspath(reference)) if inputs else "reference") + " (reference)"
+    live = LiveStack(reference, name=name, **options)
+    write_with_retry(live.result(), output, overwrite=overwrite)
+    poller = _Poller(folder, [output] + [os.fspath(p) for p in inputs])
+    try:
+        _watch_loop(live, poller, output, interval, max_frames, timeout, callback)
+    except KeyboardInterrupt:
+        write_with_retry(live.result(), output)  # the last frame added is in the file
+        raise
+    return live
+
+
+def _watch_loop(live, poller, output, interval, max_frames, timeout, callback):
+    """Poll, add and write until ``max_frames`` or ``timeout`` (or an interrupt)."""
+    n_done, last_new = 0, time.monotonic()
+    while max_frames is None or n_done < max_frames:
+        ready, unreadable = poller.scan()
+        for path in unreadable:
+            live.fail(os.path.basename(path), "not a complete FITS file")
+        for path in ready:
+            error = None
+            try:
+                live.add(path)
+            except Exception as exc:  # noqa: BLE001 - a bad frame is listed, not fatal
+                error = f"{type(exc).__name__}: {exc}"
+                live.fail(os.path.basename(path), error)
+            write_with_retry(live.result(), output)
+            n_done += 1
+            if callback is not None:
+                callback(path, error)
+            if max_frames is not None and n_done >= max_frames:
+                return
+        if unreadable:
+            write_with_retry(live.result(), output)
+            n_done += len(unreadable)
+        if ready or unreadable:
+            last_new = time.monotonic()
+        elif timeout is not None and time.monotonic() - last_new >= timeout:
+            return
+        time.sleep(interval)
+
+
+def _check_seconds(value, name, allow_zero=True):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a number of seconds; got {value!r}.") from None
+    if not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise ValueError(f"{name} must be a finite number of seconds "
+                         f"{'>= 0' if allow_zero else '> 0'}; got {value!r}.")
+    return v
