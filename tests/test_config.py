@@ -12,6 +12,7 @@ from astropy.config import ConfigNamespace
 import astroalign_nd
 from astroalign_nd import _kernels, conf, find_transform
 from astroalign_nd._config import Conf
+from astroalign_nd.batch import runners
 from astroalign_nd.batch.runners import _init_worker
 from astroalign_nd.simulate import simulate_pair
 
@@ -73,6 +74,10 @@ def test_numpy_loops_give_the_same_transform():
 
 
 def test_batch_workers_share_the_cpus_unless_told(monkeypatch):
+    # Not the worker's signal handlers and parent watch in the test process:
+    # its children (the CLI tests' subprocesses) would inherit an ignored SIGINT.
+    monkeypatch.setattr(runners, "_worker_signals", lambda: None)
+    monkeypatch.setattr(runners, "_WORKER_CONFIG", None)
     monkeypatch.setattr(_kernels, "_ENV_NUM_THREADS", "")
     with conf.set_temp("num_threads", 0):
         _init_worker(None, 2)

@@ -1,8 +1,10 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """The command line's errors, its exit codes, and its hints in its own option names."""
 
+import argparse
 import re
 import sys
+import textwrap
 
 from ..config import (DetectionConfig, MatchingConfig, ModelConfig, RegistrationConfig,
                       ResampleConfig, cli_fields)
@@ -18,20 +20,32 @@ _USER_ERRORS = (ValueError, TypeError, OSError)
 EXIT_OK, EXIT_FRAMES_FAILED, EXIT_USAGE, EXIT_REFUSED = 0, 1, 2, 3
 EXIT_CODES = (
     (EXIT_OK, "success (batch: every frame registered, or skipped by --skip-existing)"),
-    (EXIT_FRAMES_FAILED, "batch: some frames failed (each is reported; the others were "
-     "written)"),
+    (EXIT_FRAMES_FAILED, "batch, stack, watch: some frames failed (each is reported; the "
+     "others were written or stacked)"),
     (EXIT_USAGE, "usage error: a bad option or value, an input that cannot be read, an "
      "output that cannot be written or that is one of the inputs, or any other error"),
     (EXIT_REFUSED, "registration refused: no trustworthy transform (too few stars, no "
      "match, or a match that does not pass the checks); nothing was written"),
-    (130, "interrupted (SIGINT, Ctrl-C); batch writes what was done"),
-    (143, "terminated (SIGTERM); batch writes what was done"),
+    (130, "interrupted (SIGINT, Ctrl-C); batch, stack and watch write what was done"),
+    (143, "terminated (SIGTERM); batch, stack and watch write what was done"),
 )
 
 
 def exit_codes_text():
     """The table of exit codes as ``--help`` prints it (the epilog of every command)."""
     return "exit codes:\n" + "\n".join(f"  {code:<4d} {text}" for code, text in EXIT_CODES)
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, except that the exit-code table keeps one line per code."""
+
+    def _fill_text(self, text, width, indent):
+        if not text.startswith("exit codes:"):
+            return super()._fill_text(text, width, indent)
+        lines = text.splitlines()
+        return "\n".join([indent + lines[0]] + [
+            textwrap.fill(line.strip(), width, initial_indent=indent + "  ",
+                          subsequent_indent=indent + " " * 7) for line in lines[1:]])
 
 
 class _CLIError(Exception):

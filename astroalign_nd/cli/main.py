@@ -4,25 +4,13 @@
 import argparse
 import contextlib
 import sys
-import textwrap
-from .errors import _PROG, _error, _expected_errors, cli_words, exit_code, exit_codes_text
+from .errors import (_PROG, HelpFormatter as _HelpFormatter, _error, _expected_errors, cli_words,
+                     exit_code, exit_codes_text)
 from .commands import _cmd_batch, _cmd_demo, _cmd_register, demo_description
 from .options import _registration_options
 from .stack import add_stack_commands
 
 __all__ = ['main', 'build_parser']
-
-
-class _HelpFormatter(argparse.HelpFormatter):
-    """argparse's formatter, except that the exit-code table keeps one line per code."""
-
-    def _fill_text(self, text, width, indent):
-        if not text.startswith("exit codes:"):
-            return super()._fill_text(text, width, indent)
-        lines = text.splitlines()
-        return "\n".join([indent + lines[0]] + [
-            textwrap.fill(line.strip(), width, initial_indent=indent + "  ",
-                          subsequent_indent=indent + " " * 7) for line in lines[1:]])
 
 
 def build_parser():

@@ -6,7 +6,7 @@ import os
 import sys
 
 from .commands import _check_input, _check_writable
-from .errors import _PROG, _CLIError
+from .errors import _PROG, HelpFormatter, _CLIError, exit_codes_text
 from .options import _registration_kwargs
 
 __all__ = []
@@ -64,7 +64,8 @@ def _add_sky_options(g):
 def add_stack_commands(sub, reg_opts):
     """The ``stack`` and ``watch`` subparsers."""
     p = sub.add_parser("stack", parents=[reg_opts], help=_STACK_HELP[0],
-                       description=_STACK_HELP[1])
+                       description=_STACK_HELP[1], epilog=exit_codes_text(),
+                       formatter_class=HelpFormatter)
     p.set_defaults(func=_cmd_stack)
     p.add_argument("images", metavar="IMAGES", nargs="+", help="FITS images to stack")
     p.add_argument("-r", "--reference", metavar="REF", default=None,
@@ -79,7 +80,8 @@ def add_stack_commands(sub, reg_opts):
                    help="register in N local worker processes")
     _add_combine_options(p)
     w = sub.add_parser("watch", parents=[reg_opts], help=_WATCH_HELP[0],
-                       description=_WATCH_HELP[1])
+                       description=_WATCH_HELP[1], epilog=exit_codes_text(),
+                       formatter_class=HelpFormatter)
     w.set_defaults(func=_cmd_watch)
     w.add_argument("folder", metavar="FOLDER", help="folder to watch for new FITS frames")
     w.add_argument("-r", "--reference", metavar="REF", required=True,
