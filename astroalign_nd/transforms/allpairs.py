@@ -1,0 +1,458 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Every star paired: a transform refitted on all the pairs it makes.
+
+`pair_all` is the engine of `~astroalign_nd.cross_match`.  From a starting
+transform (the match of the brightest stars, or one the caller gives), it
+pairs every source position with a target position (nearest neighbours
+under the model, one source per target, as
+`~astroalign_nd.matching.pairing.mutual_matches` pairs them), refits the
+model on all the pairs, sets the pairing radius from the fit's own
+residuals, and repeats until the pairs no longer change.
+
+Bounded time and memory for millions of points: one k-d tree of the
+targets, one query of each source's two nearest targets, and, in later
+iterations, only the distances to these candidates.  A candidate list is
+exact for a moved prediction as long as the prediction moved by less than
+the gap to the next target: the sources where it is not are queried again
+(usually none).  The fits of the iterations are normal-equation fits of
+the model's design matrix (the same candidate models as the distortion
+stage, `~astroalign_nd.transforms.selection`), accumulated in chunks; the
+final model is fitted by `~astroalign_nd.transforms.fit_transform`.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from scipy.stats import poisson
+
+from ..exceptions import TooFewSourcesError, TransformNotFoundError
+from ..matching.pairing import resolve_claims
+from .convert import as_matrix
+from .fitting import fit_transform
+from .registry import TRANSFORM_REGISTRY, transform_type_of
+from .selection import (_Poly, _Projective, _Similarity, _normalise, _predict, _projective_start,
+                        _wls, fit_nonlinear)
+
+__all__ = ['pair_all', 'AllPairs', 'pairing_radius']
+
+#: Rows of the design matrix built at once (bounds the memory of a fit).
+CHUNK = 1 << 17
+
+#: The pairing radius is kept between these many residual sigmas (per axis).
+MIN_SIGMAS, MAX_SIGMAS = 3.0, 5.0
+
+#: The pairs must be this improbable as chance coincidences (Poisson, at the
+#: target density and the final radius), else the start did not map the
+#: source onto the target.
+MAX_CHANCE = 1e-6
+
+#: degree='auto' chooses the polynomial degree on at most this many pairs
+#: (a deterministic subsample): the choice is settled long before, and its
+#: cross-validation's memory grows with the pairs.
+AUTO_PAIRS = 20000
+
+
+@dataclass
+class AllPairs:
+    """
+    The outcome of `pair_all`.
+
+    Attributes
+    ----------
+    transform : astropy Model
+        The model refitted on all the pairs.
+    covariance : ndarray
+        Its parameter covariance (`~astroalign_nd.transforms.fit_transform`).
+    source_index, target_index : ndarray of int
+        The pairs (rows of the point lists), by increasing source index.
+    residuals : (K, 2) ndarray
+        ``transform(source) - target`` of the pairs, pixels.
+    radius : float
+        The final pairing radius, pixels.
+    sigma : float
+        The residual scatter per axis (robust), pixels.
+    n_iterations : int
+        Pairings made.
+    converged : bool
+        True if the last pairing repeated the one before.
+    degree : int or None
+        The polynomial degree used (chosen, with ``degree='auto'``).
+    """
+
+    transform: object
+    covariance: np.ndarray
+    source_index: np.ndarray
+    target_index: np.ndarray
+    residuals: np.ndarray
+    radius: float
+    sigma: float
+    n_iterations: int
+    converged: bool
+    degree: object = None
+
+
+class _Candidates:
+    """Each source's two nearest targets at some prediction (its anchor)."""
+
+    def __init__(self, tree, bound, workers):
+        self.tree, self.bound, self.workers = tree, float(bound), workers
+        self.anchor = self.j = self.gap = self.xy = None
+
+    def _query(self, pred):
+        """(indices, guard distance, candidate positions) of the two nearest targets."""
+        d, j = self.tree.query(pred, k=2, distance_upper_bound=self.bound, workers=self.workers)
+        found = j < self.tree.n
+        xy = np.full(j.shape + (2,), np.inf)
+        xy[found] = self.tree.data[j[found]]
+        # Any other target was beyond the second candidate (or the bound).
+        return j, np.where(found[:, 1], d[:, 1], self.bound), xy
+
+    def nearest(self, pred, radius):
+        """(source, target, distance) of the nearest target within ``radius`` of each
+        source (exactly: sources whose candidates may be out of date are queried again)."""
+        if self.anchor is None:
+            self.anchor = pred.copy()
+            self.j, self.gap, self.xy = self._query(pred)
+        moved = np.hypot(*(pred - self.anchor).T)
+        best, bd = self._best(pred)
+        guard = self.gap - moved
+        stale = np.flatnonzero(~((bd <= guard) | ((bd > radius) & (radius <= guard))))
+        if stale.size:
+            self.anchor[stale] = pred[stale]
+            self.j[stale], self.gap[stale], self.xy[stale] = self._query(pred[stale])
+            best[stale], bd[stale] = self._best(pred, stale)
+        si = np.flatnonzero(bd <= radius)
+        return si, best[si], bd[si]
+
+    def _best(self, pred, rows=None):
+        j, xy = (self.j, self.xy) if rows is None else (self.j[rows], self.xy[rows])
+        p = pred if rows is None else pred[rows]
+        with np.errstate(invalid="ignore"):  # inf - inf of absent candidates: NaN, not near
+            d0 = np.hypot(xy[:, 0, 0] - p[:, 0], xy[:, 0, 1] - p[:, 1])
+            d1 = np.hypot(xy[:, 1, 0] - p[:, 0], xy[:, 1, 1] - p[:, 1])
+        d0[np.isnan(d0)], d1[np.isnan(d1)] = np.inf, np.inf
+        second = d1 < d0
+        return np.where(second, j[:, 1], j[:, 0]), np.where(second, d1, d0)
+
+
+def pairing_radius(sigma, density, n_pairs, n_unpaired):
+    """
+    The pairing radius (pixels) that loses the fewest pairs either way.
+
+    True pairs are off by a residual with a Gaussian scatter ``sigma`` per
+    axis (the distance follows a Rayleigh law); an unpaired source finds a
+    chance target within ``r`` with probability ``pi r**2 density``.  The
+    radius where both losses balance, ``exp(-r**2 / 2 sigma**2) = 2 pi
+    sigma**2 density n_unpaired / n_pairs``, is kept between
+    ``MIN_SIGMAS`` and ``MAX_SIGMAS`` sigmas.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms.allpairs import pairing_radius
+    >>> round(pairing_radius(0.14, 5e-3, 64000, 26000), 3)  # 100,000 stars on 4096 px
+    0.57
+    """
+    sigma = max(float(sigma), 1e-9)
+    ratio = 2.0 * np.pi * sigma ** 2 * max(density, 1e-300) * max(n_unpaired, 1) / max(n_pairs, 1)
+    k = np.sqrt(max(-2.0 * np.log(min(ratio, 1.0)), 0.0))
+    return float(sigma * np.clip(k, MIN_SIGMAS, MAX_SIGMAS))
+
+
+def _working_model(transform_type, degree, parity):
+    """The candidate model of the iterations: (candidate, its degree or None)."""
+    entry = transform_type_of(transform_type)
+    if entry.name == "polynomial":
+        return _Poly(int(degree)), int(degree)
+    if entry.name == "projective":
+        return _Projective(), None
+    if entry.conformal:
+        return _Similarity(parity), None
+    return _Poly(1), None
+
+
+def _is_affine_in_uv(cand):
+    """True for the candidates whose design is linear in (1, u, v): similarity, affine."""
+    return isinstance(cand, _Similarity) or (isinstance(cand, _Poly) and cand.degree == 1)
+
+
+def _design_parts(cand):
+    """D0, Du, Dv with ``design(u, v) = D0 + u Du + v Dv`` (each (2, k))."""
+    d = cand.design(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
+    return d[0], d[1] - d[0], d[2] - d[0]
+
+
+def _normal_equations(cand, uv, dst):
+    """(A^T A, A^T b) of the candidate's design over these pairs."""
+    k = cand.k
+    if _is_affine_in_uv(cand):
+        # From the moments of (u, v): no design matrix of all the pairs.
+        d0, du, dv = _design_parts(cand)
+        s = uv.sum(axis=0)
+        m2 = uv.T @ uv
+        n = (len(uv) * d0.T @ d0 + s[0] * (d0.T @ du + du.T @ d0) + s[1] * (d0.T @ dv + dv.T @ d0)
+             + m2[0, 0] * du.T @ du + m2[0, 1] * (du.T @ dv + dv.T @ du) + m2[1, 1] * dv.T @ dv)
+        ub = uv.T @ dst
+        return n, d0.T @ dst.sum(axis=0) + du.T @ ub[0] + dv.T @ ub[1]
+    n, v = np.zeros((k, k)), np.zeros(k)
+    for lo in range(0, len(uv), CHUNK):
+        a = cand.design(uv[lo:lo + CHUNK]).reshape(-1, k)
+        n += a.T @ a
+        v += a.T @ dst[lo:lo + CHUNK].reshape(-1)
+    return n, v
+
+
+def _chunked_fit(cand, uv, dst):
+    """Least squares of a linear candidate through its normal equations."""
+    n, v = _normal_equations(cand, uv, dst)
+    d = np.sqrt(np.diag(n))
+    if not np.all(d > 0):
+        return None
+    ns = n / np.outer(d, d)  # unit diagonal: the condition number is meaningful
+    if np.linalg.cond(ns) > 1e12:
+        return None
+    return np.linalg.solve(ns, v / d) / d
+
+
+def _fit_params(cand, uv, dst, params):
+    """The candidate's parameters on these pairs (None if degenerate)."""
+    if cand.linear:
+        return _chunked_fit(cand, uv, dst)
+    if params is None or len(params) != cand.k:  # from an affine fit of the same pairs
+        aff = _chunked_fit(_Poly(1), uv, dst)
+        if aff is None:
+            return None
+        params = _projective_start(aff)
+    fit = _wls(cand, uv, dst, np.ones(len(uv)), params)
+    return None if fit is None else fit[0]
+
+
+def _chunked_predict(cand, params, uv):
+    """The candidate's predicted target positions of all the sources."""
+    if _is_affine_in_uv(cand):
+        p = _predict(cand, params, np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
+        return uv @ (p[1:] - p[0]) + p[0]
+    out = np.empty_like(uv)
+    for lo in range(0, len(uv), CHUNK):
+        out[lo:lo + CHUNK] = _predict(cand, params, uv[lo:lo + CHUNK])
+    return out
+
+
+def _predict_start(start, src):
+    """Predicted target positions of ``src`` under the starting model or matrix."""
+    if isinstance(start, np.ndarray) or not callable(start):
+        m = as_matrix(start)
+        if np.allclose(m[2], [0.0, 0.0, 1.0]):
+            return src @ m[:2, :2].T + m[:2, 2]
+        w = src @ m[2, :2] + m[2, 2]
+        return (src @ m[:2, :2].T + m[:2, 2]) / w[:, None]
+    x, y = start(src[:, 0], src[:, 1])
+    return np.column_stack([x, y]).astype(float)
+
+
+def _sigma(r2):
+    """Per-axis residual scatter from the median squared distance (Rayleigh law)."""
+    return float(np.sqrt(np.median(r2) / (2.0 * np.log(2.0)))) if len(r2) else 0.0
+
+
+class _State:
+    """The iteration's current pairs, model and radius."""
+
+    def __init__(self, problem, pred, radius):
+        self.p = problem
+        self.pred, self.radius = pred, radius
+        self.si = self.dj = None
+        self.params, self.sigma = None, 0.0
+
+    def pair(self):
+        si, dj, dist = self.p.cands.nearest(self.pred, self.radius)
+        return resolve_claims(si, dj, dist)
+
+    def refit(self, si, dj, cand):
+        """Fit ``cand`` on the pairs, predict all sources, set the next radius."""
+        p = self.p
+        params = _fit_params(cand, p.uv[si], p.dst[dj], self.params)
+        if params is None:
+            return False
+        self.params, self.si, self.dj = params, si, dj
+        self.pred = _chunked_predict(cand, params, p.uv)
+        r = self.pred[si] - p.dst[dj]
+        self.sigma = _sigma(np.einsum("ij,ij->i", r, r))
+        if p.fixed_radius is None:
+            new = pairing_radius(self.sigma, p.density, len(si), len(p.uv) - len(si))
+            self.radius = min(max(new, p.min_radius), p.tolerance)
+        return True
+
+
+@dataclass
+class _Problem:
+    src: np.ndarray
+    dst: np.ndarray
+    uv: np.ndarray
+    centre: np.ndarray
+    frame: tuple
+    cands: _Candidates
+    density: float
+    tolerance: float
+    fixed_radius: object
+    min_radius: float
+
+
+def _iterate(state, cand, max_iterations):
+    """Pair and refit until the pairs repeat: (iterations, converged)."""
+    for it in range(1, max_iterations + 1):
+        si, dj = state.pair()
+        if len(si) * 2 <= cand.k:
+            raise _too_few(len(si), state.radius)
+        same = (state.si is not None and np.array_equal(si, state.si)
+                and np.array_equal(dj, state.dj))
+        if same:
+            return it, True
+        if not state.refit(si, dj, cand):
+            raise _too_few(len(si), state.radius, degenerate=True)
+    return max_iterations, False
+
+
+def _too_few(n, radius, degenerate=False):
+    why = "do not constrain the model (degenerate geometry)" if degenerate else "are too few"
+    return TooFewSourcesError(
+        f"{n} pairs within {radius:.3g} px {why}: the starting transform does not map the "
+        "source onto the target, or the radius is too small. Check transform= (or the "
+        "match found), or pass a larger tolerance.")
+
+
+def _choose_degree(state, conformal, significance):
+    """degree='auto': the model chosen by `fit_nonlinear` on (a subsample of) the pairs."""
+    p = state.p
+    si, dj = state.si, state.dj
+    if len(si) > AUTO_PAIRS:
+        pick = np.sort(np.random.default_rng(0).choice(len(si), AUTO_PAIRS, replace=False))
+        si, dj = si[pick], dj[pick]
+    aff = _chunked_fit(_Poly(1), p.uv[si], p.dst[dj])
+    half = float(np.hypot(p.frame[1] - p.frame[0], p.frame[3] - p.frame[2]) / 2.0)
+    m = np.eye(3)  # the affine fit, back in pixels
+    m[0, :2], m[1, :2] = aff[1:3] / half, aff[4:6] / half
+    m[0, 2] = aff[0] - m[0, :2] @ p.centre
+    m[1, 2] = aff[3] - m[1, :2] @ p.centre
+    fit = fit_nonlinear(p.src[si], p.dst[dj], m, transform_type="polynomial", degree="auto",
+                        pairs_given=True, tolerance=5.0 * max(state.radius, 1e-3),
+                        min_tolerance=state.radius, source_frame=p.frame,
+                        significance=significance, linear_type="similarity")
+    info = fit.info
+    if info["model"] == "polynomial":
+        return _Poly(info["degree"]), "polynomial", info["degree"]
+    return conformal if info["model"] == "similarity" else _Poly(1), info["model"], None
+
+
+def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parity=None,
+             tolerance=2.0, radius=None, max_iterations=10, min_radius=1e-3, frame=None,
+             significance=1e-4, workers=1):
+    """
+    Pair every source position with a target one, refitting the model on all pairs.
+
+    Parameters
+    ----------
+    src, dst : (N, 2), (M, 2) ndarray
+        Source and target positions (pixels).
+    start : model or (3, 3) array-like
+        The starting source-to-target transform.
+    transform_type : str, optional
+        The model refitted (a `~astroalign_nd.transforms.TRANSFORM_TYPES` name).
+    degree : int or 'auto', optional
+        The polynomial degree; 'auto' chooses it (and may choose a linear
+        model) on the pairs of a first, affine iteration.
+    parity : {1, -1}, optional
+        Of the rotation-like models; by default that of ``start``.
+    tolerance : float, optional
+        The first pairing radius (pixels), and the largest.
+    radius : float, optional
+        A fixed pairing radius instead of the one set by the residuals.
+    max_iterations : int, optional
+        Pairings made at most (per model).
+    min_radius : float, optional
+        The smallest radius the residuals may set (pixels).
+    frame : (x0, x1, y0, y1), optional
+        The source frame (by default the sources' bounding box).
+    significance : float, optional
+        The F-test level of ``degree='auto'`` (see `fit_nonlinear`).
+    workers : int, optional
+        Threads of the k-d tree queries.
+
+    Returns
+    -------
+    `AllPairs`
+
+    Raises
+    ------
+    TooFewSourcesError
+        If too few stars pair up to fit the model.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import SimilarityTransform
+    >>> from astroalign_nd.transforms.allpairs import pair_all
+    >>> rng = np.random.default_rng(0)
+    >>> src = rng.uniform(0, 2048, (5000, 2))
+    >>> truth = SimilarityTransform(scale=1.1, rotation=30.0, translation_x=5.0)
+    >>> dst = np.column_stack(truth(*src.T)) + rng.normal(0, 0.1, src.shape)
+    >>> start = SimilarityTransform(scale=1.1, rotation=30.01, translation_x=5.5)
+    >>> out = pair_all(src, dst, start, tolerance=3.0)
+    >>> len(out.source_index), out.converged
+    (5000, True)
+    """
+    src, dst = np.asarray(src, float), np.asarray(dst, float)
+    entry = transform_type_of(transform_type)
+    if parity is None:  # the sign of the start's Jacobian at the sources' centre
+        c = src.mean(axis=0) if len(src) else np.zeros(2)
+        q = _predict_start(start, np.array([c, c + [1.0, 0.0], c + [0.0, 1.0]]))
+        parity = 1 if np.linalg.det(np.array([q[1] - q[0], q[2] - q[0]])) > 0 else -1
+    first = "affine" if degree == "auto" else entry.name
+    cand, deg = _working_model(first, 1 if degree == "auto" else degree, parity)
+    frame, centre, _, uv, _ = _normalise(src, frame)
+    tree = cKDTree(dst, balanced_tree=False, compact_nodes=False)
+    lo, hi = dst.min(axis=0), dst.max(axis=0)
+    density = len(dst) / max(float(np.prod(hi - lo)), 1.0)
+    tol = float(tolerance if radius is None else max(radius, 0.0))
+    problem = _Problem(src, dst, uv, centre, frame, _Candidates(tree, tol, workers), density,
+                       tol, radius, float(min_radius))
+    state = _State(problem, _predict_start(start, src), tol)
+    n_it, converged = _iterate(state, cand, max_iterations)
+    name = entry.name
+    if degree == "auto":
+        cand, name, deg = _choose_degree(state, _Similarity(parity), significance)
+        state.params = state.si = None  # refit at least once with the chosen model
+        more, converged = _iterate(state, cand, max_iterations)
+        n_it += more
+    _check_not_chance(state)
+    return _final(state, name, deg, parity, n_it, converged)
+
+
+def _check_not_chance(state):
+    """Refuse pairs no more numerous than chance coincidences would give."""
+    p = state.p
+    n, expected = len(state.si), len(p.uv) * -np.expm1(-np.pi * state.radius ** 2 * p.density)
+    chance = float(poisson.sf(n - 1, expected))
+    if chance > MAX_CHANCE:
+        raise TransformNotFoundError(
+            f"the {n} pairs within {state.radius:.3g} px are no more than chance coincidences "
+            f"would give ({expected:.1f} expected at this density; probability {chance:.2g}): "
+            "the starting transform does not map the source onto the target. Check "
+            "transform= (or let the search find it), or pass a larger tolerance.")
+
+
+def _final(state, name, deg, parity, n_it, converged):
+    """The model of the chosen type fitted on the final pairs: an `AllPairs`."""
+    p = state.p
+    s_pts, d_pts = p.src[state.si], p.dst[state.dj]
+    kw = {}
+    if name == "polynomial":
+        kw = dict(degree=deg, crpix=(float(p.centre[0]), float(p.centre[1])),
+                  domain=tuple(float(v) for v in p.frame))
+    elif TRANSFORM_REGISTRY[name].parity:
+        kw = dict(parity=parity)
+    model, cov, resid = fit_transform(s_pts, d_pts, name, **kw)
+    return AllPairs(model, cov, state.si, state.dj, resid, float(state.radius),
+                    float(state.sigma), n_it, converged, deg)
