@@ -394,7 +394,7 @@ def _unmatched(side, index):
 def cross_match(source: Any, target: Any, *, transform: Any = None,
                 transform_type: str = "similarity", degree: int | str | None = None,
                 source_columns: tuple | None = None, target_columns: tuple | None = None,
-                flux: str | tuple | bool | None = None, tolerance: float | None = None,
+                flux: str | tuple | bool | None = None, max_radius: float | None = None,
                 radius: float | None = None, max_iterations: int = 10, n_sources: int = 50,
                 max_sources: int = 200, hdu: int | str | None = None,
                 **options: Any) -> CrossMatch:
@@ -425,7 +425,7 @@ def cross_match(source: Any, target: Any, *, transform: Any = None,
     transform : model or (3, 3) array-like, optional
         A source-to-target transform to start from instead of searching
         (e.g. from `~astroalign_nd.find_transform` on another pair, or a
-        WCS solution): within ``tolerance`` of the truth.
+        WCS solution): within ``max_radius`` of the truth.
     transform_type : str, optional
         The model refitted on all the pairs (and searched for):
         'similarity' (default), 'euclidean', 'translation', 'affine',
@@ -441,7 +441,7 @@ def cross_match(source: Any, target: Any, *, transform: Any = None,
         The flux column (of both tables, or of each) whose brightest stars
         the search uses; None: a ``flux`` column if the table has one, else
         the first rows; False: the first rows.
-    tolerance : float, optional
+    max_radius : float, optional
         The first (and largest) pairing radius, pixels: by default six
         times the search's residual scatter (at least 0.5 px), or 2 px with
         ``transform=``.
@@ -452,7 +452,7 @@ def cross_match(source: Any, target: Any, *, transform: Any = None,
     n_sources, max_sources, hdu, **options
         As in `~astroalign_nd.find_transform`: the search's control points
         and its detection and matching options (detection options apply to
-        image inputs).
+        image inputs; ``tolerance`` is the search's matching radius).
 
     Returns
     -------
@@ -484,7 +484,7 @@ def cross_match(source: Any, target: Any, *, transform: Any = None,
     config = RegistrationConfig.from_keywords(transform_type=transform_type, degree=degree,
                                               n_sources=n_sources, max_sources=max_sources,
                                               **options)
-    tolerance = _check_positive(tolerance, "tolerance")
+    max_radius = _check_positive(max_radius, "max_radius")
     radius = _check_positive(radius, "radius")
     if isinstance(max_iterations, (bool, np.bool_)) or not isinstance(
             max_iterations, (int, np.integer)) or max_iterations < 1:
@@ -505,7 +505,7 @@ def cross_match(source: Any, target: Any, *, transform: Any = None,
     kind = transform_type_of(model.transform_type).name
     fit = pair_all(src.points, dst.points, start, transform_type=kind,
                    degree=model.degree if model.nonlinear else None,
-                   tolerance=tolerance or found_tol, radius=radius,
+                   tolerance=max_radius or found_tol, radius=radius,
                    max_iterations=int(max_iterations),
                    workers=num_threads() if len(src.points) >= THREADED_QUERY else 1)
     return _result(src, dst, fit, match)

@@ -173,8 +173,8 @@ def test_bad_inputs(cats):
         cross_match(cats.source, good, flux="mag")
     with pytest.raises(TypeError, match="flux must be"):
         cross_match(cats.source, good, flux=3)
-    with pytest.raises(ValueError, match="tolerance"):
-        cross_match(cats.source, good, tolerance=-1.0)
+    with pytest.raises(ValueError, match="max_radius"):
+        cross_match(cats.source, good, max_radius=-1.0)
     with pytest.raises(TypeError, match="radius"):
         cross_match(cats.source, good, radius="1")
     with pytest.raises(ValueError, match="max_iterations"):
@@ -242,3 +242,30 @@ def test_pair_all_requeries_moved_predictions():
     assert len(out.source_index) == len(src)
     assert np.array_equal(out.source_index, out.target_index)
     assert np.allclose(out.transform.translation_x.value, 0.3)
+
+
+def test_cli_match_writes_the_pairs_safely(tmp_path, cats, capsys):
+    from astroalign_nd.cli.main import main
+
+    src, dst, out = tmp_path / "src.ecsv", tmp_path / "dst.txt", tmp_path / "pairs.fits"
+    cats.source.write(src)
+    np.savetxt(dst, np.column_stack([cats.target["x"], cats.target["y"], cats.target["flux"]]))
+    args = [str(src), str(dst), "-o", str(out), "--target-columns", "col1,col2",
+            "--flux", "flux,col3"]
+    assert main(["match", *args]) == 0
+    pairs = Table.read(out)
+    ids = cats.source["id"][pairs["source_index"]] == cats.target["id"][pairs["target_index"]]
+    assert ids.sum() >= 0.99 * cats.n_true_pairs
+    assert "pairs of" in capsys.readouterr().out
+    before = out.read_bytes()
+    assert main(["match", *args]) == 2  # no overwrite without --overwrite
+    assert "--overwrite" in capsys.readouterr().err and out.read_bytes() == before
+    assert main(["match", *args, "--overwrite"]) == 0
+    src_bytes = src.read_bytes()
+    assert main(["match", str(src), str(dst), "-o", str(src), "--overwrite",
+                 "--target-columns", "col1,col2"]) == 2  # an input is never an output
+    assert "destroy" in capsys.readouterr().err and src.read_bytes() == src_bytes
+    assert main(["match", str(src), str(dst), "-o", str(tmp_path / "p.png")]) == 2
+    assert main(["match", str(src), str(dst), "-o", str(tmp_path / "p.ecsv"),
+                 "--target-columns", "col1"]) == 2
+    assert "two column names" in capsys.readouterr().err

@@ -6,6 +6,7 @@ import contextlib
 import sys
 from .errors import _PROG, _error, _expected_errors
 from .commands import _cmd_batch, _cmd_demo, _cmd_register
+from .match import add_match_command
 from .options import _registration_options
 
 __all__ = ['main']
@@ -24,6 +25,7 @@ def _build_parser():
     _add_register_command(sub, reg_opts)
     _add_batch_command(sub, reg_opts)
     _add_demo_command(sub)
+    add_match_command(sub)
     return parser
 
 

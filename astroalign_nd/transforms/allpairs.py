@@ -440,7 +440,7 @@ def _check_not_chance(state):
             f"the {n} pairs within {state.radius:.3g} px are no more than chance coincidences "
             f"would give ({expected:.1f} expected at this density; probability {chance:.2g}): "
             "the starting transform does not map the source onto the target. Check "
-            "transform= (or let the search find it), or pass a larger tolerance.")
+            "transform= (or let the search find it), or pass a larger first radius (max_radius).")
 
 
 def _final(state, name, deg, parity, n_it, converged):
