@@ -88,7 +88,9 @@ class CrossMatch:
         ``dx``, ``dy`` (``transform(source) - target``), ``residual``
         (pixels) and ``p_chance``: the probability that an unrelated target
         star lies this close to the predicted position (``1 - exp(-pi r**2
-        density)``, with the target stars' local density).
+        density)``, with the target stars' local density).  Its ``meta``
+        holds ``TRANSFRM``, ``NPAIRS``, ``RMS``, ``RADIUS``, ``SIGMA``,
+        ``NITER`` and ``CONVERGD`` (FITS keyword names).
     source_unmatched, target_unmatched : ndarray of int
         The rows of each input with no pair (rows without finite positions
         included).
@@ -185,10 +187,11 @@ def _is_fits(path):
 
 def _fits_table(path):
     with fits.open(path, memmap=False) as hdul:
-        for hdu in hdul:
-            if isinstance(hdu, (fits.BinTableHDU, fits.TableHDU)):
-                return Table(hdu.data, meta=dict(hdu.header))
-    raise ValueError("the FITS file holds no table HDU")
+        index = next((i for i, hdu in enumerate(hdul)
+                      if isinstance(hdu, (fits.BinTableHDU, fits.TableHDU))), None)
+    if index is None:
+        raise ValueError("the FITS file holds no table HDU")
+    return Table.read(path, format="fits", hdu=index)
 
 
 def _has_header(path):
@@ -514,9 +517,10 @@ def cross_match(source: Any, target: Any, *, transform: Any = None,
 def _result(src, dst, fit, match):
     table = _pair_table(src, dst, fit)
     rms = float(np.sqrt(np.mean(table["residual"] ** 2)))
-    table.meta.update(transform=type(fit.transform).__name__, n_pairs=len(table), rms=rms,
-                      radius=fit.radius, sigma=fit.sigma, n_iterations=fit.n_iterations,
-                      converged=fit.converged)
+    # FITS-keyword names: the table can be written to a FITS file as it is.
+    table.meta.update(TRANSFRM=type(fit.transform).__name__, NPAIRS=len(table), RMS=rms,
+                      RADIUS=fit.radius, SIGMA=fit.sigma, NITER=fit.n_iterations,
+                      CONVERGD=fit.converged)
     fit.transform.meta["quality"] = dict(n_matches=len(table), rms=rms,
                                          covariance=np.array(fit.covariance),
                                          radius=fit.radius, sigma=fit.sigma,

@@ -127,7 +127,7 @@ def _cmd_match(args):
                       flux=_flux(args.flux), max_radius=args.max_radius, radius=args.radius,
                       max_iterations=args.max_iterations, **_search_kwargs(args))
     table = out.table
-    table.meta["source"], table.meta["target"] = str(args.source), str(args.target)
+    table.meta["SOURCE"], table.meta["TARGET"] = str(args.source), str(args.target)
     with atomic_write(args.output, overwrite=args.overwrite) as tmp:
         table.write(tmp, format=fmt)
     q = out.transform.meta["quality"]
