@@ -32,6 +32,7 @@ from ..exceptions import TooFewSourcesError, TransformNotFoundError
 from ..matching.pairing import resolve_claims
 from .convert import as_matrix
 from .fitting import fit_transform
+from .linear import LinearTransform2D
 from .registry import TRANSFORM_REGISTRY, transform_type_of
 from .selection import (_Poly, _Projective, _Similarity, _normalise, _predict, _projective_start,
                         _wls, fit_nonlinear)
@@ -40,6 +41,10 @@ __all__ = ['pair_all', 'AllPairs', 'pairing_radius']
 
 #: Rows of the design matrix built at once (bounds the memory of a fit).
 CHUNK = 1 << 17
+
+#: Queries of more sources than this are made in the order of cells of this
+#: many pixels (for the cache).
+LOCALITY_FROM, LOCALITY_CELL = 4096, 64.0
 
 #: The pairing radius is kept between these many residual sigmas (per axis).
 MIN_SIGMAS, MAX_SIGMAS = 3.0, 5.0
@@ -103,7 +108,18 @@ class _Candidates:
 
     def _query(self, pred):
         """(indices, guard distance, candidate positions) of the two nearest targets."""
-        d, j = self.tree.query(pred, k=2, distance_upper_bound=self.bound, workers=self.workers)
+        if len(pred) > LOCALITY_FROM:
+            # Queried in the order of cells of the sky: neighbouring queries walk the
+            # same branches of the tree, which stay in the cache (twice as fast).
+            cell = np.floor((pred - pred.min(axis=0)) / LOCALITY_CELL).astype(np.int64)
+            order = np.argsort(cell[:, 1] * (cell[:, 0].max() + 1) + cell[:, 0], kind="stable")
+            d, j = np.empty((len(pred), 2)), np.empty((len(pred), 2), np.intp)
+            d[order], j[order] = self.tree.query(pred[order], k=2,
+                                                 distance_upper_bound=self.bound,
+                                                 workers=self.workers)
+        else:
+            d, j = self.tree.query(pred, k=2, distance_upper_bound=self.bound,
+                                   workers=self.workers)
         found = j < self.tree.n
         xy = np.full(j.shape + (2,), np.inf)
         xy[found] = self.tree.data[j[found]]
@@ -189,13 +205,17 @@ def _normal_equations(cand, uv, dst):
     k = cand.k
     if _is_affine_in_uv(cand):
         # From the moments of (u, v): no design matrix of all the pairs.
+        # (Dot products of columns: a matrix product of an (N, 2) array is slower.)
         d0, du, dv = _design_parts(cand)
-        s = uv.sum(axis=0)
-        m2 = uv.T @ uv
-        n = (len(uv) * d0.T @ d0 + s[0] * (d0.T @ du + du.T @ d0) + s[1] * (d0.T @ dv + dv.T @ d0)
-             + m2[0, 0] * du.T @ du + m2[0, 1] * (du.T @ dv + dv.T @ du) + m2[1, 1] * dv.T @ dv)
-        ub = uv.T @ dst
-        return n, d0.T @ dst.sum(axis=0) + du.T @ ub[0] + dv.T @ ub[1]
+        u, v = uv[:, 0], uv[:, 1]
+        x, y = dst[:, 0], dst[:, 1]
+        suu, suv, svv = u @ u, u @ v, v @ v
+        n = (len(uv) * d0.T @ d0 + u.sum() * (d0.T @ du + du.T @ d0)
+             + v.sum() * (d0.T @ dv + dv.T @ d0) + suu * du.T @ du
+             + suv * (du.T @ dv + dv.T @ du) + svv * dv.T @ dv)
+        b = (d0.T @ np.array([x.sum(), y.sum()]) + du.T @ np.array([u @ x, u @ y])
+             + dv.T @ np.array([v @ x, v @ y]))
+        return n, b
     n, v = np.zeros((k, k)), np.zeros(k)
     for lo in range(0, len(uv), CHUNK):
         a = cand.design(uv[lo:lo + CHUNK]).reshape(-1, k)
@@ -233,7 +253,11 @@ def _chunked_predict(cand, params, uv):
     """The candidate's predicted target positions of all the sources."""
     if _is_affine_in_uv(cand):
         p = _predict(cand, params, np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
-        return uv @ (p[1:] - p[0]) + p[0]
+        j = p[1:] - p[0]
+        out = np.empty_like(uv)
+        out[:, 0] = uv[:, 0] * j[0, 0] + uv[:, 1] * j[1, 0] + p[0, 0]
+        out[:, 1] = uv[:, 0] * j[0, 1] + uv[:, 1] * j[1, 1] + p[0, 1]
+        return out
     out = np.empty_like(uv)
     for lo in range(0, len(uv), CHUNK):
         out[lo:lo + CHUNK] = _predict(cand, params, uv[lo:lo + CHUNK])
@@ -242,8 +266,9 @@ def _chunked_predict(cand, params, uv):
 
 def _predict_start(start, src):
     """Predicted target positions of ``src`` under the starting model or matrix."""
-    if isinstance(start, np.ndarray) or not callable(start):
-        m = as_matrix(start)
+    linear = isinstance(start, LinearTransform2D)
+    if linear or isinstance(start, np.ndarray) or not callable(start):
+        m = as_matrix(start)  # (a linear model through its matrix: no model evaluation)
         if np.allclose(m[2], [0.0, 0.0, 1.0]):
             return src @ m[:2, :2].T + m[:2, 2]
         w = src @ m[2, :2] + m[2, 2]
@@ -412,7 +437,8 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
     first = "affine" if degree == "auto" else entry.name
     cand, deg = _working_model(first, 1 if degree == "auto" else degree, parity)
     frame, centre, _, uv, _ = _normalise(src, frame)
-    tree = cKDTree(dst, balanced_tree=False, compact_nodes=False)
+    # (Unbalanced, larger leaves: built in half the time, queried as fast.)
+    tree = cKDTree(dst, leafsize=32, balanced_tree=False, compact_nodes=False)
     lo, hi = dst.min(axis=0), dst.max(axis=0)
     density = len(dst) / max(float(np.prod(hi - lo)), 1.0)
     tol = float(tolerance if radius is None else max(radius, 0.0))
