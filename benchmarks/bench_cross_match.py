@@ -248,8 +248,8 @@ def run_million(folder, n):
     if GRMATCH and GRTRANS:  # one grmatch run for scale (its own process, its own memory)
         d = np.load(path)
         for name, k in (("src.txt", "s"), ("dst.txt", "t")):
-            np.savetxt(folder / name, np.column_stack([d[k + "x"], d[k + "y"], d[k + "f"],
-                                                        d[k + "id"]]), fmt="%.5f %.5f %.3f %d")
+            cols = np.column_stack([d[k + "x"], d[k + "y"], d[k + "f"], d[k + "id"]])
+            np.savetxt(folder / name, cols, fmt="%.5f %.5f %.3f %d")
         t0 = time.perf_counter()
         proc = subprocess.run(
             ["/usr/bin/time", "-f", "%M", GRMATCH, "--match-points", "-r",

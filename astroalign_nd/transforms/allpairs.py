@@ -6,7 +6,7 @@ Every star paired: a transform refitted on all the pairs it makes.
 transform (the match of the brightest stars, or one the caller gives), it
 pairs every source position with a target position (nearest neighbours
 under the model, one source per target, as
-`~astroalign_nd.matching.pairing.mutual_matches` pairs them), refits the
+``matching.pairing.mutual_matches`` pairs them), refits the
 model on all the pairs, sets the pairing radius from the fit's own
 residuals, and repeats until the pairs no longer change.
 
@@ -401,7 +401,8 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
     frame : (x0, x1, y0, y1), optional
         The source frame (by default the sources' bounding box).
     significance : float, optional
-        The F-test level of ``degree='auto'`` (see `fit_nonlinear`).
+        The F-test level of ``degree='auto'`` (see
+        `~astroalign_nd.transforms.fit_nonlinear`).
     workers : int, optional
         Threads of the k-d tree queries.
 
