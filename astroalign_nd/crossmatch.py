@@ -259,7 +259,9 @@ def _table_side(table, name, columns, flux_col):
 
 
 def _finite_side(pts, bad, flux, catalog, n_rows):
-    good = np.all(np.isfinite(pts), axis=1) & ~bad
+    good = np.isfinite(pts[:, 0]) & np.isfinite(pts[:, 1]) & ~bad
+    if good.all():  # (the usual case: no copy)
+        return _Side(pts, np.arange(len(pts)), flux, catalog, n_rows)
     rows = np.flatnonzero(good)
     return _Side(pts[rows], rows, None if flux is None else flux[rows], catalog, n_rows)
 

@@ -205,16 +205,20 @@ def _normal_equations(cand, uv, dst):
     k = cand.k
     if _is_affine_in_uv(cand):
         # From the moments of (u, v): no design matrix of all the pairs.
-        # (Dot products of columns: a matrix product of an (N, 2) array is slower.)
+        # (Sums of column products: a matrix product of (N, 2) arrays is slower, and
+        # threaded BLAS calls stall on a busy machine.)
         d0, du, dv = _design_parts(cand)
         u, v = uv[:, 0], uv[:, 1]
         x, y = dst[:, 0], dst[:, 1]
-        suu, suv, svv = u @ u, u @ v, v @ v
+
+        def dot(a, b):
+            return float(np.sum(a * b))
+
         n = (len(uv) * d0.T @ d0 + u.sum() * (d0.T @ du + du.T @ d0)
-             + v.sum() * (d0.T @ dv + dv.T @ d0) + suu * du.T @ du
-             + suv * (du.T @ dv + dv.T @ du) + svv * dv.T @ dv)
-        b = (d0.T @ np.array([x.sum(), y.sum()]) + du.T @ np.array([u @ x, u @ y])
-             + dv.T @ np.array([v @ x, v @ y]))
+             + v.sum() * (d0.T @ dv + dv.T @ d0) + dot(u, u) * du.T @ du
+             + dot(u, v) * (du.T @ dv + dv.T @ du) + dot(v, v) * dv.T @ dv)
+        b = (d0.T @ np.array([x.sum(), y.sum()]) + du.T @ np.array([dot(u, x), dot(u, y)])
+             + dv.T @ np.array([dot(v, x), dot(v, y)]))
         return n, b
     n, v = np.zeros((k, k)), np.zeros(k)
     for lo in range(0, len(uv), CHUNK):
