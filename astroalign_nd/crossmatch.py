@@ -25,6 +25,7 @@ from astropy.table import Table
 from ._input import parse_input, position_columns
 from ._kernels import num_threads
 from .config import RegistrationConfig
+from .detection import find_sources
 from .registration import find_match_from_config
 from .transforms.allpairs import pair_all
 from .transforms.convert import as_matrix
@@ -106,6 +107,19 @@ class CrossMatch:
         The search on the brightest stars (None with ``transform=``).
     source_catalog, target_catalog : `~astropy.table.Table` or None
         The stars detected in an image input (None for catalogs).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd import cross_match
+    >>> from astroalign_nd.simulate import simulate_catalogs
+    >>> cats = simulate_catalogs(3000, seed=4)
+    >>> out = cross_match(cats.source, cats.target)
+    >>> out.n_matches == len(out.table), out.converged
+    (True, True)
+    >>> n_rows = out.n_matches + len(out.source_unmatched)  # every row, once
+    >>> n_rows == len(cats.source)
+    True
     """
 
     transform: Any
@@ -276,8 +290,6 @@ def _array_side(obj, name):
 
 
 def _image_side(obj, name, config, hdu):
-    from .detection import find_sources  # photutils: only for an image input
-
     parsed = parse_input(obj, name, hdu=hdu)
     det = {f.name: getattr(config.detection, f.name)
            for f in dataclasses.fields(config.detection)}

@@ -85,6 +85,17 @@ class AllPairs:
         True if the last pairing repeated the one before.
     degree : int or None
         The polynomial degree used (chosen, with ``degree='auto'``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms.allpairs import AllPairs, pair_all
+    >>> rng = np.random.default_rng(1)
+    >>> src = rng.uniform(0, 1000, (400, 2))
+    >>> out = pair_all(src, src + [3.0, -2.0] + rng.normal(0, 0.05, src.shape), np.eye(3),
+    ...                transform_type="translation", tolerance=5.0)
+    >>> isinstance(out, AllPairs), len(out.source_index), round(out.sigma, 2)
+    (True, 400, 0.05)
     """
 
     transform: object
