@@ -291,6 +291,8 @@ def _array_side(obj, name):
 
 def _image_side(obj, name, config, hdu):
     parsed = parse_input(obj, name, hdu=hdu)
+    if parsed.is_catalog:  # (a Reference of a catalog)
+        return _array_side(parsed.points, name)
     det = {f.name: getattr(config.detection, f.name)
            for f in dataclasses.fields(config.detection)}
     table = find_sources(parsed.detection_image, mask=parsed.mask, n_sources=MAX_DETECTIONS,

@@ -17,7 +17,7 @@ exact for a moved prediction as long as the prediction moved by less than
 the gap to the next target: the sources where it is not are queried again
 (usually none).  The fits of the iterations are normal-equation fits of
 the model's design matrix (the same candidate models as the distortion
-stage, `~astroalign_nd.transforms.selection`), accumulated in chunks; the
+stage, ``transforms.selection``), accumulated in chunks; the
 final model is fitted by `~astroalign_nd.transforms.fit_transform`.
 """
 
