@@ -27,7 +27,7 @@ from ._kernels import num_threads
 from .config import RegistrationConfig
 from .detection import find_sources
 from .registration import find_match_from_config
-from .transforms.allpairs import pair_all
+from .transforms.allpairs import bounds, pair_all
 from .transforms.convert import as_matrix
 from .transforms.registry import transform_type_of
 
@@ -372,7 +372,7 @@ def _check_positive(value, name, allow_none=True):
 
 def _local_density(dst, predicted):
     """Target stars per square pixel around each predicted position (a grid count)."""
-    lo, hi = dst.min(axis=0), dst.max(axis=0)
+    lo, hi = bounds(dst)
     area = max(float(np.prod(hi - lo)), 1.0)
     cell = max(np.sqrt(DENSITY_CELL_STARS * area / max(len(dst), 1)), 1e-3)
     shape = np.maximum(np.ceil((hi - lo) / cell).astype(int), 1)

@@ -37,7 +37,7 @@ from .registry import TRANSFORM_REGISTRY, transform_type_of
 from .selection import (_Poly, _Projective, _Similarity, _normalise, _predict, _projective_start,
                         _wls, fit_nonlinear)
 
-__all__ = ['pair_all', 'AllPairs', 'pairing_radius']
+__all__ = ['pair_all', 'AllPairs', 'pairing_radius', 'bounds']
 
 #: Rows of the design matrix built at once (bounds the memory of a fit).
 CHUNK = 1 << 17
@@ -113,17 +113,22 @@ class AllPairs:
 class _Candidates:
     """Each source's two nearest targets at some prediction (its anchor)."""
 
-    def __init__(self, tree, bound, workers):
-        self.tree, self.bound, self.workers = tree, float(bound), workers
-        self.anchor = self.j = self.gap = self.xy = None
+    def __init__(self, targets, bound, workers):
+        # The tree holds the targets in sky order (its leaves' points then lie
+        # together in memory); ``index`` maps them back to the caller's rows.
+        self.index = _sky_order(targets) if len(targets) > LOCALITY_FROM else None
+        held = targets if self.index is None else targets[self.index]
+        # (Unbalanced, larger leaves: built in half the time, queried as fast.)
+        self.tree = cKDTree(held, leafsize=32, balanced_tree=False, compact_nodes=False)
+        self.bound, self.workers = float(bound), workers
+        self.anchor = self.j = self.gap = self.cx = self.cy = None
 
     def _query(self, pred):
-        """(indices, guard distance, candidate positions) of the two nearest targets."""
+        """(indices, guard distance, candidate x, candidate y) of the two nearest targets."""
         if len(pred) > LOCALITY_FROM:
             # Queried in the order of cells of the sky: neighbouring queries walk the
             # same branches of the tree, which stay in the cache (twice as fast).
-            cell = np.floor((pred - pred.min(axis=0)) / LOCALITY_CELL).astype(np.int64)
-            order = np.argsort(cell[:, 1] * (cell[:, 0].max() + 1) + cell[:, 0], kind="stable")
+            order = _sky_order(pred)
             d, j = np.empty((len(pred), 2)), np.empty((len(pred), 2), np.intp)
             d[order], j[order] = self.tree.query(pred[order], k=2,
                                                  distance_upper_bound=self.bound,
@@ -132,37 +137,67 @@ class _Candidates:
             d, j = self.tree.query(pred, k=2, distance_upper_bound=self.bound,
                                    workers=self.workers)
         found = j < self.tree.n
-        xy = np.full(j.shape + (2,), np.inf)
-        xy[found] = self.tree.data[j[found]]
+        data = self.tree.data
+        # Absent candidates sit at infinity (their distance is infinite, never NaN).
+        cx, cy = np.full(j.shape, np.inf), np.full(j.shape, np.inf)
+        cx[found], cy[found] = data[j[found], 0], data[j[found], 1]
+        if self.index is not None:
+            j[found] = self.index[j[found]]
         # Any other target was beyond the second candidate (or the bound).
-        return j, np.where(found[:, 1], d[:, 1], self.bound), xy
+        return j, np.where(found[:, 1], d[:, 1], self.bound), cx, cy
 
     def nearest(self, pred, radius):
         """(source, target, distance) of the nearest target within ``radius`` of each
         source (exactly: sources whose candidates may be out of date are queried again)."""
         if self.anchor is None:
             self.anchor = pred.copy()
-            self.j, self.gap, self.xy = self._query(pred)
-        moved = np.hypot(*(pred - self.anchor).T)
+            self.j, self.gap, self.cx, self.cy = self._query(pred)
+        moved = np.hypot(pred[:, 0] - self.anchor[:, 0], pred[:, 1] - self.anchor[:, 1])
         best, bd = self._best(pred)
         guard = self.gap - moved
         stale = np.flatnonzero(~((bd <= guard) | ((bd > radius) & (radius <= guard))))
         if stale.size:
             self.anchor[stale] = pred[stale]
-            self.j[stale], self.gap[stale], self.xy[stale] = self._query(pred[stale])
+            self.j[stale], self.gap[stale], self.cx[stale], self.cy[stale] = \
+                self._query(pred[stale])
             best[stale], bd[stale] = self._best(pred, stale)
         si = np.flatnonzero(bd <= radius)
         return si, best[si], bd[si]
 
     def _best(self, pred, rows=None):
-        j, xy = (self.j, self.xy) if rows is None else (self.j[rows], self.xy[rows])
+        j, cx, cy = ((self.j, self.cx, self.cy) if rows is None
+                     else (self.j[rows], self.cx[rows], self.cy[rows]))
         p = pred if rows is None else pred[rows]
-        with np.errstate(invalid="ignore"):  # inf - inf of absent candidates: NaN, not near
-            d0 = np.hypot(xy[:, 0, 0] - p[:, 0], xy[:, 0, 1] - p[:, 1])
-            d1 = np.hypot(xy[:, 1, 0] - p[:, 0], xy[:, 1, 1] - p[:, 1])
-        d0[np.isnan(d0)], d1[np.isnan(d1)] = np.inf, np.inf
-        second = d1 < d0
-        return np.where(second, j[:, 1], j[:, 0]), np.where(second, d1, d0)
+        dist = np.hypot(cx - p[:, 0:1], cy - p[:, 1:2])
+        second = dist[:, 1] < dist[:, 0]
+        return np.where(second, j[:, 1], j[:, 0]), np.where(second, dist[:, 1], dist[:, 0])
+
+
+def bounds(points):
+    """(lower, upper) corners of an (N, 2) array's bounding box.
+
+    By columns: a reduction along the first axis of an (N, 2) array is
+    twenty times slower than one over each column.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms.allpairs import bounds
+    >>> bounds(np.array([[1.0, 5.0], [3.0, -2.0]]))
+    (array([ 1., -2.]), array([3., 5.]))
+    """
+    x, y = points[:, 0], points[:, 1]
+    return np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
+
+
+def _sky_order(points):
+    """An order of the points by cells of the sky, row after row."""
+    lo, hi = bounds(points)
+    # Cells of LOCALITY_CELL pixels, or more so that the key fits 16 bits (radix sort).
+    size = max(LOCALITY_CELL, float((hi - lo).max()) / 180.0)
+    ix = ((points[:, 0] - lo[0]) / size).astype(np.int32)
+    iy = ((points[:, 1] - lo[1]) / size).astype(np.int32)
+    return np.argsort((iy * 181 + ix).astype(np.int16), kind="stable")
 
 
 def pairing_radius(sigma, density, n_pairs, n_unpaired):
@@ -313,13 +348,14 @@ class _State:
     def refit(self, si, dj, cand):
         """Fit ``cand`` on the pairs, predict all sources, set the next radius."""
         p = self.p
-        params = _fit_params(cand, p.uv[si], p.dst[dj], self.params)
+        uv, dst = p.uv[si], p.dst[dj]
+        params = _fit_params(cand, uv, dst, self.params)
         if params is None:
             return False
         self.params, self.si, self.dj = params, si, dj
         self.pred = _chunked_predict(cand, params, p.uv)
-        r = self.pred[si] - p.dst[dj]
-        self.sigma = _sigma(np.einsum("ij,ij->i", r, r))
+        r = _chunked_predict(cand, params, uv) - dst  # (cheaper than gathering pred[si])
+        self.sigma = _sigma(r[:, 0] ** 2 + r[:, 1] ** 2)
         if p.fixed_radius is None:
             new = pairing_radius(self.sigma, p.density, len(si), len(p.uv) - len(si))
             self.radius = min(max(new, p.min_radius), p.tolerance)
@@ -447,18 +483,19 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
     src, dst = np.asarray(src, float), np.asarray(dst, float)
     entry = transform_type_of(transform_type)
     if parity is None:  # the sign of the start's Jacobian at the sources' centre
-        c = src.mean(axis=0) if len(src) else np.zeros(2)
+        c = np.array([src[:, 0].mean(), src[:, 1].mean()]) if len(src) else np.zeros(2)
         q = _predict_start(start, np.array([c, c + [1.0, 0.0], c + [0.0, 1.0]]))
         parity = 1 if np.linalg.det(np.array([q[1] - q[0], q[2] - q[0]])) > 0 else -1
     first = "affine" if degree == "auto" else entry.name
     cand, deg = _working_model(first, 1 if degree == "auto" else degree, parity)
+    if frame is None:  # the sources' bounding box, as _normalise takes it
+        lo, hi = bounds(src)
+        frame = (lo[0] - 0.5, hi[0] + 0.5, lo[1] - 0.5, hi[1] + 0.5)
     frame, centre, _, uv, _ = _normalise(src, frame)
-    # (Unbalanced, larger leaves: built in half the time, queried as fast.)
-    tree = cKDTree(dst, leafsize=32, balanced_tree=False, compact_nodes=False)
-    lo, hi = dst.min(axis=0), dst.max(axis=0)
+    lo, hi = bounds(dst)
     density = len(dst) / max(float(np.prod(hi - lo)), 1.0)
     tol = float(tolerance if radius is None else max(radius, 0.0))
-    problem = _Problem(src, dst, uv, centre, frame, _Candidates(tree, tol, workers), density,
+    problem = _Problem(src, dst, uv, centre, frame, _Candidates(dst, tol, workers), density,
                        tol, radius, float(min_radius))
     state = _State(problem, _predict_start(start, src), tol)
     n_it, converged = _iterate(state, cand, max_iterations)
