@@ -269,3 +269,20 @@ def test_cli_match_writes_the_pairs_safely(tmp_path, cats, capsys):
     assert main(["match", str(src), str(dst), "-o", str(tmp_path / "p.ecsv"),
                  "--target-columns", "col1"]) == 2
     assert "two column names" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind", ["translation", "euclidean", "affine"])
+def test_every_linear_type_refitted_as_itself(kind):
+    truth = SimilarityTransform(scale=1.0, rotation=0.0 if kind == "translation" else 25.0,
+                                translation_x=40.0, translation_y=-15.0)
+    rng = np.random.default_rng(2)
+    src = rng.uniform(0, 2048, (2000, 2))
+    dst = np.column_stack(truth(*src.T)) + rng.normal(0, 0.1, src.shape)
+    start = SimilarityTransform(scale=1.0, rotation=truth.rotation.value + 0.01,
+                                translation_x=40.5, translation_y=-15.3)
+    out = cross_match(src, dst, transform=start, transform_type=kind)
+    assert type(out.transform).__name__.lower().startswith(kind)
+    assert len(out.table) >= 0.995 * len(src)  # (the radius's Rayleigh tail is lost)
+    # (Two of these stars lie 0.15 px apart: the noise may swap them.)
+    assert np.sum(out.table["source_index"] != out.table["target_index"]) <= 2
+    assert _grid_error(out.transform, truth, (2048, 2048)) < 0.02

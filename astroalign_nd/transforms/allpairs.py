@@ -223,21 +223,52 @@ def pairing_radius(sigma, density, n_pairs, n_unpaired):
     return float(sigma * np.clip(k, MIN_SIGMAS, MAX_SIGMAS))
 
 
-def _working_model(transform_type, degree, parity):
+class _Translation:
+    """A shift only, ``x' = x + tx``: 2 parameters, and the fixed part ``x``
+    (in pixels: ``centre + half * uv``), which the fit subtracts."""
+
+    k = 2
+    name = "translation"
+    linear = True
+
+    def __init__(self, centre, half):
+        self.centre, self.half = np.asarray(centre, float), float(half)
+
+    def design(self, uv, params=None):
+        d = np.zeros((len(uv), 2, 2))
+        d[:, 0, 0] = d[:, 1, 1] = 1.0
+        return d
+
+    def offset(self, uv):
+        return self.centre + self.half * uv
+
+
+#: The types whose candidate model of the iterations is the model itself (the
+#: same least-squares problem); any other (a Euclidean transform: rotation
+#: and shift) is iterated as the nearest of these, then paired again under
+#: its own fits until the pairs repeat.
+_SAME_PROBLEM = ("translation", "similarity", "affine", "polynomial", "projective")
+
+
+def _working_model(transform_type, degree, parity, centre, half):
     """The candidate model of the iterations: (candidate, its degree or None)."""
     entry = transform_type_of(transform_type)
     if entry.name == "polynomial":
         return _Poly(int(degree)), int(degree)
     if entry.name == "projective":
         return _Projective(), None
+    if entry.name == "translation":
+        return _Translation(centre, half), None
     if entry.conformal:
         return _Similarity(parity), None
     return _Poly(1), None
 
 
 def _is_affine_in_uv(cand):
-    """True for the candidates whose design is linear in (1, u, v): similarity, affine."""
-    return isinstance(cand, _Similarity) or (isinstance(cand, _Poly) and cand.degree == 1)
+    """True for the candidates whose design is linear in (1, u, v): translation,
+    similarity, affine."""
+    return isinstance(cand, (_Similarity, _Translation)) or (
+        isinstance(cand, _Poly) and cand.degree == 1)
 
 
 def _design_parts(cand):
@@ -288,6 +319,8 @@ def _chunked_fit(cand, uv, dst):
 
 def _fit_params(cand, uv, dst, params):
     """The candidate's parameters on these pairs (None if degenerate)."""
+    if hasattr(cand, "offset"):
+        dst = dst - cand.offset(uv)
     if cand.linear:
         return _chunked_fit(cand, uv, dst)
     if params is None or len(params) != cand.k:  # from an affine fit of the same pairs
@@ -307,10 +340,12 @@ def _chunked_predict(cand, params, uv):
         out = np.empty_like(uv)
         out[:, 0] = uv[:, 0] * j[0, 0] + uv[:, 1] * j[1, 0] + p[0, 0]
         out[:, 1] = uv[:, 0] * j[0, 1] + uv[:, 1] * j[1, 1] + p[0, 1]
-        return out
-    out = np.empty_like(uv)
-    for lo in range(0, len(uv), CHUNK):
-        out[lo:lo + CHUNK] = _predict(cand, params, uv[lo:lo + CHUNK])
+    else:
+        out = np.empty_like(uv)
+        for lo in range(0, len(uv), CHUNK):
+            out[lo:lo + CHUNK] = _predict(cand, params, uv[lo:lo + CHUNK])
+    if hasattr(cand, "offset"):
+        out += cand.offset(uv)
     return out
 
 
@@ -396,7 +431,7 @@ def _too_few(n, radius, degenerate=False):
     return TooFewSourcesError(
         f"{n} pairs within {radius:.3g} px {why}: the starting transform does not map the "
         "source onto the target, or the radius is too small. Check transform= (or the "
-        "match found), or pass a larger tolerance.")
+        "match found), or pass a larger first radius (max_radius).")
 
 
 def _choose_degree(state, conformal, significance):
@@ -486,12 +521,12 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
         c = np.array([src[:, 0].mean(), src[:, 1].mean()]) if len(src) else np.zeros(2)
         q = _predict_start(start, np.array([c, c + [1.0, 0.0], c + [0.0, 1.0]]))
         parity = 1 if np.linalg.det(np.array([q[1] - q[0], q[2] - q[0]])) > 0 else -1
-    first = "affine" if degree == "auto" else entry.name
-    cand, deg = _working_model(first, 1 if degree == "auto" else degree, parity)
     if frame is None:  # the sources' bounding box, as _normalise takes it
         lo, hi = bounds(src)
         frame = (lo[0] - 0.5, hi[0] + 0.5, lo[1] - 0.5, hi[1] + 0.5)
-    frame, centre, _, uv, _ = _normalise(src, frame)
+    frame, centre, half, uv, _ = _normalise(src, frame)
+    first = "affine" if degree == "auto" else entry.name
+    cand, deg = _working_model(first, 1 if degree == "auto" else degree, parity, centre, half)
     lo, hi = bounds(dst)
     density = len(dst) / max(float(np.prod(hi - lo)), 1.0)
     tol = float(tolerance if radius is None else max(radius, 0.0))
@@ -506,7 +541,7 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
         more, converged = _iterate(state, cand, max_iterations)
         n_it += more
     _check_not_chance(state)
-    return _final(state, name, deg, parity, n_it, converged)
+    return _final(state, name, deg, parity, n_it, converged, max_iterations)
 
 
 def _check_not_chance(state):
@@ -522,16 +557,24 @@ def _check_not_chance(state):
             "transform= (or let the search find it), or pass a larger first radius (max_radius).")
 
 
-def _final(state, name, deg, parity, n_it, converged):
+def _final(state, name, deg, parity, n_it, converged, max_iterations):
     """The model of the chosen type fitted on the final pairs: an `AllPairs`."""
     p = state.p
-    s_pts, d_pts = p.src[state.si], p.dst[state.dj]
     kw = {}
     if name == "polynomial":
         kw = dict(degree=deg, crpix=(float(p.centre[0]), float(p.centre[1])),
                   domain=tuple(float(v) for v in p.frame))
     elif TRANSFORM_REGISTRY[name].parity:
         kw = dict(parity=parity)
-    model, cov, resid = fit_transform(s_pts, d_pts, name, **kw)
+    for _ in range(max_iterations):
+        model, cov, resid = fit_transform(p.src[state.si], p.dst[state.dj], name, **kw)
+        if name in _SAME_PROBLEM:
+            break
+        # Another model than the iterations': pair again under its own fit.
+        si, dj = resolve_claims(*p.cands.nearest(_predict_start(model, p.src), state.radius))
+        n_it += 1
+        if np.array_equal(si, state.si) and np.array_equal(dj, state.dj):
+            break
+        state.si, state.dj = si, dj
     return AllPairs(model, cov, state.si, state.dj, resid, float(state.radius),
                     float(state.sigma), n_it, converged, deg)
