@@ -124,7 +124,8 @@ class _Candidates:
         self.anchor = self.j = self.gap = self.cx = self.cy = None
 
     def _query(self, pred):
-        """(indices, guard distance, candidate x, candidate y) of the two nearest targets."""
+        """(indices, guard distance, candidate x, candidate y, nearest distance) of the
+        two nearest targets."""
         if len(pred) > LOCALITY_FROM:
             # Queried in the order of cells of the sky: neighbouring queries walk the
             # same branches of the tree, which stay in the cache (twice as fast).
@@ -144,21 +145,23 @@ class _Candidates:
         if self.index is not None:
             j[found] = self.index[j[found]]
         # Any other target was beyond the second candidate (or the bound).
-        return j, np.where(found[:, 1], d[:, 1], self.bound), cx, cy
+        return j, np.where(found[:, 1], d[:, 1], self.bound), cx, cy, d[:, 0]
 
     def nearest(self, pred, radius):
         """(source, target, distance) of the nearest target within ``radius`` of each
         source (exactly: sources whose candidates may be out of date are queried again)."""
-        if self.anchor is None:
+        if self.anchor is None:  # the query's own distances: nothing has moved yet
             self.anchor = pred.copy()
-            self.j, self.gap, self.cx, self.cy = self._query(pred)
+            self.j, self.gap, self.cx, self.cy, d0 = self._query(pred)
+            si = np.flatnonzero(d0 <= radius)
+            return si, self.j[si, 0], d0[si]
         moved = np.hypot(pred[:, 0] - self.anchor[:, 0], pred[:, 1] - self.anchor[:, 1])
         best, bd = self._best(pred)
         guard = self.gap - moved
         stale = np.flatnonzero(~((bd <= guard) | ((bd > radius) & (radius <= guard))))
         if stale.size:
             self.anchor[stale] = pred[stale]
-            self.j[stale], self.gap[stale], self.cx[stale], self.cy[stale] = \
+            self.j[stale], self.gap[stale], self.cx[stale], self.cy[stale], _ = \
                 self._query(pred[stale])
             best[stale], bd[stale] = self._best(pred, stale)
         si = np.flatnonzero(bd <= radius)
