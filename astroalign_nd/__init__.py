@@ -35,6 +35,7 @@ _LAZY = {
     "find_transform": "registration",
     "find_match": "registration",
     "register": "registration",
+    "cross_match": "crossmatch",
     "Reference": "registration",
     "apply_transform": "resample",
     "register_batch": "batch",

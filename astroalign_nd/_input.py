@@ -39,7 +39,7 @@ from astropy.table import Table
 from astropy.wcs import WCS, FITSFixedWarning
 
 __all__ = ["ParsedInput", "parse_input", "image_and_mask", "iter_frames", "batch_frames",
-           "bottom_up", "FLIP_HISTORY", "is_channels_first"]
+           "bottom_up", "FLIP_HISTORY", "is_channels_first", "position_columns"]
 
 _X_NAMES = ("x", "x_centroid", "xcentroid", "x_0", "x_fit", "xcen", "X_IMAGE")
 _Y_NAMES = ("y", "y_centroid", "ycentroid", "y_0", "y_fit", "ycen", "Y_IMAGE")
@@ -175,17 +175,56 @@ def _user_mask(data, mask):
     return m if m.any() else None
 
 
+def position_columns(table, name="catalog", columns=None):
+    """
+    The names of a table's x and y position columns.
+
+    Parameters
+    ----------
+    table : `~astropy.table.Table`
+    name : str
+        Names the table in error messages.
+    columns : (str, str), optional
+        The caller's names; by default the first of ``x``, ``x_centroid``
+        (photutils 3), ``xcentroid`` (older photutils), ``x_0``, ``x_fit``,
+        ``xcen``, ``X_IMAGE`` (and the same for y), in any case.
+
+    Raises
+    ------
+    ValueError
+        If the columns are not in the table.
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from astroalign_nd._input import position_columns
+    >>> position_columns(Table(names=["id", "x_centroid", "y_centroid"]))
+    ('x_centroid', 'y_centroid')
+    """
+    if columns is not None:
+        if (isinstance(columns, str) or not hasattr(columns, "__len__") or len(columns) != 2
+                or not all(isinstance(c, str) for c in columns)):
+            raise TypeError(f"the columns of {name} must be two column names (x, y); got "
+                            f"{columns!r}.")
+        missing = [c for c in columns if c not in table.colnames]
+        if missing:
+            raise ValueError(f"{name} has no column(s) {missing}; it has {table.colnames}.")
+        return tuple(columns)
+    cols = {c.lower(): c for c in table.colnames}
+    xc = next((cols[n.lower()] for n in _X_NAMES if n.lower() in cols), None)
+    yc = next((cols[n.lower()] for n in _Y_NAMES if n.lower() in cols), None)
+    if xc is None or yc is None:
+        raise ValueError(
+            f"{name} is a Table without position columns; it needs columns named 'x' and "
+            f"'y' (or one of {_X_NAMES}), or name them; it has {table.colnames}."
+        )
+    return xc, yc
+
+
 def _catalog_points(obj, name):
     """(N, 2) finite positions; masked entries (Table or masked array) are left out."""
     if isinstance(obj, Table):
-        cols = {c.lower(): c for c in obj.colnames}
-        xc = next((cols[n.lower()] for n in _X_NAMES if n.lower() in cols), None)
-        yc = next((cols[n.lower()] for n in _Y_NAMES if n.lower() in cols), None)
-        if xc is None or yc is None:
-            raise ValueError(
-                f"{name} is a Table without position columns; it needs columns named 'x' and "
-                f"'y' (or one of {_X_NAMES}); it has {obj.colnames}."
-            )
+        xc, yc = position_columns(obj, name)
         masked = np.ma.getmaskarray(obj[xc]) | np.ma.getmaskarray(obj[yc])
         pts = np.column_stack([np.ma.getdata(obj[xc]).astype(float),
                                np.ma.getdata(obj[yc]).astype(float)])

@@ -7,6 +7,7 @@ import sys
 from .errors import (_PROG, HelpFormatter as _HelpFormatter, _error, _expected_errors, cli_words,
                      exit_code, exit_codes_text)
 from .commands import _cmd_batch, _cmd_demo, _cmd_register, demo_description
+from .match import add_match_command
 from .options import _registration_options
 from .stack import add_stack_commands
 
@@ -36,6 +37,7 @@ def build_parser():
     _add_batch_command(sub, reg_opts)
     add_stack_commands(sub, reg_opts)
     _add_demo_command(sub)
+    add_match_command(sub)
     return parser
 
 

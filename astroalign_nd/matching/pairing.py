@@ -3,7 +3,7 @@
 
 import numpy as np
 
-__all__ = ['mutual_matches']
+__all__ = ['mutual_matches', 'resolve_claims']
 
 
 def mutual_matches(predicted, tree, tolerance):
@@ -45,11 +45,46 @@ def mutual_matches(predicted, tree, tolerance):
     ok = np.flatnonzero(np.isfinite(d))
     if ok.size == 0:
         return ok, ok
-    j = j[ok]
-    if np.bincount(j).max() == 1:  # (usually) no target claimed twice
-        return ok, j
-    # Resolve several sources claiming one target: keep the closest.
-    order = np.lexsort((ok, d[ok]))
-    _, first = np.unique(j[order], return_index=True)
-    keep = np.sort(order[first])
-    return ok[keep], j[keep]
+    return resolve_claims(ok, j[ok], d[ok])
+
+
+def resolve_claims(source_index, target_index, distance):
+    """
+    One source per target: of the sources that claim a target, keep the nearest.
+
+    The step of `mutual_matches` after the nearest-neighbour query, for
+    callers that find each source's nearest target themselves (the
+    whole-catalog cross-match keeps its candidates from one query over
+    several refits).
+
+    Parameters
+    ----------
+    source_index, target_index : (K,) ndarray of int
+        Each source with the target nearest to it, by increasing source index.
+    distance : (K,) ndarray
+        Their distances; at equal distances the source of lowest index wins.
+
+    Returns
+    -------
+    source_index, target_index : ndarray of int
+        The pairs kept, by increasing source index.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.matching.pairing import resolve_claims
+    >>> resolve_claims(np.array([0, 1, 2]), np.array([5, 5, 7]), np.array([0.3, 0.1, 0.2]))
+    (array([1, 2]), array([5, 7]))
+    """
+    if len(target_index) == 0:
+        return source_index, target_index
+    shared = np.flatnonzero(np.bincount(target_index)[target_index] > 1)
+    if shared.size == 0:  # (usually) no target claimed twice
+        return source_index, target_index
+    # Only the claims on shared targets are sorted (a few in a million-star list).
+    order = shared[np.lexsort((source_index[shared], distance[shared]))]
+    _, first = np.unique(target_index[order], return_index=True)
+    keep = np.ones(len(target_index), bool)
+    keep[shared] = False
+    keep[order[first]] = True
+    return source_index[keep], target_index[keep]

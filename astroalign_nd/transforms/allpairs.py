@@ -1,0 +1,583 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Every star paired: a transform refitted on all the pairs it makes.
+
+`pair_all` is the engine of `~astroalign_nd.cross_match`.  From a starting
+transform (the match of the brightest stars, or one the caller gives), it
+pairs every source position with a target position (nearest neighbours
+under the model, one source per target, as
+``matching.pairing.mutual_matches`` pairs them), refits the
+model on all the pairs, sets the pairing radius from the fit's own
+residuals, and repeats until the pairs no longer change.
+
+Bounded time and memory for millions of points: one k-d tree of the
+targets, one query of each source's two nearest targets, and, in later
+iterations, only the distances to these candidates.  A candidate list is
+exact for a moved prediction as long as the prediction moved by less than
+the gap to the next target: the sources where it is not are queried again
+(usually none).  The fits of the iterations are normal-equation fits of
+the model's design matrix (the same candidate models as the distortion
+stage, ``transforms.selection``), accumulated in chunks; the
+final model is fitted by `~astroalign_nd.transforms.fit_transform`.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from scipy.stats import poisson
+
+from ..exceptions import TooFewSourcesError, TransformNotFoundError
+from ..matching.pairing import resolve_claims
+from .convert import as_matrix
+from .fitting import fit_transform
+from .linear import LinearTransform2D
+from .registry import TRANSFORM_REGISTRY, transform_type_of
+from .selection import (_Poly, _Projective, _Similarity, _normalise, _predict, _projective_start,
+                        _wls, fit_nonlinear)
+
+__all__ = ['pair_all', 'AllPairs', 'pairing_radius', 'bounds']
+
+#: Rows of the design matrix built at once (bounds the memory of a fit).
+CHUNK = 1 << 17
+
+#: Queries of more sources than this are made in the order of cells of this
+#: many pixels (for the cache).
+LOCALITY_FROM, LOCALITY_CELL = 4096, 64.0
+
+#: The pairing radius is kept between these many residual sigmas (per axis).
+MIN_SIGMAS, MAX_SIGMAS = 3.0, 5.0
+
+#: The pairs must be this improbable as chance coincidences (Poisson, at the
+#: target density and the final radius), else the start did not map the
+#: source onto the target.
+MAX_CHANCE = 1e-6
+
+#: degree='auto' chooses the polynomial degree on at most this many pairs
+#: (a deterministic subsample): the choice is settled long before, and its
+#: cross-validation's memory grows with the pairs.
+AUTO_PAIRS = 20000
+
+
+@dataclass
+class AllPairs:
+    """
+    The outcome of `pair_all`.
+
+    Attributes
+    ----------
+    transform : astropy Model
+        The model refitted on all the pairs.
+    covariance : ndarray
+        Its parameter covariance (`~astroalign_nd.transforms.fit_transform`).
+    source_index, target_index : ndarray of int
+        The pairs (rows of the point lists), by increasing source index.
+    residuals : (K, 2) ndarray
+        ``transform(source) - target`` of the pairs, pixels.
+    radius : float
+        The final pairing radius, pixels.
+    sigma : float
+        The residual scatter per axis (robust), pixels.
+    n_iterations : int
+        Pairings made.
+    converged : bool
+        True if the last pairing repeated the one before.
+    degree : int or None
+        The polynomial degree used (chosen, with ``degree='auto'``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms.allpairs import AllPairs, pair_all
+    >>> rng = np.random.default_rng(1)
+    >>> src = rng.uniform(0, 1000, (400, 2))
+    >>> out = pair_all(src, src + [3.0, -2.0] + rng.normal(0, 0.05, src.shape), np.eye(3),
+    ...                transform_type="translation", tolerance=5.0)
+    >>> isinstance(out, AllPairs), len(out.source_index), round(out.sigma, 2)
+    (True, 400, 0.05)
+    """
+
+    transform: object
+    covariance: np.ndarray
+    source_index: np.ndarray
+    target_index: np.ndarray
+    residuals: np.ndarray
+    radius: float
+    sigma: float
+    n_iterations: int
+    converged: bool
+    degree: object = None
+
+
+class _Candidates:
+    """Each source's two nearest targets at some prediction (its anchor)."""
+
+    def __init__(self, targets, bound, workers):
+        # The tree holds the targets in sky order (its leaves' points then lie
+        # together in memory); ``index`` maps them back to the caller's rows.
+        self.index = _sky_order(targets) if len(targets) > LOCALITY_FROM else None
+        held = targets if self.index is None else targets[self.index]
+        # (Unbalanced, larger leaves: built in half the time, queried as fast.)
+        self.tree = cKDTree(held, leafsize=32, balanced_tree=False, compact_nodes=False)
+        self.bound, self.workers = float(bound), workers
+        self.anchor = self.j = self.gap = self.cx = self.cy = None
+
+    def _query(self, pred):
+        """(indices, guard distance, candidate x, candidate y, nearest distance) of the
+        two nearest targets."""
+        if len(pred) > LOCALITY_FROM:
+            # Queried in the order of cells of the sky: neighbouring queries walk the
+            # same branches of the tree, which stay in the cache (twice as fast).
+            order = _sky_order(pred)
+            d, j = np.empty((len(pred), 2)), np.empty((len(pred), 2), np.intp)
+            d[order], j[order] = self.tree.query(pred[order], k=2,
+                                                 distance_upper_bound=self.bound,
+                                                 workers=self.workers)
+        else:
+            d, j = self.tree.query(pred, k=2, distance_upper_bound=self.bound,
+                                   workers=self.workers)
+        found = j < self.tree.n
+        data = self.tree.data
+        # Absent candidates sit at infinity (their distance is infinite, never NaN).
+        cx, cy = np.full(j.shape, np.inf), np.full(j.shape, np.inf)
+        cx[found], cy[found] = data[j[found], 0], data[j[found], 1]
+        if self.index is not None:
+            j[found] = self.index[j[found]]
+        # Any other target was beyond the second candidate (or the bound).
+        return j, np.where(found[:, 1], d[:, 1], self.bound), cx, cy, d[:, 0]
+
+    def nearest(self, pred, radius):
+        """(source, target, distance) of the nearest target within ``radius`` of each
+        source (exactly: sources whose candidates may be out of date are queried again)."""
+        if self.anchor is None:  # the query's own distances: nothing has moved yet
+            self.anchor = pred.copy()
+            self.j, self.gap, self.cx, self.cy, d0 = self._query(pred)
+            si = np.flatnonzero(d0 <= radius)
+            return si, self.j[si, 0], d0[si]
+        moved = np.hypot(pred[:, 0] - self.anchor[:, 0], pred[:, 1] - self.anchor[:, 1])
+        best, bd = self._best(pred)
+        guard = self.gap - moved
+        stale = np.flatnonzero(~((bd <= guard) | ((bd > radius) & (radius <= guard))))
+        if stale.size:
+            self.anchor[stale] = pred[stale]
+            self.j[stale], self.gap[stale], self.cx[stale], self.cy[stale], _ = \
+                self._query(pred[stale])
+            best[stale], bd[stale] = self._best(pred, stale)
+        si = np.flatnonzero(bd <= radius)
+        return si, best[si], bd[si]
+
+    def _best(self, pred, rows=None):
+        j, cx, cy = ((self.j, self.cx, self.cy) if rows is None
+                     else (self.j[rows], self.cx[rows], self.cy[rows]))
+        p = pred if rows is None else pred[rows]
+        dist = np.hypot(cx - p[:, 0:1], cy - p[:, 1:2])
+        second = dist[:, 1] < dist[:, 0]
+        return np.where(second, j[:, 1], j[:, 0]), np.where(second, dist[:, 1], dist[:, 0])
+
+
+def bounds(points):
+    """(lower, upper) corners of an (N, 2) array's bounding box.
+
+    By columns: a reduction along the first axis of an (N, 2) array is
+    twenty times slower than one over each column.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms.allpairs import bounds
+    >>> bounds(np.array([[1.0, 5.0], [3.0, -2.0]]))
+    (array([ 1., -2.]), array([3., 5.]))
+    """
+    x, y = points[:, 0], points[:, 1]
+    return np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
+
+
+def _sky_order(points):
+    """An order of the points by cells of the sky, row after row."""
+    lo, hi = bounds(points)
+    # Cells of LOCALITY_CELL pixels, or more so that the key fits 16 bits (radix sort).
+    size = max(LOCALITY_CELL, float((hi - lo).max()) / 180.0)
+    ix = ((points[:, 0] - lo[0]) / size).astype(np.int32)
+    iy = ((points[:, 1] - lo[1]) / size).astype(np.int32)
+    return np.argsort((iy * 181 + ix).astype(np.int16), kind="stable")
+
+
+def pairing_radius(sigma, density, n_pairs, n_unpaired):
+    """
+    The pairing radius (pixels) that loses the fewest pairs either way.
+
+    True pairs are off by a residual with a Gaussian scatter ``sigma`` per
+    axis (the distance follows a Rayleigh law); an unpaired source finds a
+    chance target within ``r`` with probability ``pi r**2 density``.  The
+    radius where both losses balance, ``exp(-r**2 / 2 sigma**2) = 2 pi
+    sigma**2 density n_unpaired / n_pairs``, is kept between
+    ``MIN_SIGMAS`` and ``MAX_SIGMAS`` sigmas.
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms.allpairs import pairing_radius
+    >>> round(pairing_radius(0.14, 5e-3, 64000, 26000), 3)  # 100,000 stars on 4096 px
+    0.57
+    """
+    sigma = max(float(sigma), 1e-9)
+    ratio = 2.0 * np.pi * sigma ** 2 * max(density, 1e-300) * max(n_unpaired, 1) / max(n_pairs, 1)
+    k = np.sqrt(max(-2.0 * np.log(min(ratio, 1.0)), 0.0))
+    return float(sigma * np.clip(k, MIN_SIGMAS, MAX_SIGMAS))
+
+
+class _Translation:
+    """A shift only, ``x' = x + tx``: 2 parameters, and the fixed part ``x``
+    (in pixels: ``centre + half * uv``), which the fit subtracts."""
+
+    k = 2
+    name = "translation"
+    linear = True
+
+    def __init__(self, centre, half):
+        self.centre, self.half = np.asarray(centre, float), float(half)
+
+    def design(self, uv, params=None):
+        d = np.zeros((len(uv), 2, 2))
+        d[:, 0, 0] = d[:, 1, 1] = 1.0
+        return d
+
+    def offset(self, uv):
+        return self.centre + self.half * uv
+
+
+#: The types whose candidate model of the iterations is the model itself (the
+#: same least-squares problem); any other (a Euclidean transform: rotation
+#: and shift) is iterated as the nearest of these, then paired again under
+#: its own fits until the pairs repeat.
+_SAME_PROBLEM = ("translation", "similarity", "affine", "polynomial", "projective")
+
+
+def _working_model(transform_type, degree, parity, centre, half):
+    """The candidate model of the iterations: (candidate, its degree or None)."""
+    entry = transform_type_of(transform_type)
+    if entry.name == "polynomial":
+        return _Poly(int(degree)), int(degree)
+    if entry.name == "projective":
+        return _Projective(), None
+    if entry.name == "translation":
+        return _Translation(centre, half), None
+    if entry.conformal:
+        return _Similarity(parity), None
+    return _Poly(1), None
+
+
+def _is_affine_in_uv(cand):
+    """True for the candidates whose design is linear in (1, u, v): translation,
+    similarity, affine."""
+    return isinstance(cand, (_Similarity, _Translation)) or (
+        isinstance(cand, _Poly) and cand.degree == 1)
+
+
+def _design_parts(cand):
+    """D0, Du, Dv with ``design(u, v) = D0 + u Du + v Dv`` (each (2, k))."""
+    d = cand.design(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
+    return d[0], d[1] - d[0], d[2] - d[0]
+
+
+def _normal_equations(cand, uv, dst):
+    """(A^T A, A^T b) of the candidate's design over these pairs."""
+    k = cand.k
+    if _is_affine_in_uv(cand):
+        # From the moments of (u, v): no design matrix of all the pairs.
+        # (Sums of column products: a matrix product of (N, 2) arrays is slower, and
+        # threaded BLAS calls stall on a busy machine.)
+        d0, du, dv = _design_parts(cand)
+        u, v = uv[:, 0], uv[:, 1]
+        x, y = dst[:, 0], dst[:, 1]
+
+        def dot(a, b):
+            return float(np.sum(a * b))
+
+        n = (len(uv) * d0.T @ d0 + u.sum() * (d0.T @ du + du.T @ d0)
+             + v.sum() * (d0.T @ dv + dv.T @ d0) + dot(u, u) * du.T @ du
+             + dot(u, v) * (du.T @ dv + dv.T @ du) + dot(v, v) * dv.T @ dv)
+        b = (d0.T @ np.array([x.sum(), y.sum()]) + du.T @ np.array([dot(u, x), dot(u, y)])
+             + dv.T @ np.array([dot(v, x), dot(v, y)]))
+        return n, b
+    n, v = np.zeros((k, k)), np.zeros(k)
+    for lo in range(0, len(uv), CHUNK):
+        a = cand.design(uv[lo:lo + CHUNK]).reshape(-1, k)
+        n += a.T @ a
+        v += a.T @ dst[lo:lo + CHUNK].reshape(-1)
+    return n, v
+
+
+def _chunked_fit(cand, uv, dst):
+    """Least squares of a linear candidate through its normal equations."""
+    n, v = _normal_equations(cand, uv, dst)
+    d = np.sqrt(np.diag(n))
+    if not np.all(d > 0):
+        return None
+    ns = n / np.outer(d, d)  # unit diagonal: the condition number is meaningful
+    if np.linalg.cond(ns) > 1e12:
+        return None
+    return np.linalg.solve(ns, v / d) / d
+
+
+def _fit_params(cand, uv, dst, params):
+    """The candidate's parameters on these pairs (None if degenerate)."""
+    if hasattr(cand, "offset"):
+        dst = dst - cand.offset(uv)
+    if cand.linear:
+        return _chunked_fit(cand, uv, dst)
+    if params is None or len(params) != cand.k:  # from an affine fit of the same pairs
+        aff = _chunked_fit(_Poly(1), uv, dst)
+        if aff is None:
+            return None
+        params = _projective_start(aff)
+    fit = _wls(cand, uv, dst, np.ones(len(uv)), params)
+    return None if fit is None else fit[0]
+
+
+def _chunked_predict(cand, params, uv):
+    """The candidate's predicted target positions of all the sources."""
+    if _is_affine_in_uv(cand):
+        p = _predict(cand, params, np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
+        j = p[1:] - p[0]
+        out = np.empty_like(uv)
+        out[:, 0] = uv[:, 0] * j[0, 0] + uv[:, 1] * j[1, 0] + p[0, 0]
+        out[:, 1] = uv[:, 0] * j[0, 1] + uv[:, 1] * j[1, 1] + p[0, 1]
+    else:
+        out = np.empty_like(uv)
+        for lo in range(0, len(uv), CHUNK):
+            out[lo:lo + CHUNK] = _predict(cand, params, uv[lo:lo + CHUNK])
+    if hasattr(cand, "offset"):
+        out += cand.offset(uv)
+    return out
+
+
+def _predict_start(start, src):
+    """Predicted target positions of ``src`` under the starting model or matrix."""
+    linear = isinstance(start, LinearTransform2D)
+    if linear or isinstance(start, np.ndarray) or not callable(start):
+        m = as_matrix(start)  # (a linear model through its matrix: no model evaluation)
+        if np.allclose(m[2], [0.0, 0.0, 1.0]):
+            return src @ m[:2, :2].T + m[:2, 2]
+        w = src @ m[2, :2] + m[2, 2]
+        return (src @ m[:2, :2].T + m[:2, 2]) / w[:, None]
+    x, y = start(src[:, 0], src[:, 1])
+    return np.column_stack([x, y]).astype(float)
+
+
+def _sigma(r2):
+    """Per-axis residual scatter from the median squared distance (Rayleigh law)."""
+    return float(np.sqrt(np.median(r2) / (2.0 * np.log(2.0)))) if len(r2) else 0.0
+
+
+class _State:
+    """The iteration's current pairs, model and radius."""
+
+    def __init__(self, problem, pred, radius):
+        self.p = problem
+        self.pred, self.radius = pred, radius
+        self.si = self.dj = None
+        self.params, self.sigma = None, 0.0
+
+    def pair(self):
+        si, dj, dist = self.p.cands.nearest(self.pred, self.radius)
+        return resolve_claims(si, dj, dist)
+
+    def refit(self, si, dj, cand):
+        """Fit ``cand`` on the pairs, predict all sources, set the next radius."""
+        p = self.p
+        uv, dst = p.uv[si], p.dst[dj]
+        params = _fit_params(cand, uv, dst, self.params)
+        if params is None:
+            return False
+        self.params, self.si, self.dj = params, si, dj
+        self.pred = _chunked_predict(cand, params, p.uv)
+        r = _chunked_predict(cand, params, uv) - dst  # (cheaper than gathering pred[si])
+        self.sigma = _sigma(r[:, 0] ** 2 + r[:, 1] ** 2)
+        if p.fixed_radius is None:
+            new = pairing_radius(self.sigma, p.density, len(si), len(p.uv) - len(si))
+            self.radius = min(max(new, p.min_radius), p.tolerance)
+        return True
+
+
+@dataclass
+class _Problem:
+    src: np.ndarray
+    dst: np.ndarray
+    uv: np.ndarray
+    centre: np.ndarray
+    frame: tuple
+    cands: _Candidates
+    density: float
+    tolerance: float
+    fixed_radius: object
+    min_radius: float
+
+
+def _iterate(state, cand, max_iterations):
+    """Pair and refit until the pairs repeat: (iterations, converged)."""
+    for it in range(1, max_iterations + 1):
+        si, dj = state.pair()
+        if len(si) * 2 <= cand.k:
+            raise _too_few(len(si), state.radius)
+        same = (state.si is not None and np.array_equal(si, state.si)
+                and np.array_equal(dj, state.dj))
+        if same:
+            return it, True
+        if not state.refit(si, dj, cand):
+            raise _too_few(len(si), state.radius, degenerate=True)
+    return max_iterations, False
+
+
+def _too_few(n, radius, degenerate=False):
+    why = "do not constrain the model (degenerate geometry)" if degenerate else "are too few"
+    return TooFewSourcesError(
+        f"{n} pairs within {radius:.3g} px {why}: the starting transform does not map the "
+        "source onto the target, or the radius is too small. Check transform= (or the "
+        "match found), or pass a larger first radius (max_radius).")
+
+
+def _choose_degree(state, conformal, significance):
+    """degree='auto': the model chosen by `fit_nonlinear` on (a subsample of) the pairs."""
+    p = state.p
+    si, dj = state.si, state.dj
+    if len(si) > AUTO_PAIRS:
+        pick = np.sort(np.random.default_rng(0).choice(len(si), AUTO_PAIRS, replace=False))
+        si, dj = si[pick], dj[pick]
+    aff = _chunked_fit(_Poly(1), p.uv[si], p.dst[dj])
+    half = float(np.hypot(p.frame[1] - p.frame[0], p.frame[3] - p.frame[2]) / 2.0)
+    m = np.eye(3)  # the affine fit, back in pixels
+    m[0, :2], m[1, :2] = aff[1:3] / half, aff[4:6] / half
+    m[0, 2] = aff[0] - m[0, :2] @ p.centre
+    m[1, 2] = aff[3] - m[1, :2] @ p.centre
+    fit = fit_nonlinear(p.src[si], p.dst[dj], m, transform_type="polynomial", degree="auto",
+                        pairs_given=True, tolerance=5.0 * max(state.radius, 1e-3),
+                        min_tolerance=state.radius, source_frame=p.frame,
+                        significance=significance, linear_type="similarity")
+    info = fit.info
+    if info["model"] == "polynomial":
+        return _Poly(info["degree"]), "polynomial", info["degree"]
+    return conformal if info["model"] == "similarity" else _Poly(1), info["model"], None
+
+
+def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parity=None,
+             tolerance=2.0, radius=None, max_iterations=10, min_radius=1e-3, frame=None,
+             significance=1e-4, workers=1):
+    """
+    Pair every source position with a target one, refitting the model on all pairs.
+
+    Parameters
+    ----------
+    src, dst : (N, 2), (M, 2) ndarray
+        Source and target positions (pixels).
+    start : model or (3, 3) array-like
+        The starting source-to-target transform.
+    transform_type : str, optional
+        The model refitted (a `~astroalign_nd.transforms.TRANSFORM_TYPES` name).
+    degree : int or 'auto', optional
+        The polynomial degree; 'auto' chooses it (and may choose a linear
+        model) on the pairs of a first, affine iteration.
+    parity : {1, -1}, optional
+        Of the rotation-like models; by default that of ``start``.
+    tolerance : float, optional
+        The first pairing radius (pixels), and the largest.
+    radius : float, optional
+        A fixed pairing radius instead of the one set by the residuals.
+    max_iterations : int, optional
+        Pairings made at most (per model).
+    min_radius : float, optional
+        The smallest radius the residuals may set (pixels).
+    frame : (x0, x1, y0, y1), optional
+        The source frame (by default the sources' bounding box).
+    significance : float, optional
+        The F-test level of ``degree='auto'`` (see
+        `~astroalign_nd.transforms.fit_nonlinear`).
+    workers : int, optional
+        Threads of the k-d tree queries.
+
+    Returns
+    -------
+    `AllPairs`
+
+    Raises
+    ------
+    TooFewSourcesError
+        If too few stars pair up to fit the model.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import SimilarityTransform
+    >>> from astroalign_nd.transforms.allpairs import pair_all
+    >>> rng = np.random.default_rng(0)
+    >>> src = rng.uniform(0, 2048, (5000, 2))
+    >>> truth = SimilarityTransform(scale=1.1, rotation=30.0, translation_x=5.0)
+    >>> dst = np.column_stack(truth(*src.T)) + rng.normal(0, 0.1, src.shape)
+    >>> start = SimilarityTransform(scale=1.1, rotation=30.01, translation_x=5.5)
+    >>> out = pair_all(src, dst, start, tolerance=3.0)
+    >>> len(out.source_index), out.converged
+    (5000, True)
+    """
+    src, dst = np.asarray(src, float), np.asarray(dst, float)
+    entry = transform_type_of(transform_type)
+    if parity is None:  # the sign of the start's Jacobian at the sources' centre
+        c = np.array([src[:, 0].mean(), src[:, 1].mean()]) if len(src) else np.zeros(2)
+        q = _predict_start(start, np.array([c, c + [1.0, 0.0], c + [0.0, 1.0]]))
+        parity = 1 if np.linalg.det(np.array([q[1] - q[0], q[2] - q[0]])) > 0 else -1
+    if frame is None:  # the sources' bounding box, as _normalise takes it
+        lo, hi = bounds(src)
+        frame = (lo[0] - 0.5, hi[0] + 0.5, lo[1] - 0.5, hi[1] + 0.5)
+    frame, centre, half, uv, _ = _normalise(src, frame)
+    first = "affine" if degree == "auto" else entry.name
+    cand, deg = _working_model(first, 1 if degree == "auto" else degree, parity, centre, half)
+    lo, hi = bounds(dst)
+    density = len(dst) / max(float(np.prod(hi - lo)), 1.0)
+    tol = float(tolerance if radius is None else max(radius, 0.0))
+    problem = _Problem(src, dst, uv, centre, frame, _Candidates(dst, tol, workers), density,
+                       tol, radius, float(min_radius))
+    state = _State(problem, _predict_start(start, src), tol)
+    n_it, converged = _iterate(state, cand, max_iterations)
+    name = entry.name
+    if degree == "auto":
+        cand, name, deg = _choose_degree(state, _Similarity(parity), significance)
+        state.params = state.si = None  # refit at least once with the chosen model
+        more, converged = _iterate(state, cand, max_iterations)
+        n_it += more
+    _check_not_chance(state)
+    return _final(state, name, deg, parity, n_it, converged, max_iterations)
+
+
+def _check_not_chance(state):
+    """Refuse pairs no more numerous than chance coincidences would give."""
+    p = state.p
+    n, expected = len(state.si), len(p.uv) * -np.expm1(-np.pi * state.radius ** 2 * p.density)
+    chance = float(poisson.sf(n - 1, expected))
+    if chance > MAX_CHANCE:
+        raise TransformNotFoundError(
+            f"the {n} pairs within {state.radius:.3g} px are no more than chance coincidences "
+            f"would give ({expected:.1f} expected at this density; probability {chance:.2g}): "
+            "the starting transform does not map the source onto the target. Check "
+            "transform= (or let the search find it), or pass a larger first radius (max_radius).")
+
+
+def _final(state, name, deg, parity, n_it, converged, max_iterations):
+    """The model of the chosen type fitted on the final pairs: an `AllPairs`."""
+    p = state.p
+    kw = {}
+    if name == "polynomial":
+        kw = dict(degree=deg, crpix=(float(p.centre[0]), float(p.centre[1])),
+                  domain=tuple(float(v) for v in p.frame))
+    elif TRANSFORM_REGISTRY[name].parity:
+        kw = dict(parity=parity)
+    for _ in range(max_iterations):
+        model, cov, resid = fit_transform(p.src[state.si], p.dst[state.dj], name, **kw)
+        if name in _SAME_PROBLEM:
+            break
+        # Another model than the iterations': pair again under its own fit.
+        si, dj = resolve_claims(*p.cands.nearest(_predict_start(model, p.src), state.radius))
+        n_it += 1
+        if np.array_equal(si, state.si) and np.array_equal(dj, state.dj):
+            break
+        state.si, state.dj = si, dj
+    return AllPairs(model, cov, state.si, state.dj, resid, float(state.radius),
+                    float(state.sigma), n_it, converged, deg)
