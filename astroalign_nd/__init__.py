@@ -37,6 +37,7 @@ _LAZY = {
     "Reference": "registration",
     "apply_transform": "resample",
     "register_batch": "batch",
+    "solve_sequence": "batch",
     "LinearTransform2D": "transforms",
     "TranslationTransform": "transforms",
     "EuclideanTransform": "transforms",

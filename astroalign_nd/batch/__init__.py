@@ -14,5 +14,8 @@ from .results import FrameResult, BatchResult
 from .core import register_batch
 from .planning import plan_outputs
 from .canvas import union_canvas
+from .sequence import SequenceSolution, solve_sequence
+from .links import Link
 
-__all__ = ['FrameResult', 'BatchResult', 'register_batch', 'plan_outputs', 'union_canvas']
+__all__ = ['FrameResult', 'BatchResult', 'register_batch', 'plan_outputs', 'union_canvas',
+           'solve_sequence', 'SequenceSolution', 'Link']
