@@ -5,10 +5,12 @@ import os
 
 import numpy as np
 import pytest
+from astropy.nddata import CCDData
 
 import astroalign_nd
 from astroalign_nd import find_transform, register_batch, solve_sequence
 from astroalign_nd.batch import Link, sequence
+from astroalign_nd.cli import main
 from astroalign_nd.simulate import (dither_transforms, mosaic_transforms, simulate_sequence)
 from astroalign_nd.transforms import as_matrix, fit_transform
 
@@ -196,3 +198,35 @@ def test_register_batch_global(tmp_path):
                            output_dir=tmp_path, skip_existing=True)
     assert [f.status for f in again.frames] == ["skipped"] * 3
     assert astroalign_nd.solve_sequence is solve_sequence
+
+
+def test_links_as_dask_tasks():
+    distributed = pytest.importorskip("dask.distributed")
+    shape = (200, 200)
+    truth = dither_transforms(14, max_shift=25, shape=shape, seed=7)
+    cats = _catalogs(truth, shape, 100, 0.05, seed=8)
+    here = solve_sequence(cats, reference=3, all_pairs=4, n_hubs=1)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=":0") as cluster, \
+            distributed.Client(cluster) as client:
+        there = solve_sequence(cats, reference=3, all_pairs=4, n_hubs=1, client=client)
+    assert there.attempts == [] and len(there.links) == len(here.links)
+    for a, b in zip(here.transforms, there.transforms):
+        assert np.allclose(as_matrix(a), as_matrix(b), atol=1e-9)
+
+
+def test_cli_batch_global(tmp_path, capsys):
+    shape = (200, 200)
+    seq = simulate_sequence(mosaic_transforms((1, 3), shape, overlap=0.3), shape, n_stars=150,
+                            seed=3)
+    paths = []
+    for i, f in enumerate(seq.frames):
+        paths.append(str(tmp_path / f"t{i}.fits"))
+        CCDData(f, unit="adu").write(paths[-1])
+    code = main(["batch", *paths[1:], "-r", paths[0], "--output-dir", str(tmp_path / "out"),
+                 "--global", "--canvas", "union", "--no-progress"])
+    out = capsys.readouterr().out
+    assert code == 0 and "global solution: 2 links" in out
+    # Tile 2 does not overlap tile 0: registered through tile 1.
+    assert "t2.fits: 1 links, predicted error" in out
+    assert sorted(os.listdir(tmp_path / "out")) == ["t1_aligned.fits", "t2_aligned.fits"]

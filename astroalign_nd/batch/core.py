@@ -20,7 +20,7 @@ from .frame import _Config, _Job, _shifted, _stream_jobs
 from .planning import _StreamNamer, _display_names, _is_path, _plan_outputs
 from .canvas import _canvas_wcs, _kept_on_canvas, _union_grid, _valid_margin
 from .runners import _execute
-from .sequence import solve_jobs
+from .sequence import SOLVE_OPTIONS, solve_jobs
 
 __all__ = ['register_batch']
 
@@ -130,6 +130,8 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
         transform.  Each frame's ``quality`` then also holds ``n_links``
         and ``predicted_error`` (px).  The frames are held in memory
         during the solve, and a generator's are collected into a list.
+        ``solve_sequence``'s own options (``n_stars``, ``all_pairs``,
+        ``n_hubs``, ``min_overlap``, ``link_tolerance``) go in ``**options``.
     hdu : int or str, optional
         The HDU to read from FITS files (frames and target), as in
         `~astroalign_nd.find_transform`; by default the first one with
@@ -186,14 +188,10 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     True
     """
     _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, suffix, client,
-                     workers)
-    if solve not in ("pairwise", "global"):
-        raise ValueError(f"solve must be 'pairwise' or 'global'; got {solve!r}.")
+                     workers, solve)
     resample = ResampleConfig(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
                               method=method, add_keyword=add_keyword)
-    if isinstance(target, Reference):
-        # The reference's detection options are the batch's, unless overridden here.
-        options = {**target.detect_options, **options}
+    options, global_options = _split_options(target, options, solve)
     # Every option checked once, and the reference's stars and triangles
     # computed once, before it is shipped to the workers.
     config = RegistrationConfig.from_keywords(**options)
@@ -221,8 +219,9 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     with _Report(callback, progress, total) as report:
         try:
             if solve == "global":
-                found, solution = solve_jobs(jobs, items, target, ref, options, client,
-                                             report, cfg)
+                found, solution = solve_jobs(jobs, items, target, ref,
+                                             {**options, **global_options}, client, report,
+                                             cfg)
                 result = _apply_found(found, items, outputs, cfg, client, workers, report,
                                       _valid_margin(resample), inflight)
                 result.solution = solution
@@ -297,9 +296,23 @@ class Interrupted(Exception):
     """A frame that an interrupted batch did not finish (the error of its result)."""
 
 
+def _split_options(target, options, solve):
+    """The search's options, and those of the joint solution (solve_sequence's own)."""
+    if isinstance(target, Reference):
+        # The reference's detection options are the batch's, unless overridden here.
+        options = {**target.detect_options, **options}
+    global_options = {k: options.pop(k) for k in SOLVE_OPTIONS if k in options}
+    if global_options and solve != "global":
+        raise TypeError(f"{sorted(global_options)} are options of solve='global'; pass "
+                        "solve='global' too, or leave them out.")
+    return options, global_options
+
+
 def _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, suffix, client,
-                     workers):
+                     workers, solve="pairwise"):
     """Refuse `register_batch`'s bad arguments before any work."""
+    if solve not in ("pairwise", "global"):
+        raise ValueError(f"solve must be 'pairwise' or 'global'; got {solve!r}.")
     if _is_path(sources):
         raise TypeError("sources must be a list of frames or paths, not a single path; "
                         f"pass [{os.fspath(sources)!r}], or an ImageFileCollection for a "

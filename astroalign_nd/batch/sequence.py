@@ -46,6 +46,8 @@ __all__ = ["solve_sequence", "SequenceSolution", "Link"]
 
 #: Gauss-Newton steps at most; and the parameter change (px at the frame's edge) that ends them.
 _MAX_STEPS, _CONVERGED = 30, 1e-7
+#: `solve_sequence`'s options that `~astroalign_nd.register_batch` passes on with solve='global'.
+SOLVE_OPTIONS = ("n_stars", "all_pairs", "n_hubs", "min_overlap", "link_tolerance")
 #: Detections further than this many robust sigmas from their star's mean are clipped.
 _CLIP_SIGMA = 5.0
 
@@ -160,7 +162,6 @@ class SequenceSolution:
         return "\n".join(lines)
 
 
-
 def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = "similarity",
                    all_pairs: int = 10, n_hubs: int = 2, min_overlap: float = 0.1,
                    link_tolerance: float = 1.0, n_stars: int | None = None,
@@ -251,6 +252,9 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
     """
     kind, numbers = _check_arguments(transform_type, all_pairs, n_hubs, min_overlap,
                                      link_tolerance)
+    if n_stars is not None and (isinstance(n_stars, bool) or not isinstance(
+            n_stars, (int, np.integer)) or n_stars < 3):
+        raise ValueError(f"n_stars must be an integer >= 3 or None; got {n_stars!r}.")
     config = RegistrationConfig.from_keywords(
         transform_type="similarity" if kind != "affine" else "affine", **options)
     items, frames_hdu = batch_frames(frames, hdu)
@@ -339,13 +343,18 @@ def _shape(ref):
     return (int(np.ceil(pts[:, 1].max())) + 1, int(np.ceil(pts[:, 0].max())) + 1)
 
 
-def _match_all(pairs, refs, config, client):
-    """The `Link` (or the reason there is none) of each pair, here or as dask tasks."""
+def _match_all(pairs, refs, config, client, shipped):
+    """
+    The `Link` (or the reason there is none) of each pair, here or as dask
+    tasks; ``shipped`` (frame -> future) holds the frames already sent to
+    the cluster, each sent once for the whole solve.
+    """
     if client is None or len(pairs) < 2:
         return [match_link(refs[a], refs[b], config, a, b) for a, b in pairs]
-    used = sorted({f for p in pairs for f in p})
-    futures = dict(zip(used, client.scatter([refs[f] for f in used])))
-    tasks = [client.submit(match_link, futures[a], futures[b], config, a, b, pure=False)
+    new = sorted({f for p in pairs for f in p} - set(shipped))
+    if new:
+        shipped.update(zip(new, client.scatter([refs[f] for f in new], hash=False)))
+    tasks = [client.submit(match_link, shipped[a], shipped[b], config, a, b, pure=False)
              for a, b in pairs]
     out = []
     for task in tasks:
@@ -364,12 +373,13 @@ def _link(refs, shapes, config, ref, numbers, client):
     # Without a client the pairs go one by one (a link found may show that
     # the next pair does not overlap); with one, a batch per worker thread.
     size = 1 if client is None else max(2, 2 * sum(client.nthreads().values()))
+    shipped = {}
 
     def run(pairs):
         """Match ``pairs``; True when a link joined two groups (the placement changes)."""
         place = graph.placement()
         joined = False
-        for (a, b), res in zip(pairs, _match_all(pairs, refs, config, client)):
+        for (a, b), res in zip(pairs, _match_all(pairs, refs, config, client, shipped)):
             graph.tried.add((min(a, b), max(a, b)))
             if isinstance(res, Link):
                 graph.add(res)
