@@ -103,10 +103,21 @@ class Graph:
     def __init__(self, n, shapes):
         self.n, self.shapes = n, shapes
         self.links, self.tried, self.failures = [], set(), {}
+        self._parent = list(range(n))  # union-find of the frames joined by links
+        self._grids = {}
+
+    def group(self, f):
+        """The representative of frame ``f``'s group (links found, rejection aside)."""
+        while self._parent[f] != f:
+            self._parent[f] = f = self._parent[self._parent[f]]
+        return f
 
     def add(self, link):
-        """Record a link (None: the pair gave no trusted match)."""
+        """Record a link; True when it joined two groups."""
         self.links.append(link)
+        a, b = self.group(link.source), self.group(link.target)
+        self._parent[max(a, b)] = min(a, b)
+        return a != b
 
     def neighbours(self, accepted_only=True):
         """Adjacency: frame -> list of (other frame, matrix other<-frame)."""
@@ -147,8 +158,10 @@ class Graph:
             return None
         m = np.linalg.inv(place[b][1]) @ place[a][1]
         ny, nx = self.shapes[a]
-        gx, gy = np.meshgrid(np.linspace(0, nx - 1, _OVERLAP_GRID),
-                             np.linspace(0, ny - 1, _OVERLAP_GRID))
+        if (ny, nx) not in self._grids:
+            self._grids[ny, nx] = np.meshgrid(np.linspace(0, nx - 1, _OVERLAP_GRID),
+                                              np.linspace(0, ny - 1, _OVERLAP_GRID))
+        gx, gy = self._grids[ny, nx]
         x = m[0, 0] * gx + m[0, 1] * gy + m[0, 2]
         y = m[1, 0] * gx + m[1, 1] * gy + m[1, 2]
         hb, wb = self.shapes[b]
@@ -156,10 +169,9 @@ class Graph:
 
     def components(self, frames):
         """The connected groups of ``frames`` (largest first, then by lowest frame)."""
-        place = self.placement()
         groups = {}
         for f in frames:
-            groups.setdefault(place.get(f, (f,))[0], []).append(f)
+            groups.setdefault(self.group(f), []).append(f)
         return sorted(groups.values(), key=lambda g: (-len(g), g[0]))
 
 

@@ -163,7 +163,7 @@ class SequenceSolution:
 
 
 def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = "similarity",
-                   all_pairs: int = 10, n_hubs: int = 2, min_overlap: float = 0.1,
+                   all_pairs: int = 10, n_hubs: int = 1, min_overlap: float = 0.1,
                    link_tolerance: float = 1.0, n_stars: int | None = None,
                    client: Any = None,
                    hdu: int | str | None = None, unit: Any = None,
@@ -204,7 +204,8 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
         (default 10); more frames get the sparse graph.
     n_hubs : int, optional
         Well-connected frames every frame of a large set is matched with
-        (default 2; the reference is one when given).
+        (default 1: the reference when given; each further hub costs a
+        match per frame).
     min_overlap : float, optional
         Pairs predicted (from the links found so far) to share less than
         this fraction of a frame are not matched (default 0.1).
@@ -377,13 +378,11 @@ def _link(refs, shapes, config, ref, numbers, client):
 
     def run(pairs):
         """Match ``pairs``; True when a link joined two groups (the placement changes)."""
-        place = graph.placement()
         joined = False
         for (a, b), res in zip(pairs, _match_all(pairs, refs, config, client, shipped)):
             graph.tried.add((min(a, b), max(a, b)))
             if isinstance(res, Link):
-                graph.add(res)
-                joined |= place.get(a, (a,))[0] != place.get(b, (b,))[0]
+                joined |= graph.add(res)
             else:
                 graph.failures[(a, b)] = res
         return joined
