@@ -278,7 +278,7 @@ def bundle_step(frames, obs):
                              b_rows.shape)
     b = sparse.coo_matrix((-wj[idx].ravel(), (b_rows.ravel(), b_cols.ravel())),
                           shape=(p, 2 * obs.n_tracks)).tocsr()
-    d = np.repeat(np.bincount(obs.track, obs.w, obs.n_tracks), 2)
+    d = np.repeat(np.bincount(obs.track, obs.w, obs.n_tracks), 2).astype(float)
     d_inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0)  # (a star all clipped: 0)
     reduced = a - b @ sparse.diags(d_inv) @ b.T
     # The residuals are those of the mean star positions: their gradient is
