@@ -2028,6 +2028,15 @@ def simulate_sequence(transforms, shape=(256, 256), *, n_stars=300, fwhm=3.0,
     Returns
     -------
     `SimulatedSequence`
+
+    Examples
+    --------
+    Three dithered frames of one field:
+
+    >>> from astroalign_nd.simulate import dither_transforms, simulate_sequence
+    >>> seq = simulate_sequence(dither_transforms(3, seed=1), (128, 128), n_stars=50, seed=2)
+    >>> len(seq.frames), seq.frames[2].shape, seq.frames[2].dtype
+    (3, (128, 128), dtype('float32'))
     """
     mats = [_check_transform(t)[1] for t in transforms]
     if not mats:

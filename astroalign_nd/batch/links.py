@@ -56,6 +56,19 @@ class Link:
         Why the link was rejected ('' when accepted).
     warnings : list of str
         Warnings the pair's search gave (a poor fit, ...).
+
+    Examples
+    --------
+    The links of a `~astroalign_nd.batch.SequenceSolution`:
+
+    >>> import numpy as np
+    >>> from astroalign_nd import solve_sequence
+    >>> field = np.random.default_rng(0).uniform(0, 300, (80, 2))
+    >>> link = solve_sequence([field, field + [10.0, 0.0]]).links[0]
+    >>> (link.source, link.target), link.status, link.n_matches
+    ((0, 1), 'accepted', 80)
+    >>> bool(link.residual_rms < 1e-6)
+    True
     """
 
     source: int

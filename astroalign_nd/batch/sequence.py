@@ -88,6 +88,20 @@ class SequenceSolution:
         The pairs tried that gave no trusted match, with the reason.
     seconds : dict
         Time spent on ``detect``, ``match`` and ``solve``.
+
+    Examples
+    --------
+    Three catalogs of one field, shifted; frame 0 is the reference:
+
+    >>> import numpy as np
+    >>> from astroalign_nd import solve_sequence
+    >>> rng = np.random.default_rng(0)
+    >>> field = rng.uniform(0, 300, (80, 2))
+    >>> sol = solve_sequence([field, field + [10.0, 0.0], field + [0.0, -7.0]], reference=0)
+    >>> [round(float(v), 6) + 0.0 for v in sol.transforms[2].translation]
+    [0.0, 7.0]
+    >>> sol.to_table()["status"].tolist(), len(sol.accepted), sol.unsolved
+    (['reference', 'solved', 'solved'], 3, {})
     """
 
     transforms: list
