@@ -54,8 +54,8 @@ __all__ = [
     "resampled_copy",
     "simulate_trust_case",
     "TRUST_CASES",
-    "SimulatedSequence",
-    "simulate_sequence",
+    "SimulatedViews",
+    "simulate_views",
     "mosaic_transforms",
     "dither_transforms",
 ]
@@ -1911,7 +1911,7 @@ def simulate_trust_case(case, *, seed=None):
 
 
 @dataclass(eq=False)
-class SimulatedSequence:
+class SimulatedViews:
     """
     Frames cut from one star field, each with its known transform.
 
@@ -1929,8 +1929,8 @@ class SimulatedSequence:
 
     Examples
     --------
-    >>> from astroalign_nd.simulate import mosaic_transforms, simulate_sequence
-    >>> seq = simulate_sequence(mosaic_transforms((1, 2), (128, 128)), (128, 128),
+    >>> from astroalign_nd.simulate import mosaic_transforms, simulate_views
+    >>> seq = simulate_views(mosaic_transforms((1, 2), (128, 128)), (128, 128),
     ...                         n_stars=60, seed=1)
     >>> len(seq.frames), seq.frames[0].shape
     (2, (128, 128))
@@ -2001,7 +2001,7 @@ def dither_transforms(n_frames=30, *, max_shift=40.0, max_rotation=2.0, shape=(2
     return out
 
 
-def simulate_sequence(transforms, shape=(256, 256), *, n_stars=300, fwhm=3.0,
+def simulate_views(transforms, shape=(256, 256), *, n_stars=300, fwhm=3.0,
                       flux_range=(300.0, 3e5), flux_index=1.5, background=100.0,
                       read_noise=5.0, gain=1.0, noise="gaussian", seed=None,
                       dtype=np.float32):
@@ -2027,14 +2027,14 @@ def simulate_sequence(transforms, shape=(256, 256), *, n_stars=300, fwhm=3.0,
 
     Returns
     -------
-    `SimulatedSequence`
+    `SimulatedViews`
 
     Examples
     --------
     Three dithered frames of one field:
 
-    >>> from astroalign_nd.simulate import dither_transforms, simulate_sequence
-    >>> seq = simulate_sequence(dither_transforms(3, seed=1), (128, 128), n_stars=50, seed=2)
+    >>> from astroalign_nd.simulate import dither_transforms, simulate_views
+    >>> seq = simulate_views(dither_transforms(3, seed=1), (128, 128), n_stars=50, seed=2)
     >>> len(seq.frames), seq.frames[2].shape, seq.frames[2].dtype
     (3, (128, 128), dtype('float32'))
     """
@@ -2063,4 +2063,4 @@ def simulate_sequence(transforms, shape=(256, 256), *, n_stars=300, fwhm=3.0,
                                      noise=noise, seed=rng, dtype=dtype))
     stars = _star_table(sx, sy, flux, np.arange(count))
     meta = dict(shape=shape, n_stars=n_stars, fwhm=fwhm, seed=seed)
-    return SimulatedSequence(frames, [from_matrix(m) for m in mats], stars, meta)
+    return SimulatedViews(frames, [from_matrix(m) for m in mats], stars, meta)

@@ -43,7 +43,7 @@ from astropy.io import fits
 
 import astroalign_nd
 from astroalign_nd import Reference, find_transform, register_batch, solve_sequence
-from astroalign_nd.simulate import dither_transforms, mosaic_transforms, simulate_sequence
+from astroalign_nd.simulate import dither_transforms, mosaic_transforms, simulate_views
 from astroalign_nd.transforms import as_matrix
 
 try:
@@ -141,7 +141,7 @@ def run_real(data_dir):
 def run_mosaic(seed=3):
     shape = (256, 256)
     truth = mosaic_transforms((3, 3), shape, overlap=0.2)
-    seq = simulate_sequence(truth, shape, n_stars=500, flux_range=(5e3, 3e5), seed=seed)
+    seq = simulate_views(truth, shape, n_stars=500, flux_range=(5e3, 3e5), seed=seed)
     t0 = time.perf_counter()
     sol = solve_sequence(seq.frames, reference=0, n_stars=400)
     seconds = time.perf_counter() - t0
@@ -167,7 +167,7 @@ def run_sequences(n_seq, n_stars=None):
     t_g = t_o = 0.0
     for s in range(n_seq):
         truth = dither_transforms(30, max_shift=40, max_rotation=2, shape=shape, seed=100 + s)
-        seq = simulate_sequence(truth, shape, n_stars=300, seed=200 + s)
+        seq = simulate_views(truth, shape, n_stars=300, seed=200 + s)
         t0 = time.perf_counter()
         sol = solve_sequence(seq.frames, reference=0, n_stars=n_stars)
         t_g += time.perf_counter() - t0
@@ -193,7 +193,7 @@ def run_sequences(n_seq, n_stars=None):
 def run_speed(n_frames):
     shape = (1024, 1024)
     truth = dither_transforms(n_frames, max_shift=60, max_rotation=1, shape=shape, seed=9)
-    seq = simulate_sequence(truth, shape, n_stars=800, seed=10)
+    seq = simulate_views(truth, shape, n_stars=800, seed=10)
     with tempfile.TemporaryDirectory() as tmp:
         paths = []
         for i, f in enumerate(seq.frames):

@@ -11,7 +11,7 @@ import astroalign_nd
 from astroalign_nd import find_transform, register_batch, solve_sequence
 from astroalign_nd.batch import Link, sequence
 from astroalign_nd.cli import main
-from astroalign_nd.simulate import (dither_transforms, mosaic_transforms, simulate_sequence)
+from astroalign_nd.simulate import (dither_transforms, mosaic_transforms, simulate_views)
 from astroalign_nd.transforms import as_matrix, fit_transform
 
 
@@ -53,7 +53,7 @@ def test_mosaic_every_tile_from_a_corner():
     """A 3x3 mosaic, 20% overlaps, reference at a corner: every tile within 0.05 px."""
     shape = (256, 256)
     truth = mosaic_transforms((3, 3), shape, overlap=0.2)
-    seq = simulate_sequence(truth, shape, n_stars=500, flux_range=(5e3, 3e5), seed=3)
+    seq = simulate_views(truth, shape, n_stars=500, flux_range=(5e3, 3e5), seed=3)
     sol = solve_sequence(seq.frames, reference=0, n_stars=400)
     assert sol.unsolved == {} and sol.reference == 0
     errors = [_max_error(sol.transforms[i], seq.truth(i, 0), shape) for i in range(9)]
@@ -178,7 +178,7 @@ def test_bad_arguments():
 def test_register_batch_global(tmp_path):
     shape = (200, 200)
     truth = mosaic_transforms((2, 2), shape, overlap=0.3)
-    seq = simulate_sequence(truth, shape, n_stars=150, seed=3)
+    seq = simulate_views(truth, shape, n_stars=150, seed=3)
     frames = [f.copy() for f in seq.frames]
     res = register_batch(seq.frames[1:], seq.frames[0], solve="global", canvas="union",
                          output_dir=tmp_path)
@@ -217,7 +217,7 @@ def test_links_as_dask_tasks():
 
 def test_cli_batch_global(tmp_path, capsys):
     shape = (200, 200)
-    seq = simulate_sequence(mosaic_transforms((1, 3), shape, overlap=0.3), shape, n_stars=150,
+    seq = simulate_views(mosaic_transforms((1, 3), shape, overlap=0.3), shape, n_stars=150,
                             seed=3)
     paths = []
     for i, f in enumerate(seq.frames):

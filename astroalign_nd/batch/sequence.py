@@ -255,8 +255,8 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
 
     >>> import numpy as np
     >>> from astroalign_nd import solve_sequence
-    >>> from astroalign_nd.simulate import mosaic_transforms, simulate_sequence
-    >>> seq = simulate_sequence(mosaic_transforms((2, 2), (200, 200), overlap=0.3),
+    >>> from astroalign_nd.simulate import mosaic_transforms, simulate_views
+    >>> seq = simulate_views(mosaic_transforms((2, 2), (200, 200), overlap=0.3),
     ...                         (200, 200), n_stars=150, seed=3)
     >>> sol = solve_sequence(seq.frames, reference=0)
     >>> len(sol.accepted), sol.unsolved
