@@ -40,6 +40,7 @@ _LAZY = {
     "apply_transform": "resample",
     "register_batch": "batch",
     "stack": "stacking",
+    "solve_sequence": "batch",
     "LinearTransform2D": "transforms",
     "TranslationTransform": "transforms",
     "EuclideanTransform": "transforms",

@@ -59,6 +59,10 @@ __all__ = [
     "add_satellite_trail",
     "SimulatedCatalogs",
     "simulate_catalogs",
+    "SimulatedViews",
+    "simulate_views",
+    "mosaic_transforms",
+    "dither_transforms",
 ]
 
 # Number of stamp elements processed at once by `render_stars` (bounds memory:
@@ -2252,3 +2256,162 @@ def simulate_catalogs(n_stars=10_000, *, shape=(4096, 4096), rotation=None, scal
                         np.concatenate([ids[keep_dst], np.full(n_spur, -1)]), noise, 0,
                         (0.0, 1.0, 0.0, 1.0), lo, hi, alpha)
     return SimulatedCatalogs(src, dst, truth, int(np.sum(keep_src & keep_dst)))
+
+
+# -- sequences and mosaics (issue 28) ---------------------------------------------
+
+
+@dataclass(eq=False)
+class SimulatedViews:
+    """
+    Frames cut from one star field, each with its known transform.
+
+    Attributes
+    ----------
+    frames : list of 2-D ndarray
+        The simulated frames (independent noise).
+    transforms : list of `~astroalign_nd.transforms.LinearTransform2D`
+        The true frame-to-sky transforms (sky: the field's own pixel
+        coordinates).
+    stars : `~astropy.table.Table`
+        The field: ``x``, ``y`` (sky pixels), ``flux`` and ``id``.
+    meta : dict
+        The settings used.
+
+    Examples
+    --------
+    >>> from astroalign_nd.simulate import mosaic_transforms, simulate_views
+    >>> seq = simulate_views(mosaic_transforms((1, 2), (128, 128)), (128, 128),
+    ...                         n_stars=60, seed=1)
+    >>> len(seq.frames), seq.frames[0].shape
+    (2, (128, 128))
+    >>> seq.truth(1, 0).translation.tolist()  # frame 1 in frame 0's pixels
+    [102.0, 0.0]
+    """
+
+    frames: list
+    transforms: list
+    stars: Table
+    meta: dict = field(default_factory=dict)
+
+    def truth(self, i, reference=0):
+        """The true transform from frame ``i`` to frame ``reference``'s pixels."""
+        m = np.linalg.inv(as_matrix(self.transforms[reference])) @ as_matrix(self.transforms[i])
+        return from_matrix(m)
+
+
+def mosaic_transforms(grid=(3, 3), shape=(256, 256), *, overlap=0.2):
+    """
+    Frame-to-sky transforms of a ``grid = (rows, columns)`` mosaic of tiles
+    of ``shape`` that overlap their neighbours by ``overlap`` of a side.
+
+    Tiles are listed row by row (tile 0 at the sky origin).
+
+    Examples
+    --------
+    >>> from astroalign_nd.simulate import mosaic_transforms
+    >>> [t.translation.tolist() for t in mosaic_transforms((1, 2), (100, 100))]
+    [[0.0, 0.0], [80.0, 0.0]]
+    """
+    rows, cols = (_check_count(g, "grid") for g in grid)
+    overlap = _check_real(overlap, "overlap", minimum=0.0, maximum=1.0, strict_max=True)
+    ny, nx = _check_shape(shape)
+    step_x, step_y = round(nx * (1 - overlap)), round(ny * (1 - overlap))
+    return [from_matrix(np.array([[1.0, 0, c * step_x], [0, 1.0, r * step_y], [0, 0, 1]]),
+                        "translation") for r in range(rows) for c in range(cols)]
+
+
+def dither_transforms(n_frames=30, *, max_shift=40.0, max_rotation=2.0, shape=(256, 256),
+                      seed=None):
+    """
+    Frame-to-sky transforms of a dithered sequence: random shifts up to
+    ``max_shift`` px and rotations up to ``max_rotation`` degrees about the
+    frame centre (frame 0 unmoved).
+
+    Examples
+    --------
+    >>> from astroalign_nd.simulate import dither_transforms
+    >>> ts = dither_transforms(5, seed=1)
+    >>> len(ts), ts[0].translation.tolist()
+    (5, [0.0, 0.0])
+    """
+    n = _check_count(n_frames, "n_frames")
+    rng = np.random.default_rng(seed)
+    ny, nx = _check_shape(shape)
+    centre = np.array([(nx - 1) / 2.0, (ny - 1) / 2.0])
+    out = []
+    for i in range(n):
+        shift = rng.uniform(-max_shift, max_shift, 2) if i else np.zeros(2)
+        angle = np.radians(rng.uniform(-max_rotation, max_rotation)) if i else 0.0
+        c, s = np.cos(angle), np.sin(angle)
+        rot = np.array([[c, -s], [s, c]])
+        m = np.eye(3)
+        m[:2, :2] = rot
+        m[:2, 2] = centre - rot @ centre + shift
+        out.append(from_matrix(m, "euclidean"))
+    return out
+
+
+def simulate_views(transforms, shape=(256, 256), *, n_stars=300, fwhm=3.0,
+                   flux_range=(300.0, 3e5), flux_index=1.5, background=100.0,
+                   read_noise=5.0, gain=1.0, noise="gaussian", seed=None,
+                   dtype=np.float32):
+    """
+    Frames of one star field seen through ``transforms`` (frame to sky).
+
+    The field is drawn uniformly over the union of the footprints (with a
+    PSF-size margin) at ``n_stars`` per frame area; each frame renders the
+    stars that fall on it with its own noise (`simulate_image`).
+
+    Parameters
+    ----------
+    transforms : list of models or (3, 3) arrays
+        Frame-to-sky transforms (`mosaic_transforms`, `dither_transforms`).
+    shape : (ny, nx), optional
+        Every frame's shape.
+    n_stars : int, optional
+        Stars per frame area.
+    fwhm, flux_range, flux_index, background, read_noise, gain, noise, dtype
+        As in `simulate_field` (``noise`` 'gaussian' by default: faster).
+    seed : int or None, optional
+        The same seed gives the same frames.
+
+    Returns
+    -------
+    `SimulatedViews`
+
+    Examples
+    --------
+    Three dithered frames of one field:
+
+    >>> from astroalign_nd.simulate import dither_transforms, simulate_views
+    >>> seq = simulate_views(dither_transforms(3, seed=1), (128, 128), n_stars=50, seed=2)
+    >>> len(seq.frames), seq.frames[2].shape, seq.frames[2].dtype
+    (3, (128, 128), dtype('float32'))
+    """
+    mats = [_check_transform(t)[1] for t in transforms]
+    if not mats:
+        raise ValueError("transforms is empty: pass one frame-to-sky transform per frame.")
+    ny, nx = shape = _check_shape(shape)
+    n_stars = _check_count(n_stars, "n_stars")
+    (lo, hi), alpha = _check_flux_range(flux_range, flux_index)
+    rng_stars, rng_frames = _spawn(seed, 2)
+    pad = _stamp_half_size(np.max(_check_fwhm(fwhm, "fwhm"))) + 1.0
+    box = np.array([[-0.5 - pad, -0.5 - pad], [nx - 0.5 + pad, -0.5 - pad],
+                    [-0.5 - pad, ny - 0.5 + pad], [nx - 0.5 + pad, ny - 0.5 + pad]])
+    corners = np.vstack([np.array(_map_xy(m, box[:, 0], box[:, 1])).T for m in mats])
+    (x0, y0), (x1, y1) = corners.min(axis=0), corners.max(axis=0)
+    area = abs(np.linalg.det(mats[0][:2, :2])) * nx * ny
+    count = int(rng_stars.poisson(n_stars * (x1 - x0) * (y1 - y0) / area))
+    sx, sy = rng_stars.uniform(x0, x1, count), rng_stars.uniform(y0, y1, count)
+    flux = _draw_fluxes(rng_stars, count, lo, hi, alpha)
+    frames = []
+    for m, rng in zip(mats, _spawn(rng_frames, len(mats))):
+        fx, fy = _map_xy(np.linalg.inv(m), sx, sy)
+        keep = _inside(fx, fy, shape, pad)
+        frames.append(simulate_image(shape, fx[keep], fy[keep], flux[keep], fwhm=fwhm,
+                                     background=background, read_noise=read_noise, gain=gain,
+                                     noise=noise, seed=rng, dtype=dtype))
+    stars = _star_table(sx, sy, flux, np.arange(count))
+    meta = dict(shape=shape, n_stars=n_stars, fwhm=fwhm, seed=seed)
+    return SimulatedViews(frames, [from_matrix(m) for m in mats], stars, meta)

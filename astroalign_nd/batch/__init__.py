@@ -15,6 +15,9 @@ from .core import register_batch
 from .planning import plan_outputs
 from .canvas import union_canvas
 from .reference import reference_on_canvas, write_reference
+from .sequence import SequenceSolution, solve_sequence
+from .links import Link
 
 __all__ = ['FrameResult', 'BatchResult', 'register_batch', 'plan_outputs', 'union_canvas',
-           'reference_on_canvas', 'write_reference']
+           'reference_on_canvas', 'write_reference', 'solve_sequence', 'SequenceSolution',
+           'Link']

@@ -20,6 +20,7 @@ from .frame import _Config, _Job, _shifted, _stream_jobs
 from .planning import _StreamNamer, _display_names, _is_path, _plan_outputs
 from .canvas import _canvas_wcs, _kept_on_canvas, _union_grid, _valid_margin
 from .runners import _execute
+from .sequence import SOLVE_OPTIONS, solve_jobs
 
 __all__ = ['register_batch']
 
@@ -48,7 +49,7 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
                    order: str | int = "bilinear", conserve_flux: bool = False,
                    fill_value: float = np.nan, method: str = "interpolate", unit: Any = None,
                    hdu: int | str | None = None, add_keyword: bool = True,
-                   **options: Any) -> BatchResult:
+                   solve: str = "pairwise", **options: Any) -> BatchResult:
     """
     Register every frame of ``sources`` onto ``target``.
 
@@ -118,6 +119,19 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
         leaves the frames' headers as they were, so it cannot be combined
         with ``skip_existing`` (resuming reads the transform back from the
         outputs' headers).
+    solve : {'pairwise', 'global'}, optional
+        'pairwise' (default): each frame is registered onto the target on
+        its own.  'global': every frame's transform is solved together
+        (`~astroalign_nd.solve_sequence`: the frames linked to each other
+        and to the target, one least-squares solution over all their
+        stars), so that a frame that does not overlap the target is
+        registered through its neighbours, and a link that disagrees with
+        the rest is rejected; then every frame is resampled with its
+        transform.  Each frame's ``quality`` then also holds ``n_links``
+        and ``predicted_error`` (px).  The frames are held in memory
+        during the solve, and a generator's are collected into a list.
+        ``solve_sequence``'s own options (``n_stars``, ``all_pairs``,
+        ``n_hubs``, ``min_overlap``, ``link_tolerance``) go in ``**options``.
     hdu : int or str, optional
         The HDU to read from FITS files (frames and target), as in
         `~astroalign_nd.find_transform`; by default the first one with
@@ -174,12 +188,10 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     True
     """
     _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, suffix, client,
-                     workers)
+                     workers, solve)
     resample = ResampleConfig(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
                               method=method, add_keyword=add_keyword)
-    if isinstance(target, Reference):
-        # The reference's detection options are the batch's, unless overridden here.
-        options = {**target.detect_options, **options}
+    options, global_options = _split_options(target, options, solve)
     # Every option checked once, and the reference's stars and triangles
     # computed once, before it is shipped to the workers.
     config = RegistrationConfig.from_keywords(**options)
@@ -188,14 +200,15 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     # A list of (frame, label); or, for a generator, an iterator of them.
     items, frames_hdu = batch_frames(sources, hdu)
     stream = not isinstance(items, list)
-    if stream and union:
+    if stream and (union or solve == "global"):
         items, stream = list(items), False  # pass 2 needs every frame again
     protected = [os.fspath(target)] if _is_path(target) else []
     if output_dir is not None:
         output_dir = os.fspath(output_dir)
         os.makedirs(output_dir, exist_ok=True)
         check_output_dir(output_dir)
-    jobs, outputs = _first_jobs(items, stream, union, output_dir, suffix, protected)
+    jobs, outputs = _first_jobs(items, stream, union or solve == "global", output_dir, suffix,
+                                protected)
     apply_options = dict(asdict(resample), unit=unit)
     cfg = _Config(reference=ref, options=config, apply_options=apply_options,
                   overwrite=overwrite, skip_existing=skip_existing, union=union,
@@ -205,6 +218,14 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     inflight = {}  # the jobs out on workers, by index (what an interrupt catches running)
     with _Report(callback, progress, total) as report:
         try:
+            if solve == "global":
+                found, solution = solve_jobs(jobs, items, target, ref,
+                                             {**options, **global_options}, client, report,
+                                             cfg)
+                result = _apply_found(found, items, outputs, cfg, client, workers, report,
+                                      _valid_margin(resample), inflight)
+                result.solution = solution
+                return result
             if union:
                 margin = _valid_margin(resample)
                 return _run_union(jobs, items, outputs, cfg, client, workers, report, margin,
@@ -275,9 +296,23 @@ class Interrupted(Exception):
     """A frame that an interrupted batch did not finish (the error of its result)."""
 
 
+def _split_options(target, options, solve):
+    """The search's options, and those of the joint solution (solve_sequence's own)."""
+    if isinstance(target, Reference):
+        # The reference's detection options are the batch's, unless overridden here.
+        options = {**target.detect_options, **options}
+    global_options = {k: options.pop(k) for k in SOLVE_OPTIONS if k in options}
+    if global_options and solve != "global":
+        raise TypeError(f"{sorted(global_options)} are options of solve='global'; pass "
+                        "solve='global' too, or leave them out.")
+    return options, global_options
+
+
 def _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, suffix, client,
-                     workers):
+                     workers, solve="pairwise"):
     """Refuse `register_batch`'s bad arguments before any work."""
+    if solve not in ("pairwise", "global"):
+        raise ValueError(f"solve must be 'pairwise' or 'global'; got {solve!r}.")
     if _is_path(sources):
         raise TypeError("sources must be a list of frames or paths, not a single path; "
                         f"pass [{os.fspath(sources)!r}], or an ImageFileCollection for a "
@@ -363,7 +398,15 @@ def _run_union(jobs, items, outputs, cfg, client, workers, report, margin, infli
             else:
                 found[job.index] = res
                 report.tick()
-    shape, offset = _union_grid(found, cfg.reference.shape, margin)
+    return _apply_found(found, items, outputs, cfg, client, workers, report, margin, inflight)
+
+
+def _apply_found(found, items, outputs, cfg, client, workers, report, margin, inflight):
+    """The resampling pass: each frame of ``found`` (index -> FrameResult) with its transform."""
+    if cfg.union:
+        shape, offset = _union_grid(found, cfg.reference.shape, margin)
+    else:
+        shape, offset = tuple(cfg.reference.shape), (0, 0)
     wcs = _canvas_wcs(cfg.reference._parsed.wcs, offset, shape)
     # Pass 2: resample onto the canvas.
     jobs2 = []
@@ -376,7 +419,8 @@ def _run_union(jobs, items, outputs, cfg, client, workers, report, margin, infli
                 continue
         jobs2.append(_Job(i, items[i][0], res.name, outputs[i], stage="apply",
                           transform=_shifted(res.transform, offset, sign=-1),
-                          quality=res.quality, canvas=(shape, offset, wcs),
+                          quality=res.quality,
+                          canvas=(shape, offset, wcs) if cfg.union else None,
                           source_shape=res.shape, points=res.points))
     seconds = {i: found[i].seconds for i in found}
     with closing(_execute(jobs2, cfg, client, workers, inflight=inflight)) as run:

@@ -122,6 +122,9 @@ class BatchResult:
     canvas_offset : tuple or None
         ``(x0, y0)``: reference pixel coordinates of the output grid's pixel
         ``(0, 0)``; ``(0, 0)`` for ``canvas='reference'``.
+    solution : `~astroalign_nd.batch.SequenceSolution` or None
+        The joint solution of ``solve='global'`` (its links, their
+        residuals, the rejected ones); None otherwise.
 
     Examples
     --------
@@ -144,6 +147,7 @@ class BatchResult:
     frames: list
     canvas_shape: tuple = None
     canvas_offset: tuple = (0, 0)
+    solution: object = field(default=None, repr=False)
 
     @property
     def succeeded(self):
@@ -169,8 +173,9 @@ class BatchResult:
         ``log10_false_alarm``, ``shift_x`` and ``shift_y`` (px),
         ``rotation`` (deg) and ``scale`` of the source-to-reference
         transform (its linear part, whatever the canvas; NaN for a failed
-        frame), ``seconds``, ``error``, ``output`` and ``source``.  Write it
-        with ``result.to_table().write('night.ecsv')``.
+        frame), ``seconds``, ``error``, ``output`` and ``source``; with
+        ``solve='global'`` also ``n_links`` and ``predicted_error`` (px).
+        Write it with ``result.to_table().write('night.ecsv')``.
         """
         rows = []
         for f in self.frames:
@@ -189,6 +194,11 @@ class BatchResult:
         t["rms"].unit = t["shift_x"].unit = t["shift_y"].unit = "pix"
         t["rotation"].unit = "deg"
         t["seconds"].unit = "s"
+        if self.solution is not None:
+            qs = [f.quality or {} for f in self.frames]
+            t["n_links"] = [int(q.get("n_links", 0)) for q in qs]
+            t["predicted_error"] = [float(q.get("predicted_error", np.nan)) for q in qs]
+            t["predicted_error"].unit = "pix"
         if self.canvas_shape is not None:
             t.meta["canvas_shape"] = list(self.canvas_shape)
             t.meta["canvas_offset"] = list(self.canvas_offset)
@@ -203,6 +213,17 @@ class BatchResult:
         if self.failed:
             line += f", {len(self.failed)} failed"
         lines = [line]
+        if self.solution is not None:
+            sol = self.solution
+            lines.append(f"  global solution: {len(sol.accepted)} links, {sol.n_stars} stars, "
+                         f"{len(sol.rejected)} link(s) rejected")
+            lines += [f"  REJECTED link {k.source}->{k.target}: {k.reason}"
+                      for k in sol.rejected]
+            for f in self.frames:
+                q = f.quality or {}
+                if "n_links" in q:
+                    lines.append(f"  {f.name}: {q['n_links']} links, predicted error "
+                                 f"{q['predicted_error']:.3f} px")
         for f in self.failed:
             lines.append(f"  FAILED {f.name}: {f.error}")
         return "\n".join(lines)

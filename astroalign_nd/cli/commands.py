@@ -131,6 +131,8 @@ def _frame_line(f):
         fig.append(f"RMS {q['rms']:.3f} px")
     if "log10_false_alarm" in q:
         fig.append(f"log10 FA {q['log10_false_alarm']:.1f}")
+    if "n_links" in q:  # solve='global'
+        fig.append(f"{q['n_links']} links, predicted error {q['predicted_error']:.3f} px")
     what = "ok" if f.status == "registered" else "skipped (complete output there)"
     if not f.quality and f.status == "skipped":  # the reference, kept
         return f"{f.name}: {what} -> {f.output}"
@@ -269,7 +271,7 @@ def _cmd_batch(args):
             sources, target, output_dir=args.output_dir, overwrite=args.overwrite,
             skip_existing=args.skip_existing, canvas=args.canvas, client=client,
             workers=args.workers or None, callback=_frame_reporter(n, bar), unit=args.unit,
-            **_registration_kwargs(args))
+            solve=args.solve, **_registration_kwargs(args))
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the workers are stopped
         result = getattr(exc, "partial_result", None)
         if result is None:

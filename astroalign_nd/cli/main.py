@@ -100,6 +100,11 @@ def _add_batch_command(sub, reg_opts):
     p.add_argument("--canvas", choices=("reference", "union"), default="reference",
                    help="output grid: the reference's (default), or 'union', a grid holding "
                    "every frame (for dithered and mosaic sets)")
+    p.add_argument("--global", dest="solve", action="store_const", const="global",
+                   default="pairwise",
+                   help="solve every frame's transform together (solve_sequence): frames "
+                   "linked to each other, one least-squares solution over all their stars; "
+                   "for mosaics and long drifts")
     p.add_argument("--summary", metavar="FILE.ecsv", default=None,
                    help="write one row per frame (name, status, matches, RMS, false alarm, "
                    "shift, rotation, scale, seconds, error), the reference's first, to this "

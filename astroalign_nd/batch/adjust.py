@@ -1,0 +1,315 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+The joint least squares of `~astroalign_nd.solve_sequence`: every frame's
+transform to the reference frame at once.
+
+Two problems, both sparse and solved by Gauss-Newton with SuperLU
+(`scipy.sparse.linalg.splu`):
+
+* the link adjustment: the frame transforms alone, from the matched pairs
+  of every link (``T_a(p_a) = T_b(p_b)``); its misfit per link is what
+  rejects a link that disagrees with the rest;
+* the bundle adjustment: the frame transforms and every star's position in
+  the common frame (``T_f(p) = X_s`` for each detection of each star), the
+  star positions eliminated by their Schur complement (each is the weighted
+  mean of its detections), so the reduced system holds only the frames'
+  parameters.  Its inverse is the parameters' covariance.
+
+Each frame's parameters act on its pixel coordinates centred on the frame
+(and with y flipped for a mirrored frame), which keeps the problem well
+conditioned.  The reference frame is held fixed at the identity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import splu
+
+__all__ = []
+
+#: The number of parameters of each linear type the solve supports.
+N_PARAMS = {"translation": 2, "euclidean": 3, "similarity": 4, "affine": 6}
+
+
+@dataclass
+class Frames:
+    """The frames' parametrisation: centres, parities, parameters."""
+
+    kind: str
+    centres: np.ndarray  # (F, 2)
+    parity: np.ndarray  # (F,) +1 or -1
+    theta: np.ndarray  # (F, k)
+    reference: int
+
+    def local(self, f, pts):
+        """Frame ``f``'s pixel positions in its centred (and unmirrored) coordinates."""
+        q = np.asarray(pts, float) - self.centres[f]
+        q[:, 1] *= self.parity[f]
+        return q
+
+    def index(self):
+        """Column offset of each frame's parameters (-1 for the reference)."""
+        k = N_PARAMS[self.kind]
+        cols = np.full(len(self.theta), -1)
+        free = [f for f in range(len(self.theta)) if f != self.reference]
+        cols[free] = np.arange(len(free)) * k
+        return cols, len(free) * k
+
+
+def predict(kind, theta, q):
+    """``T(q)`` for parameters ``theta`` and centred points ``q`` (n, 2)."""
+    x, y = q[:, 0], q[:, 1]
+    if kind == "translation":
+        return q + theta[:2]
+    if kind == "euclidean":
+        c, s = np.cos(theta[0]), np.sin(theta[0])
+        return np.column_stack([c * x - s * y + theta[1], s * x + c * y + theta[2]])
+    if kind == "similarity":
+        a, b = theta[0], theta[1]
+        return np.column_stack([a * x - b * y + theta[2], b * x + a * y + theta[3]])
+    a, b, c, d = theta[:4]
+    return np.column_stack([a * x + b * y + theta[4], c * x + d * y + theta[5]])
+
+
+def jacobian(kind, theta, q):
+    """(n, 2, k): the derivative of `predict` with respect to ``theta``."""
+    n = len(q)
+    x, y = q[:, 0], q[:, 1]
+    jac = np.zeros((n, 2, N_PARAMS[kind]))
+    if kind == "translation":
+        jac[:, 0, 0] = jac[:, 1, 1] = 1.0
+    elif kind == "euclidean":
+        c, s = np.cos(theta[0]), np.sin(theta[0])
+        jac[:, 0, 0], jac[:, 1, 0] = -s * x - c * y, c * x - s * y
+        jac[:, 0, 1] = jac[:, 1, 2] = 1.0
+    elif kind == "similarity":
+        jac[:, 0, 0], jac[:, 0, 1], jac[:, 0, 2] = x, -y, 1.0
+        jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 3] = y, x, 1.0
+    else:
+        jac[:, 0, 0], jac[:, 0, 1], jac[:, 0, 4] = x, y, 1.0
+        jac[:, 1, 2], jac[:, 1, 3], jac[:, 1, 5] = x, y, 1.0
+    return jac
+
+
+def theta_from_matrix(kind, m, centre, parity):
+    """The parameters of the 3x3 pixel-to-common matrix ``m`` (its nearest of ``kind``)."""
+    flip = np.diag([1.0, parity])
+    lin = m[:2, :2] @ flip
+    t = m[:2, :2] @ centre + m[:2, 2]
+    if kind == "translation":
+        return t.copy()
+    if kind == "affine":
+        return np.array([*lin.ravel(), *t])
+    a, b = (lin[0, 0] + lin[1, 1]) / 2.0, (lin[1, 0] - lin[0, 1]) / 2.0
+    if kind == "euclidean":
+        return np.array([np.arctan2(b, a), *t])
+    return np.array([a, b, *t])
+
+
+def matrix_from_theta(kind, theta, centre, parity):
+    """The 3x3 pixel-to-common matrix of the parameters ``theta``."""
+    flip = np.diag([1.0, parity])
+    if kind == "translation":
+        lin, t = np.eye(2), theta[:2]
+    elif kind == "euclidean":
+        c, s = np.cos(theta[0]), np.sin(theta[0])
+        lin, t = np.array([[c, -s], [s, c]]), theta[1:]
+    elif kind == "similarity":
+        lin, t = np.array([[theta[0], -theta[1]], [theta[1], theta[0]]]), theta[2:]
+    else:
+        lin, t = theta[:4].reshape(2, 2), theta[4:]
+    m = np.eye(3)
+    m[:2, :2] = lin @ flip
+    m[:2, 2] = t - lin @ flip @ centre
+    return m
+
+
+def _blocks(rows, cols, vals, shape):
+    return sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                     np.concatenate(cols))),
+                             shape=shape).tocsc()
+
+
+def _normal_terms(frames, f, q, w, cols):
+    """(jacobian (n, 2, k), its normal block k x k, the prediction) of frame ``f``'s points."""
+    jac = jacobian(frames.kind, frames.theta[f], q)
+    block = np.einsum("nik,n,nil->kl", jac, w, jac)
+    return jac, block, predict(frames.kind, frames.theta[f], q)
+
+
+def _solve(normal, rhs):
+    """``normal @ x = rhs`` (sparse, symmetric positive definite); None if singular."""
+    if normal.shape[0] == 0:
+        return np.zeros(0), None
+    try:
+        lu = splu(sparse.csc_matrix(normal))
+    except RuntimeError:  # singular: a frame with too few constraints
+        return None, None
+    return lu.solve(rhs), lu
+
+
+def link_step(frames, pairs):
+    """
+    One Gauss-Newton step of the link adjustment.
+
+    ``pairs``: one ``(a, b, qa, qb, w)`` per link, ``qa``/``qb`` the matched
+    points (frames' local coordinates), ``w`` their weights.  Returns the
+    parameter change (F, k) and each link's residuals (common frame pixels).
+    """
+    cols, p = frames.index()
+    k = N_PARAMS[frames.kind]
+    rows_i, cols_i, vals, rhs, resid = [], [], [], np.zeros(p), []
+    grid = np.arange(k)
+    for a, b, qa, qb, w in pairs:
+        ja, _, pa = _normal_terms(frames, a, qa, w, cols)
+        jb, _, pb = _normal_terms(frames, b, qb, w, cols)
+        r = pa - pb
+        resid.append(r)
+        for f, jf, sf in ((a, ja, 1.0), (b, jb, -1.0)):
+            if cols[f] < 0:
+                continue
+            rhs[cols[f] + grid] -= sf * np.einsum("nik,n,ni->k", jf, w, r)
+            for g, jg, sg in ((a, ja, 1.0), (b, jb, -1.0)):
+                if cols[g] < 0:
+                    continue
+                blk = sf * sg * np.einsum("nik,n,nil->kl", jf, w, jg)
+                rr, cc = np.meshgrid(cols[f] + grid, cols[g] + grid, indexing="ij")
+                rows_i.append(rr.ravel())
+                cols_i.append(cc.ravel())
+                vals.append(blk.ravel())
+    normal = _blocks(rows_i, cols_i, vals, (p, p)) if vals else sparse.csc_matrix((p, p))
+    delta, _ = _solve(normal, rhs)
+    return _unpack(frames, delta, cols), resid
+
+
+def _unpack(frames, delta, cols):
+    if delta is None:
+        return None
+    k = N_PARAMS[frames.kind]
+    out = np.zeros_like(frames.theta)
+    for f in range(len(out)):
+        if cols[f] >= 0:
+            out[f] = delta[cols[f]:cols[f] + k]
+    return out
+
+
+@dataclass
+class Observations:
+    """The detections of the stars: frame, track (star), local position, weight."""
+
+    frame: np.ndarray
+    track: np.ndarray
+    q: np.ndarray
+    w: np.ndarray
+    n_tracks: int
+    var: np.ndarray = None  # the detections' own variances (per axis), before any jitter
+
+
+def jitter(r2, var, dof):
+    """
+    Extra variance ``j2`` (per axis) so that ``sum(r2 / (var + j2)) = dof``
+    (0 when none is needed): what the detections' own errors leave out.
+    """
+    if dof <= 0 or np.sum(r2 / var) <= dof:
+        return 0.0
+    lo, hi = 0.0, float(np.max(r2)) + 1e-12
+    for _ in range(50):  # bisection: the sum decreases as j2 grows
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.sum(r2 / (var + mid)) > dof else (lo, mid)
+    return hi
+
+
+def star_positions(frames, obs):
+    """Each track's common-frame position: the weighted mean of its detections (S, 2)."""
+    pred = _predictions(frames, obs)
+    wsum = np.bincount(obs.track, obs.w, obs.n_tracks)
+    xs = np.column_stack([np.bincount(obs.track, obs.w * pred[:, i], obs.n_tracks)
+                          for i in range(2)])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return xs / wsum[:, None], pred
+
+
+def _predictions(frames, obs):
+    pred = np.empty_like(obs.q)
+    for f in np.unique(obs.frame):
+        sel = obs.frame == f
+        pred[sel] = predict(frames.kind, frames.theta[f], obs.q[sel])
+    return pred
+
+
+def bundle_step(frames, obs):
+    """
+    One Gauss-Newton step of the bundle adjustment, the star positions
+    eliminated (Schur complement).
+
+    Returns the parameter change (F, k) or None when the system is
+    singular, the residuals (n, 2) at the current parameters, and the
+    SuperLU factor of the reduced normal matrix (for the covariance).
+    """
+    cols, p = frames.index()
+    k = N_PARAMS[frames.kind]
+    xs, pred = star_positions(frames, obs)
+    resid = pred - xs[obs.track]
+    jac = np.zeros((len(obs.q), 2, k))
+    for f in np.unique(obs.frame):
+        sel = obs.frame == f
+        jac[sel] = jacobian(frames.kind, frames.theta[f], obs.q[sel])
+    free = cols[obs.frame] >= 0
+    wj = obs.w[:, None, None] * jac
+    # A: block diagonal (one k x k block per frame); B: frame-star coupling.
+    rows_a, cols_a, vals_a = [], [], []
+    grid = np.arange(k)
+    rhs = np.zeros(p)
+    for f in np.unique(obs.frame[free]):
+        sel = obs.frame == f
+        blk = np.einsum("nik,nil->kl", wj[sel], jac[sel])
+        rr, cc = np.meshgrid(cols[f] + grid, cols[f] + grid, indexing="ij")
+        rows_a.append(rr.ravel())
+        cols_a.append(cc.ravel())
+        vals_a.append(blk.ravel())
+        rhs[cols[f] + grid] -= np.einsum("nik,ni->k", wj[sel], resid[sel])
+    a = _blocks(rows_a, cols_a, vals_a, (p, p)) if vals_a else sparse.csc_matrix((p, p))
+    idx = np.nonzero(free)[0]
+    b_rows = (cols[obs.frame[idx]][:, None, None] + grid[None, None, :]).repeat(2, axis=1)
+    b_cols = np.broadcast_to((2 * obs.track[idx])[:, None, None] + np.arange(2)[None, :, None],
+                             b_rows.shape)
+    b = sparse.coo_matrix((-wj[idx].ravel(), (b_rows.ravel(), b_cols.ravel())),
+                          shape=(p, 2 * obs.n_tracks)).tocsr()
+    d = np.repeat(np.bincount(obs.track, obs.w, obs.n_tracks), 2).astype(float)
+    d_inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0)  # (a star all clipped: 0)
+    reduced = a - b @ sparse.diags(d_inv) @ b.T
+    # The residuals are those of the mean star positions: their gradient is
+    # zero, so the reduced right-hand side is the frames' own.
+    delta, lu = _solve(reduced, rhs)
+    return _unpack(frames, delta, cols), resid, lu
+
+
+def frame_covariances(frames, lu, scale):
+    """Each frame's (k, k) parameter covariance from the reduced normal matrix's factor."""
+    cols, p = frames.index()
+    k = N_PARAMS[frames.kind]
+    out = np.zeros((len(frames.theta), k, k))
+    if lu is None or p == 0:
+        return out
+    step = max(k, (4096 // k) * k)  # columns per solve: bounded memory
+    for start in range(0, p, step):
+        eye = np.zeros((p, min(step, p - start)))
+        eye[np.arange(start, start + eye.shape[1]), np.arange(eye.shape[1])] = 1.0
+        inv = lu.solve(eye)
+        for f in np.nonzero((cols >= start) & (cols < start + step))[0]:
+            c0 = cols[f]
+            out[f] = inv[c0:c0 + k, c0 - start:c0 - start + k] * scale
+    return out
+
+
+def predicted_error(frames, f, cov, shape):
+    """Largest 1-sigma position error (common-frame px) over the corners of frame ``f``."""
+    ny, nx = shape
+    corners = np.array([[-0.5, -0.5], [nx - 0.5, -0.5], [-0.5, ny - 0.5],
+                        [nx - 0.5, ny - 0.5]])
+    jac = jacobian(frames.kind, frames.theta[f], frames.local(f, corners))
+    var = np.einsum("nik,kl,nil->ni", jac, cov, jac)
+    return float(np.sqrt(np.max(var.sum(axis=1))))

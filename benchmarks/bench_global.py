@@ -1,0 +1,297 @@
+"""
+A night or a mosaic as one (issue 28): `solve_sequence` (the global
+solution) against pairwise registration to the reference (astroalign_nd's
+``find_transform`` onto a ``Reference``, and astroalign's
+``find_transform``), on the same inputs in one run.
+
+Parts (each can be run alone with ``--only``):
+
+* ``real``: the HAT-P-32 night (``real/pairs/exotic_hatp32_microobservatory``,
+  5 frames) and the Seestar sequences (``field/seestar_m94_*``, 5 frames,
+  and ``field/seestar_ngc7023_*``, 3 frames).  No truth: each frame's
+  global transform is compared with the pairwise ones (largest difference
+  over the frame), the pairwise transforms' loop closure over triplets
+  (``max |T_jk(T_ij(p)) - T_ik(p)|`` over frame i; the global solution
+  closes by construction) and the global solution's link residuals.
+* ``mosaic``: a simulated 3x3 mosaic (256x256 tiles, 20% overlaps,
+  reference at a corner): every tile's error against the truth.
+* ``sequence``: simulated 30-frame dithered sequences (256x256, 300 stars,
+  shifts up to 40 px, rotations up to 2 degrees, independent noise): the
+  median over frames of the largest error over the frame, global against
+  pairwise (ours and astroalign), pooled over ``--sequences``.
+* ``speed``: ``register_batch(solve='global')`` against
+  ``register_batch`` (pairwise onto one reference), both from FITS files
+  of ``--frames`` simulated 1024x1024 frames written to a temporary folder
+  and resampled there.
+
+Usage::
+
+    python benchmarks/bench_global.py [--data ../shared/data] [--only real mosaic ...]
+        [--sequences 8] [--frames 60] [--out benchmarks/results/issue28_global]
+"""
+
+import argparse
+import itertools
+import json
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+from astropy.io import fits
+
+import astroalign_nd
+from astroalign_nd import Reference, find_transform, register_batch, solve_sequence
+from astroalign_nd.simulate import dither_transforms, mosaic_transforms, simulate_views
+from astroalign_nd.transforms import as_matrix
+
+try:
+    import astroalign
+except ImportError:  # the peer is optional
+    astroalign = None
+
+HERE = Path(__file__).resolve().parent
+
+
+def max_diff(a, b, shape):
+    """Largest distance (px) over a grid of the frame between two transforms."""
+    ny, nx = shape
+    gx, gy = np.meshgrid(np.linspace(-0.5, nx - 0.5, 9), np.linspace(-0.5, ny - 0.5, 9))
+    p = np.column_stack([gx.ravel(), gy.ravel()])
+    ma, mb = as_matrix(a), as_matrix(b)
+    d = p @ ma[:2, :2].T + ma[:2, 2] - (p @ mb[:2, :2].T + mb[:2, 2])
+    return float(np.max(np.hypot(d[:, 0], d[:, 1])))
+
+
+def read(path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return np.asarray(fits.getdata(path), dtype=np.float32)
+
+
+def aa_matrix(src, dst):
+    """astroalign's source->target matrix, or None."""
+    if astroalign is None:
+        return None
+    try:
+        t, _ = astroalign.find_transform(src, dst)
+    except Exception:  # noqa: BLE001 - astroalign's failure is a result
+        return None
+    return np.asarray(t.params, float)
+
+
+def closure(mats, shapes):
+    """Loop closure of pairwise matrices ``mats[(i, j)]`` over every triplet (px)."""
+    out = []
+    for i, j, k in itertools.permutations(range(len(shapes)), 3):
+        if i < j < k and all(mats.get(p) is not None for p in ((i, j), (j, k), (i, k))):
+            out.append(max_diff(mats[(j, k)] @ mats[(i, j)], mats[(i, k)], shapes[i]))
+    return out
+
+
+def real_sequence(name, paths):
+    """The global solution against pairwise, on one real sequence."""
+    t0 = time.perf_counter()
+    sol = solve_sequence([str(p) for p in paths], reference=0)
+    t_global = time.perf_counter() - t0
+    data = [read(p) for p in paths]
+    t0 = time.perf_counter()
+    ref = Reference(str(paths[0]))
+    ours = [np.eye(3)] + [as_matrix(find_transform(str(p), ref)[0]) for p in paths[1:]]
+    t_ours = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    peer = [np.eye(3)] + [aa_matrix(d, data[0]) for d in data[1:]]
+    t_aa = time.perf_counter() - t0
+    shapes = [d.shape for d in data]
+    n = len(paths)
+    rows = []
+    for i in range(n):
+        g = sol.transforms[i]
+        rows.append(dict(
+            frame=Path(paths[i]).name, solved=g is not None,
+            n_links=int(g.meta["quality"]["n_links"]) if g is not None else 0,
+            predicted_error=float(sol.predicted_errors[i]),
+            global_vs_ours=max_diff(g, ours[i], shapes[i]) if g is not None else None,
+            global_vs_astroalign=(max_diff(g, peer[i], shapes[i])
+                                  if g is not None and peer[i] is not None else None)))
+    pair_ours = {(i, j): as_matrix(find_transform(str(paths[i]), str(paths[j]))[0])
+                 for i, j in itertools.permutations(range(n), 2) if i < j}
+    pair_aa = {(i, j): aa_matrix(data[i], data[j])
+               for i, j in itertools.permutations(range(n), 2) if i < j}
+    links = [dict(source=k.source, target=k.target, status=k.status, n_matches=k.n_matches,
+                  own_rms=k.rms, residual_rms=k.residual_rms, misfit=k.misfit)
+             for k in sol.links]
+    return dict(name=name, n_frames=n, all_solved=all(r["solved"] for r in rows),
+                frames=rows, links=links, n_stars=sol.n_stars,
+                closure_ours=closure(pair_ours, shapes), closure_astroalign=closure(pair_aa,
+                                                                                    shapes),
+                seconds=dict(global_=t_global, pairwise_ours=t_ours, pairwise_astroalign=t_aa))
+
+
+def run_real(data_dir):
+    real = Path(data_dir) / "real" / "pairs" / "exotic_hatp32_microobservatory"
+    field = Path(data_dir) / "field"
+    seqs = [("HAT-P-32", sorted(real.glob("*.FITS"))),
+            ("Seestar M94", sorted(field.glob("seestar_m94_*.fits.gz"))),
+            ("Seestar NGC 7023", sorted(field.glob("seestar_ngc7023_*.fits.gz")))]
+    return [real_sequence(name, paths) for name, paths in seqs if len(paths) >= 2]
+
+
+def run_mosaic(seed=3):
+    shape = (256, 256)
+    truth = mosaic_transforms((3, 3), shape, overlap=0.2)
+    seq = simulate_views(truth, shape, n_stars=500, flux_range=(5e3, 3e5), seed=seed)
+    t0 = time.perf_counter()
+    sol = solve_sequence(seq.frames, reference=0, n_stars=400)
+    seconds = time.perf_counter() - t0
+    errors = [max_diff(sol.transforms[i], seq.truth(i, 0), shape) if sol.transforms[i]
+              is not None else None for i in range(9)]
+    ref = Reference(seq.frames[0])
+    pairwise = []
+    for f in seq.frames[1:]:  # tiles that do not overlap the reference cannot be registered
+        try:
+            find_transform(f, ref)
+            pairwise.append(True)
+        except astroalign_nd.AstroalignError:
+            pairwise.append(False)
+    return dict(errors=errors, max_error=max(e for e in errors if e is not None),
+                predicted=[float(v) for v in sol.predicted_errors], seconds=seconds,
+                solved=sum(e is not None for e in errors),
+                pairwise_solved=1 + sum(pairwise), n_links=len(sol.accepted))
+
+
+def run_sequences(n_seq, n_stars=None):
+    shape = (256, 256)
+    glob, ours, peer = [], [], []
+    t_g = t_o = 0.0
+    for s in range(n_seq):
+        truth = dither_transforms(30, max_shift=40, max_rotation=2, shape=shape, seed=100 + s)
+        seq = simulate_views(truth, shape, n_stars=300, seed=200 + s)
+        t0 = time.perf_counter()
+        sol = solve_sequence(seq.frames, reference=0, n_stars=n_stars)
+        t_g += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        ref = Reference(seq.frames[0])
+        pw = [find_transform(f, ref)[0] for f in seq.frames[1:]]
+        t_o += time.perf_counter() - t0
+        g = [max_diff(sol.transforms[i], seq.truth(i, 0), shape) for i in range(1, 30)]
+        o = [max_diff(pw[i - 1], seq.truth(i, 0), shape) for i in range(1, 30)]
+        a = [max_diff(m, seq.truth(i, 0), shape) if m is not None else np.inf
+             for i, m in ((i, aa_matrix(seq.frames[i], seq.frames[0])) for i in range(1, 30))]
+        glob.append(np.median(g))
+        ours.append(np.median(o))
+        peer.append(np.median(a))
+    return dict(per_sequence=dict(global_=glob, pairwise_ours=ours, pairwise_astroalign=peer),
+                pooled_median_global=float(np.median(glob)),
+                pooled_median_pairwise_ours=float(np.median(ours)),
+                pooled_median_pairwise_astroalign=float(np.median(peer)),
+                ratio_global_to_ours=float(np.median(glob) / np.median(ours)),
+                seconds=dict(global_=t_g, pairwise_ours=t_o), n_stars=n_stars)
+
+
+def run_speed(n_frames):
+    shape = (1024, 1024)
+    truth = dither_transforms(n_frames, max_shift=60, max_rotation=1, shape=shape, seed=9)
+    seq = simulate_views(truth, shape, n_stars=800, seed=10)
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = []
+        for i, f in enumerate(seq.frames):
+            paths.append(str(Path(tmp) / f"f{i:03d}.fits"))
+            fits.writeto(paths[-1], f)
+        del seq
+        out = {}
+        for solve in ("pairwise", "global"):
+            dest = Path(tmp) / solve
+            t0 = time.perf_counter()
+            res = register_batch(paths[1:], paths[0], output_dir=dest, solve=solve)
+            out[solve] = time.perf_counter() - t0
+            assert not res.failed, res.summary()
+    return dict(n_frames=n_frames, shape=shape, seconds=out,
+                ratio_global_to_pairwise=out["global"] / out["pairwise"])
+
+
+def markdown(results):
+    lines = ["# Issue 28: the global solution (`solve_sequence`) against pairwise", ""]
+    for r in results.get("real", []):
+        diffs = [f["global_vs_ours"] for f in r["frames"] if f["global_vs_ours"] is not None]
+        lines += [f"## {r['name']} ({r['n_frames']} frames)", "",
+                  f"every frame solved: {r['all_solved']}; stars in the joint solve: "
+                  f"{r['n_stars']}; largest global-vs-pairwise (ours) difference over a frame: "
+                  f"{max(diffs):.3f} px",
+                  f"pairwise loop closure, median / max (px): ours "
+                  f"{_mm(r['closure_ours'])}, astroalign {_mm(r['closure_astroalign'])}", "",
+                  "| frame | links | predicted error (px) | global - ours (px) | "
+                  "global - astroalign (px) |", "|---|---|---|---|---|"]
+        for f in r["frames"]:
+            lines.append(f"| {f['frame']} | {f['n_links']} | {f['predicted_error']:.3f} | "
+                         f"{_f(f['global_vs_ours'])} | {_f(f['global_vs_astroalign'])} |")
+        lines += ["", "| link | status | matches | own RMS | residual RMS | misfit |",
+                  "|---|---|---|---|---|---|"]
+        for k in r["links"]:
+            lines.append(f"| {k['source']}->{k['target']} | {k['status']} | {k['n_matches']} | "
+                         f"{k['own_rms']:.3f} | {k['residual_rms']:.3f} | {k['misfit']:.3f} |")
+        s = r["seconds"]
+        lines += ["", f"seconds: global {s['global_']:.1f}, pairwise ours "
+                  f"{s['pairwise_ours']:.1f}, astroalign {s['pairwise_astroalign']:.1f}", ""]
+    if "mosaic" in results:
+        m = results["mosaic"]
+        lines += ["## Simulated 3x3 mosaic, 20% overlaps, reference at a corner", "",
+                  f"tiles solved: global {m['solved']}/9, pairwise to the reference "
+                  f"{m['pairwise_solved']}/9; largest error {m['max_error']:.4f} px; per tile: "
+                  + ", ".join(_f(e) for e in m["errors"]), ""]
+    for key in ("sequence", "sequence_deep"):
+        if key in results:
+            q = results[key]
+            lines += [f"## Simulated 30-frame dithered sequences ({key}, n_stars="
+                      f"{q['n_stars']})", "",
+                      f"median over frames of the largest error, pooled: global "
+                      f"{q['pooled_median_global']:.4f} px, pairwise ours "
+                      f"{q['pooled_median_pairwise_ours']:.4f} px, astroalign "
+                      f"{q['pooled_median_pairwise_astroalign']:.4f} px; ratio global/ours "
+                      f"{q['ratio_global_to_ours']:.3f}", ""]
+    if "speed" in results:
+        s = results["speed"]
+        lines += [f"## Speed: {s['n_frames']} frames of 1024x1024, detected, solved and "
+                  "resampled to files", "",
+                  f"register_batch pairwise {s['seconds']['pairwise']:.1f} s, "
+                  f"solve='global' {s['seconds']['global']:.1f} s: ratio "
+                  f"{s['ratio_global_to_pairwise']:.2f}", ""]
+    return "\n".join(lines)
+
+
+def _f(v):
+    return "-" if v is None else f"{v:.3f}"
+
+
+def _mm(v):
+    return f"{np.median(v):.3f} / {np.max(v):.3f}" if len(v) else "-"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", default=str(HERE.parent.parent / "shared" / "data"))
+    ap.add_argument("--only", nargs="+", default=["real", "mosaic", "sequence", "speed"])
+    ap.add_argument("--sequences", type=int, default=8)
+    ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument("--out", default=str(HERE / "results" / "issue28_global"))
+    args = ap.parse_args()
+    print(f"astroalign_nd {astroalign_nd.__version__} from {astroalign_nd.__file__}")
+    results = {}
+    if "real" in args.only:
+        results["real"] = run_real(args.data)
+    if "mosaic" in args.only:
+        results["mosaic"] = run_mosaic()
+    if "sequence" in args.only:
+        results["sequence"] = run_sequences(args.sequences)
+        results["sequence_deep"] = run_sequences(args.sequences, n_stars=300)
+    if "speed" in args.only:
+        results["speed"] = run_speed(args.frames)
+    text = markdown(results)
+    print(text)
+    Path(args.out + ".json").write_text(json.dumps(results, indent=1, default=float))
+    Path(args.out + ".md").write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
