@@ -229,4 +229,5 @@ def test_cli_batch_global(tmp_path, capsys):
     assert code == 0 and "global solution: 2 links" in out
     # Tile 2 does not overlap tile 0: registered through tile 1.
     assert "t2.fits: 1 links, predicted error" in out
-    assert sorted(os.listdir(tmp_path / "out")) == ["t1_aligned.fits", "t2_aligned.fits"]
+    assert sorted(os.listdir(tmp_path / "out")) == ["t0_reference.fits", "t1_aligned.fits",
+                                                    "t2_aligned.fits"]
