@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from ..transforms.convert import as_matrix
 from .results import FrameResult
-from .frame import _shifted
+from .frame import shifted_transform
 
 __all__ = ['union_canvas']
 
@@ -119,7 +119,7 @@ def _kept_on_canvas(res, shape, offset, overwrite):
     if it lies on another and may not be replaced, or None to redo it.
     """
     if tuple(res._grid[0]) == tuple(shape) and tuple(res._grid[1]) == tuple(offset):
-        res.transform = _shifted(res.transform, offset, sign=-1)
+        res.transform = shifted_transform(res.transform, offset, sign=-1)
         return res
     if not overwrite:
         return FrameResult(

@@ -16,7 +16,7 @@ from ..exceptions import warn
 from ..io.write import check_output_dir
 from ..registration import Reference, prepare_target
 from .results import BatchResult, FrameResult
-from .frame import _Config, _Job, _shifted, _stream_jobs
+from .frame import _Config, _Job, shifted_transform, _stream_jobs
 from .planning import _StreamNamer, _display_names, _is_path, _plan_outputs
 from .canvas import _canvas_wcs, _kept_on_canvas, _union_grid, _valid_margin
 from .runners import _execute
@@ -418,7 +418,7 @@ def _apply_found(found, items, outputs, cfg, client, workers, report, margin, in
                 report.done(i, kept)
                 continue
         jobs2.append(_Job(i, items[i][0], res.name, outputs[i], stage="apply",
-                          transform=_shifted(res.transform, offset, sign=-1),
+                          transform=shifted_transform(res.transform, offset, sign=-1),
                           quality=res.quality,
                           canvas=(shape, offset, wcs) if cfg.union else None,
                           source_shape=res.shape, points=res.points))

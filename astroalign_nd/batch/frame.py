@@ -127,7 +127,7 @@ def _run(job, cfg):
         if done is not None:
             transform = done["transform"]
             if cfg.union:  # back to reference pixels, for the canvas computation
-                transform = _shifted(transform, done["offset"], sign=+1)
+                transform = shifted_transform(transform, done["offset"], sign=+1)
             return FrameResult(name=job.name, status="skipped", transform=transform,
                                quality=done["quality"], output=job.output, source=src_path,
                                seconds=time.perf_counter() - t0, shape=done["source_shape"],
@@ -203,7 +203,7 @@ def canvas_name(reference, shape, offset):
             f"canvas pixel ({-int(offset[0])}, {-int(offset[1])}))")
 
 
-def _shifted(transform, offset, sign):
+def shifted_transform(transform, offset, sign):
     """``transform`` followed by a shift of ``sign * offset`` pixels."""
     m = as_matrix(transform).copy()
     m[0, 2] += sign * offset[0]

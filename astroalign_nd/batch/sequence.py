@@ -38,7 +38,7 @@ from ..registration import Reference
 from ..transforms.convert import as_matrix, from_matrix
 from . import adjust
 from .links import (Graph, Link, bridge_pairs, chain_pairs, choose_hubs, match_link, wanted)
-from .frame import _failed, _shifted
+from .frame import _failed, shifted_transform
 from .planning import _display_names, _is_path, _skip_or_refuse
 from .results import FrameResult
 
@@ -811,7 +811,7 @@ def _kept(job, done, cfg, src, seconds):
     """A frame whose complete output is kept (``skip_existing``)."""
     transform = done["transform"]
     if cfg.union:  # back to reference pixels, for the canvas computation
-        transform = _shifted(transform, done["offset"], sign=+1)
+        transform = shifted_transform(transform, done["offset"], sign=+1)
     return FrameResult(name=job.name, status="skipped", transform=transform,
                        quality=done["quality"], output=job.output, source=src,
                        seconds=seconds, shape=done["source_shape"],

@@ -353,7 +353,7 @@ def _check_plot_dir(args, target, sources):
 
 def _batch_figures(args, target, result, plots):
     """A figure for each frame registered in this run (no new search), and the night's."""
-    from astroalign_nd.batch.frame import _shifted
+    from astroalign_nd.batch.frame import shifted_transform
     from astroalign_nd.visualization import save_diagnostic_figure, save_night_figure
 
     hdu = _registration_kwargs(args)["hdu"]
@@ -364,7 +364,7 @@ def _batch_figures(args, target, result, plots):
         # The figure compares on the reference's grid: a union canvas's frame is
         # resampled again there (from the transform found, not a new search).
         union = args.canvas == "union"
-        transform = _shifted(f.transform, result.canvas_offset, sign=+1) if union \
+        transform = shifted_transform(f.transform, result.canvas_offset, sign=+1) if union \
             else f.transform
         aligned = None if union else f.output
         if isinstance(getattr(transform, "meta", None), dict) and f.quality:
