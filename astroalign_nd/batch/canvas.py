@@ -84,7 +84,8 @@ def union_canvas(transforms, shapes, reference_shape, margin=0.0):
     return (y1 - y0 + 1, x1 - x0 + 1), (x0, y0)
 
 
-def _canvas_wcs(wcs, offset, shape):
+def canvas_wcs(wcs, offset, shape):
+    """The reference's WCS on a canvas: its reference pixel shifted by ``offset``."""
     if wcs is None:
         return None
     w = wcs.deepcopy()

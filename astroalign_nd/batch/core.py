@@ -18,7 +18,7 @@ from ..registration import Reference, prepare_target
 from .results import BatchResult, FrameResult
 from .frame import _Config, _Job, shifted_transform, _stream_jobs
 from .planning import _StreamNamer, _display_names, _is_path, _plan_outputs
-from .canvas import _canvas_wcs, _kept_on_canvas, _union_grid, _valid_margin
+from .canvas import canvas_wcs, _kept_on_canvas, _union_grid, _valid_margin
 from .runners import _execute
 from .sequence import SOLVE_OPTIONS, solve_jobs
 
@@ -407,7 +407,7 @@ def _apply_found(found, items, outputs, cfg, client, workers, report, margin, in
         shape, offset = _union_grid(found, cfg.reference.shape, margin)
     else:
         shape, offset = tuple(cfg.reference.shape), (0, 0)
-    wcs = _canvas_wcs(cfg.reference._parsed.wcs, offset, shape)
+    wcs = canvas_wcs(cfg.reference._parsed.wcs, offset, shape)
     # Pass 2: resample onto the canvas.
     jobs2 = []
     for i in sorted(found):

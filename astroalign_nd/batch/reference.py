@@ -14,7 +14,7 @@ from .._input import parse_input
 from ..io import writer_for
 from ..resample import apply_transform
 from ..transforms.convert import from_matrix
-from .canvas import _canvas_wcs
+from .canvas import canvas_wcs
 from .frame import canvas_name
 from .planning import _CANVAS_KEYS, _SOURCE_SHAPE_KEYS, _output_name, _read_done, _stem
 from .results import BatchResult, FrameResult
@@ -78,7 +78,7 @@ def reference_on_canvas(target: Any, result: BatchResult | None = None, *,
                           fill_value=fill_value, unit=unit, add_keyword=add_keyword,
                           target_name=canvas_name(ref, shape, offset) if union else None)
     if union and ref.wcs is not None:
-        ccd.wcs = _canvas_wcs(ref.wcs, offset, shape)
+        ccd.wcs = canvas_wcs(ref.wcs, offset, shape)
     if add_keyword:
         ccd.meta[REFERENCE_KEY] = (True, "the batch's reference frame")
         ccd.meta["HISTORY"] = "astroalign_nd: this is the batch's reference frame"

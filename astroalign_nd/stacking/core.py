@@ -13,7 +13,8 @@ import numpy as np
 from astropy.nddata import CCDData, StdDevUncertainty
 
 from .._input import batch_frames, parse_input
-from ..batch import BatchResult, register_batch
+from ..batch import BatchResult, reference_on_canvas, register_batch
+from ..batch.canvas import canvas_wcs
 from ..exceptions import TransformNotFoundError, warn
 from ..io import write_ccddata, write_output
 from ..io.write import check_not_input, check_output_path
@@ -169,8 +170,8 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     with _aligned_folder(aligned_dir, temp_dir) as folder:
         result = _register([it for it, _ in others], ref, folder, canvas, overwrite, workers,
                            progress, hdu, unit, order, options, ref_item[0])
-        frames_ = [(_reference_name(ref_item), _reference_on_canvas(ref, result, folder),
-                    ref_item[1])]
+        on_canvas = _reference_on_canvas(ref_item[0], result, folder, hdu, unit)
+        frames_ = [(_reference_name(ref_item), on_canvas, ref_item[1])]
         frames_ += [(f.name, f.output, k) for f, (_, k) in zip(result.frames, others) if f.ok]
         rejected = [(f.name, f.error) for f in result.failed]
         if others and not result.succeeded:
@@ -182,7 +183,7 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         value, variance, coverage = combine_files(
             [frames_[i][1] for i in used], stats, result.canvas_shape, opts, gain=gain,
             read_noise=read_noise, memory_limit=memory_limit)
-        wcs = _canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
+        wcs = canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
     ccd = _stacked(value, variance, coverage, ref, wcs, dtype, [frames_[i][0] for i in used],
                    stats, rejected, opts)
     if output is not None:
@@ -320,22 +321,9 @@ def _register(others, ref, folder, canvas, overwrite, workers, progress, hdu, un
                           unit=unit, order=order, **options)
 
 
-def _reference_on_canvas(ref, result, folder):
-    """The reference, placed on the canvas (whole pixels: no resampling), as a file."""
-    (ny, nx), (x0, y0) = result.canvas_shape, result.canvas_offset
-    data = np.full((ny, nx), np.nan, dtype=np.float32)
-    mask = np.ones((ny, nx), dtype=bool)
-    rows = slice(-y0, -y0 + ref.data.shape[0])
-    cols = slice(-x0, -x0 + ref.data.shape[1])
-    data[rows, cols] = ref.data
-    own = ~np.isfinite(ref.data) if ref.mask is None else (ref.mask | ~np.isfinite(ref.data))
-    mask[rows, cols] = own
-    unc = None
-    if ref.uncertainty is not None:
-        arr = np.full((ny, nx), np.nan, dtype=np.float64)
-        arr[rows, cols] = np.asarray(ref.uncertainty.array, dtype=np.float64)
-        unc = type(ref.uncertainty)(arr)
-    ccd = CCDData(data, mask=mask, uncertainty=unc, unit=ref.unit or "adu")
+def _reference_on_canvas(item, result, folder, hdu, unit):
+    """The reference on the canvas (`~astroalign_nd.batch.reference_on_canvas`), as a file."""
+    ccd = reference_on_canvas(item, result, hdu=hdu, unit=unit, add_keyword=False)
     path = os.path.join(folder, ".reference_on_canvas.fits")
     write_ccddata(ccd, path, overwrite=True)
     return path
@@ -370,16 +358,6 @@ def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit):
         weights = weights[[frames[i][2] for i in used]]
     frame_weights(stats, weights, gain, read_noise)
     return used, stats
-
-
-def _canvas_wcs(wcs, offset, shape):
-    """The reference's WCS on the canvas (its reference pixel shifted by the offset)."""
-    if wcs is None:
-        return None
-    w = wcs.deepcopy()
-    w.wcs.crpix = [w.wcs.crpix[0] - offset[0], w.wcs.crpix[1] - offset[1]]
-    w.pixel_shape = (shape[1], shape[0])
-    return w
 
 
 def _settings(opts, n_used):

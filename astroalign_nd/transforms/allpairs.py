@@ -35,7 +35,7 @@ from .fitting import fit_transform
 from .linear import LinearTransform2D
 from .registry import TRANSFORM_REGISTRY, transform_type_of
 from .selection import (_Poly, _Projective, _Similarity, _normalise, _predict, _projective_start,
-                        _wls, fit_nonlinear)
+                        _wls, fit_nonlinear, solve_normal_equations)
 
 __all__ = ['pair_all', 'AllPairs', 'pairing_radius', 'bounds']
 
@@ -310,14 +310,8 @@ def _normal_equations(cand, uv, dst):
 
 def _chunked_fit(cand, uv, dst):
     """Least squares of a linear candidate through its normal equations."""
-    n, v = _normal_equations(cand, uv, dst)
-    d = np.sqrt(np.diag(n))
-    if not np.all(d > 0):
-        return None
-    ns = n / np.outer(d, d)  # unit diagonal: the condition number is meaningful
-    if np.linalg.cond(ns) > 1e12:
-        return None
-    return np.linalg.solve(ns, v / d) / d
+    sol = solve_normal_equations(*_normal_equations(cand, uv, dst))
+    return None if sol is None else sol[0]
 
 
 def _fit_params(cand, uv, dst, params):

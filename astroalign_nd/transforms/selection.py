@@ -186,7 +186,14 @@ def _predict(cand, params, uv):
 def _solve(a, b):
     """Least squares through the normal equations (well conditioned: coordinates are
     normalised); (solution, inverse normal matrix), or None if rank deficient."""
-    n = a.T @ a
+    return solve_normal_equations(a.T @ a, a.T @ b)
+
+
+def solve_normal_equations(n, v):
+    """
+    ``(n^-1 v, n^-1)`` for a normal matrix ``n`` (scaled to unit diagonal
+    before it is judged and inverted), or None if it is rank deficient.
+    """
     d = np.sqrt(np.diag(n))
     if not np.all(d > 0):
         return None
@@ -194,7 +201,7 @@ def _solve(a, b):
     if np.linalg.cond(ns) > 1e12:
         return None
     inv = np.linalg.inv(ns) / np.outer(d, d)
-    return inv @ (a.T @ b), inv
+    return inv @ v, inv
 
 
 def _wls(cand, uv, dst, w, start=None):
