@@ -31,6 +31,41 @@ import numpy as np
 from .transforms.registry import (LINEAR_TYPES, NONLINEAR_TYPES, check_degree, is_nonlinear,
                                   transform_class)
 
+
+# The resampler's interpolation orders and methods, the one table of them.
+ORDERS = {"nearest-neighbor": 0, "bilinear": 1, "biquadratic": 2, "bicubic": 3}
+METHODS = ("interpolate", "exact")
+
+
+def order_index(order):
+    """
+    The interpolation order as an integer 0-3.
+
+    Parameters
+    ----------
+    order : str or int
+        One of the names in `ORDERS` or an integer from 0 to 3.
+
+    Raises
+    ------
+    ValueError
+        For any other value, naming the accepted ones.
+    """
+    if isinstance(order, str):
+        if order in ORDERS:
+            return ORDERS[order]
+    elif isinstance(order, numbers.Integral) and not isinstance(order, bool):
+        if 0 <= int(order) <= 3:
+            return int(order)
+    raise ValueError(f"order must be one of {list(ORDERS)} or an integer 0-3; got {order!r}.")
+
+
+def check_method(method):
+    """Raise ValueError unless ``method`` is one of `METHODS`."""
+    if method not in METHODS:
+        raise ValueError(f"method must be 'interpolate' or 'exact'; got {method!r}.")
+
+
 __all__ = ["DetectionConfig", "MatchingConfig", "ModelConfig", "ResampleConfig",
            "RegistrationConfig", "OPTIONS", "check_option", "cli_fields", "split_options",
            "astroalign_advice", "DEFAULT_TOLERANCE", "DEFAULT_NEIGHBORS"]
@@ -424,7 +459,7 @@ class ResampleConfig:
     Traceback (most recent call last):
     ...
     ValueError: order must be one of ['nearest-neighbor', 'bilinear', 'biquadratic', \
-'bicubic'] (or 0-3); got 'cubic'.
+'bicubic'] or an integer 0-3; got 'cubic'.
     """
 
     order: object = _option(
@@ -447,22 +482,9 @@ class ResampleConfig:
     add_keyword: bool = _option(True, None)
 
     def __post_init__(self):
-        # The resampler's table; imported here, so that the command line's --help stays fast.
-        from .resample.interpolation import ORDERS
-
-        order = self.order
-        if isinstance(order, str):
-            known = order in ORDERS
-        else:
-            known = (isinstance(order, numbers.Integral) and not isinstance(order, bool)
-                     and 0 <= int(order) <= 3)
-        if not known:
-            raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
         # Not a field (apply_transform takes the fields as keywords): derived from order.
-        object.__setattr__(self, "_order_index", ORDERS[order] if isinstance(order, str)
-                           else int(order))
-        if self.method not in ("interpolate", "exact"):
-            raise ValueError(f"method must be 'interpolate' or 'exact'; got {self.method!r}.")
+        object.__setattr__(self, "_order_index", order_index(self.order))
+        check_method(self.method)
 
     @property
     def order_index(self):

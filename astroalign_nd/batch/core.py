@@ -16,7 +16,8 @@ from ..exceptions import warn
 from ..io.write import check_output_dir
 from ..registration import Reference, prepare_target
 from .results import BatchResult, FrameResult
-from .frame import _Config, _Job, shifted_transform, _stream_jobs
+from .frame import (_Config, _Job, _failed, _own_output, _registered_before, _stream_jobs,
+                    shifted_transform)
 from .planning import _StreamNamer, _display_names, _is_path, _plan_outputs
 from .canvas import canvas_wcs, _kept_on_canvas, _union_grid, _valid_margin
 from .runners import _execute
@@ -268,8 +269,6 @@ def _interrupted(report, jobs, inflight, cfg, shape, exc):
     others as failed (not done), except a frame whose worker finished its
     output just before the stop (the summary matches the files).
     """
-    from .frame import _failed, _own_output, _registered_before
-
     why = str(exc) or type(exc).__name__
     results = dict(report.results)
     t0 = time.perf_counter()

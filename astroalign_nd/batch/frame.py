@@ -14,7 +14,7 @@ from ..resample import apply_transform
 from ..transforms import as_matrix, from_matrix
 from ..transforms.registry import transform_type_of
 from .results import FrameResult
-from .planning import _CANVAS_KEYS, _SOURCE_SHAPE_KEYS, _is_path, _skip_or_refuse
+from .planning import _CANVAS_KEYS, _SOURCE_SHAPE_KEYS, _is_path, _read_done, _skip_or_refuse
 
 __all__ = []
 
@@ -93,8 +93,6 @@ def _own_output(job, cfg):
     Its own: the file appeared (or was replaced) after the batch first sent
     the frame out, and its header names this batch and frame.
     """
-    from .planning import _read_done
-
     if job.output is None or job.before is None or cfg.batch_id is None or not cfg.add_keyword:
         return None
     now = _stat_key(job.output)

@@ -1,13 +1,12 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """Interpolation orders and the NumPy interpolation kernels (the compiled ones' fallback)."""
 
-import numbers
 import numpy as np
 
-__all__ = ['ORDERS']
+# The orders' table and their check live with the configuration.
+from ..config import ORDERS, order_index
 
-#: Interpolation orders by name (the names reproject and ccdproc use).
-ORDERS = {"nearest-neighbor": 0, "bilinear": 1, "biquadratic": 2, "bicubic": 3}
+__all__ = ['ORDERS']
 
 # Output pixels per block of the NumPy path: keeps its temporaries to tens of MB.
 _NUMPY_BLOCK_PIXELS = 1 << 18
@@ -105,14 +104,4 @@ def _resample_numpy(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask,
 # -- input checking --------------------------------------------------------------
 
 
-def _parse_order(order):
-    if isinstance(order, str):
-        key = order.lower()
-        if key in ORDERS:
-            return ORDERS[key]
-    elif isinstance(order, numbers.Integral) and not isinstance(order, bool):
-        if 0 <= int(order) <= 3:
-            return int(order)
-    raise ValueError(
-        f"order must be one of {list(ORDERS)} or an integer 0-3; got {order!r}."
-    )
+_parse_order = order_index

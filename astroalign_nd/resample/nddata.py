@@ -35,8 +35,9 @@ from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUnce
                             VarianceUncertainty)
 from .._input import parse_input
 from ..exceptions import AstroalignWarning, warn
-from ..config import ResampleConfig, astroalign_advice
-from ..io.header import add_provenance, check_quality, header_from_meta, header_without_wcs
+from ..config import ResampleConfig, astroalign_advice, check_method, order_index
+from ..io.header import (add_history, add_provenance, check_quality, fits_text, header_from_meta,
+                         header_without_wcs)
 from .coordinate_map import _MAP_BAND_PIXELS, _CoordinateMap, _parse_matrix
 from .interpolation import ORDERS
 from .core import resample, working_dtype
@@ -240,8 +241,6 @@ def _nonlinear_provenance(header, transform, cmap, quality, names):
     """
     from astropy.modeling import Model
 
-    from ..io.header import add_history, fits_text
-
     model = transform
     if not isinstance(model, Model):  # a projective matrix or scikit-image transform
         model = ProjectiveTransform.from_matrix(as_matrix(transform))
@@ -270,10 +269,8 @@ def _check_options(unexpected, order, method):
         raise TypeError(
             f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
             f"accepts {_ACCEPTED}.{astroalign_advice(unexpected)}")
-    if isinstance(order, str) and order not in ORDERS:
-        raise ValueError(f"order must be one of {list(ORDERS)} (or 0-3); got {order!r}.")
-    if method not in ("interpolate", "exact"):
-        raise ValueError(f"method must be 'interpolate' or 'exact'; got {method!r}.")
+    order_index(order)
+    check_method(method)
 
 
 def _target_grid(target, hdu):
@@ -511,8 +508,7 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
                                           fill_value=fill_value, conserve_flux=conserve_flux,
                                           parallel=parallel, _variance_kind=kind,
                                           _output_kind=out_kind)
-        order_name = order if isinstance(order, str) else {v: k for k, v in ORDERS.items()}[
-            int(order)]
+        order_name = {v: k for k, v in ORDERS.items()}[order_index(order)]
     if bad_unc is not None:
         _blank_uncertainty(var_out, mask_out, bad_unc, m, shape_out, method, order, parallel)
 
