@@ -161,3 +161,44 @@ def test_plot_refuses_an_input(tmp_path):
     with pytest.raises(ValueError, match="would destroy that input"):
         save_diagnostic_figure(str(src), str(src), str(dst), overwrite=True)
     assert src.read_bytes() == before
+
+
+def test_atomic_write_path_works_for_another_process(tmp_path):
+    """The yielded path is a path: a subprocess (an external tool) can write the file."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "tool.fits"
+    with atomic_write(out) as tmp:
+        subprocess.run([sys.executable, "-c",
+                        "import sys; open(sys.argv[1], 'wb').write(b'from a tool')", tmp],
+                       check=True)
+    assert out.read_bytes() == b"from a tool"
+    assert os.listdir(tmp_path) == ["tool.fits"]
+
+
+def test_register_refuses_its_own_image_as_the_plot(tmp_path, capsys):
+    """
+    ``--plot`` naming an input PNG (a plot's own format, so its ending is
+    accepted): refused before any work, the input untouched.
+    """
+    pytest.importorskip("matplotlib")
+    from skimage.io import imsave
+
+    from astroalign_nd.cli import main
+    from astroalign_nd.simulate import simulate_pair
+
+    pair = simulate_pair((128, 128), n_stars=60, rotation=10.0, seed=3)
+    names = []
+    for name, data in (("s.png", pair.source), ("t.png", pair.target)):
+        scaled = np.clip(data / np.percentile(data, 99.5) * 255, 0, 255).astype(np.uint8)
+        imsave(tmp_path / name, scaled)
+        names.append(tmp_path / name)
+    src, dst = names
+    before = src.read_bytes()
+    code = main(["register", str(src), str(dst), "-o", str(tmp_path / "out.fits"),
+                 "--plot", str(src), "--overwrite"])
+    assert code == 2
+    assert "would destroy that input" in capsys.readouterr().err
+    assert src.read_bytes() == before
+    assert not (tmp_path / "out.fits").exists()
