@@ -11,6 +11,7 @@ error; it must never write into the attacker's file nor publish a link.
 """
 
 import os
+import sys
 import threading
 
 import numpy as np
@@ -62,10 +63,17 @@ def test_planted_link_never_followed(tmp_path, how):
     bait.write_bytes(b"attacker's file")
     data = np.arange(600 * 600, dtype=np.float32).reshape(600, 600)
     attacker = _Attacker(str(folder), str(bait))
+    # Short GIL slices: the attacker thread gets its turns while a frame is written, as a
+    # process of another user would on a machine under load (a fixed 10 writes could end
+    # with no swap at all in a busy test run).
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-4)
     attacker.start()
     outcomes = []
     try:
-        for i in range(10):
+        for i in range(300):  # until the race has been run a few times
+            if i >= 10 and attacker.swaps >= 3:
+                break
             out = folder / f"frame{i}.fits"
             try:
                 if how == "write_ccddata":
@@ -82,11 +90,12 @@ def test_planted_link_never_followed(tmp_path, how):
     finally:
         attacker.stop.set()
         attacker.join(timeout=10)
+        sys.setswitchinterval(interval)
     assert bait.read_bytes() == b"attacker's file"  # never written into
     assert attacker.swaps > 0  # the race was really run
     # A swap is noticed and the write refused, or (through the private folder's descriptor)
     # it does not matter at all: most writes go through.
-    assert outcomes.count("written") >= 5, outcomes
+    assert outcomes.count("written") >= len(outcomes) // 2, outcomes
     assert not any(p.is_symlink() and not p.name.startswith(".") for p in folder.iterdir())
 
 
