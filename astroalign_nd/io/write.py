@@ -96,7 +96,9 @@ class _PrivateFolder:
         self.fd = fd
         # Where the system can name a file through an open folder (Linux), writers given a
         # path reach the file through the descriptor too, not through the folder's name.
-        proc = f"/proc/self/fd/{fd}"
+        # By this process's id, not ``self``: the path then works for other programs of the
+        # same user (a subprocess writing the file), and still never for another user.
+        proc = f"/proc/{os.getpid()}/fd/{fd}"
         if os.path.isdir(proc):
             self.temp = os.path.join(proc, self.name)
         return True
