@@ -29,6 +29,8 @@ _IN_JOB = False  # a worker is registering a frame (SIGTERM then unwinds instead
 
 #: Seconds an interrupted batch gives its workers to stop (after SIGTERM) before SIGKILL.
 _STOP_TIMEOUT = 5.0
+# Times a dask task lost with its worker's data (cancelled, not killed) is sent again.
+_DASK_RESUBMITS = 2
 
 
 class _WorkerStop(BaseException):
@@ -137,14 +139,18 @@ def _prepend(first, rest):
 
 
 def _execute_dask(jobs, cfg, client, stream, inflight):
+    from concurrent.futures import CancelledError
+
     from dask.distributed import as_completed
 
-    cfg_future = client.scatter(cfg, broadcast=True)
-    by_key, running = {}, as_completed()
+    shared = {"cfg": client.scatter(cfg, broadcast=True)}
+    by_key, running, tries = {}, as_completed(), collections.Counter()
 
     def submit(job):
         _queued(job, inflight)
-        fut = client.submit(_run, job, cfg_future, pure=False)
+        if shared["cfg"].status != "finished":  # its data lost with a worker: ship it again
+            shared["cfg"] = client.scatter(cfg, broadcast=True)
+        fut = client.submit(_run, job, shared["cfg"], pure=False)
         by_key[fut.key] = (job, fut)
         running.add(fut)
 
@@ -158,6 +164,15 @@ def _execute_dask(jobs, cfg, client, stream, inflight):
             job, _ = by_key.pop(fut.key)
             try:
                 res = fut.result()
+            except CancelledError as exc:
+                # A dependency forgotten when its worker died, not the frame's
+                # fault (a frame that kills its workers is KilledWorker): again.
+                fut.release()
+                tries[job.index] += 1
+                if tries[job.index] <= _DASK_RESUBMITS:
+                    submit(job)
+                    continue
+                res = _failed(job, exc, time.perf_counter())
             except Exception as exc:  # a worker died: report, go on
                 res = _failed(job, exc, time.perf_counter())
             fut.release()
