@@ -38,7 +38,7 @@ __all__ = ["cross_match", "CrossMatch", "read_catalog"]
 #: linear search gets ``2 * max_sources``, the most its escalation reads.
 DISTORTION_SEARCH_STARS = 2000
 
-#: Below this many sources, the k-d tree is queried in one thread (starting
+#: Below this many sources, the nearest targets are looked up in one thread (starting
 #: threads costs more than they save).
 THREADED_QUERY = 1 << 18
 
@@ -428,7 +428,8 @@ def cross_match(source: Any, target: Any, *, transform: Any = None,
     the pairs, the pairing radius is set from the fit's own residuals (the
     radius that loses the fewest true pairs and admits the fewest chance
     ones, between 3 and 5 sigma), and this repeats until the pairs no longer
-    change.  Millions of stars per side take one k-d tree and one query.
+    change.  Millions of stars per side take one grid of the targets and one
+    look-up.
 
     Parameters
     ----------

@@ -10,24 +10,27 @@ under the model, one source per target, as
 model on all the pairs, sets the pairing radius from the fit's own
 residuals, and repeats until the pairs no longer change.
 
-Bounded time and memory for millions of points: one k-d tree of the
-targets, one query of each source's two nearest targets, and, in later
-iterations, only the distances to these candidates.  A candidate list is
-exact for a moved prediction as long as the prediction moved by less than
-the gap to the next target: the sources where it is not are queried again
-(usually none).  The fits of the iterations are normal-equation fits of
-the model's design matrix (the same candidate models as the distortion
-stage, ``transforms.selection``), accumulated in chunks; the
-final model is fitted by `~astroalign_nd.transforms.fit_transform`.
+Bounded time and memory for millions of points: one grid of the targets
+(`~astroalign_nd._kernels.PointGrid`, cells of about ``GRID_STARS``
+stars), one look-up of each source's two nearest targets within the first
+radius (`~astroalign_nd._kernels.two_nearest`: compiled, or a k-d tree),
+and, in later iterations, only the distances to these candidates.  A
+candidate list is exact for a moved prediction as long as the prediction
+moved by less than the gap to the next target: the sources where it is
+not are looked up again (usually none).  The fits of the iterations are
+normal-equation fits of the model's design matrix (the same candidate
+models as the distortion stage, ``transforms.selection``), accumulated in
+chunks; the final model is `~astroalign_nd.transforms.fit_transform`'s, of
+the last of these fits for the linear models (the same least-squares
+problem), or fitted by it for the others.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
-
 from scipy.stats import poisson
 
+from .._kernels import PointGrid, two_nearest
 from ..exceptions import TooFewSourcesError, TransformNotFoundError
 from ..matching.pairing import resolve_claims
 from .convert import as_matrix
@@ -42,9 +45,9 @@ __all__ = ['pair_all', 'AllPairs', 'pairing_radius', 'bounds']
 #: Rows of the design matrix built at once (bounds the memory of a fit).
 CHUNK = 1 << 17
 
-#: Queries of more sources than this are made in the order of cells of this
-#: many pixels (for the cache).
-LOCALITY_FROM, LOCALITY_CELL = 4096, 64.0
+#: Target stars per cell of the grid of the nearest-neighbour look-ups
+#: (`~astroalign_nd._kernels.PointGrid`), on average.
+GRID_STARS = 0.5
 
 #: The pairing radius is kept between these many residual sigmas (per axis).
 MIN_SIGMAS, MAX_SIGMAS = 3.0, 5.0
@@ -114,35 +117,23 @@ class _Candidates:
     """Each source's two nearest targets at some prediction (its anchor)."""
 
     def __init__(self, targets, bound, workers):
-        # The tree holds the targets in sky order (its leaves' points then lie
-        # together in memory); ``rows`` maps them back to the caller's rows.
+        # The targets bucketed in cells of about GRID_STARS stars (and at least
+        # ``bound`` wide): a query reads its 3x3 cells (`two_nearest`).
         n = len(targets)
-        index = _sky_order(targets) if n > LOCALITY_FROM else np.arange(n)
-        held = np.take(targets, index, axis=0)  # (take: rows 15 times faster than [])
-        # (Unbalanced, larger leaves: built in half the time, queried as fast.)
-        self.tree = cKDTree(held, leafsize=32, balanced_tree=False, compact_nodes=False)
-        # One more row, at infinity, read by the tree's index of an absent
-        # neighbour (n): the candidates are gathered without masks.
+        self.grid = PointGrid(targets, float(bound), max_cells=max(int(n / GRID_STARS), 16))
+        held = self.grid.points
+        # One more row, at infinity, read by the index of an absent neighbour
+        # (n): the candidates are gathered without masks.
         self.x = np.append(held[:, 0], np.inf)
         self.y = np.append(held[:, 1], np.inf)
-        self.rows = np.append(index, n)
+        self.rows = np.append(self.grid.order[:n], n)
         self.bound, self.workers = float(bound), workers
         self.anchor = self.j = self.gap = self.cx = self.cy = None
 
     def _query(self, pred):
         """(indices, guard distance, candidate x, candidate y, nearest distance) of the
         two nearest targets."""
-        kw = dict(k=2, distance_upper_bound=self.bound, workers=self.workers)
-        if len(pred) > LOCALITY_FROM:
-            # Queried in the order of cells of the sky: neighbouring queries walk the
-            # same branches of the tree, which stay in the cache (twice as fast).
-            order = _sky_order(pred)
-            d, j = self.tree.query(np.take(pred, order, axis=0), **kw)
-            back = np.empty(len(order), np.intp)  # (1-D scatter, then rows taken: fast)
-            back[order] = np.arange(len(order))
-            d, j = np.take(d, back, axis=0), np.take(j, back, axis=0)
-        else:
-            d, j = self.tree.query(pred, **kw)
+        d, j = two_nearest(pred, self.grid, self.workers)
         # Absent candidates sit at infinity (their distance is infinite, never NaN);
         # any other target was beyond the second candidate (or the bound).
         return (self.rows[j], np.minimum(d[:, 1], self.bound), self.x[j], self.y[j],
@@ -197,16 +188,6 @@ def bounds(points):
     """
     x, y = points[:, 0], points[:, 1]
     return np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
-
-
-def _sky_order(points):
-    """An order of the points by cells of the sky, row after row."""
-    lo, hi = bounds(points)
-    # Cells of LOCALITY_CELL pixels, or more so that the key fits 16 bits (radix sort).
-    size = max(LOCALITY_CELL, float((hi - lo).max()) / 180.0)
-    ix = ((points[:, 0] - lo[0]) / size).astype(np.int32)
-    iy = ((points[:, 1] - lo[1]) / size).astype(np.int32)
-    return np.argsort((iy * 181 + ix).astype(np.int16), kind="stable")
 
 
 def pairing_radius(sigma, density, n_pairs, n_unpaired):
@@ -493,7 +474,7 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
         The F-test level of ``degree='auto'`` (see
         `~astroalign_nd.transforms.fit_nonlinear`).
     workers : int, optional
-        Threads of the k-d tree queries.
+        Threads of the nearest-neighbour look-ups.
 
     Returns
     -------
