@@ -415,6 +415,48 @@ def count_inliers_range(const double[:, :, ::1] mats, const double[:, ::1] src,
             out[h] = n
 
 
+def two_nearest_range(const double[:, ::1] pts, const Py_ssize_t[::1] start, double ox,
+                      double oy, double cell, Py_ssize_t nx, Py_ssize_t ny,
+                      const double[:, ::1] query, double bound, Py_ssize_t[:, ::1] j_out,
+                      double[:, ::1] d_out, Py_ssize_t q0, Py_ssize_t q1):
+    """Queries ``q0:q1`` of `astroalign_nd._kernels.two_nearest`."""
+    cdef Py_ssize_t k, j, q, x0, x1, y0, y1, j1, j2, n = pts.shape[0]
+    cdef double x, y, fx, fy, dx, dy, d2, d1sq, d2sq, b2 = bound * bound, rc = bound / cell
+    with nogil:
+        for k in range(q0, q1):
+            x = query[k, 0]
+            y = query[k, 1]
+            j1 = n
+            j2 = n
+            d1sq = INFINITY
+            d2sq = INFINITY
+            fx = (x - ox) / cell
+            fy = (y - oy) / cell
+            # Only the cells the disk of radius `bound` overlaps (one to four, for a
+            # cell over twice the bound); NaN fails every comparison and finds nothing.
+            if fx + rc >= 0.0 and fy + rc >= 0.0 and fx - rc < nx and fy - rc < ny:
+                x0 = max(<Py_ssize_t>_floor(fx - rc), 0) if fx - rc > 0.0 else 0
+                x1 = min(<Py_ssize_t>_floor(fx + rc), nx - 1) if fx + rc < nx else nx - 1
+                y0 = max(<Py_ssize_t>_floor(fy - rc), 0) if fy - rc > 0.0 else 0
+                y1 = min(<Py_ssize_t>_floor(fy + rc), ny - 1) if fy + rc < ny else ny - 1
+                for j in range(y0, y1 + 1):
+                    # The cells x0..x1 of a row hold consecutive points.
+                    for q in range(start[j * nx + x0], start[j * nx + x1 + 1]):
+                        dx = pts[q, 0] - x
+                        dy = pts[q, 1] - y
+                        d2 = dx * dx + dy * dy
+                        if d2 < d2sq and d2 < b2:
+                            if d2 < d1sq:
+                                j2, d2sq = j1, d1sq
+                                j1, d1sq = q, d2
+                            else:
+                                j2, d2sq = q, d2
+            j_out[k, 0] = j1
+            j_out[k, 1] = j2
+            d_out[k, 0] = sqrt(d1sq)
+            d_out[k, 1] = sqrt(d2sq)
+
+
 # -- resampling ------------------------------------------------------------------
 # The kernels, footprint and mask rules are documented in astroalign_nd.resample;
 # `_resample_numpy` there is the same computation in NumPy, tap for tap.

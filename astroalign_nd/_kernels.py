@@ -34,7 +34,7 @@ except ImportError:  # pragma: no cover - installed without a C compiler, or an 
                "(the same results, slower).")
 
 __all__ = ["bin_despike", "peak_candidates", "median", "finite_sample", "windowed_centroid",
-           "adaptive_fwhm", "PointGrid",
+           "adaptive_fwhm", "PointGrid", "two_nearest",
            "count_inliers", "num_threads", "compiled_kernels",
            "run_split", "GAUSS_SIGMA_TO_FWHM"]
 
@@ -272,8 +272,10 @@ class PointGrid:
                              f"pixels; got {radius!r}.")
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) == 0 or not np.all(np.isfinite(pts)):
             raise ValueError("PointGrid needs a non-empty (N, 2) array of finite positions.")
-        lo = pts.min(axis=0) - radius
-        hi = pts.max(axis=0) + radius
+        # (Reductions by column: along the first axis of an (N, 2) array they are slow.)
+        x, y = pts[:, 0], pts[:, 1]
+        lo = np.array([x.min(), y.min()]) - radius
+        hi = np.array([x.max(), y.max()]) + radius
         span = hi - lo
         # Cells at least `radius` wide, and few enough: a cell of
         # sqrt(area / max_cells) already fits, so doubling ends within a few steps.
@@ -290,10 +292,80 @@ class PointGrid:
         cx = ((pts[:, 0] - lo[0]) // cell).astype(np.int64)
         cy = ((pts[:, 1] - lo[1]) // cell).astype(np.int64)
         cid = cy * self.nx + cx
-        order = np.argsort(cid, kind="stable")
-        self.points = pts[order]
-        self.start = np.searchsorted(cid[order], np.arange(self.nx * self.ny + 1)).astype(
-            np.intp)
+        #: ``points`` are the input's rows ``order``, cell after cell.
+        self.order = np.argsort(cid)  # (a cell's points in any order: no stable sort)
+        self.points = np.take(pts, self.order, axis=0)  # (rows: faster than [] indexing)
+        # The first point of each cell (the count of the points in the cells before it).
+        self.start = np.zeros(self.nx * self.ny + 1, np.intp)
+        np.cumsum(np.bincount(cid, minlength=self.nx * self.ny), out=self.start[1:])
+
+
+#: Queries of `two_nearest` per thread at least (a query costs ~50 ns).
+_QUERIES_PER_THREAD = 1 << 16
+
+
+#: A grid whose points see more than this many points in their own cell, on
+#: average, is queried through a k-d tree (a dense cluster in a wide field).
+_CROWDED = 32.0
+
+
+def _crowded(grid):
+    """True if the grid's cells are too unevenly filled for cell look-ups."""
+    crowded = getattr(grid, "_crowded", None)
+    if crowded is None:
+        counts = np.diff(grid.start)
+        crowded = grid._crowded = bool(
+            float(counts @ counts) > _CROWDED * max(len(grid.points), 1))
+    return crowded
+
+
+def two_nearest(query, grid, workers=1):
+    """
+    Each query's two nearest grid points closer than the grid's radius.
+
+    What ``cKDTree(grid.points).query(query, k=2,
+    distance_upper_bound=grid.radius)`` returns, from the 3x3 cells around
+    each query: no tree to build, and one look-up at a few points.
+
+    Parameters
+    ----------
+    query : (N, 2) ndarray
+        Positions (non-finite ones find nothing).
+    grid : `PointGrid`
+    workers : int, optional
+        Threads at most (-1: `num_threads`).
+
+    Returns
+    -------
+    distance : (N, 2) ndarray
+        Nearest first; ``inf`` where there is no point that close.
+    index : (N, 2) ndarray of intp
+        Rows of ``grid.points``; ``len(grid.points)`` where there is none.
+    """
+    query = np.ascontiguousarray(query, dtype=np.float64).reshape(-1, 2)
+    kernel = getattr(_ckernels, "two_nearest_range", None) if _compiled() else None
+    if kernel is None or _crowded(grid):  # (None: an extension built before it existed)
+        from scipy.spatial import cKDTree
+
+        tree = getattr(grid, "_tree", None)
+        if tree is None:
+            # (Unbalanced, larger leaves: built in half the time, queried as fast.)
+            tree = grid._tree = cKDTree(grid.points, leafsize=32, balanced_tree=False,
+                                        compact_nodes=False)
+        finite = np.isfinite(query).all(axis=1)  # (cKDTree refuses NaN queries)
+        d = np.full((len(query), 2), np.inf)
+        j = np.full((len(query), 2), len(grid.points), np.intp)
+        if finite.any():
+            d[finite], j[finite] = tree.query(query[finite], k=2,
+                                              distance_upper_bound=grid.radius)
+        return d, j
+    d, j = np.empty((len(query), 2)), np.empty((len(query), 2), np.intp)
+    if len(query):
+        run_split(kernel, len(query),
+                  (grid.points, grid.start, float(grid.origin[0]), float(grid.origin[1]),
+                   grid.cell, grid.nx, grid.ny, query, grid.radius, j, d),
+                  min_per_thread=_QUERIES_PER_THREAD, parallel=workers != 1)
+    return d, j
 
 
 def median(a, axis=None):

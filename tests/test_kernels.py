@@ -147,6 +147,47 @@ def test_count_inliers_ignores_nan_and_far_points():
     assert_array_equal(k.count_inliers(np.eye(3)[None], src, grid), [2])
 
 
+def test_two_nearest_matches_kdtree(numpy_only, threads):
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(0, 500, (3000, 2))
+    pts[:20] = pts[20:40] + rng.normal(0, 0.2, (20, 2))  # close pairs: two candidates
+    grid = k.PointGrid(pts, 2.5, max_cells=1500)
+    query = np.vstack([rng.uniform(-20, 520, (200_000, 2)),  # (threads split the work)
+                       pts[:100] + rng.normal(0, 0.3, (100, 2))])
+    assert k.HAVE_COMPILED == (getattr(k._ckernels, "two_nearest_range", None) is not None)
+    d, j = k.two_nearest(query, grid, workers=-1)
+    dk, jk = cKDTree(grid.points).query(query, k=2, distance_upper_bound=2.5)
+    assert_array_equal(j, jk)
+    assert_allclose(d, dk, rtol=1e-12)
+    assert np.isfinite(d[:, 1]).sum() > 100  # second neighbours were found
+    numpy_only()
+    ds, js = k.two_nearest(query, grid)
+    assert_array_equal(js, jk)
+    assert_allclose(ds, dk, rtol=1e-12)
+
+
+def test_two_nearest_far_nan_and_crowded_queries():
+    grid = k.PointGrid(np.array([[0.0, 0.0], [10.0, 10.0], [10.5, 10.0]]), 1.0)
+    query = np.array([[0.2, 0.1], [np.nan, 0.0], [1e12, -1e12], [10.1, 10.0], [-np.inf, 5.0]])
+    d, j = k.two_nearest(query, grid)
+    assert_array_equal(j, [[0, 3], [3, 3], [3, 3], [1, 2], [3, 3]])
+    assert_allclose(d[0], [np.hypot(0.2, 0.1), np.inf])
+    assert_allclose(d[3], [0.1, 0.4])
+    assert np.all(np.isinf(d[[1, 2, 4]]))
+    # A dense cluster in a wide field: looked up through a k-d tree, the same answer.
+    rng = np.random.default_rng(6)
+    pts = np.vstack([rng.normal(500, 1, (2000, 2)), rng.uniform(0, 1000, (100, 2))])
+    crowded = k.PointGrid(pts, 0.5, max_cells=4 * len(pts))
+    assert k._crowded(crowded)
+    from scipy.spatial import cKDTree
+    query = pts + rng.normal(0, 0.05, pts.shape)
+    d, j = k.two_nearest(query, crowded)
+    dk, jk = cKDTree(crowded.points).query(query, k=2, distance_upper_bound=0.5)
+    assert_array_equal(j, jk)
+
+
 def test_threads_work_after_fork():
     # A forked worker (multiprocessing, dask's nanny) must not wait on its
     # parent's thread pool, which does not exist in the child.

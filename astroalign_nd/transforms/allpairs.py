@@ -10,28 +10,31 @@ under the model, one source per target, as
 model on all the pairs, sets the pairing radius from the fit's own
 residuals, and repeats until the pairs no longer change.
 
-Bounded time and memory for millions of points: one k-d tree of the
-targets, one query of each source's two nearest targets, and, in later
-iterations, only the distances to these candidates.  A candidate list is
-exact for a moved prediction as long as the prediction moved by less than
-the gap to the next target: the sources where it is not are queried again
-(usually none).  The fits of the iterations are normal-equation fits of
-the model's design matrix (the same candidate models as the distortion
-stage, ``transforms.selection``), accumulated in chunks; the
-final model is fitted by `~astroalign_nd.transforms.fit_transform`.
+Bounded time and memory for millions of points: one grid of the targets
+(`~astroalign_nd._kernels.PointGrid`, cells of about ``GRID_STARS``
+stars), one look-up of each source's two nearest targets within the first
+radius (`~astroalign_nd._kernels.two_nearest`: compiled, or a k-d tree),
+and, in later iterations, only the distances to these candidates.  A
+candidate list is exact for a moved prediction as long as the prediction
+moved by less than the gap to the next target: the sources where it is
+not are looked up again (usually none).  The fits of the iterations are
+normal-equation fits of the model's design matrix (the same candidate
+models as the distortion stage, ``transforms.selection``), accumulated in
+chunks; the final model is `~astroalign_nd.transforms.fit_transform`'s, of
+the last of these fits for the linear models (the same least-squares
+problem), or fitted by it for the others.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
-
 from scipy.stats import poisson
 
+from .._kernels import PointGrid, two_nearest
 from ..exceptions import TooFewSourcesError, TransformNotFoundError
 from ..matching.pairing import resolve_claims
 from .convert import as_matrix
-from .fitting import fit_transform
+from .fitting import _fit_from_matrix, fit_transform
 from .linear import LinearTransform2D
 from .registry import TRANSFORM_REGISTRY, transform_type_of
 from .selection import (_Poly, _Projective, _Similarity, _normalise, _predict, _projective_start,
@@ -42,9 +45,9 @@ __all__ = ['pair_all', 'AllPairs', 'pairing_radius', 'bounds']
 #: Rows of the design matrix built at once (bounds the memory of a fit).
 CHUNK = 1 << 17
 
-#: Queries of more sources than this are made in the order of cells of this
-#: many pixels (for the cache).
-LOCALITY_FROM, LOCALITY_CELL = 4096, 64.0
+#: Target stars per cell of the grid of the nearest-neighbour look-ups
+#: (`~astroalign_nd._kernels.PointGrid`), on average.
+GRID_STARS = 0.5
 
 #: The pairing radius is kept between these many residual sigmas (per axis).
 MIN_SIGMAS, MAX_SIGMAS = 3.0, 5.0
@@ -114,38 +117,27 @@ class _Candidates:
     """Each source's two nearest targets at some prediction (its anchor)."""
 
     def __init__(self, targets, bound, workers):
-        # The tree holds the targets in sky order (its leaves' points then lie
-        # together in memory); ``index`` maps them back to the caller's rows.
-        self.index = _sky_order(targets) if len(targets) > LOCALITY_FROM else None
-        held = targets if self.index is None else targets[self.index]
-        # (Unbalanced, larger leaves: built in half the time, queried as fast.)
-        self.tree = cKDTree(held, leafsize=32, balanced_tree=False, compact_nodes=False)
+        # The targets bucketed in cells of about GRID_STARS stars (and at least
+        # ``bound`` wide): a query reads its 3x3 cells (`two_nearest`).
+        n = len(targets)
+        self.grid = PointGrid(targets, float(bound), max_cells=max(int(n / GRID_STARS), 16))
+        held = self.grid.points
+        # One more row, at infinity, read by the index of an absent neighbour
+        # (n): the candidates are gathered without masks.
+        self.x = np.append(held[:, 0], np.inf)
+        self.y = np.append(held[:, 1], np.inf)
+        self.rows = np.append(self.grid.order[:n], n)
         self.bound, self.workers = float(bound), workers
         self.anchor = self.j = self.gap = self.cx = self.cy = None
 
     def _query(self, pred):
         """(indices, guard distance, candidate x, candidate y, nearest distance) of the
         two nearest targets."""
-        if len(pred) > LOCALITY_FROM:
-            # Queried in the order of cells of the sky: neighbouring queries walk the
-            # same branches of the tree, which stay in the cache (twice as fast).
-            order = _sky_order(pred)
-            d, j = np.empty((len(pred), 2)), np.empty((len(pred), 2), np.intp)
-            d[order], j[order] = self.tree.query(pred[order], k=2,
-                                                 distance_upper_bound=self.bound,
-                                                 workers=self.workers)
-        else:
-            d, j = self.tree.query(pred, k=2, distance_upper_bound=self.bound,
-                                   workers=self.workers)
-        found = j < self.tree.n
-        data = self.tree.data
-        # Absent candidates sit at infinity (their distance is infinite, never NaN).
-        cx, cy = np.full(j.shape, np.inf), np.full(j.shape, np.inf)
-        cx[found], cy[found] = data[j[found], 0], data[j[found], 1]
-        if self.index is not None:
-            j[found] = self.index[j[found]]
-        # Any other target was beyond the second candidate (or the bound).
-        return j, np.where(found[:, 1], d[:, 1], self.bound), cx, cy, d[:, 0]
+        d, j = two_nearest(pred, self.grid, self.workers)
+        # Absent candidates sit at infinity (their distance is infinite, never NaN);
+        # any other target was beyond the second candidate (or the bound).
+        return (self.rows[j], np.minimum(d[:, 1], self.bound), self.x[j], self.y[j],
+                d[:, 0])
 
     def nearest(self, pred, radius):
         """(source, target, distance) of the nearest target within ``radius`` of each
@@ -155,7 +147,7 @@ class _Candidates:
             self.j, self.gap, self.cx, self.cy, d0 = self._query(pred)
             si = np.flatnonzero(d0 <= radius)
             return si, self.j[si, 0], d0[si]
-        moved = np.hypot(pred[:, 0] - self.anchor[:, 0], pred[:, 1] - self.anchor[:, 1])
+        moved = _norm(pred[:, 0] - self.anchor[:, 0], pred[:, 1] - self.anchor[:, 1])
         best, bd = self._best(pred)
         guard = self.gap - moved
         stale = np.flatnonzero(~((bd <= guard) | ((bd > radius) & (radius <= guard))))
@@ -171,9 +163,14 @@ class _Candidates:
         j, cx, cy = ((self.j, self.cx, self.cy) if rows is None
                      else (self.j[rows], self.cx[rows], self.cy[rows]))
         p = pred if rows is None else pred[rows]
-        dist = np.hypot(cx - p[:, 0:1], cy - p[:, 1:2])
+        dist = _norm(cx - p[:, 0:1], cy - p[:, 1:2])
         second = dist[:, 1] < dist[:, 0]
         return np.where(second, j[:, 1], j[:, 0]), np.where(second, dist[:, 1], dist[:, 0])
+
+
+def _norm(dx, dy):
+    """``hypot(dx, dy)``, ten times faster (no overflow to guard against in pixels)."""
+    return np.sqrt(dx * dx + dy * dy)
 
 
 def bounds(points):
@@ -191,16 +188,6 @@ def bounds(points):
     """
     x, y = points[:, 0], points[:, 1]
     return np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
-
-
-def _sky_order(points):
-    """An order of the points by cells of the sky, row after row."""
-    lo, hi = bounds(points)
-    # Cells of LOCALITY_CELL pixels, or more so that the key fits 16 bits (radix sort).
-    size = max(LOCALITY_CELL, float((hi - lo).max()) / 180.0)
-    ix = ((points[:, 0] - lo[0]) / size).astype(np.int32)
-    iy = ((points[:, 1] - lo[1]) / size).astype(np.int32)
-    return np.argsort((iy * 181 + ix).astype(np.int16), kind="stable")
 
 
 def pairing_radius(sigma, density, n_pairs, n_unpaired):
@@ -370,7 +357,7 @@ class _State:
     def __init__(self, problem, pred, radius):
         self.p = problem
         self.pred, self.radius = pred, radius
-        self.si = self.dj = None
+        self.si = self.dj = self.cand = None
         self.params, self.sigma = None, 0.0
 
     def pair(self):
@@ -380,13 +367,13 @@ class _State:
     def refit(self, si, dj, cand):
         """Fit ``cand`` on the pairs, predict all sources, set the next radius."""
         p = self.p
-        uv, dst = p.uv[si], p.dst[dj]
+        uv, dst = np.take(p.uv, si, axis=0), np.take(p.dst, dj, axis=0)
         params = _fit_params(cand, uv, dst, self.params)
         if params is None:
             return False
-        self.params, self.si, self.dj = params, si, dj
+        self.params, self.si, self.dj, self.cand = params, si, dj, cand
         self.pred = _chunked_predict(cand, params, p.uv)
-        r = _chunked_predict(cand, params, uv) - dst  # (cheaper than gathering pred[si])
+        r = np.take(self.pred, si, axis=0) - dst
         self.sigma = _sigma(r[:, 0] ** 2 + r[:, 1] ** 2)
         if p.fixed_radius is None:
             new = pairing_radius(self.sigma, p.density, len(si), len(p.uv) - len(si))
@@ -400,6 +387,7 @@ class _Problem:
     dst: np.ndarray
     uv: np.ndarray
     centre: np.ndarray
+    half: float
     frame: tuple
     cands: _Candidates
     density: float
@@ -439,9 +427,8 @@ def _choose_degree(state, conformal, significance):
         pick = np.sort(np.random.default_rng(0).choice(len(si), AUTO_PAIRS, replace=False))
         si, dj = si[pick], dj[pick]
     aff = _chunked_fit(_Poly(1), p.uv[si], p.dst[dj])
-    half = float(np.hypot(p.frame[1] - p.frame[0], p.frame[3] - p.frame[2]) / 2.0)
     m = np.eye(3)  # the affine fit, back in pixels
-    m[0, :2], m[1, :2] = aff[1:3] / half, aff[4:6] / half
+    m[0, :2], m[1, :2] = aff[1:3] / p.half, aff[4:6] / p.half
     m[0, 2] = aff[0] - m[0, :2] @ p.centre
     m[1, 2] = aff[3] - m[1, :2] @ p.centre
     fit = fit_nonlinear(p.src[si], p.dst[dj], m, transform_type="polynomial", degree="auto",
@@ -487,7 +474,7 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
         The F-test level of ``degree='auto'`` (see
         `~astroalign_nd.transforms.fit_nonlinear`).
     workers : int, optional
-        Threads of the k-d tree queries.
+        Threads of the nearest-neighbour look-ups.
 
     Returns
     -------
@@ -527,8 +514,8 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
     lo, hi = bounds(dst)
     density = len(dst) / max(float(np.prod(hi - lo)), 1.0)
     tol = float(tolerance if radius is None else max(radius, 0.0))
-    problem = _Problem(src, dst, uv, centre, frame, _Candidates(dst, tol, workers), density,
-                       tol, radius, float(min_radius))
+    problem = _Problem(src, dst, uv, centre, half, frame, _Candidates(dst, tol, workers),
+                       density, tol, radius, float(min_radius))
     state = _State(problem, _predict_start(start, src), tol)
     n_it, converged = _iterate(state, cand, max_iterations)
     name = entry.name
@@ -554,6 +541,33 @@ def _check_not_chance(state):
             "transform= (or let the search find it), or pass a larger first radius (max_radius).")
 
 
+#: The types whose final model is the iterations' own last fit (the same
+#: least-squares problem, solved through its normal equations): built from
+#: it by `~astroalign_nd.transforms.fitting._fit_from_matrix`, not solved again.
+_FROM_LAST_FIT = ("translation", "similarity", "affine")
+
+
+def _pixel_matrix(state):
+    """The 3x3 pixel matrix of the last fit of a candidate affine in (u, v)."""
+    p = state.p
+    q = _chunked_predict(state.cand, state.params, np.array([[0.0, 0.0], [1.0, 0.0],
+                                                             [0.0, 1.0]]))
+    m = np.eye(3)
+    if not isinstance(state.cand, _Translation):  # (a shift keeps its exact identity)
+        m[:2, :2] = np.column_stack([q[1] - q[0], q[2] - q[0]]) / p.half
+    m[:2, 2] = q[0] - m[:2, :2] @ p.centre
+    return m
+
+
+def _fit_final(state, name, kw):
+    """`fit_transform`'s (model, covariance, residuals) on the current pairs."""
+    p = state.p
+    s, d = np.take(p.src, state.si, axis=0), np.take(p.dst, state.dj, axis=0)
+    if name in _FROM_LAST_FIT and state.cand is not None and _is_affine_in_uv(state.cand):
+        return _fit_from_matrix(name, _pixel_matrix(state), s, d, kw.get("parity", 1))
+    return fit_transform(s, d, name, **kw)
+
+
 def _final(state, name, deg, parity, n_it, converged, max_iterations):
     """The model of the chosen type fitted on the final pairs: an `AllPairs`."""
     p = state.p
@@ -564,7 +578,7 @@ def _final(state, name, deg, parity, n_it, converged, max_iterations):
     elif TRANSFORM_REGISTRY[name].parity:
         kw = dict(parity=parity)
     for _ in range(max_iterations):
-        model, cov, resid = fit_transform(p.src[state.si], p.dst[state.dj], name, **kw)
+        model, cov, resid = _fit_final(state, name, kw)
         if name in _SAME_PROBLEM:
             break
         # Another model than the iterations': pair again under its own fit.

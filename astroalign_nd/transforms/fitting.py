@@ -8,7 +8,7 @@ from astropy.modeling import Model
 from numpy.typing import ArrayLike
 from .polynomial import PolynomialTransform
 from .linear import EuclideanTransform, SimilarityTransform
-from ._matrix import _check_parity
+from ._matrix import _check_parity, _check_spread, apply_matrix, check_invertible
 from .registry import transform_class
 
 __all__ = ['fit_transform']
@@ -94,6 +94,27 @@ def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "
                 f"{cls.__name__}.")
         model, design, resid = cls._fit(src, dst, weights=weights, parity=parity)
     return model, _covariance(model, design, resid, weights), resid
+
+
+def _fit_from_matrix(transform_type, matrix, src, dst, parity=1):
+    """
+    `fit_transform`'s (model, covariance, residuals) of a linear model whose
+    unweighted least-squares matrix on these pairs is already known.
+
+    For callers that solved the same problem another way (the whole-catalog
+    cross-match, through its normal equations in normalised coordinates):
+    the model, the checks and the covariance of `fit_transform`, without a
+    second solve.  Only for 'translation', 'similarity' and 'affine' (the
+    models linear in their parameters, whose design does not depend on the
+    fit), with ``parity`` fixed.
+    """
+    cls = transform_class(transform_type)
+    resid = apply_matrix(matrix, src) - dst
+    _check_spread(cls, src, "src")
+    check_invertible(matrix, cls.__name__, fitted=True)
+    model = cls._from_matrix(matrix)
+    design = cls._design(src, None, parity)
+    return model, _covariance(model, design, resid, None), resid
 
 
 def _free_params(model):
