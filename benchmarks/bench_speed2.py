@@ -123,16 +123,21 @@ class StageTimer:
         self.t = dict.fromkeys(STAGES, 0.0)
         self.depth = dict.fromkeys(STAGES, 0)
         self.patches = []
-        reg = importlib.import_module(pkg + ".registration")
-        mat = importlib.import_module(pkg + ".matching")
-        ccd = importlib.import_module(pkg + ".ccddata")
-        for mod, name, stage in ((reg, "find_sources", "detect"),
-                                 (reg, "_control_sources", "detect"),  # newer code calls this
-                                 (reg, "build_asterisms", "asterisms"),
-                                 (mat, "build_asterisms", "asterisms"),
-                                 (reg, "_match_points", "match"),
-                                 (ccd, "resample", "resample")):
-            if hasattr(mod, name):
+        # Where each stage's function is looked up: the flat layout before issue 24
+        # (ccddata.resample), then the layout by stage (resample.nddata.resample).
+        for path, name, stage in ((".registration", "find_sources", "detect"),
+                                  (".registration", "_control_sources", "detect"),
+                                  (".registration", "build_asterisms", "asterisms"),
+                                  (".matching", "build_asterisms", "asterisms"),
+                                  (".registration", "_match_points", "match"),
+                                  (".ccddata", "resample", "resample"),
+                                  (".resample.nddata", "resample", "resample")):
+            try:
+                mod = importlib.import_module(pkg + path)
+            except ImportError:
+                continue
+            if hasattr(mod, name) and not any(m is mod and n == name
+                                              for m, n, _, _ in self.patches):
                 self.patches.append((mod, name, getattr(mod, name), stage))
 
     def _wrap(self, fn, stage):
@@ -177,14 +182,17 @@ class NumpyKernels:
 
     @contextlib.contextmanager
     def _off(self):
+        # Before issue 24 the resampler had its own switch; now conf.use_compiled is the one.
         resample = importlib.import_module(self.mod.__name__ + ".resample")
-        old = resample._USE_COMPILED
-        resample._USE_COMPILED = False
+        old = getattr(resample, "_USE_COMPILED", None)
+        if old is not None:
+            resample._USE_COMPILED = False
         try:
             with self.mod.conf.set_temp("use_compiled", False):
                 yield
         finally:
-            resample._USE_COMPILED = old
+            if old is not None:
+                resample._USE_COMPILED = old
 
     def register(self, *args, **kwargs):
         with self._off():
