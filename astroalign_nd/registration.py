@@ -153,7 +153,7 @@ class Reference:
         >>> from astroalign_nd.simulate import simulate_field
         >>> with tempfile.TemporaryDirectory() as tmp:
         ...     path = os.path.join(tmp, "frame.fits")
-        ...     fits.writeto(path, simulate_field((128, 128), n_stars=40, seed=1))
+        ...     fits.writeto(path, simulate_field((128, 128), n_stars=40, seed=1)[0])
         ...     ref = Reference(path)
         ...     n = len(ref.stars(20)[0])
         ...     released = ref.release_pixels()
