@@ -13,6 +13,7 @@ The high-level API, top to bottom as the method goes:
 from __future__ import annotations
 
 import dataclasses
+import os
 import warnings
 from typing import TYPE_CHECKING, Any
 
@@ -101,7 +102,12 @@ class Reference:
             _config = DetectionConfig(**det)
         # The role ('source', 'target') names the input in error messages.
         self._role = _role
-        self._parsed = parse_input(image, _role, hdu=hdu, unit=unit)
+        self._pixels = parse_input(image, _role, hdu=hdu, unit=unit)
+        self._shape = self._pixels.shape
+        self._is_catalog = self._pixels.is_catalog
+        # A file can be read again: its pixels may be let go (`release_pixels`).
+        self._reload = (os.fspath(image), hdu, unit) if isinstance(
+            image, (str, os.PathLike)) else None
         self.config = _config
         defaults = DetectionConfig()
         self.detect_options = {k: getattr(_config, k) for k in _DETECT_KEYS
@@ -115,7 +121,50 @@ class Reference:
     @property
     def shape(self) -> tuple[int, int] | None:
         """(ny, nx) of the image, None for a catalog."""
-        return self._parsed.shape
+        return self._shape
+
+    @property
+    def _parsed(self):
+        """The parsed input; read again from its file after `release_pixels`."""
+        if self._pixels is None:
+            path, hdu, unit = self._reload
+            self._pixels = parse_input(path, self._role, hdu=hdu, unit=unit)
+        return self._pixels
+
+    def release_pixels(self) -> bool:
+        """
+        Let go of the image's pixels, keeping the stars detected so far.
+
+        For a frame read from a file: a further detection (more stars, a
+        wider search) reads it again.  What a sequence of hundreds of
+        frames keeps in memory is then their star lists, not their pixels.
+
+        Returns
+        -------
+        released : bool
+            False (nothing done) for an input that cannot be read again: an
+            array, NDData or catalog.
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> from astropy.io import fits
+        >>> from astroalign_nd import Reference
+        >>> from astroalign_nd.simulate import simulate_field
+        >>> with tempfile.TemporaryDirectory() as tmp:
+        ...     path = os.path.join(tmp, "frame.fits")
+        ...     fits.writeto(path, simulate_field((128, 128), n_stars=40, seed=1)[0])
+        ...     ref = Reference(path)
+        ...     n = len(ref.stars(20)[0])
+        ...     released = ref.release_pixels()
+        ...     same = len(ref.stars(20)[0]) == n  # cached: the file is not read again
+        >>> released, same, ref.shape
+        (True, True, (128, 128))
+        """
+        if self._reload is None:
+            return False
+        self._pixels = None
+        return True
 
     def stars(self, n_sources: int, fwhm: float | None = None
               ) -> tuple[np.ndarray, np.ndarray | None, tuple | None]:
@@ -146,10 +195,10 @@ class Reference:
         frame : (x0, x1, y0, y1) or None
             The image extent in pixels; None for catalogs.
         """
-        p = self._parsed
-        fixed = fwhm is not None and not p.is_catalog and self.config.fwhm is None
+        fixed = fwhm is not None and not self._is_catalog and self.config.fwhm is None
         key = (n_sources, float(fwhm)) if fixed else n_sources
         if key not in self._stars:
+            p = self._parsed  # (a released frame is read again only here)
             if p.is_catalog:
                 # Brightest first: the method needs the brightest stars only, and
                 # a cap keeps a million-point catalog from costing a million.
@@ -289,7 +338,7 @@ def _detect_both(src, ns, dst, nd):
     raised in the sequential order (the source's first).
     """
     todo = [ref for ref, n in ((src, ns), (dst, nd))
-            if not ref._parsed.is_catalog and n not in ref._stars]
+            if n not in ref._stars and not ref._is_catalog]
     if len(todo) < 2 or src is dst or num_threads() < 2:
         return
     # The warning filters are one global list, and ``catch_warnings`` blocks

@@ -43,7 +43,8 @@ from astropy.io import fits
 
 import astroalign_nd
 from astroalign_nd import Reference, find_transform, register_batch, solve_sequence
-from astroalign_nd.simulate import dither_transforms, mosaic_transforms, simulate_views
+from astroalign_nd.simulate import (dither_transforms, draw_fluxes, mosaic_transforms,
+                                    simulate_image, simulate_views)
 from astroalign_nd.transforms import as_matrix
 
 try:
@@ -163,7 +164,7 @@ def run_mosaic(seed=3):
 
 def run_sequences(n_seq, n_stars=None):
     shape = (256, 256)
-    glob, ours, peer = [], [], []
+    glob, ours, peer, used = [], [], [], []
     t_g = t_o = 0.0
     for s in range(n_seq):
         truth = dither_transforms(30, max_shift=40, max_rotation=2, shape=shape, seed=100 + s)
@@ -179,6 +180,7 @@ def run_sequences(n_seq, n_stars=None):
         o = [max_diff(pw[i - 1], seq.truth(i, 0), shape) for i in range(1, 30)]
         a = [max_diff(m, seq.truth(i, 0), shape) if m is not None else np.inf
              for i, m in ((i, aa_matrix(seq.frames[i], seq.frames[0])) for i in range(1, 30))]
+        used.append(np.median([t.meta["quality"]["n_matches"] for t in sol.transforms[1:]]))
         glob.append(np.median(g))
         ours.append(np.median(o))
         peer.append(np.median(a))
@@ -187,28 +189,122 @@ def run_sequences(n_seq, n_stars=None):
                 pooled_median_pairwise_ours=float(np.median(ours)),
                 pooled_median_pairwise_astroalign=float(np.median(peer)),
                 ratio_global_to_ours=float(np.median(glob) / np.median(ours)),
-                seconds=dict(global_=t_g, pairwise_ours=t_o), n_stars=n_stars)
+                seconds=dict(global_=t_g, pairwise_ours=t_o), n_stars=n_stars,
+                detections_per_frame=float(np.median(used)))
 
 
-def run_speed(n_frames):
-    shape = (1024, 1024)
+def run_catalogs(n_seq, n_stars=300, sigma=0.05):
+    """
+    The control experiment: 30-frame dithered sequences of catalogs in
+    which every frame holds the same ``n_stars`` stars, each with its own
+    Gaussian centroid noise (``sigma`` px per axis).  Pairwise and global
+    then fit the same stars (a catalog's every point refines the pairwise
+    fit), so any difference comes from the solve, not from the star lists.
+    """
+    shape = (256, 256)
+    glob, ours = [], []
+    for s in range(n_seq):
+        truth = dither_transforms(30, max_shift=40, max_rotation=2, shape=shape, seed=100 + s)
+        rng = np.random.default_rng(300 + s)
+        sky = rng.uniform(0, 256, (n_stars, 2))
+        cats = []
+        for t in truth:
+            inv = np.linalg.inv(as_matrix(t))
+            cats.append(sky @ inv[:2, :2].T + inv[:2, 2] + rng.normal(0, sigma, sky.shape))
+        sol = solve_sequence(cats, reference=0)
+        ref = Reference(cats[0])
+        pw = [find_transform(c, ref)[0] for c in cats[1:]]
+        true = [np.linalg.inv(as_matrix(truth[0])) @ as_matrix(t) for t in truth]
+        glob.append(np.median([max_diff(sol.transforms[i], true[i], shape) for i in range(1, 30)]))
+        ours.append(np.median([max_diff(pw[i - 1], true[i], shape) for i in range(1, 30)]))
+    return dict(per_sequence=dict(global_=glob, pairwise_ours=ours), n_stars=n_stars,
+                sigma=sigma, pooled_median_global=float(np.median(glob)),
+                pooled_median_pairwise_ours=float(np.median(ours)),
+                ratio_global_to_ours=float(np.median(glob) / np.median(ours)))
+
+
+def write_frames(folder, n_frames, shape=(1024, 1024), n_stars=800, seed=10):
+    """
+    ``n_frames`` dithered FITS frames of one star field, written one at a
+    time (500 frames of 1024x1024 are never in memory together): the star
+    field as `simulate_views` draws it, each frame rendered by
+    `simulate_image` with its own noise.  Returns the paths and the truth.
+    """
+    ny, nx = shape
     truth = dither_transforms(n_frames, max_shift=60, max_rotation=1, shape=shape, seed=9)
-    seq = simulate_views(truth, shape, n_stars=800, seed=10)
+    rng = np.random.default_rng(seed)
+    pad = 70.0  # the largest shift and rotation, and a PSF's margin
+    box = (-0.5 - pad, nx - 0.5 + pad, -0.5 - pad, ny - 0.5 + pad)
+    count = int(rng.poisson(n_stars * (box[1] - box[0]) * (box[3] - box[2]) / (nx * ny)))
+    sx, sy = rng.uniform(box[0], box[1], count), rng.uniform(box[2], box[3], count)
+    flux = draw_fluxes(count, seed=rng)
+    paths = []
+    for i, t in enumerate(truth):
+        inv = np.linalg.inv(as_matrix(t))
+        fx = inv[0, 0] * sx + inv[0, 1] * sy + inv[0, 2]
+        fy = inv[1, 0] * sx + inv[1, 1] * sy + inv[1, 2]
+        keep = (fx > -10) & (fx < nx + 9) & (fy > -10) & (fy < ny + 9)
+        img = simulate_image(shape, fx[keep], fy[keep], flux[keep], noise="gaussian",
+                             seed=rng)
+        paths.append(str(Path(folder) / f"f{i:03d}.fits"))
+        fits.writeto(paths[-1], img)
+    return paths, truth
+
+
+def speed_child(folder, solve, workers, out):
+    """One timed ``register_batch`` in this (fresh) process; its figures to ``out``."""
+    import resource
+
+    paths = sorted(str(p) for p in Path(folder).glob("f*.fits"))
+    dest = Path(folder) / f"out_{solve}"
+    t0 = time.perf_counter()
+    res = register_batch(paths[1:], paths[0], output_dir=dest, solve=solve, workers=workers)
+    seconds = time.perf_counter() - t0
+    assert not res.failed, res.summary()
+    sol = getattr(res, "solution", None)
+    fig = dict(seconds=seconds, parts=dict(sol.seconds) if sol is not None else {},
+               n_links=len(sol.links) if sol is not None else len(paths) - 1,
+               n_tried=len(sol.links) + len(sol.attempts) if sol is not None else None,
+               transforms=[as_matrix(f.transform).tolist() for f in res.frames],
+               maxrss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+               maxrss_children_mb=resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)
+    Path(out).write_text(json.dumps(fig))
+    for p in dest.glob("*"):
+        p.unlink()
+
+
+def run_speed(n_frames, workers=None, repeats=1):
+    """
+    ``register_batch(solve='global')`` against pairwise, interleaved, each
+    in a fresh process (for its peak memory), from the same FITS files.
+    """
+    import subprocess
+    import sys
+
+    out = dict(n_frames=n_frames, shape=(1024, 1024), workers=workers, runs=[])
     with tempfile.TemporaryDirectory() as tmp:
-        paths = []
-        for i, f in enumerate(seq.frames):
-            paths.append(str(Path(tmp) / f"f{i:03d}.fits"))
-            fits.writeto(paths[-1], f)
-        del seq
-        out = {}
-        for solve in ("pairwise", "global"):
-            dest = Path(tmp) / solve
-            t0 = time.perf_counter()
-            res = register_batch(paths[1:], paths[0], output_dir=dest, solve=solve)
-            out[solve] = time.perf_counter() - t0
-            assert not res.failed, res.summary()
-    return dict(n_frames=n_frames, shape=shape, seconds=out,
-                ratio_global_to_pairwise=out["global"] / out["pairwise"])
+        t0 = time.perf_counter()
+        paths, truth = write_frames(tmp, n_frames)
+        out["seconds_writing"] = time.perf_counter() - t0
+        for rep in range(repeats):
+            run = {}
+            for solve in ("pairwise", "global"):
+                fig = Path(tmp) / f"{solve}.json"
+                subprocess.run([sys.executable, __file__, "--speed-child", tmp, solve,
+                                str(workers or 0), str(fig)], check=True)
+                run[solve] = json.loads(fig.read_text())
+            # Accuracy against the truth: each frame's largest error over the frame.
+            for solve, r in run.items():
+                err = [max_diff(np.asarray(m), np.linalg.inv(as_matrix(truth[0]))
+                                @ as_matrix(t), (1024, 1024))
+                       for m, t in zip(r.pop("transforms"), truth[1:])]
+                r["median_error"], r["max_error"] = float(np.median(err)), float(np.max(err))
+            run["ratio"] = run["global"]["seconds"] / run["pairwise"]["seconds"]
+            out["runs"].append(run)
+            print(f"speed run {rep}: pairwise {run['pairwise']['seconds']:.1f} s, global "
+                  f"{run['global']['seconds']:.1f} s, ratio {run['ratio']:.2f}", flush=True)
+    out["ratios"] = [r["ratio"] for r in out["runs"]]
+    return out
 
 
 def markdown(results):
@@ -240,7 +336,15 @@ def markdown(results):
                   f"tiles solved: global {m['solved']}/9, pairwise to the reference "
                   f"{m['pairwise_solved']}/9; largest error {m['max_error']:.4f} px; per tile: "
                   + ", ".join(_f(e) for e in m["errors"]), ""]
-    for key in ("sequence", "sequence_deep"):
+    if "catalogs" in results:
+        q = results["catalogs"]
+        lines += [f"## Control: catalogs with the same {q['n_stars']} stars in every frame "
+                  f"(sigma {q['sigma']} px)", "",
+                  f"median over frames of the largest error, pooled: global "
+                  f"{q['pooled_median_global']:.4f} px, pairwise ours "
+                  f"{q['pooled_median_pairwise_ours']:.4f} px; ratio global/ours "
+                  f"{q['ratio_global_to_ours']:.3f}", ""]
+    for key in ("sequence", "sequence_deep", "sequence_all"):
         if key in results:
             q = results[key]
             lines += [f"## Simulated 30-frame dithered sequences ({key}, n_stars="
@@ -249,14 +353,26 @@ def markdown(results):
                       f"{q['pooled_median_global']:.4f} px, pairwise ours "
                       f"{q['pooled_median_pairwise_ours']:.4f} px, astroalign "
                       f"{q['pooled_median_pairwise_astroalign']:.4f} px; ratio global/ours "
-                      f"{q['ratio_global_to_ours']:.3f}", ""]
+                      f"{q['ratio_global_to_ours']:.3f}; detections per frame in the joint "
+                      f"solve (median) {q['detections_per_frame']:.0f}; seconds: global "
+                      f"{q['seconds']['global_']:.1f}, pairwise ours "
+                      f"{q['seconds']['pairwise_ours']:.1f}", ""]
     if "speed" in results:
         s = results["speed"]
         lines += [f"## Speed: {s['n_frames']} frames of 1024x1024, detected, solved and "
-                  "resampled to files", "",
-                  f"register_batch pairwise {s['seconds']['pairwise']:.1f} s, "
-                  f"solve='global' {s['seconds']['global']:.1f} s: ratio "
-                  f"{s['ratio_global_to_pairwise']:.2f}", ""]
+                  f"resampled to files (workers={s['workers']})", "",
+                  "| run | pairwise (s) | global (s) | ratio | global: detect / match / solve "
+                  "(s) | links (tried) | peak RSS pairwise / global (MB) | median error "
+                  "pairwise / global (px) |", "|---|---|---|---|---|---|---|---|"]
+        for i, r in enumerate(s["runs"]):
+            p, g = r["pairwise"], r["global"]
+            parts = " / ".join(f"{g['parts'].get(k, 0):.1f}"
+                               for k in ("detect", "match", "solve"))
+            rss = [max(x["maxrss_mb"], x["maxrss_children_mb"]) for x in (p, g)]
+            lines.append(f"| {i} | {p['seconds']:.1f} | {g['seconds']:.1f} | {r['ratio']:.2f} "
+                         f"| {parts} | {g['n_links']} ({g['n_tried']}) | {rss[0]:.0f} / "
+                         f"{rss[1]:.0f} | {p['median_error']:.4f} / {g['median_error']:.4f} |")
+        lines.append("")
     return "\n".join(lines)
 
 
@@ -274,8 +390,14 @@ def main():
     ap.add_argument("--only", nargs="+", default=["real", "mosaic", "sequence", "speed"])
     ap.add_argument("--sequences", type=int, default=8)
     ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--speed-child", nargs=4, help=argparse.SUPPRESS)
     ap.add_argument("--out", default=str(HERE / "results" / "issue28_global"))
     args = ap.parse_args()
+    if args.speed_child:
+        folder, solve, workers, out = args.speed_child
+        return speed_child(folder, solve, int(workers) or None, out)
     print(f"astroalign_nd {astroalign_nd.__version__} from {astroalign_nd.__file__}")
     results = {}
     if "real" in args.only:
@@ -285,8 +407,10 @@ def main():
     if "sequence" in args.only:
         results["sequence"] = run_sequences(args.sequences)
         results["sequence_deep"] = run_sequences(args.sequences, n_stars=300)
+        results["sequence_all"] = run_sequences(args.sequences, n_stars=1000)
+        results["catalogs"] = run_catalogs(args.sequences)
     if "speed" in args.only:
-        results["speed"] = run_speed(args.frames)
+        results["speed"] = run_speed(args.frames, args.workers, args.repeats)
     text = markdown(results)
     print(text)
     Path(args.out + ".json").write_text(json.dumps(results, indent=1, default=float))

@@ -231,3 +231,42 @@ def test_cli_batch_global(tmp_path, capsys):
     assert "t2.fits: 1 links, predicted error" in out
     assert sorted(os.listdir(tmp_path / "out")) == ["t0_reference.fits", "t1_aligned.fits",
                                                     "t2_aligned.fits"]
+
+
+def test_frames_from_files_in_workers(tmp_path):
+    """Files detected and linked in 2 local processes: their pixels let go, the same solution."""
+    from astropy.io import fits
+
+    shape = (160, 160)
+    truth = dither_transforms(5, max_shift=15, max_rotation=1, shape=shape, seed=4)
+    seq = simulate_views(truth, shape, n_stars=120, seed=5)
+    paths = []
+    for i, f in enumerate(seq.frames):
+        paths.append(str(tmp_path / f"f{i}.fits"))
+        fits.writeto(paths[-1], f)
+    here = solve_sequence(paths, reference=0)
+    there = solve_sequence(paths, reference=0, workers=2)
+    assert there.unsolved == {} and len(there.links) == len(here.links)
+    for i in range(5):
+        assert np.allclose(as_matrix(here.transforms[i]), as_matrix(there.transforms[i]),
+                           atol=1e-9)
+        assert _max_error(there.transforms[i], seq.truth(i, 0), shape) < 0.1
+    with pytest.raises(ValueError, match="workers"):
+        solve_sequence(paths, workers=-1)
+
+
+def test_dense_and_sparse_factors_agree(monkeypatch):
+    """The normal matrix factored dense (a fully coupled sequence) or sparse: one solution."""
+    from astroalign_nd.batch import adjust
+
+    shape = (200, 200)
+    truth = dither_transforms(8, max_shift=20, shape=shape, seed=2)
+    cats = _catalogs(truth, shape, 100, 0.05, seed=3)
+    dense = solve_sequence(cats, reference=0)
+    monkeypatch.setattr(adjust, "_DENSE_FILL", 2.0)  # never dense
+    sparse = solve_sequence(cats, reference=0)
+    for i in range(8):
+        assert np.allclose(as_matrix(dense.transforms[i]), as_matrix(sparse.transforms[i]),
+                           atol=1e-8)
+        assert np.allclose(dense.covariances[i], sparse.covariances[i], rtol=1e-6, atol=1e-14)
+        assert _max_error(dense.transforms[i], _truth(truth, i, 0), shape) < 0.1

@@ -25,13 +25,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
+from scipy import linalg, sparse
 from scipy.sparse.linalg import splu
 
 __all__ = []
 
 #: The number of parameters of each linear type the solve supports.
 N_PARAMS = {"translation": 2, "euclidean": 3, "similarity": 4, "affine": 6}
+#: The types whose prediction is linear in the parameters: one Gauss-Newton step is exact.
+LINEAR_KINDS = ("translation", "similarity", "affine")
+#: A normal matrix fuller than this (fraction of its elements) is factored as a dense one:
+#: a long sequence whose frames all share the reference's stars couples every frame.
+_DENSE_FILL = 0.2
+#: ... up to this many parameters (a dense factor of 6000 x 6000 is 288 MB).
+_DENSE_MAX = 6000
 
 
 @dataclass
@@ -60,29 +67,32 @@ class Frames:
 
 
 def predict(kind, theta, q):
-    """``T(q)`` for parameters ``theta`` and centred points ``q`` (n, 2)."""
+    """
+    ``T(q)`` for parameters ``theta`` and centred points ``q`` (n, 2);
+    ``theta`` is one frame's (k,) or one row per point (n, k).
+    """
     x, y = q[:, 0], q[:, 1]
+    t = np.asarray(theta).T  # t[i]: parameter i, a scalar or one per point
     if kind == "translation":
-        return q + theta[:2]
+        return np.column_stack([x + t[0], y + t[1]])
     if kind == "euclidean":
-        c, s = np.cos(theta[0]), np.sin(theta[0])
-        return np.column_stack([c * x - s * y + theta[1], s * x + c * y + theta[2]])
+        c, s = np.cos(t[0]), np.sin(t[0])
+        return np.column_stack([c * x - s * y + t[1], s * x + c * y + t[2]])
     if kind == "similarity":
-        a, b = theta[0], theta[1]
-        return np.column_stack([a * x - b * y + theta[2], b * x + a * y + theta[3]])
-    a, b, c, d = theta[:4]
-    return np.column_stack([a * x + b * y + theta[4], c * x + d * y + theta[5]])
+        return np.column_stack([t[0] * x - t[1] * y + t[2], t[1] * x + t[0] * y + t[3]])
+    return np.column_stack([t[0] * x + t[1] * y + t[4], t[2] * x + t[3] * y + t[5]])
 
 
 def jacobian(kind, theta, q):
-    """(n, 2, k): the derivative of `predict` with respect to ``theta``."""
+    """(n, 2, k): the derivative of `predict` with respect to ``theta`` ((k,) or (n, k))."""
     n = len(q)
     x, y = q[:, 0], q[:, 1]
     jac = np.zeros((n, 2, N_PARAMS[kind]))
     if kind == "translation":
         jac[:, 0, 0] = jac[:, 1, 1] = 1.0
     elif kind == "euclidean":
-        c, s = np.cos(theta[0]), np.sin(theta[0])
+        a = np.asarray(theta).T[0]
+        c, s = np.cos(a), np.sin(a)
         jac[:, 0, 0], jac[:, 1, 0] = -s * x - c * y, c * x - s * y
         jac[:, 0, 1] = jac[:, 1, 2] = 1.0
     elif kind == "similarity":
@@ -140,10 +150,27 @@ def _normal_terms(frames, f, q, w, cols):
     return jac, block, predict(frames.kind, frames.theta[f], q)
 
 
+class _DenseFactor:
+    """A Cholesky factor of a dense normal matrix, with SuperLU's ``solve``."""
+
+    def __init__(self, factor):
+        self.factor = factor
+
+    def solve(self, rhs):
+        return linalg.cho_solve(self.factor, rhs)
+
+
 def _solve(normal, rhs):
     """``normal @ x = rhs`` (sparse, symmetric positive definite); None if singular."""
-    if normal.shape[0] == 0:
+    p = normal.shape[0]
+    if p == 0:
         return np.zeros(0), None
+    if p <= _DENSE_MAX and normal.nnz > _DENSE_FILL * p * p:
+        try:
+            lu = _DenseFactor(linalg.cho_factor(normal.toarray(), check_finite=False))
+        except linalg.LinAlgError:  # not positive definite: singular
+            return None, None
+        return lu.solve(rhs), lu
     try:
         lu = splu(sparse.csc_matrix(normal))
     except RuntimeError:  # singular: a frame with too few constraints
@@ -233,11 +260,7 @@ def star_positions(frames, obs):
 
 
 def _predictions(frames, obs):
-    pred = np.empty_like(obs.q)
-    for f in np.unique(obs.frame):
-        sel = obs.frame == f
-        pred[sel] = predict(frames.kind, frames.theta[f], obs.q[sel])
-    return pred
+    return predict(frames.kind, frames.theta[obs.frame], obs.q)
 
 
 def bundle_step(frames, obs):
@@ -253,25 +276,26 @@ def bundle_step(frames, obs):
     k = N_PARAMS[frames.kind]
     xs, pred = star_positions(frames, obs)
     resid = pred - xs[obs.track]
-    jac = np.zeros((len(obs.q), 2, k))
-    for f in np.unique(obs.frame):
-        sel = obs.frame == f
-        jac[sel] = jacobian(frames.kind, frames.theta[f], obs.q[sel])
+    # Every detection at once (one parameter row per detection): a loop over
+    # the frames costs a pass over all detections per frame.
+    jac = jacobian(frames.kind, frames.theta[obs.frame], obs.q)
     free = cols[obs.frame] >= 0
     wj = obs.w[:, None, None] * jac
-    # A: block diagonal (one k x k block per frame); B: frame-star coupling.
-    rows_a, cols_a, vals_a = [], [], []
     grid = np.arange(k)
+    # A: block diagonal (one k x k block per frame); B: frame-star coupling.
+    n_frames = len(frames.theta)
+    outer = np.einsum("nik,nil->nkl", wj, jac).reshape(len(jac), k * k)
+    blocks = np.column_stack([np.bincount(obs.frame, outer[:, j], n_frames)
+                              for j in range(k * k)]).reshape(n_frames, k, k)
+    grad = np.einsum("nik,ni->nk", wj, resid)
+    rhs_f = np.column_stack([np.bincount(obs.frame, grad[:, j], n_frames) for j in range(k)])
+    used = np.unique(obs.frame[free])
     rhs = np.zeros(p)
-    for f in np.unique(obs.frame[free]):
-        sel = obs.frame == f
-        blk = np.einsum("nik,nil->kl", wj[sel], jac[sel])
-        rr, cc = np.meshgrid(cols[f] + grid, cols[f] + grid, indexing="ij")
-        rows_a.append(rr.ravel())
-        cols_a.append(cc.ravel())
-        vals_a.append(blk.ravel())
-        rhs[cols[f] + grid] -= np.einsum("nik,ni->k", wj[sel], resid[sel])
-    a = _blocks(rows_a, cols_a, vals_a, (p, p)) if vals_a else sparse.csc_matrix((p, p))
+    rhs[(cols[used][:, None] + grid).ravel()] = -rhs_f[used].ravel()
+    rr = np.broadcast_to(cols[used][:, None, None] + grid[None, :, None], (len(used), k, k))
+    cc = np.broadcast_to(cols[used][:, None, None] + grid[None, None, :], (len(used), k, k))
+    a = sparse.coo_matrix((blocks[used].ravel(), (rr.ravel(), cc.ravel())),
+                          shape=(p, p)).tocsc()
     idx = np.nonzero(free)[0]
     b_rows = (cols[obs.frame[idx]][:, None, None] + grid[None, None, :]).repeat(2, axis=1)
     b_cols = np.broadcast_to((2 * obs.track[idx])[:, None, None] + np.arange(2)[None, :, None],

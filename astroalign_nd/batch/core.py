@@ -221,8 +221,8 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
         try:
             if solve == "global":
                 found, solution = solve_jobs(jobs, items, target, ref,
-                                             {**options, **global_options}, client, report,
-                                             cfg)
+                                             {**options, **global_options},
+                                             (client, workers), report, cfg)
                 result = _apply_found(found, items, outputs, cfg, client, workers, report,
                                       _valid_margin(resample), inflight)
                 result.solution = solution

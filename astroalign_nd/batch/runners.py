@@ -218,6 +218,29 @@ def _execute_pool(jobs, cfg, workers, inflight):
         yield from _solo_round(sorted(suspects, key=lambda j: j.index), ctx, cfg, threads)
 
 
+def _init_task_worker(threads):
+    _worker_signals()
+    if not threads_chosen():
+        conf.num_threads = threads
+
+
+@contextlib.contextmanager
+def task_pool(workers):
+    """
+    A pool of ``workers`` local processes for plain tasks (the detections
+    and matches of `~astroalign_nd.solve_sequence`), or None for
+    ``workers`` None, 0 or 1; stopped at once if the block is interrupted.
+    """
+    if workers is None or workers <= 1:
+        yield None
+        return
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context(),
+                               initializer=_init_task_worker, initargs=(threads,))
+    with _stopped_on_interrupt(pool):
+        yield pool
+
+
 def _start_pool(ctx, n, cfg, threads):
     return ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker,
                                initargs=(cfg, threads))

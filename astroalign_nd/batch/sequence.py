@@ -40,6 +40,7 @@ from . import adjust
 from .links import (Graph, Link, bridge_pairs, chain_pairs, choose_hubs, match_link, wanted)
 from .frame import _failed, shifted_transform
 from .planning import _display_names, _is_path, _skip_or_refuse
+from .runners import task_pool
 from .results import FrameResult
 
 __all__ = ["solve_sequence", "SequenceSolution", "Link"]
@@ -179,7 +180,7 @@ class SequenceSolution:
 def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = "similarity",
                    all_pairs: int = 10, n_hubs: int = 1, min_overlap: float = 0.1,
                    link_tolerance: float = 1.0, n_stars: int | None = None,
-                   client: Any = None,
+                   client: Any = None, workers: int | None = None,
                    hdu: int | str | None = None, unit: Any = None,
                    **options: Any) -> SequenceSolution:
     """
@@ -233,6 +234,11 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
         for small overlaps.
     client : ``dask.distributed.Client``, optional
         Match the links of each round as dask tasks; the solve runs here.
+    workers : int, optional
+        Detect the frames read from files, and match the links, in this
+        many local processes (as `~astroalign_nd.register_batch`'s
+        ``workers``); the solve runs here.  Frames read from files keep
+        only their stars once detected (their pixels are let go).
     hdu, unit : optional
         As in `~astroalign_nd.register_batch`.
     **options
@@ -279,10 +285,12 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
     names = _display_names(items)
     ref = _reference_index(reference, items)
     seconds, t0 = {}, time.perf_counter()
-    refs, unsolved = _detect(items, names, config, frames_hdu, unit)
-    shapes = [_shape(r) for r in refs]
-    seconds["detect"], t0 = time.perf_counter() - t0, time.perf_counter()
-    graph = _link(refs, shapes, config, ref, numbers, client)
+    workers = _check_workers(workers, client)
+    with task_pool(workers) as pool:
+        refs, unsolved = _detect(items, names, config, (frames_hdu, unit), n_stars, pool)
+        shapes = [_shape(r) for r in refs]
+        seconds["detect"], t0 = time.perf_counter() - t0, time.perf_counter()
+        graph = _link(refs, shapes, config, ref, numbers, (client, pool, workers))
     seconds["match"], t0 = time.perf_counter() - t0, time.perf_counter()
     if ref is None:
         ref = _best_connected(graph, refs)
@@ -334,17 +342,51 @@ def _reference_index(reference, items):
                      "object or path), or None to choose the best-connected frame.")
 
 
-def _detect(items, names, config, hdu, unit):
+def _check_workers(workers, client):
+    if workers is None:
+        return None
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 0:
+        raise ValueError(f"workers must be a non-negative integer; got {workers!r}.")
+    if client is not None and workers > 1:
+        raise ValueError("give either client (dask.distributed) or workers (local processes), "
+                         "not both.")
+    return int(workers)
+
+
+def detect_frame(frame, name, config, read, n_stars):
+    """
+    One frame's detected `Reference` (its pixels let go when it can read
+    them again), or the reason it failed (str).  Runs in a worker as well
+    as here.
+    """
+    hdu, unit = read
+    try:
+        ref = frame if isinstance(frame, Reference) else Reference(
+            frame, hdu=hdu, unit=unit, _role=f"frame {name}", _config=config.detection)
+        found = len(ref.stars(config.n_sources)[0])
+        if n_stars is not None and n_stars > found:
+            ref.stars(-(-n_stars // 2))  # the deeper list of the joint solve, while read
+    except (AstroalignError, OSError, ValueError, TypeError) as exc:
+        return f"{type(exc).__name__}: {exc}"
+    if ref is not frame:  # (a Reference passed in is the caller's: left as it is)
+        ref.release_pixels()
+    return ref
+
+
+def _detect(items, names, config, read, n_stars, pool):
     """A detected `Reference` per frame (None, with the reason, for a frame that failed)."""
+    # Files are read and detected in the workers; arrays here (shipping
+    # their pixels to a worker and back costs more than it saves).
+    remote = {i: pool.submit(detect_frame, frame, names[i], config, read, n_stars)
+              for i, (frame, _) in enumerate(items)
+              if pool is not None and _is_path(frame)}
     refs, unsolved = [], {}
     for i, (frame, _) in enumerate(items):
-        try:
-            ref = frame if isinstance(frame, Reference) else Reference(
-                frame, hdu=hdu, unit=unit, _role=f"frame {names[i]}", _config=config.detection)
-            ref.stars(config.n_sources)
-        except (AstroalignError, OSError, ValueError, TypeError) as exc:
-            ref, unsolved[i] = None, f"{type(exc).__name__}: {exc}"
-        refs.append(ref)
+        res = remote[i].result() if i in remote else detect_frame(frame, names[i], config,
+                                                                  read, n_stars)
+        if isinstance(res, str):
+            res, unsolved[i] = None, res
+        refs.append(res)
     return refs, unsolved
 
 
@@ -358,12 +400,18 @@ def _shape(ref):
     return (int(np.ceil(pts[:, 1].max())) + 1, int(np.ceil(pts[:, 0].max())) + 1)
 
 
-def _match_all(pairs, refs, config, client, shipped):
+def _match_all(pairs, refs, config, runners, shipped):
     """
-    The `Link` (or the reason there is none) of each pair, here or as dask
-    tasks; ``shipped`` (frame -> future) holds the frames already sent to
-    the cluster, each sent once for the whole solve.
+    The `Link` (or the reason there is none) of each pair, here, in the
+    local workers or as dask tasks; ``shipped`` (frame -> future) holds the
+    frames already sent to the cluster, each sent once for the whole solve.
     """
+    client, pool, workers = runners
+    if len(pairs) >= 2 and pool is not None:
+        return list(pool.map(match_link, [refs[a] for a, _ in pairs],
+                             [refs[b] for _, b in pairs], [config] * len(pairs),
+                             [a for a, _ in pairs], [b for _, b in pairs],
+                             chunksize=max(1, len(pairs) // (4 * workers))))
     if client is None or len(pairs) < 2:
         return [match_link(refs[a], refs[b], config, a, b) for a, b in pairs]
     new = sorted({f for p in pairs for f in p} - set(shipped))
@@ -380,20 +428,22 @@ def _match_all(pairs, refs, config, client, shipped):
     return out
 
 
-def _link(refs, shapes, config, ref, numbers, client):
+def _link(refs, shapes, config, ref, numbers, runners):
     """The rounds of linking: the chain, then every pair or the hubs, then bridges."""
     all_pairs, n_hubs, min_overlap = numbers
     valid = [i for i, r in enumerate(refs) if r is not None]
     graph = Graph(len(refs), shapes)
+    client, pool, workers = runners
     # Without a client the pairs go one by one (a link found may show that
     # the next pair does not overlap); with one, a batch per worker thread.
-    size = 1 if client is None else max(2, 2 * sum(client.nthreads().values()))
+    size = (max(2, 2 * sum(client.nthreads().values())) if client is not None
+            else 8 * workers if pool is not None else 1)
     shipped = {}
 
     def run(pairs):
         """Match ``pairs``; True when a link joined two groups (the placement changes)."""
         joined = False
-        for (a, b), res in zip(pairs, _match_all(pairs, refs, config, client, shipped)):
+        for (a, b), res in zip(pairs, _match_all(pairs, refs, config, runners, shipped)):
             graph.tried.add((min(a, b), max(a, b)))
             if isinstance(res, Link):
                 joined |= graph.add(res)
@@ -689,7 +739,9 @@ def _adjust_bundle(frames, obs):
             if delta is None:
                 break
             frames.theta += delta
-            if _small(delta, radius):
+            # A model linear in its parameters is solved by one step (a second
+            # would only confirm it, at the cost of a solve of every frame).
+            if _small(delta, radius) or frames.kind in adjust.LINEAR_KINDS:
                 break
         xs, _ = adjust.star_positions(frames, sub)
         pred = adjust.star_positions(frames, obs)[1]
@@ -763,7 +815,7 @@ def _model(m, kind):
         return from_matrix(m)
 
 
-def solve_jobs(jobs, items, target, ref, options, client, report, cfg):
+def solve_jobs(jobs, items, target, ref, options, runners, report, cfg):
     """
     The transforms of `~astroalign_nd.register_batch`'s ``solve='global'``:
     index -> `FrameResult` of each frame to resample (or keep); frames that
@@ -778,8 +830,9 @@ def solve_jobs(jobs, items, target, ref, options, client, report, cfg):
         index = len(items)
     else:
         frames[index] = ref  # its stars are already detected
-    sol = solve_sequence(frames, reference=index, client=client, hdu=cfg.hdu, unit=cfg.unit,
-                         **options)
+    client, workers = runners
+    sol = solve_sequence(frames, reference=index, client=client, workers=workers, hdu=cfg.hdu,
+                         unit=cfg.unit, **options)
     each = (time.perf_counter() - t0) / max(1, len(items))
     found = {}
     for job in jobs:
