@@ -188,8 +188,13 @@ def test_a_retry_recognises_only_its_own_output(tmp_path, night, monkeypatch):
 # -- SIGTERM and SIGINT on the command line --------------------------------------------------
 
 _SLOW_CLI = textwrap.dedent("""
-    import sys, time
+    import signal, sys, time
     import astroalign_nd.batch.frame as frame
+
+    # As a terminal runs the command: Ctrl-C raises KeyboardInterrupt, also when the test
+    # runs as a background job (the shell then leaves SIGINT ignored for its children,
+    # and the command keeps an ignored SIGINT ignored, as under nohup).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     real = frame.find_for_apply
 
