@@ -301,6 +301,7 @@ def _measure_at(data, mask, cand, fwhm, noise, b, opts):
     xc = np.clip(np.round(cand["x"]).astype(int), 0, data.shape[1] - 1)
     yc = np.clip(np.round(cand["y"]).astype(int), 0, data.shape[0] - 1)
     cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
+    sat = _saturated_pixels(cut, bad)
     # Local sky from the tile's outskirts (beyond 2 FWHM): the coarse map
     # of stage 1 is only good to a fraction of the noise, and any pedestal
     # biases fluxes and pulls centroids towards the tile centre.
@@ -315,6 +316,9 @@ def _measure_at(data, mask, cand, fwhm, noise, b, opts):
     xs, ys = _refined_positions(cut[kk], bad[kk], lx[sel], ly[sel], fwhm, opts)
     tab = {c: np.asarray(tab[c], float)[sel] for c in ("peak", "sharpness", "roundness1",
                                                        "roundness2")}
+    tab["plateau_error"] = np.full(len(xs), np.nan)
+    if sat is not None and opts["refine_centroids"]:
+        xs, ys, tab["plateau_error"] = _plateau_centroids(sat[kk], bad[kk], xs, ys, fwhm)
     return _filtered_table(cut[kk], bad[kk], xc[kk] - half + xs, yc[kk] - half + ys, xs, ys,
                            tab, half, fwhm, noise, b, opts)
 
@@ -420,6 +424,9 @@ def _filtered_table(cut, bad, gx, gy, xs, ys, dao, half, fwhm, noise, b, opts):
     """
     nsigma = opts["nsigma"]
     aflux, perr, snr = _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise)
+    # A saturated star's (clipped) flux says nothing of its centroid: its plateau does.
+    perr = np.where(np.isfinite(dao["plateau_error"]), np.hypot(dao["plateau_error"], 0.005),
+                    perr)
 
     # Hot pixels and cosmic rays that got this far (a bright hit can pass
     # DAOFIND's sharpness limit) are much narrower than the stars.
@@ -453,6 +460,106 @@ def _filtered_table(cut, bad, gx, gy, xs, ys, dao, half, fwhm, noise, b, opts):
     out.meta.update(fwhm=float(fwhm), noise=float(noise), bin_factor=int(b),
                     own_fwhm_median=float(np.median(own)) if own.size else float("nan"))
     return out
+
+
+#: Saturated pixels (at the tiles' largest value) that make a plateau
+#: whose centroid replaces the windowed one (a 3x3 block and more).
+_MIN_PLATEAU = 9
+
+
+#: A windowed centroid this many plateau errors from the plateau's is replaced.
+_PLATEAU_K = 2.0
+
+
+def _saturated_pixels(cut, bad):
+    """
+    The tiles' pixels at their largest value (a saturation level), or None.
+
+    None when fewer than `_MIN_PLATEAU` pixels share it: the brightest
+    pixel of an unsaturated frame, not a plateau.
+    """
+    good = ~bad
+    if not good.any():
+        return None
+    level = cut[good].max()
+    sat = good & (cut >= level)
+    return sat if sat.sum() >= _MIN_PLATEAU else None
+
+
+def _plateau_centroids(sat, bad, x0, y0, fwhm):
+    """
+    Centroids of saturated stars from their plateaus, with their errors.
+
+    A saturated star is flat-topped: a Gaussian window as narrow as the
+    PSF has no restoring force on a plateau wider than itself and stops
+    near where it started, up to a pixel or more from the centre (8-bit
+    frames, where every star saturates).  The plateau of a symmetric star
+    is symmetric about its centre: the mean of its pixels measures the
+    centre to the quantisation of its boundary.  Where the plateau meets
+    the frame's edge or a mask, only the pixels whose mirror image through
+    the centre is valid count (iterated), and the error grows with the
+    part lost.  A plateau that reaches the tile's border, or whose centre
+    lies more than half its radius plus half a FWHM from the windowed one
+    (two stars' plateaus merged), keeps the windowed centroid.
+
+    Returns
+    -------
+    x, y : (n,) ndarray
+        Positions in the tiles.
+    error : (n,) ndarray
+        The plateau centroid's 1-sigma error per axis (NaN where the
+        windowed centroid is kept).
+    """
+    from scipy import ndimage
+
+    n, size, _ = sat.shape
+    xs, ys, err = np.array(x0, float), np.array(y0, float), np.full(n, np.nan)
+    for k in np.flatnonzero(sat.sum(axis=(1, 2)) >= _MIN_PLATEAU):
+        lab, _ = ndimage.label(sat[k])
+        ix, iy = (int(np.clip(np.rint(v), 0, size - 1)) for v in (x0[k], y0[k]))
+        reg = lab == lab[iy, ix] if lab[iy, ix] else None
+        if reg is None or reg.sum() < _MIN_PLATEAU or reg[[0, -1], :].any() \
+                or reg[:, [0, -1]].any():
+            continue
+        yy, xx = np.nonzero(reg)
+        cx, cy = xx.mean(), yy.mean()
+        use = np.ones(len(xx), bool)
+        if (ndimage.binary_dilation(reg) & bad[k]).any():
+            cx, cy, use = _mirrored_support(xx, yy, ~bad[k], cx, cy)
+        radius = np.sqrt(len(xx) / np.pi)
+        if use.sum() < _MIN_PLATEAU or np.hypot(cx - x0[k], cy - y0[k]) > 0.5 * (radius + fwhm):
+            continue
+        # Each boundary pixel is in or out by the noise: variance ~1/4 each,
+        # at a distance ~radius, over the plateau's pixel count.
+        edge = reg & ~ndimage.binary_erosion(reg)
+        n_edge = edge[yy[use], xx[use]].sum()
+        e = np.sqrt(n_edge / 8.0) * radius / use.sum()
+        err[k] = np.hypot(e, (1.0 - use.sum() / len(xx)) * radius)
+        # A windowed centroid that agrees with the plateau's within its error
+        # is kept (sharp, clean wings measure the centre better than the
+        # pixel grid of the plateau); one that disagrees stopped on the flat top.
+        if np.hypot(cx - x0[k], cy - y0[k]) > _PLATEAU_K * err[k]:
+            xs[k], ys[k] = cx, cy
+    return xs, ys, err
+
+
+def _mirrored_support(xx, yy, valid, cx, cy, n_iter=5):
+    """
+    Centroid of the plateau pixels ``(xx, yy)`` whose mirror image through
+    the centroid is a valid pixel, iterated from ``(cx, cy)``; with the
+    pixels used.
+    """
+    size = valid.shape[0]
+    use = np.ones(len(xx), bool)
+    for _ in range(n_iter):
+        mx, my = np.rint(2 * cx - xx).astype(int), np.rint(2 * cy - yy).astype(int)
+        inside = (mx >= 0) & (mx < size) & (my >= 0) & (my < size)
+        use = inside.copy()
+        use[inside] = valid[my[inside], mx[inside]]
+        if use.sum() < _MIN_PLATEAU:
+            break
+        cx, cy = xx[use].mean(), yy[use].mean()
+    return cx, cy, use
 
 
 def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
