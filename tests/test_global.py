@@ -11,7 +11,8 @@ import astroalign_nd
 from astroalign_nd import find_transform, register_batch, solve_sequence
 from astroalign_nd.batch import Link, sequence
 from astroalign_nd.cli import main
-from astroalign_nd.simulate import (dither_transforms, mosaic_transforms, simulate_views)
+from astroalign_nd.simulate import (dither_transforms, mosaic_transforms, simulate_pair,
+                                    simulate_views)
 from astroalign_nd.transforms import as_matrix, fit_transform
 
 
@@ -270,3 +271,12 @@ def test_dense_and_sparse_factors_agree(monkeypatch):
                            atol=1e-8)
         assert np.allclose(dense.covariances[i], sparse.covariances[i], rtol=1e-6, atol=1e-14)
         assert _max_error(dense.transforms[i], _truth(truth, i, 0), shape) < 0.1
+
+
+def test_one_frame_is_its_own_reference():
+    """A sequence of one frame: the identity, with no error and no link."""
+    pair = simulate_pair((128, 128), n_stars=50, seed=1)
+    sol = solve_sequence([pair.target])
+    assert sol.reference == 0 and not sol.links and not sol.unsolved
+    np.testing.assert_allclose(as_matrix(sol.transforms[0]), np.eye(3), atol=0)
+    assert sol.predicted_errors[0] == 0

@@ -281,7 +281,8 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
     items, frames_hdu = batch_frames(frames, hdu)
     items = list(items)
     if not items:
-        raise ValueError("frames is empty: pass at least two frames.")
+        raise ValueError("frames is empty: pass the frames to solve (file paths, CCDData, arrays "
+                         "or an ImageFileCollection); one frame alone is its own reference.")
     names = _display_names(items)
     ref = _reference_index(reference, items)
     seconds, t0 = {}, time.perf_counter()
