@@ -11,9 +11,9 @@ model on all the pairs, sets the pairing radius from the fit's own
 residuals, and repeats until the pairs no longer change.
 
 Bounded time and memory for millions of points: one grid of the targets
-(`~astroalign_nd._kernels.PointGrid`, cells of about ``GRID_STARS``
+(``_kernels.PointGrid``, cells of about ``GRID_STARS``
 stars), one look-up of each source's two nearest targets within the first
-radius (`~astroalign_nd._kernels.two_nearest`: compiled, or a k-d tree),
+radius (``_kernels.two_nearest``: compiled, or a k-d tree),
 and, in later iterations, only the distances to these candidates.  A
 candidate list is exact for a moved prediction as long as the prediction
 moved by less than the gap to the next target: the sources where it is
