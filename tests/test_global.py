@@ -134,6 +134,40 @@ def test_false_link_is_rejected_and_reported(monkeypatch):
         assert _max_error(sol.transforms[i], _truth(truth, i, 0), shape) < 0.1
 
 
+def test_guided_hub_links_and_a_false_chain_link(monkeypatch):
+    """
+    A sequence past ``all_pairs``: the hub links predicted through a
+    neighbour are verified, not searched (one search per chain link and the
+    first hub link), and a wrong chain link still fails its guided
+    successor, is searched again, rejected and reported.
+    """
+    shape = (256, 256)
+    truth = dither_transforms(10, max_shift=30, shape=shape, seed=6)
+    cats = _catalogs(truth, shape, 120, 0.05, seed=7)
+    real, calls = sequence.match_link, []
+
+    def corrupt(src, dst, config, a, b):
+        calls.append((a, b))
+        link = real(src, dst, config, a, b)
+        if (a, b) == (4, 5) and isinstance(link, Link):
+            wrong = link.target_points + [8.0, -3.0]
+            t = fit_transform(link.source_points, wrong, "similarity")[0]
+            link = Link(a, b, t, link.n_matches, link.rms, link.log10_false_alarm,
+                        link.source_points, wrong)
+        return link
+
+    monkeypatch.setattr(sequence, "match_link", corrupt)
+    sol = solve_sequence(cats, reference=0, all_pairs=4)
+    chain = [(i, i + 1) for i in range(9)]
+    # The chain, then the hub links the prediction could not give: 5's
+    # (predicted through the false chain link 4 -> 5).
+    assert calls[:9] == chain and sorted(calls[9:]) == [(5, 0)], calls
+    assert [(k.source, k.target) for k in sol.rejected] == [(4, 5)]
+    assert len(sol.links) == 9 + 8 and sol.unsolved == {}
+    for i in range(10):
+        assert _max_error(sol.transforms[i], _truth(truth, i, 0), shape) < 0.1
+
+
 def test_unconnected_and_failed_frames_are_reported():
     shape = (200, 200)
     truth = mosaic_transforms((1, 2), shape, overlap=0.4)

@@ -39,6 +39,9 @@ LINEAR_KINDS = ("translation", "similarity", "affine")
 _DENSE_FILL = 0.2
 #: ... up to this many parameters (a dense factor of 6000 x 6000 is 288 MB).
 _DENSE_MAX = 6000
+#: Conjugate gradients (`bundle_step` with a preconditioner): relative
+#: tolerance on the preconditioned residual's norm, and the iteration cap.
+_PCG_TOL, _PCG_MAX = 1e-10, 60
 
 
 @dataclass
@@ -159,6 +162,16 @@ class _DenseFactor:
     def solve(self, rhs):
         return linalg.cho_solve(self.factor, rhs)
 
+    def inverse(self):
+        """The whole inverse (LAPACK ``potri``: a third of the solves' cost)."""
+        c, lower = self.factor
+        inv, info = linalg.lapack.dpotri(c, lower=lower)
+        if info != 0:  # cannot happen for a successful factor
+            raise linalg.LinAlgError(f"potri failed ({info})")
+        # potri fills one triangle: mirror it.
+        tri = np.tril(inv) if lower else np.triu(inv)
+        return tri + tri.T - np.diag(np.diag(tri))
+
 
 def _solve(normal, rhs):
     """``normal @ x = rhs`` (sparse, symmetric positive definite); None if singular."""
@@ -263,14 +276,12 @@ def _predictions(frames, obs):
     return predict(frames.kind, frames.theta[obs.frame], obs.q)
 
 
-def bundle_step(frames, obs):
+def _bundle_system(frames, obs):
     """
-    One Gauss-Newton step of the bundle adjustment, the star positions
-    eliminated (Schur complement).
-
-    Returns the parameter change (F, k) or None when the system is
-    singular, the residuals (n, 2) at the current parameters, and the
-    SuperLU factor of the reduced normal matrix (for the covariance).
+    The bundle adjustment's normal equations, the star positions not yet
+    eliminated: the frames' block ``a`` (p, p), the frame-star coupling
+    ``b`` (p, 2S), the stars' inverse weights ``d_inv`` (2S,), the
+    right-hand side (p,) and the residuals (n, 2) at the current parameters.
     """
     cols, p = frames.index()
     k = N_PARAMS[frames.kind]
@@ -304,6 +315,57 @@ def bundle_step(frames, obs):
                           shape=(p, 2 * obs.n_tracks)).tocsr()
     d = np.repeat(np.bincount(obs.track, obs.w, obs.n_tracks), 2).astype(float)
     d_inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0)  # (a star all clipped: 0)
+    return a, b, d_inv, rhs, resid
+
+
+def _pcg(a, b, d_inv, rhs, precond):
+    """
+    ``(a - b diag(d_inv) b^T) x = rhs`` by conjugate gradients, the reduced
+    matrix applied without being formed, preconditioned by ``precond`` (the
+    factor of a nearby system); None when it does not converge.
+    """
+    bt = b.T.tocsr()
+
+    def apply(v):
+        return a @ v - b @ (d_inv * (bt @ v))
+
+    x = np.zeros_like(rhs)
+    r = rhs.copy()
+    z = precond.solve(r)
+    d, rz = z.copy(), float(r @ z)
+    stop = _PCG_TOL ** 2 * rz
+    for _ in range(_PCG_MAX):
+        if rz <= stop:
+            return x
+        q = apply(d)
+        alpha = rz / float(d @ q)
+        x += alpha * d
+        r -= alpha * q
+        z = precond.solve(r)
+        rz, rz_old = float(r @ z), rz
+        d = z + (rz / rz_old) * d
+    return x if rz <= stop else None
+
+
+def bundle_step(frames, obs, precond=None):
+    """
+    One Gauss-Newton step of the bundle adjustment, the star positions
+    eliminated (Schur complement).
+
+    With ``precond`` (the factor a previous step returned), the step is
+    solved by preconditioned conjugate gradients and the reduced matrix is
+    neither formed nor factored (a long sequence's is dense); the factor
+    returned is then None.  Returns the parameter change (F, k) or None
+    when the system is singular, the residuals (n, 2) at the current
+    parameters, and the factor of the reduced normal matrix (for the
+    covariance).
+    """
+    cols, _ = frames.index()
+    a, b, d_inv, rhs, resid = _bundle_system(frames, obs)
+    if precond is not None and len(rhs):
+        delta = _pcg(a, b, d_inv, rhs, precond)
+        if delta is not None:
+            return _unpack(frames, delta, cols), resid, None
     reduced = a - b @ sparse.diags(d_inv) @ b.T
     # The residuals are those of the mean star positions: their gradient is
     # zero, so the reduced right-hand side is the frames' own.
@@ -317,6 +379,11 @@ def frame_covariances(frames, lu, scale):
     k = N_PARAMS[frames.kind]
     out = np.zeros((len(frames.theta), k, k))
     if lu is None or p == 0:
+        return out
+    if isinstance(lu, _DenseFactor):
+        inv = lu.inverse()
+        for f in np.nonzero(cols >= 0)[0]:
+            out[f] = inv[cols[f]:cols[f] + k, cols[f]:cols[f] + k] * scale
         return out
     step = max(k, (4096 // k) * k)  # columns per solve: bounded memory
     for start in range(0, p, step):

@@ -12,15 +12,23 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.special import betainc
 
 from ..exceptions import AstroalignError
 from ..registration import find_match_from_config
+from ..transforms import apply_matrix
+from ..transforms.allpairs import pair_all
 from ..transforms.convert import as_matrix
+from ..transforms.registry import transform_type_of
 
 __all__ = ["Link"]
 
 #: Grid points per side used to predict the overlap of two frames.
 _OVERLAP_GRID = 9
+#: A guided link (`guided_link`): the first pairing radius (px; the prediction
+#: composes two trusted links, good to a few hundredths of a pixel), and the
+#: fraction of the source stars predicted on the target frame that must pair.
+_GUIDED_RADIUS, _GUIDED_FRACTION = 2.0, 0.5
 
 
 @dataclass
@@ -110,6 +118,77 @@ def match_link(src, dst, config, a, b):
                 warnings=[str(w.message) for w in caught])
 
 
+def _box(pts):
+    return (pts[:, 0].min(), pts[:, 0].max(), pts[:, 1].min(), pts[:, 1].max())
+
+
+def _inside(pts, frame):
+    x0, x1, y0, y1 = frame
+    return (pts[:, 0] >= x0) & (pts[:, 0] <= x1) & (pts[:, 1] >= y0) & (pts[:, 1] <= y1)
+
+
+def _chance_log10(n_pairs, src_pts, dst_pts, frames, m, radius):
+    """
+    log10 probability that ``n_pairs`` source stars land within ``radius``
+    of a target star by chance (binomial tail, as the search's figure
+    without its trials: the transform was predicted, not searched), and
+    the number of source stars predicted on the target frame.
+    """
+    s_frame, d_frame = frames
+    on = _inside(apply_matrix(m, src_pts), d_frame)
+    back = _inside(apply_matrix(np.linalg.inv(m), dst_pts), s_frame)
+    # (A pair may sit just off the edge: the pairs count among the stars on it.)
+    n_s, m_o = max(int(on.sum()), n_pairs), int(back.sum())
+    # The overlap's area (target px): the source frame's share on the target.
+    gx, gy = np.meshgrid(np.linspace(s_frame[0], s_frame[1], _OVERLAP_GRID),
+                         np.linspace(s_frame[2], s_frame[3], _OVERLAP_GRID))
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    frac = float(np.mean(_inside(apply_matrix(m, grid), d_frame)))
+    det = abs(np.linalg.det(m[:2, :2]))
+    area = frac * (s_frame[1] - s_frame[0]) * (s_frame[3] - s_frame[2]) * det
+    if area <= 0 or n_pairs <= 0:
+        return 0.0, n_s
+    p = min(1.0, max(m_o, 1) * np.pi * radius ** 2 / area)
+    tail = betainc(n_pairs, n_s - n_pairs + 1, p) if p < 1 else 1.0
+    return float(max(np.log10(tail), -300.0)) if tail > 0 else -300.0, n_s
+
+
+def guided_link(src, dst, config, a, b, start):
+    """
+    The link ``a`` -> ``b`` from a predicted transform ``start`` (3x3: the
+    composition of two trusted links through a third frame), without a
+    search: the stars paired under it and the model refitted on all pairs
+    (`~astroalign_nd.transforms.allpairs.pair_all`), verified by the share
+    of the stars predicted on the target that pair and by the pairs'
+    false-alarm figure.  A `Link`, or the reason there is none (str): the
+    caller then runs the full search.
+    """
+    n = config.n_sources
+    (s_pts, _, s_frame), (d_pts, _, d_frame) = src.stars(n), dst.stars(n)
+    if len(s_pts) < 3 or len(d_pts) < 3:
+        return "too few stars for a guided link"
+    s_pts, d_pts = np.asarray(s_pts, float), np.asarray(d_pts, float)
+    # A catalog has no frame: its stars' bounding box stands for it.
+    s_frame, d_frame = (f if f is not None else _box(p)
+                        for f, p in ((s_frame, s_pts), (d_frame, d_pts)))
+    try:
+        kind = transform_type_of(config.model.transform_type).name
+        fit = pair_all(s_pts, d_pts, start, transform_type=kind,
+                       tolerance=_GUIDED_RADIUS, max_iterations=5)
+    except (AstroalignError, ValueError, np.linalg.LinAlgError) as exc:
+        return f"{type(exc).__name__}: {exc}"
+    m = as_matrix(fit.transform)
+    n_pairs = len(fit.source_index)
+    lfa, n_on = _chance_log10(n_pairs, s_pts, d_pts, (s_frame, d_frame), m, fit.radius)
+    if n_pairs < max(6, _GUIDED_FRACTION * n_on) or lfa > np.log10(
+            config.matching.max_false_alarm) or 4.0 * fit.sigma > fit.radius:
+        return (f"guided link: {n_pairs} pairs of {n_on} stars, log10 false alarm "
+                f"{lfa:.1f}, sigma {fit.sigma:.3f} px in a {fit.radius:.3f} px radius")
+    rms = float(np.sqrt(np.mean(np.sum(fit.residuals ** 2, axis=1))))
+    return Link(a, b, fit.transform, n_pairs, rms, lfa, s_pts[fit.source_index],
+                d_pts[fit.target_index])
+
+
 class Graph:
     """The links found so far, the frames' components and their placement."""
 
@@ -118,6 +197,15 @@ class Graph:
         self.links, self.tried, self.failures = [], set(), {}
         self._parent = list(range(n))  # union-find of the frames joined by links
         self._grids = {}
+        self._mats = {}  # (a, b) -> matrix a -> b of each link found, both ways
+        self._nbrs = {}  # frame -> the frames linked to it
+
+    def predict(self, a, b):
+        """Matrix ``a`` -> ``b`` through a frame linked to both, or None."""
+        for g in self._nbrs.get(a, ()):
+            if (g, b) in self._mats:
+                return self._mats[g, b] @ self._mats[a, g]
+        return None
 
     def group(self, f):
         """The representative of frame ``f``'s group (links found, rejection aside)."""
@@ -128,6 +216,11 @@ class Graph:
     def add(self, link):
         """Record a link; True when it joined two groups."""
         self.links.append(link)
+        m = as_matrix(link.transform)
+        self._mats[link.source, link.target] = m
+        self._mats[link.target, link.source] = np.linalg.inv(m)
+        self._nbrs.setdefault(link.source, []).append(link.target)
+        self._nbrs.setdefault(link.target, []).append(link.source)
         a, b = self.group(link.source), self.group(link.target)
         self._parent[max(a, b)] = min(a, b)
         return a != b

@@ -37,7 +37,8 @@ from ..matching.pairing import mutual_matches
 from ..registration import Reference
 from ..transforms.convert import as_matrix, from_matrix
 from . import adjust
-from .links import (Graph, Link, bridge_pairs, chain_pairs, choose_hubs, match_link, wanted)
+from .links import (Graph, Link, bridge_pairs, chain_pairs, choose_hubs, guided_link,
+                    match_link, wanted)
 from .frame import _failed, shifted_transform
 from .planning import _display_names, _is_path, _skip_or_refuse
 from .runners import task_pool
@@ -51,6 +52,8 @@ _MAX_STEPS, _CONVERGED = 30, 1e-7
 SOLVE_OPTIONS = ("n_stars", "all_pairs", "n_hubs", "min_overlap", "link_tolerance")
 #: Detections further than this many robust sigmas from their star's mean are clipped.
 _CLIP_SIGMA = 5.0
+#: The link models a guided link refits (`guided_link`).
+_GUIDED_KINDS = ("similarity", "affine")
 
 
 @dataclasses.dataclass
@@ -444,6 +447,8 @@ def _link(refs, shapes, config, ref, numbers, runners):
     def run(pairs):
         """Match ``pairs``; True when a link joined two groups (the placement changes)."""
         joined = False
+        if guide:
+            pairs, joined = _guided(graph, refs, config, pairs)
         for (a, b), res in zip(pairs, _match_all(pairs, refs, config, runners, shipped)):
             graph.tried.add((min(a, b), max(a, b)))
             if isinstance(res, Link):
@@ -462,6 +467,7 @@ def _link(refs, shapes, config, ref, numbers, runners):
             if batch and run(batch):
                 place = graph.placement()
 
+    guide = False
     run(chain_pairs(valid))
     if len(valid) <= all_pairs:
         cands = sorted(((a, b) for a in valid for b in valid if a < b),
@@ -469,7 +475,10 @@ def _link(refs, shapes, config, ref, numbers, runners):
     else:
         hubs = choose_hubs(graph, valid, n_hubs, graph.placement(), fixed=ref)
         cands = [(f, h) for h in hubs for f in valid if f != h]
+        # A hub link predicted by the frame's neighbour's is verified, not searched.
+        guide = config.model.transform_type in _GUIDED_KINDS
     run_pruned(cands)
+    guide = False
     for _ in range(3):  # bridges across the groups still apart
         groups = graph.components(valid)
         pairs = bridge_pairs(graph, groups, all_pairs) if len(groups) > 1 else []
@@ -477,6 +486,24 @@ def _link(refs, shapes, config, ref, numbers, runners):
             break
         run_pruned(pairs)
     return graph
+
+
+def _guided(graph, refs, config, pairs):
+    """
+    The guided links (`guided_link`) of ``pairs``, in order, each predicted
+    through a frame linked to both; returns the pairs still to be searched
+    and whether a link joined two groups.
+    """
+    rest, joined = [], False
+    for a, b in pairs:
+        start = graph.predict(a, b)
+        res = None if start is None else guided_link(refs[a], refs[b], config, a, b, start)
+        if not isinstance(res, Link):
+            rest.append((a, b))
+            continue
+        graph.tried.add((min(a, b), max(a, b)))
+        joined |= graph.add(res)
+    return rest, joined
 
 
 def _best_connected(graph, refs):
@@ -733,10 +760,12 @@ def _adjust_bundle(frames, obs):
     """
     active = np.ones(len(obs.frame), bool)
     radius = _radius(frames)
+    precond = None  # the first step's factor: a later round's steps need no factor of their own
     for _ in range(5):
         sub = _subset(obs, active)
         for _ in range(_MAX_STEPS):
-            delta, _, _ = adjust.bundle_step(frames, sub)
+            delta, _, lu = adjust.bundle_step(frames, sub, precond)
+            precond = lu if precond is None else precond
             if delta is None:
                 break
             frames.theta += delta
