@@ -50,6 +50,21 @@ def _catalogs(transforms, shape, n_stars, noise, seed):
     return out
 
 
+def _corrupted_link(real, pair, calls=None):
+    """``match_link`` with the link of ``pair`` made false (its stars paired 8 px away)."""
+    def corrupt(src, dst, config, a, b):
+        if calls is not None:
+            calls.append((a, b))
+        link = real(src, dst, config, a, b)
+        if (a, b) == pair and isinstance(link, Link):
+            wrong = link.target_points + [8.0, -3.0]
+            t = fit_transform(link.source_points, wrong, "similarity")[0]
+            link = Link(a, b, t, link.n_matches, link.rms, link.log10_false_alarm,
+                        link.source_points, wrong)
+        return link
+    return corrupt
+
+
 def test_mosaic_every_tile_from_a_corner():
     """A 3x3 mosaic, 20% overlaps, reference at a corner: every tile within 0.05 px."""
     shape = (256, 256)
@@ -113,19 +128,7 @@ def test_false_link_is_rejected_and_reported(monkeypatch):
     shape = (256, 256)
     truth = dither_transforms(8, max_shift=30, shape=shape, seed=4)
     cats = _catalogs(truth, shape, 120, 0.05, seed=5)
-    real = sequence.match_link
-
-    def corrupt(src, dst, config, a, b):
-        link = real(src, dst, config, a, b)
-        if (a, b) == (2, 5) and isinstance(link, Link):
-            # A false match: the same stars paired with others, 8 px away.
-            wrong = link.target_points + [8.0, -3.0]
-            t = fit_transform(link.source_points, wrong, "similarity")[0]
-            link = Link(a, b, t, link.n_matches, link.rms, link.log10_false_alarm,
-                        link.source_points, wrong)
-        return link
-
-    monkeypatch.setattr(sequence, "match_link", corrupt)
+    monkeypatch.setattr(sequence, "match_link", _corrupted_link(sequence.match_link, (2, 5)))
     sol = solve_sequence(cats, reference=0)
     assert [(k.source, k.target) for k in sol.rejected] == [(2, 5)]
     assert sol.rejected[0].misfit > 5 and "disagrees" in sol.rejected[0].reason
@@ -144,19 +147,9 @@ def test_guided_hub_links_and_a_false_chain_link(monkeypatch):
     shape = (256, 256)
     truth = dither_transforms(10, max_shift=30, shape=shape, seed=6)
     cats = _catalogs(truth, shape, 120, 0.05, seed=7)
-    real, calls = sequence.match_link, []
-
-    def corrupt(src, dst, config, a, b):
-        calls.append((a, b))
-        link = real(src, dst, config, a, b)
-        if (a, b) == (4, 5) and isinstance(link, Link):
-            wrong = link.target_points + [8.0, -3.0]
-            t = fit_transform(link.source_points, wrong, "similarity")[0]
-            link = Link(a, b, t, link.n_matches, link.rms, link.log10_false_alarm,
-                        link.source_points, wrong)
-        return link
-
-    monkeypatch.setattr(sequence, "match_link", corrupt)
+    calls = []
+    monkeypatch.setattr(sequence, "match_link",
+                        _corrupted_link(sequence.match_link, (4, 5), calls))
     sol = solve_sequence(cats, reference=0, all_pairs=4)
     chain = [(i, i + 1) for i in range(9)]
     # The chain, then the hub links the prediction could not give: 5's
