@@ -12,11 +12,10 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import betainc
 
 from ..exceptions import AstroalignError
+from ..matching import bounding_frame, chance_pairs_log10
 from ..registration import find_match_from_config
-from ..transforms import apply_matrix
 from ..transforms.allpairs import pair_all
 from ..transforms.convert import as_matrix
 from ..transforms.registry import transform_type_of
@@ -118,41 +117,6 @@ def match_link(src, dst, config, a, b):
                 warnings=[str(w.message) for w in caught])
 
 
-def _box(pts):
-    return (pts[:, 0].min(), pts[:, 0].max(), pts[:, 1].min(), pts[:, 1].max())
-
-
-def _inside(pts, frame):
-    x0, x1, y0, y1 = frame
-    return (pts[:, 0] >= x0) & (pts[:, 0] <= x1) & (pts[:, 1] >= y0) & (pts[:, 1] <= y1)
-
-
-def _chance_log10(n_pairs, src_pts, dst_pts, frames, m, radius):
-    """
-    log10 probability that ``n_pairs`` source stars land within ``radius``
-    of a target star by chance (binomial tail, as the search's figure
-    without its trials: the transform was predicted, not searched), and
-    the number of source stars predicted on the target frame.
-    """
-    s_frame, d_frame = frames
-    on = _inside(apply_matrix(m, src_pts), d_frame)
-    back = _inside(apply_matrix(np.linalg.inv(m), dst_pts), s_frame)
-    # (A pair may sit just off the edge: the pairs count among the stars on it.)
-    n_s, m_o = max(int(on.sum()), n_pairs), int(back.sum())
-    # The overlap's area (target px): the source frame's share on the target.
-    gx, gy = np.meshgrid(np.linspace(s_frame[0], s_frame[1], _OVERLAP_GRID),
-                         np.linspace(s_frame[2], s_frame[3], _OVERLAP_GRID))
-    grid = np.column_stack([gx.ravel(), gy.ravel()])
-    frac = float(np.mean(_inside(apply_matrix(m, grid), d_frame)))
-    det = abs(np.linalg.det(m[:2, :2]))
-    area = frac * (s_frame[1] - s_frame[0]) * (s_frame[3] - s_frame[2]) * det
-    if area <= 0 or n_pairs <= 0:
-        return 0.0, n_s
-    p = min(1.0, max(m_o, 1) * np.pi * radius ** 2 / area)
-    tail = betainc(n_pairs, n_s - n_pairs + 1, p) if p < 1 else 1.0
-    return float(max(np.log10(tail), -300.0)) if tail > 0 else -300.0, n_s
-
-
 def guided_link(src, dst, config, a, b, start):
     """
     The link ``a`` -> ``b`` from a predicted transform ``start`` (3x3: the
@@ -169,7 +133,7 @@ def guided_link(src, dst, config, a, b, start):
         return "too few stars for a guided link"
     s_pts, d_pts = np.asarray(s_pts, float), np.asarray(d_pts, float)
     # A catalog has no frame: its stars' bounding box stands for it.
-    s_frame, d_frame = (f if f is not None else _box(p)
+    s_frame, d_frame = (f if f is not None else bounding_frame(p)
                         for f, p in ((s_frame, s_pts), (d_frame, d_pts)))
     try:
         kind = transform_type_of(config.model.transform_type).name
@@ -179,7 +143,7 @@ def guided_link(src, dst, config, a, b, start):
         return f"{type(exc).__name__}: {exc}"
     m = as_matrix(fit.transform)
     n_pairs = len(fit.source_index)
-    lfa, n_on = _chance_log10(n_pairs, s_pts, d_pts, (s_frame, d_frame), m, fit.radius)
+    lfa, n_on = chance_pairs_log10(m, s_pts, d_pts, n_pairs, fit.radius, s_frame, d_frame)
     if n_pairs < max(6, _GUIDED_FRACTION * n_on) or lfa > np.log10(
             config.matching.max_false_alarm) or 4.0 * fit.sigma > fit.radius:
         return (f"guided link: {n_pairs} pairs of {n_on} stars, log10 false alarm "

@@ -21,7 +21,7 @@
 
 from .result import MatchResult
 from .search import match_points, search_tolerance
-from .geometry import bounding_frame, overlap_counts
+from .geometry import bounding_frame, chance_pairs_log10, overlap_counts
 from .triangles import match_triangles, hypothesis_matrices
 from .asterisms import Asterisms, build_asterisms, check_triangle_budget
 
@@ -31,6 +31,7 @@ __all__ = [
     'search_tolerance',
     'bounding_frame',
     'overlap_counts',
+    'chance_pairs_log10',
     'match_triangles',
     'hypothesis_matrices',
     'Asterisms',

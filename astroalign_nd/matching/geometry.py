@@ -3,9 +3,10 @@
 
 import functools
 import numpy as np
+from scipy.special import betainc
 from ..transforms import apply_matrix
 
-__all__ = ["bounding_frame", "overlap_counts"]
+__all__ = ["bounding_frame", "overlap_counts", "chance_pairs_log10"]
 
 
 @functools.lru_cache(maxsize=32)
@@ -114,3 +115,60 @@ def overlap_counts(matrix, source_points, target_points, source_frame, target_fr
     n_target = int(np.sum(_in_frame(apply_matrix(np.linalg.inv(matrix), target_points),
                                     source_frame)))
     return n_source, n_target
+
+
+def chance_pairs_log10(matrix, source_points, target_points, n_pairs, radius, source_frame,
+                       target_frame):
+    """
+    How likely ``n_pairs`` pairs are by chance under a transform that was
+    predicted, not searched (so no trials factor).
+
+    Each source star in the overlap falls within ``radius`` of one of the
+    target stars there with probability ``p = n_target * pi * radius**2 /
+    area``; the figure is the binomial tail P(X >= n_pairs), as the
+    search's false-alarm figure takes it over the stars past its triangle.
+
+    Parameters
+    ----------
+    matrix : (3, 3) ndarray
+        The source-to-target pixel matrix.
+    source_points, target_points : (N, 2), (M, 2) ndarray
+        The two star lists (x, y).
+    n_pairs : int
+        The pairs found under ``matrix``.
+    radius : float
+        The pairing radius (pixels).
+    source_frame, target_frame : (x0, x1, y0, y1)
+        The extent of each frame (see `bounding_frame` for a catalog's).
+
+    Returns
+    -------
+    log10_probability : float
+        At most 0, at least -300.
+    n_source : int
+        The source stars in the overlap (at least ``n_pairs``).
+
+    Examples
+    --------
+    Ten of twenty stars paired within 0.5 px in a 100 x 100 frame cannot
+    be chance; one pair can.
+
+    >>> import numpy as np
+    >>> from astroalign_nd.matching import chance_pairs_log10
+    >>> stars = np.random.default_rng(1).uniform(0, 100, (20, 2))
+    >>> frame = (0, 100, 0, 100)
+    >>> log_p, n = chance_pairs_log10(np.eye(3), stars, stars, 10, 0.5, frame, frame)
+    >>> bool(log_p < -15), n
+    (True, 20)
+    >>> bool(chance_pairs_log10(np.eye(3), stars, stars, 1, 0.5, frame, frame)[0] > -2)
+    True
+    """
+    _, area = _frame_area_fraction(matrix, source_frame, target_frame)
+    n_source, n_target = overlap_counts(matrix, source_points, target_points, source_frame,
+                                        target_frame)
+    n_source = max(n_source, n_pairs)  # a pair may sit just off an edge
+    if area <= 0 or n_pairs <= 0:
+        return 0.0, n_source
+    p = min(1.0, max(n_target, 1) * np.pi * radius ** 2 / area)
+    tail = betainc(n_pairs, n_source - n_pairs + 1, p) if p < 1 else 1.0
+    return (float(max(np.log10(tail), -300.0)) if tail > 0 else -300.0), n_source
