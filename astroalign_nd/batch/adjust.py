@@ -4,7 +4,8 @@ The joint least squares of `~astroalign_nd.solve_sequence`: every frame's
 transform to the reference frame at once.
 
 Two problems, both sparse and solved by Gauss-Newton with SuperLU
-(`scipy.sparse.linalg.splu`):
+(`scipy.sparse.linalg.splu`), or with a dense Cholesky factor when the
+frames are so interlinked that the matrix is nearly full:
 
 * the link adjustment: the frame transforms alone, from the matched pairs
   of every link (``T_a(p_a) = T_b(p_b)``); its misfit per link is what
@@ -39,6 +40,9 @@ LINEAR_KINDS = ("translation", "similarity", "affine")
 _DENSE_FILL = 0.2
 #: ... up to this many parameters (a dense factor of 6000 x 6000 is 288 MB).
 _DENSE_MAX = 6000
+#: Star columns per dense product when the reduced matrix is formed dense
+#: (bounds the dense copy of the coupling: 6000 x 2048 is 98 MB).
+_DENSE_CHUNK = 2048
 #: Conjugate gradients (`bundle_step` with a preconditioner): relative
 #: tolerance on the preconditioned residual's norm, and the iteration cap.
 _PCG_TOL, _PCG_MAX = 1e-10, 60
@@ -174,13 +178,18 @@ class _DenseFactor:
 
 
 def _solve(normal, rhs):
-    """``normal @ x = rhs`` (sparse, symmetric positive definite); None if singular."""
+    """
+    ``normal @ x = rhs`` (symmetric positive definite: sparse, or an
+    ndarray when already dense); None if singular.
+    """
     p = normal.shape[0]
     if p == 0:
         return np.zeros(0), None
-    if p <= _DENSE_MAX and normal.nnz > _DENSE_FILL * p * p:
+    dense = isinstance(normal, np.ndarray)
+    if dense or (p <= _DENSE_MAX and normal.nnz > _DENSE_FILL * p * p):
         try:
-            lu = _DenseFactor(linalg.cho_factor(normal.toarray(), check_finite=False))
+            full = normal if dense else normal.toarray()
+            lu = _DenseFactor(linalg.cho_factor(full, check_finite=False))
         except linalg.LinAlgError:  # not positive definite: singular
             return None, None
         return lu.solve(rhs), lu
@@ -347,6 +356,38 @@ def _pcg(a, b, d_inv, rhs, precond):
     return x if rz <= stop else None
 
 
+def _coupled_fraction(b, k):
+    """
+    The fraction of the reduced matrix's frame blocks that are not zero
+    (frames that share a star), from ``b``'s pattern collapsed to frames
+    and stars: a product 4 k^2 times smaller than the reduction itself.
+    """
+    coo = b.tocoo()
+    p, n_frames = b.shape[0], b.shape[0] // k
+    seen = sparse.coo_matrix((np.ones(len(coo.row)), (coo.row // k, coo.col // 2)),
+                             shape=(n_frames, b.shape[1] // 2)).tocsr()
+    seen.data[:] = 1.0
+    return (seen @ seen.T).nnz * k * k / float(p * p) if p else 0.0
+
+
+def _reduced(a, b, d_inv, k):
+    """
+    The reduced normal matrix ``a - b diag(d_inv) b^T``.  When most frames
+    share stars (a long sequence on one field) it is nearly full, and a
+    dense product (BLAS) forms it several times faster than a sparse one:
+    it is then returned as an ndarray, for `_solve`'s dense factor.
+    """
+    p = a.shape[0]
+    if not p or p > _DENSE_MAX or _coupled_fraction(b, k) <= _DENSE_FILL:
+        return a - b @ sparse.diags(d_inv) @ b.T
+    out = a.toarray()
+    u = (b @ sparse.diags(np.sqrt(d_inv))).tocsc()
+    for start in range(0, u.shape[1], _DENSE_CHUNK):
+        part = u[:, start:start + _DENSE_CHUNK].toarray()
+        out -= part @ part.T
+    return out
+
+
 def bundle_step(frames, obs, precond=None):
     """
     One Gauss-Newton step of the bundle adjustment, the star positions
@@ -366,7 +407,7 @@ def bundle_step(frames, obs, precond=None):
         delta = _pcg(a, b, d_inv, rhs, precond)
         if delta is not None:
             return _unpack(frames, delta, cols), resid, None
-    reduced = a - b @ sparse.diags(d_inv) @ b.T
+    reduced = _reduced(a, b, d_inv, N_PARAMS[frames.kind])
     # The residuals are those of the mean star positions: their gradient is
     # zero, so the reduced right-hand side is the frames' own.
     delta, lu = _solve(reduced, rhs)

@@ -630,7 +630,8 @@ def _adjust_links(frames, links, stars, idx):
         if delta is None:
             break
         frames.theta += delta
-        if _small(delta, radius):
+        # As in the bundle: a model linear in its parameters needs one step.
+        if _small(delta, radius) or frames.kind in adjust.LINEAR_KINDS:
             break
 
 
