@@ -271,11 +271,52 @@ def jitter(r2, var, dof):
     return hi
 
 
+def _area_terms(frames):
+    """
+    Per frame, ``g2 = 1 / |det A|`` (``A`` the linear part of its transform)
+    and the derivative of ``log g`` (``g = sqrt(g2)``) with respect to its
+    parameters (F, k).
+
+    A detection's error is in its own frame's pixels, and the residual
+    ``T_f(q) - X`` in the common frame is that error scaled by ``A``: a fit
+    of the residuals as they are would gain by shrinking every frame but the
+    reference, which scales its noise down with it.  The maximum-likelihood
+    residual ``A^-1 (T_f(q) - X)`` is, for the isotropic errors of a
+    detection, ``g (T_f(q) - X)`` (exactly for a similarity; for an affine
+    transform, ``g`` is the isotropic part of ``A^-1``, which removes the
+    first-order bias too).  A shrinking bias grows with the number of frames:
+    -110 ppm in scale over 300 frames of 256 x 256 at 0.05 px, twice the
+    pairwise error at the corners, before this term.
+    """
+    n, k = frames.theta.shape
+    g2, dlog = np.ones(n), np.zeros((n, k))
+    if frames.kind not in ("similarity", "affine"):
+        return g2, dlog  # translation, euclidean: |det A| = 1
+    t = frames.theta
+    if frames.kind == "similarity":
+        det = t[:, 0] ** 2 + t[:, 1] ** 2
+        grad = np.column_stack([-t[:, 0], -t[:, 1]])  # d log g / d(a, b), times det
+    else:
+        det = t[:, 0] * t[:, 3] - t[:, 1] * t[:, 2]
+        # d log|det| / dA = A^-T, so d log g / dA = -A^-T / 2 (times det).
+        grad = 0.5 * np.column_stack([-t[:, 3], t[:, 2], t[:, 1], -t[:, 0]])
+    ok = det != 0  # a frame outside the solve keeps zero parameters
+    g2[ok] = 1.0 / np.abs(det[ok])
+    dlog[ok, :grad.shape[1]] = grad[ok] / det[ok, None]
+    return g2, dlog
+
+
+def weights(frames, obs):
+    """Each detection's weight in the common frame: its own, over its frame's area scale."""
+    return obs.w * _area_terms(frames)[0][obs.frame]
+
+
 def star_positions(frames, obs):
     """Each track's common-frame position: the weighted mean of its detections (S, 2)."""
     pred = _predictions(frames, obs)
-    wsum = np.bincount(obs.track, obs.w, obs.n_tracks)
-    xs = np.column_stack([np.bincount(obs.track, obs.w * pred[:, i], obs.n_tracks)
+    w = weights(frames, obs)
+    wsum = np.bincount(obs.track, w, obs.n_tracks)
+    xs = np.column_stack([np.bincount(obs.track, w * pred[:, i], obs.n_tracks)
                           for i in range(2)])
     with np.errstate(invalid="ignore", divide="ignore"):
         return xs / wsum[:, None], pred
@@ -299,8 +340,13 @@ def _bundle_system(frames, obs):
     # Every detection at once (one parameter row per detection): a loop over
     # the frames costs a pass over all detections per frame.
     jac = jacobian(frames.kind, frames.theta[obs.frame], obs.q)
+    # The residuals weighed in their own frame's pixels (`_area_terms`):
+    # g (T(q) - X), whose derivative adds g's own, times the residual.
+    g2, dlog = _area_terms(frames)
+    w = obs.w * g2[obs.frame]
+    jac = jac + resid[:, :, None] * dlog[obs.frame][:, None, :]
     free = cols[obs.frame] >= 0
-    wj = obs.w[:, None, None] * jac
+    wj = w[:, None, None] * jac
     grid = np.arange(k)
     # A: block diagonal (one k x k block per frame); B: frame-star coupling.
     n_frames = len(frames.theta)
@@ -322,7 +368,7 @@ def _bundle_system(frames, obs):
                              b_rows.shape)
     b = sparse.coo_matrix((-wj[idx].ravel(), (b_rows.ravel(), b_cols.ravel())),
                           shape=(p, 2 * obs.n_tracks)).tocsr()
-    d = np.repeat(np.bincount(obs.track, obs.w, obs.n_tracks), 2).astype(float)
+    d = np.repeat(np.bincount(obs.track, w, obs.n_tracks), 2).astype(float)
     d_inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0)  # (a star all clipped: 0)
     return a, b, d_inv, rhs, resid
 

@@ -777,7 +777,7 @@ def _adjust_bundle(frames, obs):
         xs, _ = adjust.star_positions(frames, sub)
         pred = adjust.star_positions(frames, obs)[1]
         resid = pred - xs[obs.track]
-        z = np.hypot(resid[:, 0], resid[:, 1]) * np.sqrt(obs.w)
+        z = np.hypot(resid[:, 0], resid[:, 1]) * np.sqrt(adjust.weights(frames, obs))
         # The median of a 2-D normal's length is 1.177 sigma.
         sigma = np.median(z[active]) / 1.1774 if active.any() else 0.0
         keep = np.isfinite(z) & (z <= _CLIP_SIGMA * max(sigma, 1e-12))
@@ -790,7 +790,7 @@ def _adjust_bundle(frames, obs):
     _, r, lu = adjust.bundle_step(frames, sub)
     _, p = frames.index()
     dof = 2 * len(sub.frame) - p - 2 * len(np.unique(sub.track))
-    chi2 = float(np.sum(sub.w * np.sum(r ** 2, axis=1)))
+    chi2 = float(np.sum(adjust.weights(frames, sub) * np.sum(r ** 2, axis=1)))
     return _BundleFit(active, resid, lu, chi2 / dof if dof > 0 else 1.0)
 
 
