@@ -35,7 +35,7 @@ import numpy as np
 
 from ._input import parse_input
 from .config import ResampleConfig
-from .io.write import atomic_write, check_not_input, check_output_path
+from .io.write import atomic_open, check_not_input, check_output_path
 from .matching.asterisms import build_asterisms
 from .registration import find_transform
 from .resample.nddata import apply_transform
@@ -731,8 +731,9 @@ def _save(fig, path, overwrite, dpi):
     """Write ``fig`` to ``path`` atomically, in the format of its ending."""
     path = os.fspath(path)
     fmt = os.path.splitext(path)[1][1:].lower()
-    with atomic_write(path, overwrite=overwrite) as tmp:
-        fig.savefig(tmp, format=fmt, dpi=dpi)
+    # Through the file the package opened: no temporary name is handed to matplotlib.
+    with atomic_open(path, overwrite=overwrite) as f:
+        fig.savefig(f, format=fmt, dpi=dpi)
     return path
 
 

@@ -19,6 +19,10 @@ Parts (each can be run alone with ``--only``):
   shifts up to 40 px, rotations up to 2 degrees, independent noise): the
   median over frames of the largest error over the frame, global against
   pairwise (ours and astroalign), pooled over ``--sequences``.
+* ``long``: long sequences of catalogs (30, 100 and 300 frames, the same
+  300 stars in every frame, 0.05 px noise, similarity and affine): global
+  against pairwise (ours and astroalign), the mean scale error and the
+  median largest error; equal precision is expected at any length.
 * ``speed``: ``register_batch(solve='global')`` against
   ``register_batch`` (pairwise onto one reference), both from FITS files
   of ``--frames`` simulated 1024x1024 frames written to a temporary folder
@@ -224,6 +228,61 @@ def run_catalogs(n_seq, n_stars=300, sigma=0.05):
                 ratio_global_to_ours=float(np.median(glob) / np.median(ours)))
 
 
+def run_long(lengths=(30, 100, 300), kinds=("similarity", "affine"), n_stars=300, sigma=0.05,
+             n_seq=2):
+    """
+    Long sequences of catalogs (every frame the same ``n_stars`` stars,
+    Gaussian centroid noise ``sigma`` px): the joint solution against
+    pairwise (ours and astroalign, similarity only), for growing numbers of
+    frames.  Both should be equally precise at any length; a fit whose
+    residuals are not weighed in each frame's own pixels shrinks the frames
+    more the more frames there are.  Reports the mean (scale - 1) against
+    the truth and the median of the largest error over the frame.
+    """
+    shape = (256, 256)
+    out = []
+    for kind in kinds:
+        for n in lengths:
+            scale = dict(global_=[], pairwise_ours=[], pairwise_astroalign=[])
+            err = {k: [] for k in scale}
+            for s in range(n_seq):
+                truth = dither_transforms(n, max_shift=40, max_rotation=2, shape=shape,
+                                          seed=100 + s)
+                rng = np.random.default_rng(300 + s)
+                sky = rng.uniform(0, 256, (n_stars, 2))
+                cats = []
+                for t in truth:
+                    inv = np.linalg.inv(as_matrix(t))
+                    cats.append(sky @ inv[:2, :2].T + inv[:2, 2]
+                                + rng.normal(0, sigma, sky.shape))
+                sol = solve_sequence(cats, reference=0, transform_type=kind)
+                ref = Reference(cats[0])
+                true = [np.linalg.inv(as_matrix(truth[0])) @ as_matrix(t) for t in truth]
+                for i in range(1, n):
+                    mats = dict(global_=as_matrix(sol.transforms[i]),
+                                pairwise_ours=as_matrix(find_transform(
+                                    cats[i], ref, transform_type=kind)[0]))
+                    if kind == "similarity":
+                        mats["pairwise_astroalign"] = aa_matrix(cats[i], cats[0])
+                    for k, m in mats.items():
+                        if m is None:
+                            err[k].append(np.inf)
+                            continue
+                        det = np.linalg.det(m[:2, :2]) / np.linalg.det(true[i][:2, :2])
+                        scale[k].append(np.sqrt(abs(det)) - 1.0)
+                        err[k].append(max_diff(m, true[i], shape))
+            row = dict(kind=kind, n_frames=n, n_sequences=n_seq)
+            for k in scale:
+                if err[k]:
+                    row[k] = dict(scale_ppm=1e6 * float(np.mean(scale[k])),
+                                  median_error=float(np.median(err[k])))
+            row["ratio_global_to_ours"] = (row["global_"]["median_error"]
+                                           / row["pairwise_ours"]["median_error"])
+            out.append(row)
+            print(f"long {kind} {n}: ratio {row['ratio_global_to_ours']:.3f}", flush=True)
+    return out
+
+
 def write_frames(folder, n_frames, shape=(1024, 1024), n_stars=800, seed=10):
     """
     ``n_frames`` dithered FITS frames of one star field, written one at a
@@ -366,6 +425,18 @@ def markdown(results):
                       f"solve (median) {q['detections_per_frame']:.0f}; seconds: global "
                       f"{q['seconds']['global_']:.1f}, pairwise ours "
                       f"{q['seconds']['pairwise_ours']:.1f}", ""]
+    if "long" in results:
+        lines += ["## Long sequences of catalogs: the same 300 stars in every frame, 0.05 px",
+                  "", "| type | frames | scale - 1 (ppm): global / ours / astroalign | median "
+                  "largest error (px): global / ours / astroalign | global / ours |",
+                  "|---|---|---|---|---|"]
+        for r in results["long"]:
+            keys = ("global_", "pairwise_ours", "pairwise_astroalign")
+            sc = " / ".join(f"{r[k]['scale_ppm']:+.1f}" if k in r else "-" for k in keys)
+            er = " / ".join(f"{r[k]['median_error']:.4f}" if k in r else "-" for k in keys)
+            lines.append(f"| {r['kind']} | {r['n_frames']} | {sc} | {er} | "
+                         f"{r['ratio_global_to_ours']:.3f} |")
+        lines.append("")
     if "speed" in results:
         s = results["speed"]
         lines += [f"## Speed: {s['n_frames']} frames of 1024x1024, detected, solved and "
@@ -399,7 +470,8 @@ def _mm(v):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", default=str(HERE.parent.parent / "shared" / "data"))
-    ap.add_argument("--only", nargs="+", default=["real", "mosaic", "sequence", "speed"])
+    ap.add_argument("--only", nargs="+",
+                    default=["real", "mosaic", "sequence", "long", "speed"])
     ap.add_argument("--sequences", type=int, default=8)
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--workers", type=int, default=None)
@@ -421,6 +493,8 @@ def main():
         results["sequence_deep"] = run_sequences(args.sequences, n_stars=300)
         results["sequence_all"] = run_sequences(args.sequences, n_stars=1000)
         results["catalogs"] = run_catalogs(args.sequences)
+    if "long" in args.only:
+        results["long"] = run_long()
     if "speed" in args.only:
         results["speed"] = run_speed(args.frames, args.workers, args.repeats)
     text = markdown(results)

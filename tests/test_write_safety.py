@@ -216,3 +216,45 @@ def test_register_refuses_its_own_image_as_the_plot(tmp_path, capsys):
     assert "would destroy that input" in capsys.readouterr().err
     assert src.read_bytes() == before
     assert not (tmp_path / "out.fits").exists()
+
+
+def test_package_writes_never_hand_a_temporary_name_out(tmp_path, monkeypatch, capsys):
+    """
+    Plots, tables and the batch summary are written through the file the
+    package opened (`atomic_open`), not a path to the temporary file: where
+    the system cannot name a file through an open folder (macOS, BSD: no
+    /proc), a path would go through the private folder's name, which
+    another user of a shared folder can rename.
+    """
+    pytest.importorskip("matplotlib")
+    from astropy.table import Table
+
+    from astroalign_nd.io import write as write_module
+    from astroalign_nd.io.write import write_table
+    from astroalign_nd.visualization import _agg_figure, _save
+
+    class NoPath(write_module._PrivateFolder):
+        """A private folder whose temporary file's path cannot be read."""
+
+        @property
+        def temp(self):
+            raise AssertionError("a temporary path was handed out")
+
+        @temp.setter
+        def temp(self, value):
+            self.__dict__["_temp"] = value
+
+    if write_module._DIR_FD:  # without descriptors (Windows) the path is all there is
+        monkeypatch.setattr(write_module, "_PrivateFolder", NoPath)
+    fig = _agg_figure((2, 2))
+    fig.add_subplot().plot([0, 1], [1, 0])
+    _save(fig, tmp_path / "plot.png", False, 50)
+    assert (tmp_path / "plot.png").read_bytes()[:4] == b"\x89PNG"
+    table = Table({"x": [1.5, 2.5], "name": ["a", "b"]})
+    for name, fmt in (("t.ecsv", "ascii.ecsv"), ("t.csv", "ascii.csv"), ("t.fits", "fits")):
+        write_table(table, tmp_path / name, format=fmt)
+        back = Table.read(tmp_path / name, format=fmt)
+        assert back["x"].tolist() == [1.5, 2.5] and list(back["name"]) == ["a", "b"]
+    with pytest.raises(FileExistsError, match="overwrite"):
+        write_table(table, tmp_path / "t.csv", format="ascii.csv")
+    assert sorted(os.listdir(tmp_path)) == ["plot.png", "t.csv", "t.ecsv", "t.fits"]

@@ -199,9 +199,14 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
     fitted to all links at once (a link that disagrees with the rest by
     more than ``link_tolerance`` is rejected, and reported), and finally
     with every star's position in the reference frame (a bundle
-    adjustment: each star's position is the mean of all its detections, so
-    each frame is registered onto a catalog much less noisy than the
-    reference's own stars).
+    adjustment: each star's position is the weighted mean of all its
+    detections, each residual weighed in its own frame's pixels).  The
+    transforms still carry the reference's own centroid errors (they fix
+    where its pixels lie among the stars), so a frame that shares all its
+    stars with the reference is about as precise as registered pairwise;
+    the joint solution gains from the stars the reference does not share,
+    from frames that overlap it little or not at all, and in trust: the
+    loops of links close, and a link that disagrees is caught.
 
     Parameters
     ----------

@@ -219,11 +219,10 @@ def _summary_table(result, reference=None):
 
 def _write_summary(result, path, reference=None):
     """The per-frame table of a batch, as ECSV (or CSV by the extension)."""
-    from astroalign_nd.io.write import atomic_write
+    from astroalign_nd.io.write import write_table
 
     fmt = "ascii.ecsv" if path.lower().endswith(".ecsv") else "ascii.csv"
-    with atomic_write(path, overwrite=True) as tmp:
-        _summary_table(result, reference).write(tmp, format=fmt, overwrite=True)
+    write_table(_summary_table(result, reference), path, format=fmt, overwrite=True)
     print(f"wrote {path}")
 
 

@@ -115,7 +115,7 @@ def _search_kwargs(args):
 
 def _cmd_match(args):
     from astroalign_nd.crossmatch import cross_match, read_catalog
-    from astroalign_nd.io.write import atomic_write
+    from astroalign_nd.io.write import write_table
 
     for path in (args.source, args.target):
         if not os.path.isfile(path):
@@ -129,8 +129,7 @@ def _cmd_match(args):
                       max_iterations=args.max_iterations, **_search_kwargs(args))
     table = out.table
     table.meta["SOURCE"], table.meta["TARGET"] = str(args.source), str(args.target)
-    with atomic_write(args.output, overwrite=args.overwrite) as tmp:
-        table.write(tmp, format=fmt)
+    write_table(table, args.output, format=fmt, overwrite=args.overwrite)
     q = out.transform.meta["quality"]
     print(f"{args.output}: {len(table)} pairs of {len(source)} source and {len(target)} "
           f"target rows; RMS {q['rms']:.4f} px, radius {out.radius:.3f} px, "

@@ -19,11 +19,12 @@ following a link).  So:
 
 import contextlib
 import gzip
+import io
 import os
 import stat
 import tempfile
 
-__all__ = ["atomic_write", "atomic_open", "write_ccddata", "check_output_path",
+__all__ = ["atomic_write", "atomic_open", "write_ccddata", "write_table", "check_output_path",
            "check_output_dir", "check_not_input", "FITS_EXTENSIONS"]
 
 #: File name endings taken as FITS by `write_ccddata` and the command line.
@@ -185,6 +186,13 @@ def atomic_write(path, overwrite=False):
     checked to be a regular file, and the move never follows a link.  The
     temporary name has a bounded length, whatever the length of ``path``.
 
+    The yielded path is for writers that take only a name (another
+    program).  On Linux it names the file through the folder's open
+    descriptor; on other systems it goes through the folder's name, which
+    another user of a shared folder without the sticky bit could rename, so
+    a writer that takes a file object is safer with `atomic_open` (the
+    package's own writers use it).
+
     Parameters
     ----------
     path : str or path-like
@@ -317,6 +325,46 @@ def write_ccddata(ccd, path, *, overwrite=False, **kwargs):
                 ccd.write(gz, format="fits", **kwargs)
         else:
             ccd.write(f, format="fits", **kwargs)
+
+
+def write_table(table, path, *, format, overwrite=False):
+    """
+    Write an `~astropy.table.Table` atomically, through the file the
+    package opened itself (`atomic_open`): no name of the temporary file is
+    ever handed to another library, on any system.
+
+    Parameters
+    ----------
+    table : `~astropy.table.Table`
+    path : str or path-like
+        The final file name.  Its folder must exist.
+    format : str
+        The `~astropy.table.Table.write` format (``"ascii.ecsv"``,
+        ``"ascii.csv"``, ``"fits"``, ...).
+    overwrite : bool, optional
+        Replace ``path`` if it exists (default False: `FileExistsError`).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astropy.table import Table
+    >>> from astroalign_nd.io.write import write_table
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = os.path.join(folder, "pairs.ecsv")
+    ...     write_table(Table({"x": [1.5, 2.5]}), path, format="ascii.ecsv")
+    ...     print(Table.read(path)["x"].tolist())
+    [1.5, 2.5]
+    """
+    with atomic_open(path, overwrite=overwrite) as f:
+        if format.startswith("ascii"):
+            # The ASCII writers write text: a wrapper over the binary file,
+            # detached (not closed) so that atomic_open checks and closes it.
+            text = io.TextIOWrapper(f, encoding="utf-8", newline="")
+            table.write(text, format=format)
+            text.flush()
+            text.detach()
+        else:
+            table.write(f, format=format)
 
 
 def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):
