@@ -7,8 +7,11 @@ Storing transforms in files.
   `add_provenance` adds the fit quality (`QUALITY_KEYWORDS`) and HISTORY of
   a registration; `distorted_wcs` gives the TAN-SIP WCS of the source frame
   of a polynomial transform from the target frame's WCS.
-* Writing: `write_ccddata` / `atomic_write` write a file atomically, so an
-  interrupted run never leaves half a file under the final name.
+* Writing: `write_ccddata`, `write_table` and `atomic_open` write a file
+  atomically, through a file the package opened in a private folder, so an
+  interrupted run never leaves half a file under the final name and nobody
+  else can redirect the data; `atomic_write` gives a path instead, for
+  another program.
 * Output formats: a `Writer` per format (`FITSWriter` built in), found by
   the file name's ending (`writer_for`); `~astroalign_nd.register_batch`
   and the command line write, and a resumed batch reads back, through it,
@@ -24,11 +27,12 @@ Storing transforms in files.
 from .header import (QUALITY_KEYWORDS, add_provenance, distorted_wcs, transform_from_header,
                      transform_to_header)
 from .transform_files import read_transform, write_transform
-from .write import atomic_write, write_ccddata
+from .write import atomic_open, atomic_write, write_ccddata, write_table
 from .writers import (WRITERS, FITSWriter, Writer, output_suffixes, register_writer,
                       write_output, writer_for)
 
 __all__ = ["transform_to_header", "transform_from_header", "add_provenance", "distorted_wcs",
-           "QUALITY_KEYWORDS", "atomic_write", "write_ccddata", "read_transform",
+           "QUALITY_KEYWORDS", "atomic_write", "atomic_open", "write_ccddata", "write_table",
+           "read_transform",
            "write_transform", "Writer", "FITSWriter", "WRITERS", "register_writer",
            "writer_for", "output_suffixes", "write_output"]
