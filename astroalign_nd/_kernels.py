@@ -530,6 +530,84 @@ def windowed_centroid(cut, bad, x0, y0, sigma, n_iter=8):
     return x, y
 
 
+def lost_window_fraction(bad, x, y, sigma):
+    """
+    The fraction of each star's Gaussian window (width ``sigma``, centred
+    at ``(x, y)`` in its cutout) that falls on bad pixels (beyond the
+    frame's edge, masked): 0 for a star clear of edges and masks.
+    """
+    n, size, _ = bad.shape
+    out = np.zeros(n)
+    # Only cutouts with a bad pixel can lose any (the cutouts reach 3 FWHM).
+    k = np.flatnonzero(bad.reshape(n, -1).any(axis=1))
+    if not len(k):
+        return out
+    g = np.arange(size, dtype=float)
+    wx = np.exp(-0.5 * ((g[None, :] - x[k, None]) / sigma[k, None]) ** 2)
+    wy = np.exp(-0.5 * ((g[None, :] - y[k, None]) / sigma[k, None]) ** 2)
+    lost = np.matmul(np.matmul(wy[:, None, :], bad[k].astype(float)), wx[:, :, None])[:, 0, 0]
+    out[k] = lost / (wy.sum(axis=1) * wx.sum(axis=1))
+    return out
+
+
+def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
+    """
+    Gaussian-windowed centroids of stars whose window meets bad pixels (the
+    frame's edge, a mask), each bad pixel filled with the star's value at
+    its mirror image through the current centre (iterated).
+
+    Counting bad pixels as zero pulls a star cut by an edge towards the
+    good side (0.16 px, 0.25 px for bright stars, within 1 FWHM of a frame's
+    edge, on simulated frames).  A symmetric star filled from its mirror is
+    whole again, and the window then converges to its centre.  Mirror
+    images that are themselves bad, or beyond the cutout, count as zero.
+
+    Parameters
+    ----------
+    cut, bad : (n, size, size) ndarrays
+    x0, y0 : (n,) ndarrays
+        Starting positions (pixels in the cutouts), e.g. `windowed_centroid`'s.
+    sigma : (n,) ndarray
+        Gaussian window widths (pixels).
+    n_iter : int
+        At most this many steps (each at most 1 px per axis).
+
+    Returns
+    -------
+    x, y : (n,) ndarrays
+    """
+    from scipy import ndimage
+
+    x, y = np.array(x0, dtype=float), np.array(y0, dtype=float)
+    n, size, _ = cut.shape
+    g = np.arange(size, dtype=float)
+    for k in range(n):
+        img = np.where(bad[k], 0.0, cut[k])
+        good = (~bad[k]).astype(float)
+        by, bx = np.nonzero(bad[k])
+        for _ in range(n_iter):
+            my, mx = 2.0 * y[k] - by, 2.0 * x[k] - bx
+            val = ndimage.map_coordinates(img, [my, mx], order=1, cval=0.0)
+            # A mirror image that touches a bad pixel is not the star's.
+            ok = ndimage.map_coordinates(good, [my, mx], order=1, cval=0.0) > 0.999
+            filled = img.copy()
+            filled[by, bx] = np.where(ok, val, 0.0)
+            dx, dy = g - x[k], g - y[k]
+            wx = np.exp(-0.5 * (dx / sigma[k]) ** 2)
+            wy = np.exp(-0.5 * (dy / sigma[k]) ** 2)
+            tot = wy @ filled @ wx
+            if not tot > 0:
+                break
+            # The factor 2 is the XWIN update for a Gaussian window.
+            sx = np.clip(2.0 * (wy @ filled @ (wx * dx)) / tot, -1.0, 1.0)
+            sy = np.clip(2.0 * ((wy * dy) @ filled @ wx) / tot, -1.0, 1.0)
+            x[k] += sx
+            y[k] += sy
+            if abs(sx) < 1e-4 and abs(sy) < 1e-4:
+                break
+    return x, y
+
+
 def adaptive_fwhm(cut, bad, dx, dy, sigma0=1.5, n_iter=8):
     """
     FWHM per cutout from Gaussian-weighted ("adaptive") second moments.

@@ -154,7 +154,9 @@ def sparse(tmp_path_factory):
     """Pairs of a sparse field: one that cannot be registered, one that warns."""
     d = tmp_path_factory.mktemp("sparse")
     out = {}
-    for name, n in (("none", 8), ("warn", 10)):
+    # (8 stars were refused until the stars cut by an edge were centroided
+    # from their mirror images; they now give a match of 5, with a warning.)
+    for name, n in (("none", 6), ("warn", 10)):
         p = simulate_pair((256, 256), n_stars=n, rotation=10.0, seed=0,
                           flux_range=(300, 2000))
         out[name] = (_write(d / f"{name}_s.fits", p.source),

@@ -8,6 +8,8 @@ from astropy.utils.exceptions import AstropyWarning
 from .._input import image_and_mask
 from .._kernels import GAUSS_SIGMA_TO_FWHM as _GAUSS_SIGMA_TO_FWHM
 from .._kernels import adaptive_fwhm as _adaptive_fwhm
+from .._kernels import lost_window_fraction as _lost_window_fraction
+from .._kernels import mirrored_windowed_centroid as _mirrored_windowed_centroid
 from .._kernels import windowed_centroid as _windowed_centroid
 from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
 from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
@@ -408,6 +410,12 @@ def _refined_positions(cut, bad, x0, y0, fwhm, opts):
     win = fwhm if fwhm >= _UNDERSAMPLED_FWHM else _MIN_WINDOW_FWHM
     sigma = np.full(len(x0), win / _GAUSS_SIGMA_TO_FWHM)
     xs, ys = _windowed_centroid(cut, bad, x0, y0, sigma)
+    # A star cut by the frame's edge or a mask is pulled towards its good
+    # side: refine those from their mirror images (few stars: NumPy).
+    cut_off = _lost_window_fraction(bad, xs, ys, sigma) > _LOST_WINDOW
+    if cut_off.any():
+        xs[cut_off], ys[cut_off] = _mirrored_windowed_centroid(
+            cut[cut_off], bad[cut_off], xs[cut_off], ys[cut_off], sigma[cut_off])
     # A refinement that wandered away means a blend: keep DAOFIND's.
     moved = np.hypot(xs - x0, ys - y0) > 0.5 * fwhm
     return np.where(moved, x0, xs), np.where(moved, y0, ys)
@@ -594,6 +602,10 @@ _UNDERSAMPLED_FWHM = 2.5
 
 #: ... and get a centroid window of this FWHM (pixels).
 _MIN_WINDOW_FWHM = 4.0
+
+#: A star whose centroid window loses more than this fraction of its
+#: weight to bad pixels (an edge, a mask) is refined from its mirror image.
+_LOST_WINDOW = 0.01
 
 
 def _find_on_binned(data, mask, k, fwhm, opts):
