@@ -579,9 +579,9 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
     from scipy import ndimage
 
     x, y = np.array(x0, dtype=float), np.array(y0, dtype=float)
-    n, size, _ = cut.shape
-    g = np.arange(size, dtype=float)
-    for k in range(n):
+    sigma = np.asarray(sigma, dtype=float)
+    none_bad = np.zeros((1,) + cut.shape[1:], bool)
+    for k in range(len(cut)):
         img = np.where(bad[k], 0.0, cut[k])
         good = (~bad[k]).astype(float)
         by, bx = np.nonzero(bad[k])
@@ -592,18 +592,12 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
             ok = ndimage.map_coordinates(good, [my, mx], order=1, cval=0.0) > 0.999
             filled = img.copy()
             filled[by, bx] = np.where(ok, val, 0.0)
-            dx, dy = g - x[k], g - y[k]
-            wx = np.exp(-0.5 * (dx / sigma[k]) ** 2)
-            wy = np.exp(-0.5 * (dy / sigma[k]) ** 2)
-            tot = wy @ filled @ wx
-            if not tot > 0:
-                break
-            # The factor 2 is the XWIN update for a Gaussian window.
-            sx = np.clip(2.0 * (wy @ filled @ (wx * dx)) / tot, -1.0, 1.0)
-            sy = np.clip(2.0 * ((wy * dy) @ filled @ wx) / tot, -1.0, 1.0)
-            x[k] += sx
-            y[k] += sy
-            if abs(sx) < 1e-4 and abs(sy) < 1e-4:
+            # One step of the windowed centroid on the star made whole.
+            x1, y1 = windowed_centroid(filled[None], none_bad, x[k:k + 1], y[k:k + 1],
+                                       sigma[k:k + 1], n_iter=1)
+            moved = max(abs(x1[0] - x[k]), abs(y1[0] - y[k]))
+            x[k], y[k] = x1[0], y1[0]
+            if moved < 1e-4:
                 break
     return x, y
 

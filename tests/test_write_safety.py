@@ -258,3 +258,16 @@ def test_package_writes_never_hand_a_temporary_name_out(tmp_path, monkeypatch, c
     with pytest.raises(FileExistsError, match="overwrite"):
         write_table(table, tmp_path / "t.csv", format="ascii.csv")
     assert sorted(os.listdir(tmp_path)) == ["plot.png", "t.csv", "t.ecsv", "t.fits"]
+
+
+def test_write_table_refuses_bad_arguments(tmp_path):
+    from astropy.table import Table
+
+    from astroalign_nd.io import write_table
+
+    with pytest.raises(TypeError, match="astropy Table"):
+        write_table({"x": [1.0]}, tmp_path / "t.csv", format="ascii.csv")
+    for fmt in ("bogus", None, "png"):
+        with pytest.raises(ValueError, match="not a Table format"):
+            write_table(Table({"x": [1.0]}), tmp_path / "t.csv", format=fmt)
+    assert os.listdir(tmp_path) == []

@@ -344,6 +344,15 @@ def write_table(table, path, *, format, overwrite=False):
     overwrite : bool, optional
         Replace ``path`` if it exists (default False: `FileExistsError`).
 
+    Raises
+    ------
+    TypeError
+        If ``table`` is not a `~astropy.table.Table`.
+    ValueError
+        If astropy cannot write ``format``.  Nothing is written.
+    FileExistsError
+        If ``path`` exists and ``overwrite`` is False.
+
     Examples
     --------
     >>> import os, tempfile
@@ -355,6 +364,16 @@ def write_table(table, path, *, format, overwrite=False):
     ...     print(Table.read(path)["x"].tolist())
     [1.5, 2.5]
     """
+    from astropy.io import registry
+    from astropy.table import Table
+
+    if not isinstance(table, Table):
+        raise TypeError(f"table must be an astropy Table, not {type(table).__name__}; "
+                        "wrap columns with astropy.table.Table(...).")
+    formats = [str(f) for f in registry.get_formats(Table, "Write")["Format"]]
+    if not isinstance(format, str) or format not in formats:
+        raise ValueError(f"format {format!r} is not a Table format astropy can write; "
+                         "pass one of 'ascii.ecsv', 'ascii.csv', 'fits', 'votable', ...")
     with atomic_open(path, overwrite=overwrite) as f:
         if format.startswith("ascii"):
             # The ASCII writers write text: a wrapper over the binary file,
