@@ -4,13 +4,14 @@ A transform saved to, and read back from, a file of its own: ASDF or FITS.
 
 `write_transform` and `read_transform` choose the format by the name's
 ending: ``.asdf`` (the model in an ASDF tree, through this package's
-extension) or a FITS ending (the transform's header keywords, as
+extension) or a FITS ending (the transform's header keywords (gzip-compressed for a ``.gz`` name), as
 `~astroalign_nd.io.transform_to_header` writes them, in a primary HDU
 without data).  A file that does not hold a valid transform is refused
 with a `ValueError` that names the file and says what is wrong, never
 turned into a half-read object.
 """
 
+import gzip
 import os
 import warnings
 
@@ -77,6 +78,11 @@ def write_transform(path, model, *, overwrite=False):
     with atomic_open(path, overwrite=overwrite) as f:
         if kind == "asdf":
             asdf.AsdfFile({ASDF_KEY: model}).write_to(f)
+        elif os.fspath(path).lower().endswith(".gz"):
+            # As write_ccddata: astropy compresses by a name's ending, not a file object's.
+            name = os.path.basename(os.fspath(path))[:-3]
+            with gzip.GzipFile(filename=name, mode="wb", fileobj=f) as gz:
+                fits.PrimaryHDU(header=transform_to_header(model)).writeto(gz)
         else:
             fits.PrimaryHDU(header=transform_to_header(model)).writeto(f)
 

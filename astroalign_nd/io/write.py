@@ -18,9 +18,11 @@ following a link).  So:
 """
 
 import contextlib
+import errno
 import gzip
 import io
 import os
+import shutil
 import stat
 import tempfile
 
@@ -164,6 +166,67 @@ class _PrivateFolder:
             os.rmdir(self.path)
 
 
+#: What to do about a write that failed, by the system's error.
+_WRITE_ADVICE = {
+    errno.ENOSPC: "the disk is full; free some space or write to another disk",
+    errno.EDQUOT: "the disk quota is exceeded; free some space or write to another disk",
+    errno.EACCES: "permission denied; choose a folder you can write to",
+    errno.EPERM: "the operation is not permitted there; choose a folder you can write to",
+    errno.EROFS: "the file system is read-only; choose a folder you can write to",
+    errno.ENOENT: "the folder was removed while writing; create it again or give another one",
+}
+
+
+def _os_error_in(exc):
+    """The `OSError` that ``exc`` is or that it was raised while handling, else None."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, OSError):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _write_failure(exc, path):
+    """
+    A clear `OSError` for a write of ``path`` that failed with ``exc``, or None.
+
+    Writers of other libraries can fail on their own objects while they handle a full disk
+    (astropy.io.fits raises ``AttributeError: 'list' object has no attribute '_file'`` when
+    it checks the free space of a file object): the system's error is found in the chain.
+    """
+    os_error = _os_error_in(exc)
+    if os_error is None:
+        return None
+    code = os_error.errno
+    if code is None:
+        # A short write (numpy's "N requested and M written") carries no error number.
+        with contextlib.suppress(OSError):
+            if shutil.disk_usage(os.path.dirname(os.path.abspath(path))).free < 65536:
+                code = errno.ENOSPC
+    if code is None:
+        return OSError(f"cannot write {path}: {os_error}; nothing was written.")
+    advice = _WRITE_ADVICE.get(code, os.strerror(code))
+    clear = OSError(f"cannot write {path}: {advice} ({os.strerror(code)}); nothing was written.")
+    clear.errno = code  # the message stays as written (no "[Errno N]" prefix)
+    return clear
+
+
+@contextlib.contextmanager
+def _clear_write_errors(path):
+    """Re-raise a failed write as one clear `OSError` (what, where, what to do)."""
+    try:
+        yield
+    except (FileExistsError, FileNotFoundError):
+        raise
+    except Exception as exc:
+        clear = _write_failure(exc, path)
+        if clear is None:
+            raise
+        raise clear from exc
+
+
 def _refuse_existing(path, overwrite):
     if not overwrite and os.path.lexists(path):
         raise FileExistsError(
@@ -221,11 +284,13 @@ def atomic_write(path, overwrite=False):
     """
     path = os.fspath(path)
     _refuse_existing(path, overwrite)
-    private = _PrivateFolder(path)
+    with _clear_write_errors(path):
+        private = _PrivateFolder(path)
     try:
-        yield private.temp
-        private.check()
-        private.publish(path, overwrite)
+        with _clear_write_errors(path):
+            yield private.temp
+            private.check()
+            private.publish(path, overwrite)
     finally:
         private.close()
 
@@ -265,13 +330,15 @@ def atomic_open(path, overwrite=False):
     """
     path = os.fspath(path)
     _refuse_existing(path, overwrite)
-    private = _PrivateFolder(path)
+    with _clear_write_errors(path):
+        private = _PrivateFolder(path)
     try:
-        with private.open() as f:
-            opened = os.fstat(f.fileno())
-            yield f
-        private.check(opened)
-        private.publish(path, overwrite)
+        with _clear_write_errors(path):
+            with private.open() as f:
+                opened = os.fstat(f.fileno())
+                yield f
+            private.check(opened)
+            private.publish(path, overwrite)
     finally:
         private.close()
 
