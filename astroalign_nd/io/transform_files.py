@@ -4,11 +4,11 @@ A transform saved to, and read back from, a file of its own: ASDF or FITS.
 
 `write_transform` and `read_transform` choose the format by the name's
 ending: ``.asdf`` (the model in an ASDF tree, through this package's
-extension) or a FITS ending (the transform's header keywords (gzip-compressed for a ``.gz`` name), as
+extension) or a FITS ending (the transform's header keywords, as
 `~astroalign_nd.io.transform_to_header` writes them, in a primary HDU
-without data).  A file that does not hold a valid transform is refused
-with a `ValueError` that names the file and says what is wrong, never
-turned into a half-read object.
+without data; gzip-compressed for a ``.gz`` name).  A file that does not
+hold a valid transform is refused with a `ValueError` that names the file
+and says what is wrong, never turned into a half-read object.
 """
 
 import gzip
