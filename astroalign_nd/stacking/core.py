@@ -120,7 +120,9 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         As in `~astroalign_nd.register_batch` (``transform_type``,
         detection and matching options...).
     dtype : numpy dtype, optional
-        Of the output's data and uncertainty (default float32).
+        Of the output's data and uncertainty (default float32).  An integer
+        type gets the values rounded, and clipped to its range with a
+        warning that counts the pixels outside it (never wrapped around).
 
     Returns
     -------
@@ -155,6 +157,7 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     """
     opts = _check_options(method, clip, sigma, sigma_low, sigma_high, maxiters, nlow, nhigh,
                           normalize, canvas, memory_limit, gain, read_noise)
+    dtype = _check_dtype(dtype)
     items, hdu = batch_frames(frames, hdu)
     if isinstance(items, Iterator):
         items = list(items)
@@ -385,6 +388,40 @@ def _stacked(value, variance, coverage, ref, wcs, dtype, names, stats, rejected,
             warn("no frame reaches any pixel of the stack.")
     with np.errstate(invalid="ignore"):
         std = np.sqrt(variance)
-    return CCDData(value.astype(dtype), unit=ref.unit or "adu", mask=mask,
-                   uncertainty=StdDevUncertainty(std.astype(dtype)), flags=coverage,
-                   wcs=wcs, meta=header)
+    return CCDData(_as_dtype(value, dtype, "value"), unit=ref.unit or "adu", mask=mask,
+                   uncertainty=StdDevUncertainty(_as_dtype(std, dtype, "uncertainty")),
+                   flags=coverage, wcs=wcs, meta=header)
+
+
+def _check_dtype(dtype):
+    """The output's dtype: a real number type (integers are rounded and clipped)."""
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        raise TypeError(f"dtype must be a numpy number type such as np.float32; got "
+                        f"{dtype!r}.") from None
+    if dt.kind not in "iuf":
+        raise TypeError(f"dtype must be a real number type (float or integer), such as "
+                        f"np.float32; got {dt}.")
+    return dt
+
+
+def _as_dtype(values, dtype, what):
+    """
+    ``values`` as ``dtype``; an integer type gets them rounded, and clipped to its range
+    with a warning that counts the pixels (a cast alone would wrap them around).  Pixels
+    without a value (no frame reaches them; the mask marks them) are 0.
+    """
+    dt = np.dtype(dtype)
+    if dt.kind == "f":
+        return values.astype(dt)
+    info = np.iinfo(dt)
+    rounded = np.rint(values)
+    finite = np.isfinite(rounded)
+    outside = finite & ((rounded < info.min) | (rounded > info.max))
+    n_outside = int(outside.sum())
+    if n_outside:
+        warn(f"{n_outside} pixels of the stack's {what} lie outside the range of {dt} "
+             f"({info.min} to {info.max}) and were clipped to it; pass dtype=np.float32 "
+             "(the default) to keep them.")
+    return np.clip(np.where(finite, rounded, 0), info.min, info.max).astype(dt)
