@@ -204,10 +204,14 @@ def frame_stats(path, memory_limit=512e6):
     Raises
     ------
     ValueError
-        If the frame has no valid pixel.
+        If the frame is not a 2-D image, or has no valid pixel.
     """
     with fits.open(path, memmap=True) as hdul:
-        ny, nx = hdul[0].data.shape[:2]
+        shape = hdul[0].data.shape
+    if len(shape) != 2:
+        raise ValueError(f"its data has shape {shape}, not a 2-D image like the other "
+                         "frames; stack one plane (colour channel) at a time.")
+    ny, nx = shape
     step = max(1, (ny * nx) // _SKY_SAMPLES)
     rows = rows_per_strip(1, nx, memory_limit)
     values, variances, n_valid, has_var = [], [], 0, True

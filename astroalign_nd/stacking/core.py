@@ -164,6 +164,7 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     # In-memory frames are named by their place among the frames, in the header too.
     items = [(f, f"frame{k}" if label is None else label) for k, (f, label) in enumerate(items)]
     ref_item, others, n_frames = _split_reference(items, reference)
+    others = _once(others, ref_item)
     weights = _check_weights(weights, n_frames)
     _check_outputs(output, overwrite, items, ref_item)
     ref = parse_input(ref_item[0], "reference", hdu=hdu, unit=unit)
@@ -260,6 +261,26 @@ def _split_reference(items, reference):
     others = [(it, k + shift) for k, it in enumerate(items) if k != at]
     label = os.fspath(reference) if _is_path(reference) else None
     return (reference, 0 if at is None else at, label), others, len(items) + shift
+
+
+def _once(others, ref_item):
+    """
+    The frames with each file (or object) once: one given twice would count twice in the
+    stack, as if it were two exposures.  Each repeat is left out with a warning.
+    """
+    kept, repeats = [], {}
+    for (item, label), k in others:
+        first = next((lab for (it, lab), _ in kept if _same(it, item)), None)
+        if first is None and _same(ref_item[0], item):
+            first = ref_item[2] or "the reference"
+        if first is None:
+            kept.append(((item, label), k))
+        else:
+            repeats[first] = repeats.get(first, 1) + 1
+    for label, n in repeats.items():
+        warn(f"{label} is given {n} times among the frames; it is stacked once (each frame "
+             "counts as one exposure).")
+    return kept
 
 
 def _check_weights(weights, n_frames):

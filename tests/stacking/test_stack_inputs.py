@@ -1,0 +1,53 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""Frames that `stack` must not combine as given: a file listed twice, a cube among images."""
+
+import numpy as np
+import pytest
+from astropy.io import fits
+from astropy.nddata import CCDData
+
+from astroalign_nd import AstroalignWarning, stack
+from astroalign_nd.cli.main import main
+from astroalign_nd.simulate import simulate_sequence
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("frames")
+    seq = simulate_sequence((96, 96), n_frames=3, n_stars=40, seed=11)
+    paths = []
+    for k, frame in enumerate(seq.frames):
+        path = folder / f"f{k}.fits"
+        CCDData(np.asarray(frame.data), unit="adu").write(path)
+        paths.append(str(path))
+    cube = folder / "cube.fits"
+    fits.writeto(cube, np.stack([np.asarray(seq.frames[1].data)] * 3))
+    return paths, str(cube)
+
+
+def test_a_file_given_twice_is_stacked_once(files):
+    paths, _ = files
+    with pytest.warns(AstroalignWarning, match=r"f1.fits is given 2 times among the frames; "
+                      "it is stacked once"):
+        twice = stack([paths[0], paths[1], paths[1], paths[2]])
+    once = stack(paths)
+    assert twice.meta["NCOMBINE"] == once.meta["NCOMBINE"] == 3
+    np.testing.assert_array_equal(twice.data, once.data)
+
+
+def test_the_reference_listed_again_is_used_once(files):
+    paths, _ = files
+    with pytest.warns(AstroalignWarning, match="f0.fits is given 2 times"):
+        st = stack(paths + [paths[0]], reference=paths[0])
+    assert st.meta["NCOMBINE"] == 3
+
+
+def test_a_cube_among_images_is_left_out_with_its_reason(files, tmp_path, capsys):
+    paths, cube = files
+    out = tmp_path / "stack.fits"
+    code = main(["stack", *paths, cube, "-o", str(out)])
+    captured = capsys.readouterr()
+    assert code == 1  # some frames failed; the others are stacked
+    assert "LEFT OUT cube.fits" in captured.out + captured.err
+    assert "not a 2-D image like the other frames" in captured.out + captured.err
+    assert fits.getheader(out)["NCOMBINE"] == 3
