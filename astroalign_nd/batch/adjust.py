@@ -57,6 +57,9 @@ class Frames:
     parity: np.ndarray  # (F,) +1 or -1
     theta: np.ndarray  # (F, k)
     reference: int
+    #: Frames without parameters of their own (besides the reference): those not solved.
+    #: Free parameters that no detection constrains would make the normal matrix singular.
+    fixed: frozenset = frozenset()
 
     def local(self, f, pts):
         """Frame ``f``'s pixel positions in its centred (and unmirrored) coordinates."""
@@ -65,10 +68,10 @@ class Frames:
         return q
 
     def index(self):
-        """Column offset of each frame's parameters (-1 for the reference)."""
+        """Column offset of each frame's parameters (-1 for the reference and fixed ones)."""
         k = N_PARAMS[self.kind]
         cols = np.full(len(self.theta), -1)
-        free = [f for f in range(len(self.theta)) if f != self.reference]
+        free = [f for f in range(len(self.theta)) if f != self.reference and f not in self.fixed]
         cols[free] = np.arange(len(free)) * k
         return cols, len(free) * k
 

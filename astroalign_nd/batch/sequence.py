@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 
 from .._input import batch_frames
 from ..config import RegistrationConfig
-from ..exceptions import AstroalignError
+from ..exceptions import AstroalignError, warn
 from ..matching.pairing import mutual_matches
 from ..registration import Reference
 from ..transforms.convert import as_matrix, from_matrix
@@ -298,6 +298,9 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
     with task_pool(workers) as pool:
         refs, unsolved = _detect(items, names, config, (frames_hdu, unit), n_stars, pool)
         shapes = [_shape(r) for r in refs]
+        repeats = _repeats(refs, config.n_sources, ref)
+        for j, i in repeats.items():  # solved once, as the frame it repeats
+            refs[j], unsolved[j] = None, f"the same frame as {names[i]}"
         seconds["detect"], t0 = time.perf_counter() - t0, time.perf_counter()
         graph = _link(refs, shapes, config, ref, numbers, (client, pool, workers))
     seconds["match"], t0 = time.perf_counter() - t0, time.perf_counter()
@@ -308,6 +311,7 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
                               f"{unsolved[ref]}")
     solution = _solve(graph, refs, shapes, names, ref, kind, link_tolerance, unsolved,
                       (config.n_sources, n_stars))
+    _share(solution, repeats)
     seconds["solve"] = time.perf_counter() - t0
     solution.seconds = seconds
     solution.attempts = [(a, b, why) for (a, b), why in sorted(graph.failures.items())]
@@ -397,6 +401,40 @@ def _detect(items, names, config, read, n_stars, pool):
             res, unsolved[i] = None, res
         refs.append(res)
     return refs, unsolved
+
+
+def _repeats(refs, n_sources, ref):
+    """
+    ``{j: i}`` for each frame ``j`` whose detections are exactly frame ``i``'s (``i`` the
+    reference, or the first of them): the same file or array given twice.  Solved twice, it would
+    count its stars twice in the joint solution and shrink the others' predicted errors.
+    """
+    keys = {}
+    for j, r in enumerate(refs):
+        if r is not None:
+            pts = np.ascontiguousarray(r.stars(n_sources)[0], dtype=float)
+            keys[j] = (pts.shape, pts.tobytes())
+    seen, repeats = {}, {}
+    for j in sorted(keys, key=lambda f: (f != ref, f)):  # the reference first
+        if keys[j] in seen:
+            repeats[j] = seen[keys[j]]
+        else:
+            seen[keys[j]] = j
+    return repeats
+
+
+def _share(solution, repeats):
+    """Each repeated frame gets the solution of the frame it repeats, with a warning."""
+    for j, i in repeats.items():
+        del solution.unsolved[j]
+        if solution.transforms[i] is None:
+            solution.unsolved[j] = f"the same frame as {solution.names[i]}, which is unsolved"
+        else:
+            solution.transforms[j] = solution.transforms[i].copy()
+            solution.covariances[j] = solution.covariances[i]
+            solution.predicted_errors[j] = solution.predicted_errors[i]
+        warn(f"{solution.names[j]} is the same frame as {solution.names[i]} (identical "
+             "detections); it is solved once, so that its stars do not count twice.")
 
 
 def _shape(ref):
@@ -608,7 +646,7 @@ def _initial(graph, shapes, ref, kind, solved):
         m = place[f][1]
         parity[f] = 1.0 if np.linalg.det(m[:2, :2]) > 0 else -1.0
         theta[f] = adjust.theta_from_matrix(kind, m, centres[f], parity[f])
-    return adjust.Frames(kind, centres, parity, theta, ref)
+    return adjust.Frames(kind, centres, parity, theta, ref, frozenset(range(n)) - set(solved))
 
 
 def _radius(frames):
