@@ -269,7 +269,9 @@ def test_watch_folder_in_process(ten, tmp_path):
     seen = []
     live = watch_folder(watched, paths[0], out, interval=0.05, timeout=0.5,
                         callback=lambda p, e: seen.append((os.path.basename(p), e)))
-    assert [n for n, e in seen] == ["frame01.fits", "frame02.fits", "frame03.fits"]
+    assert [n for n, e in seen] == ["frame01.fits", "frame02.fits", "frame03.fits",
+                                    "broken.fits"]  # a file left out is named too
+    assert seen[-1][1] == "not a complete FITS file"
     assert live.rejected == [("broken.fits", "not a complete FITS file")]
     h = fits.getheader(out)
     assert h["NCOMBINE"] == 4 and h["IMCMB001"] == "frame00.fits (reference)"

@@ -6,7 +6,7 @@ import os
 import sys
 
 from .commands import _check_input, _check_writable
-from .errors import _PROG, HelpFormatter, _CLIError, exit_codes_text
+from .errors import _PROG, HelpFormatter, _CLIError, cli_words, exit_codes_text
 from .options import _registration_kwargs
 
 __all__ = []
@@ -88,7 +88,7 @@ def add_stack_commands(sub, reg_opts):
                    help="reference image: the stack's grid and first frame")
     w.add_argument("--stack", required=True, metavar="OUT.fits", help="the running stack")
     w.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
-    w.add_argument("--interval", type=float, default=2.0, help="seconds between polls")
+    w.add_argument("--interval", type=float, default=2.0, help="seconds between polls (default 2)")
     w.add_argument("--max-frames", type=int, default=None, help="stop after N new frames")
     w.add_argument("--timeout", type=float, default=None,
                    help="stop after this many seconds without a new frame")
@@ -176,9 +176,15 @@ def _cmd_watch(args):
     kwargs = _registration_kwargs(args)
 
     def report(path, error):
-        line = f"FAILED {os.path.basename(path)}: {error}" if error else \
-            f"added {os.path.basename(path)}"
-        print(line, flush=True)
+        if error:
+            print(f"FAILED {os.path.basename(path)}: {cli_words(error)}", file=sys.stderr,
+                  flush=True)
+        else:
+            print(f"added {os.path.basename(path)}", flush=True)
+
+    print(f"watching {args.folder} every {args.interval:g} s; reference "
+          f"{os.path.basename(os.fspath(reference))}; the stack goes to {args.stack} after "
+          "each frame (Ctrl-C to stop)", flush=True)
 
     try:
         with _break_signal():
@@ -194,5 +200,7 @@ def _cmd_watch(args):
     except KeyboardInterrupt:
         print(f"stopped; the stack is in {args.stack}", flush=True)
         raise
-    print(f"{len(live.used)} frames stacked, {len(live.rejected)} failed; wrote {args.stack}")
+    n = len(live.used)
+    print(f"{n} frame{'' if n == 1 else 's'} stacked, {len(live.rejected)} failed; wrote "
+          f"{args.stack}")
     return _SOME_FAILED if live.rejected else 0

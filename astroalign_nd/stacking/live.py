@@ -13,6 +13,7 @@ import time
 from typing import Any, Callable
 
 import numpy as np
+from astropy.io import fits
 from astropy.nddata import CCDData, StdDevUncertainty
 
 from .._input import parse_input
@@ -364,21 +365,42 @@ def _complete_fits(path):
 
 
 class _Poller:
-    """The new files of a folder: stable across two polls, then parsed, each once."""
+    """
+    The new files of a folder: stable across two polls, then parsed, each once.
+
+    A file that stays unreadable for `_UNREADABLE_POLLS` polls is given up, until it
+    changes again (a slow writer: a network share, a camera over USB); the files the
+    package writes itself (registered frames, stacks: their ``AAT*`` keywords) are set
+    aside, never stacked on top of the raw frames.
+    """
 
     def __init__(self, folder, ignore):
         self.folder = folder
         self.ignore = {os.path.realpath(p) for p in ignore}
-        self.seen, self.last, self.bad_polls = set(), {}, {}
+        self.seen, self.last, self.bad_polls, self.gave_up = set(), {}, {}, {}
+        self.listing_errors = 0
 
-    def scan(self):
-        """``(ready, unreadable)``: paths complete now, and paths that never parse."""
+    def _names(self):
+        """The folder's file names; an error once it cannot be listed for a few polls."""
         try:
             names = sorted(os.listdir(self.folder))
-        except OSError:
-            return [], []
-        ready, unreadable, now = [], [], {}
-        for name in names:
+        except OSError as exc:
+            self.listing_errors += 1
+            if self.listing_errors >= _UNREADABLE_POLLS:
+                raise OSError(f"the watched folder {self.folder} cannot be read any more "
+                              f"({exc.strerror or exc}): it was removed, renamed or made "
+                              "unreadable; give the folder again, or another one.") from None
+            return []
+        self.listing_errors = 0
+        return names
+
+    def scan(self):
+        """
+        ``(ready, unreadable, own)``: paths complete now, paths given up as unreadable,
+        and the package's own outputs (set aside).
+        """
+        ready, unreadable, own, now = [], [], [], {}
+        for name in self._names():
             path = os.path.join(self.folder, name)
             real = os.path.realpath(path)
             if real in self.seen or real in self.ignore or not _is_fits_name(name):
@@ -389,18 +411,32 @@ class _Poller:
                 continue
             key = (st.st_size, st.st_mtime_ns)
             now[real] = key
+            if self.gave_up.get(real, key) != key:
+                del self.gave_up[real]  # it changed: look at it again
+            if real in self.gave_up:
+                continue
             if self.last.get(real) != key or st.st_size == 0:
-                continue  # still being written (or just appeared)
+                self.bad_polls.pop(real, None)  # still being written: count afresh
+                continue
             if _complete_fits(path):
-                ready.append(path)
                 self.seen.add(real)
+                (own if _package_output(path) else ready).append(path)
             else:
                 self.bad_polls[real] = self.bad_polls.get(real, 0) + 1
                 if self.bad_polls[real] >= _UNREADABLE_POLLS:
                     unreadable.append(path)
-                    self.seen.add(real)
+                    self.gave_up[real] = key
         self.last = now
-        return ready, unreadable
+        return ready, unreadable, own
+
+
+def _package_output(path):
+    """True for a file this package wrote: a registered frame or a stack."""
+    try:
+        header = fits.getheader(path)
+    except (OSError, ValueError):
+        return False
+    return "AATTYPE" in header or "AASTKMTH" in header
 
 
 def watch_folder(folder: str | os.PathLike, reference: Any, output: str | os.PathLike, *,
@@ -492,13 +528,23 @@ def watch_folder(folder: str | os.PathLike, reference: Any, output: str | os.Pat
 
 def _watch_loop(live, poller, output, interval, max_frames, timeout, callback):
     """Poll, add and write until ``max_frames`` or ``timeout`` (or an interrupt)."""
-    n_done, last_new = 0, time.monotonic()
+    n_done, last_new, failed = 0, time.monotonic(), {}
     while max_frames is None or n_done < max_frames:
-        ready, unreadable = poller.scan()
-        for path in unreadable:
-            live.fail(os.path.basename(path), "not a complete FITS file")
+        ready, unreadable, own = poller.scan()
+        left_out = [(p, "not a complete FITS file") for p in unreadable]
+        left_out += [(p, "an astroalign_nd output (AAT* keywords: a registered frame or a "
+                      "stack), not a raw frame; not stacked again") for p in own]
+        for path, why in left_out:
+            if path in failed:  # given up again after a change: one entry per file
+                live.rejected.remove(failed[path])
+            failed[path] = (os.path.basename(path), why)
+            live.fail(*failed[path])
+            if callback is not None:
+                callback(path, why)
         for path in ready:
             error = None
+            if path in failed:  # given up before, complete now: no longer a failure
+                live.rejected.remove(failed.pop(path))
             try:
                 live.add(path)
             except Exception as exc:  # noqa: BLE001 - a bad frame is listed, not fatal
@@ -510,10 +556,10 @@ def _watch_loop(live, poller, output, interval, max_frames, timeout, callback):
                 callback(path, error)
             if max_frames is not None and n_done >= max_frames:
                 return
-        if unreadable:
+        if left_out:
             write_with_retry(live.result(), output)
-            n_done += len(unreadable)
-        if ready or unreadable:
+            n_done += len(left_out)
+        if ready or left_out:
             last_new = time.monotonic()
         elif timeout is not None and time.monotonic() - last_new >= timeout:
             return
