@@ -83,10 +83,11 @@ def test_batch_resume_summary_and_exit_codes(files, tmp_path, capsys):
     missing = str(tmp_path / "nope.fits")
     assert main(["batch", *srcs[:2], "-r", ref, "--output-dir", str(out)]) == 0
     capsys.readouterr()
-    # a rerun without --skip-existing fails the frames already done (exit 1)...
-    assert main(["batch", *srcs, "-r", ref, "--output-dir", str(out)]) == 1
-    assert "skip-existing" in capsys.readouterr().out
-    os.remove(out / "s2_aligned.fits")
+    # a rerun without --skip-existing is refused up front, naming both ways on (exit 2)...
+    assert main(["batch", *srcs, "-r", ref, "--output-dir", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--skip-existing" in err and "--overwrite" in err
+    assert not (out / "s2_aligned.fits").exists()  # nothing done
     # ...with it, they are skipped and the run succeeds
     code = main(["batch", *srcs, "-r", ref, "--output-dir", str(out), "--skip-existing",
                  "--summary", str(summary)])

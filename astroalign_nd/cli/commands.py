@@ -151,7 +151,23 @@ def _batch_frames(args):
     _check_input(target)
     for src in sources:
         _check_input(src)
-    return target, sources
+    kept = [src for src in sources if not _same_path(src, target)]
+    if len(kept) < len(sources):
+        # Registered onto itself it would be written twice (as _aligned and _reference), and
+        # counted twice by whatever stacks the folder.
+        print(f"the reference {os.path.basename(target)} is among the images: it is written "
+              "once, as the reference", flush=True)
+    return target, kept
+
+
+def _same_path(a, b):
+    """True if the two paths name one file (by real path, or as hard links)."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def _check_batch_options(args):
@@ -171,6 +187,25 @@ def _check_batch_options(args):
         except FileExistsError:
             raise _CLIError(f"summary file {args.summary!r} already exists; pass --overwrite "
                             "(or --skip-existing) to replace it.") from None
+
+
+def _check_existing_outputs(args, target, sources):
+    """
+    One error up front when outputs of an earlier run are there (rather than one failure
+    per frame), naming the two ways on.
+    """
+    if args.overwrite or args.skip_existing:
+        return
+    from astroalign_nd.batch import plan_outputs
+    from astroalign_nd.batch.reference import reference_output
+
+    outputs, _ = plan_outputs(sources, args.output_dir, protected=[target])
+    there = [p for p in outputs + [reference_output(target, args.output_dir)]
+             if os.path.lexists(p)]
+    if there:
+        raise _CLIError(f"{len(there)} of the outputs exist in {args.output_dir} (e.g. "
+                        f"{os.path.basename(there[0])}): pass --skip-existing to register only "
+                        "the frames without one, or --overwrite to replace them.")
 
 
 def _dask_client_class():
@@ -249,6 +284,7 @@ def _cmd_batch(args):
 
     target, sources = _batch_frames(args)
     _check_batch_options(args)
+    _check_existing_outputs(args, target, sources)
     plots = _check_plot_dir(args, target, sources) if args.plot is not None else None
     progress = args.progress if args.progress is not None else sys.stderr.isatty()
     client = None
