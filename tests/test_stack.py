@@ -13,7 +13,7 @@ import pytest
 from astropy.io import fits
 from astropy.nddata import CCDData, StdDevUncertainty
 
-from astroalign_nd import TransformNotFoundError, stack
+from astroalign_nd import AstroalignWarning, TransformNotFoundError, stack
 from astroalign_nd.cli.main import main
 from astroalign_nd.io import write_ccddata
 from astroalign_nd.simulate import add_satellite_trail, simulate_sequence
@@ -145,7 +145,9 @@ def _near_edge(reach):
 
 def test_header_lists_frames_used_and_left_out(ten):
     frames = [ten.frames[0], np.zeros((64, 64), np.float32), ten.frames[1]]
-    ccd = stack(frames)
+    with pytest.warns(AstroalignWarning, match="frame1 was left out of the stack: "
+                      "TooFewSourcesError"):  # never silently
+        ccd = stack(frames)
     h = ccd.meta
     assert h["NCOMBINE"] == 2 and h["NREJECT"] == 1
     assert h["IMCMB001"] == "frame0 (reference)" and h["IMCMB002"] == "frame2"

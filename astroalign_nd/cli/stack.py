@@ -4,6 +4,7 @@
 import contextlib
 import os
 import sys
+import warnings
 
 from .commands import _check_input, _check_writable
 from .errors import _PROG, HelpFormatter, _CLIError, cli_words, exit_codes_text
@@ -112,15 +113,18 @@ def _cmd_stack(args):
     if args.workers < 0:
         raise _CLIError(f"--workers must be 0 or more; got {args.workers}.")
     try:
-        ccd = stack(images, reference, method=args.combine, clip=_none(args.clip),
-                    sigma=args.sigma, sigma_low=args.sigma_low, sigma_high=args.sigma_high,
-                    maxiters=args.maxiters, nlow=args.nlow, nhigh=args.nhigh,
-                    normalize=_none(args.normalize), weights=_none(args.weights),
-                    gain=args.gain, read_noise=args.read_noise, canvas=args.canvas,
-                    memory_limit=args.memory_limit * 1e6, output=args.output,
-                    overwrite=args.overwrite, aligned_dir=args.aligned_dir,
-                    workers=args.workers or None, unit=args.unit,
-                    **_registration_kwargs(args))
+        with warnings.catch_warnings():
+            # Each frame left out is printed below, from the header ("LEFT OUT ...").
+            warnings.filterwarnings("ignore", message=".* was left out of the stack: ")
+            ccd = stack(images, reference, method=args.combine, clip=_none(args.clip),
+                        sigma=args.sigma, sigma_low=args.sigma_low, sigma_high=args.sigma_high,
+                        maxiters=args.maxiters, nlow=args.nlow, nhigh=args.nhigh,
+                        normalize=_none(args.normalize), weights=_none(args.weights),
+                        gain=args.gain, read_noise=args.read_noise, canvas=args.canvas,
+                        memory_limit=args.memory_limit * 1e6, output=args.output,
+                        overwrite=args.overwrite, aligned_dir=args.aligned_dir,
+                        workers=args.workers or None, unit=args.unit,
+                        **_registration_kwargs(args))
     except AstroalignError as exc:
         print(f"{_PROG}: registration refused: {exc}", file=sys.stderr)
         return _REFUSED

@@ -93,6 +93,10 @@ class FrameStats:
         Its weight in the average.
     n_rejected : int
         Pixels of it that the clipping rejected.
+    unit : str or None
+        Its unit (``BUNIT``), if its file says.
+    converted : str or None
+        How it was brought into the reference's unit, if it was.
     """
 
     sky: float
@@ -103,6 +107,8 @@ class FrameStats:
     scale: float = 1.0
     weight: float = 1.0
     n_rejected: int = field(default=0)
+    unit: str | None = None
+    converted: str | None = None
 
 
 def robust_sigma(values):
@@ -208,6 +214,7 @@ def frame_stats(path, memory_limit=512e6):
     """
     with fits.open(path, memmap=True) as hdul:
         shape = hdul[0].data.shape
+        unit = hdul[0].header.get("BUNIT")
     if len(shape) != 2:
         raise ValueError(f"its data has shape {shape}, not a 2-D image like the other "
                          "frames; stack one plane (colour channel) at a time.")
@@ -225,7 +232,7 @@ def frame_stats(path, memory_limit=512e6):
     data = np.concatenate(values)
     var = np.concatenate(variances) if has_var else None
     stats = array_stats(data, var, np.ones(data.shape, dtype=bool))
-    stats.n_valid = n_valid
+    stats.n_valid, stats.unit = n_valid, unit
     return stats
 
 

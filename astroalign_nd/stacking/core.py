@@ -9,6 +9,7 @@ import tempfile
 from collections.abc import Iterator
 from typing import Any
 
+import astropy.units as u
 import numpy as np
 from astropy.nddata import CCDData, StdDevUncertainty
 
@@ -184,6 +185,8 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
                 + "; ".join(f"{n}: {e}" for n, e in rejected))
         used, stats = _measure(frames_, rejected, opts, weights, gain, read_noise,
                                memory_limit)
+        for name, why in rejected:  # never silently: the header alone is easy to miss
+            warn(f"{name} was left out of the stack: {why}")
         value, variance, coverage = combine_files(
             [frames_[i][1] for i in used], stats, result.canvas_shape, opts, gain=gain,
             read_noise=read_noise, memory_limit=memory_limit)
@@ -365,12 +368,16 @@ def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit):
     be measured joins ``rejected``.  Returns the indices used and their stats.
     """
     used, stats = [], []
-    ref_sky = None
+    ref_sky = ref_unit = None
     for i, (name, path, _) in enumerate(frames):
         try:
             st = frame_stats(path, memory_limit)
+            ref_unit = st.unit if i == 0 else ref_unit
+            factor = _unit_factor(st, ref_unit)
             ref_sky = st.sky if ref_sky is None else ref_sky
-            normalise(st, ref_sky, opts.normalize)
+            # Normalised in its own unit, then brought into the reference's.
+            normalise(st, ref_sky / factor, opts.normalize)
+            st.scale, st.offset = st.scale * factor, st.offset * factor
         except ValueError as exc:
             if i == 0:
                 raise ValueError(f"the reference cannot be stacked: {exc}") from None
@@ -382,6 +389,23 @@ def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit):
         weights = weights[[frames[i][2] for i in used]]
     frame_weights(stats, weights, gain, read_noise)
     return used, stats
+
+
+def _unit_factor(st, ref_unit):
+    """
+    The factor that brings a frame's values into the reference's unit (recorded in
+    ``st.converted``); a unit astropy cannot convert is refused with what to pass.
+    """
+    if st.unit is None or ref_unit is None or st.unit == ref_unit:
+        return 1.0
+    try:
+        factor = u.Unit(st.unit).to(u.Unit(ref_unit))
+    except (ValueError, u.UnitsError):
+        raise ValueError(f"its unit {st.unit!r} cannot be converted to the reference's "
+                         f"{ref_unit!r}; give every frame in one unit (electrons to adu: "
+                         "divide by the gain, e.g. with ccdproc.gain_correct).") from None
+    st.converted = f"converted from {st.unit} to {ref_unit} (x {factor:.6g})"
+    return factor
 
 
 def _settings(opts, n_used):
@@ -402,6 +426,9 @@ def _stacked(value, variance, coverage, ref, wcs, dtype, names, stats, rejected,
     used = [dict(name=n, offset=st.offset, scale=st.scale, weight=st.weight,
                  n_rejected=st.n_rejected) for n, st in zip(names, stats)]
     header = stack_header(ref.meta, used, rejected, _settings(opts, len(names)))
+    for n, st in zip(names, stats):
+        if st.converted:
+            header.add_history(f"astroalign_nd stack: {n} {st.converted}")
     mask = coverage == 0
     if mask.any():
         n_masked = int(mask.sum())
