@@ -443,7 +443,8 @@ def _flipped_header():
 def _read_path(path, name, hdu=None, unit=None):
     path = os.fspath(path)
     if not os.path.exists(path):
-        raise ValueError(f"{name}: file not found: {path!r}.")
+        raise FileNotFoundError(f"{name}: file not found: {path!r}; check the path (it is "
+                                "read relative to the current folder).")
     low = path.lower()
     if low.endswith(_IMAGE_EXT):
         from skimage.io import imread

@@ -54,6 +54,8 @@ def order_index(order):
     if isinstance(order, str):
         if order in ORDERS:
             return ORDERS[order]
+        if order.strip() in ("0", "1", "2", "3"):  # as the command line gives it
+            return int(order)
     elif isinstance(order, numbers.Integral) and not isinstance(order, bool):
         if 0 <= int(order) <= 3:
             return int(order)

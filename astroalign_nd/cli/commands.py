@@ -459,6 +459,8 @@ def _cmd_demo(args):
     from astroalign_nd.io.write import write_ccddata
     from astroalign_nd.simulate import simulate_pair
 
+    if args.seed < 0:
+        raise _CLIError(f"--seed must be an integer >= 0; got {args.seed}.")
     out_dir = args.output_dir
     paths = {name: os.path.join(out_dir, f"{name}.fits")
              for name in ("source", "target", "aligned")}

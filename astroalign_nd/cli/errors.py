@@ -105,7 +105,11 @@ def cli_words(message):
     >>> cli_words("try more sources (n_sources), or pass fwhm=<their width>.")
     'try more sources (--n-sources), or pass --fwhm <their width>.'
     """
-    return _KEYWORD.sub(lambda m: _FLAGS[m.group(1)] + (" " if m.group(2) else ""), message)
+    message = _KEYWORD.sub(lambda m: _FLAGS[m.group(1)] + (" " if m.group(2) else ""), message)
+    # The command line has no None (leave the option out) and no overwrite=True.
+    message = re.sub(r"pass overwrite=True \(or --overwrite\)", "pass --overwrite", message)
+    message = re.sub(r",? or None\b", "", message)
+    return re.sub(r"(--[\w-]+)  ", r"\1 ", message)
 
 # -- entry point -----------------------------------------------------------------------------
 

@@ -112,6 +112,8 @@ def _cmd_stack(args):
     _check_writable(args.output, args.overwrite, inputs=images + [reference or images[0]])
     if args.workers < 0:
         raise _CLIError(f"--workers must be 0 or more; got {args.workers}.")
+    if not args.memory_limit > 0:
+        raise _CLIError(f"--memory-limit must be a number of MB > 0; got {args.memory_limit:g}.")
     try:
         with warnings.catch_warnings():
             # Each frame left out is printed below, from the header ("LEFT OUT ...").
@@ -134,7 +136,7 @@ def _cmd_stack(args):
             print(f"stacked {h[f'IMCMB{k:03d}']}")
     for k in range(1, h["NREJECT"] + 1):
         if f"AAREJ{k:03d}" in h:
-            print(f"LEFT OUT {h[f'AAREJ{k:03d}']}")
+            print(f"LEFT OUT {cli_words(h[f'AAREJ{k:03d}'])}")
     print(f"{h['NCOMBINE']} frames combined, {h['NREJECT']} left out; "
           f"{int(ccd.mask.sum())} px masked (no frame reaches); wrote {args.output}")
     return _SOME_FAILED if h["NREJECT"] else 0
@@ -178,6 +180,12 @@ def _cmd_watch(args):
         raise _CLIError(f"FOLDER {args.folder!r} does not exist or is not a folder.")
     _check_writable(args.stack, args.overwrite, inputs=[reference])
     kwargs = _registration_kwargs(args)
+    if not (args.interval > 0 and args.interval < float("inf")):
+        raise _CLIError(f"--interval must be a number of seconds > 0; got {args.interval:g}.")
+    if args.timeout is not None and not args.timeout >= 0:
+        raise _CLIError(f"--timeout must be a number of seconds >= 0; got {args.timeout:g}.")
+    if args.max_frames is not None and args.max_frames < 1:
+        raise _CLIError(f"--max-frames must be 1 or more; got {args.max_frames}.")
 
     def report(path, error):
         if error:
