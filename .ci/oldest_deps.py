@@ -16,7 +16,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 #: The optional-dependency groups whose packages run inside astroalign_nd.
-RUNTIME_EXTRAS = ("exact", "dask", "plot")
+RUNTIME_EXTRAS = ("exact", "dask", "plot", "ccdproc")
 _REQ = re.compile(r"^\s*([A-Za-z0-9_.-]+)\s*(\[[^\]]*\])?\s*(.*)$")
 
 

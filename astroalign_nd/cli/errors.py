@@ -26,8 +26,9 @@ EXIT_CODES = (
      "output that cannot be written or that is one of the inputs, or any other error"),
     (EXIT_REFUSED, "registration refused: no trustworthy transform (too few stars, no "
      "match, or a match that does not pass the checks); nothing was written"),
-    (130, "interrupted (SIGINT, Ctrl-C); batch, stack and watch write what was done"),
-    (143, "terminated (SIGTERM); batch, stack and watch write what was done"),
+    (130, "interrupted (SIGINT, Ctrl-C); batch and watch write what was done, stack "
+     "writes nothing"),
+    (143, "terminated (SIGTERM); batch and watch write what was done, stack writes nothing"),
 )
 
 
