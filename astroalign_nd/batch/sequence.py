@@ -166,6 +166,14 @@ class SequenceSolution:
             t[c].unit = "pix"
         return t
 
+    def __repr__(self):
+        # One line: the dataclass's own repr printed every covariance (about 60 lines).
+        n = len(self.transforms)
+        solved = sum(t is not None for t in self.transforms)
+        return (f"<SequenceSolution: {solved} of {n} frames solved onto frame "
+                f"{self.reference}, {len(self.accepted)} links, {self.n_stars} stars; "
+                "see .summary() and .to_table()>")
+
     def summary(self):
         """A short human-readable report."""
         n = len(self.transforms)

@@ -79,6 +79,10 @@ def add_stack_commands(sub, reg_opts):
                    help="keep the registered frames in DIR (default: a temporary folder)")
     p.add_argument("--workers", type=int, default=0, metavar="N",
                    help="register in N local worker processes")
+    p.add_argument("--progress", dest="progress", action="store_true", default=None,
+                   help="show a progress bar (default: when standard error is a terminal)")
+    p.add_argument("--no-progress", dest="progress", action="store_false",
+                   help="never show a progress bar")
     _add_combine_options(p)
     w = sub.add_parser("watch", parents=[reg_opts], help=_WATCH_HELP[0],
                        description=_WATCH_HELP[1], epilog=exit_codes_text(),
@@ -114,6 +118,11 @@ def _cmd_stack(args):
         raise _CLIError(f"--workers must be 0 or more; got {args.workers}.")
     if not args.memory_limit > 0:
         raise _CLIError(f"--memory-limit must be a number of MB > 0; got {args.memory_limit:g}.")
+    progress = args.progress if args.progress is not None else sys.stderr.isatty()
+    ref_name = os.path.basename(reference or images[0])
+    n = len([p for p in images if p != (reference or images[0])])
+    print(f"registering {n} frame{'' if n == 1 else 's'} onto {ref_name}, then combining",
+          flush=True)
     try:
         with warnings.catch_warnings():
             # Each frame left out is printed below, from the header ("LEFT OUT ...").
@@ -125,7 +134,7 @@ def _cmd_stack(args):
                         gain=args.gain, read_noise=args.read_noise, canvas=args.canvas,
                         memory_limit=args.memory_limit * 1e6, output=args.output,
                         overwrite=args.overwrite, aligned_dir=args.aligned_dir,
-                        workers=args.workers or None, unit=args.unit,
+                        workers=args.workers or None, unit=args.unit, progress=progress,
                         **_registration_kwargs(args))
     except AstroalignError as exc:
         print(f"{_PROG}: registration refused: {exc}", file=sys.stderr)

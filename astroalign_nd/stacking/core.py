@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import numbers
 import os
 import tempfile
@@ -187,6 +188,7 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
                                memory_limit)
         for name, why in rejected:  # never silently: the header alone is easy to miss
             warn(f"{name} was left out of the stack: {why}")
+        opts = _feasible_clip(opts, len(used))
         value, variance, coverage = combine_files(
             [frames_[i][1] for i in used], stats, result.canvas_shape, opts, gain=gain,
             read_noise=read_noise, memory_limit=memory_limit)
@@ -389,6 +391,19 @@ def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit):
         weights = weights[[frames[i][2] for i in used]]
     frame_weights(stats, weights, gain, read_noise)
     return used, stats
+
+
+def _feasible_clip(opts, n_used):
+    """
+    The options, without min/max clipping when it would leave no value (it then rejects
+    nothing, and the header must not say it clipped).
+    """
+    if opts.clip != "minmax" or n_used > opts.nlow + opts.nhigh:
+        return opts
+    warn(f"clip='minmax' drops the {opts.nlow} lowest and {opts.nhigh} highest values of "
+         f"each pixel: with {n_used} frames none would be left, so nothing is rejected; "
+         "stack more frames, lower nlow/nhigh, or use clip='sigma'.")
+    return dataclasses.replace(opts, clip=None)
 
 
 def _unit_factor(st, ref_unit):

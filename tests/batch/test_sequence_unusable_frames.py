@@ -59,3 +59,9 @@ def test_a_frame_given_twice_counts_once(frames, clean):
     assert sol.unsolved == {}
     assert _corner_shift(sol.transforms[2], sol.transforms[1]) == 0.0
     assert sol.predicted_errors[2] == sol.predicted_errors[1]
+
+
+def test_the_solution_prints_in_one_line(clean):
+    text = repr(clean)
+    assert "\n" not in text
+    assert text.startswith("<SequenceSolution: 4 of 4 frames solved onto frame 0")

@@ -35,3 +35,11 @@ def test_float_dtype_is_kept_and_other_types_refused(frames):
         stack(frames, dtype=np.complex64)
     with pytest.raises(TypeError, match="dtype must be a numpy number type"):
         stack(frames, dtype="not a type")
+
+
+def test_minmax_on_too_few_frames_says_it_rejects_nothing(frames):
+    with pytest.warns(AstroalignWarning, match="with 2 frames none would be left, so nothing "
+                      "is rejected"):
+        st = stack(frames[:2], clip="minmax")
+    assert st.meta["AASTKCLP"] == "none"
+    assert "AASTKNLO" not in st.meta
