@@ -31,7 +31,7 @@ Parts (each can be run alone with ``--only``):
 Usage::
 
     python benchmarks/bench_global.py [--data ../shared/data] [--only real mosaic ...]
-        [--sequences 8] [--frames 60] [--out benchmarks/results/issue28_global]
+        [--sequences 8] [--frames 60] [--out /tmp/global]
 """
 
 import argparse
@@ -477,7 +477,7 @@ def main():
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--speed-child", nargs=4, help=argparse.SUPPRESS)
-    ap.add_argument("--out", default=str(HERE / "results" / "issue28_global"))
+    ap.add_argument("--out", default=None, help="also write OUT.json and OUT.md")
     args = ap.parse_args()
     if args.speed_child:
         folder, solve, workers, out = args.speed_child
@@ -499,8 +499,9 @@ def main():
         results["speed"] = run_speed(args.frames, args.workers, args.repeats)
     text = markdown(results)
     print(text)
-    Path(args.out + ".json").write_text(json.dumps(results, indent=1, default=float))
-    Path(args.out + ".md").write_text(text + "\n")
+    if args.out:
+        Path(args.out + ".json").write_text(json.dumps(results, indent=1, default=float))
+        Path(args.out + ".md").write_text(text + "\n")
 
 
 if __name__ == "__main__":
