@@ -6,7 +6,7 @@ Bit-for-bit check of a change to detection's masked path: masks and NaNs.
 float32 and float64) with a mask, with NaN pixels, and with both, and
 `~astroalign_nd.find_transform` from a masked `~astropy.nddata.CCDData`
 (with a `~astropy.nddata.StdDevUncertainty`), from a frame with NaNs, and
-from the 8192^2 masked CCDData of ``bench_ccddata_memory.py``; it saves
+from the 8192^2 masked CCDData of ``bench_ccddata.py memory``; it saves
 every table column (bytes), table meta and matrix, and ``--compare``
 reports the ones that differ.
 
