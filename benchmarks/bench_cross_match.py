@@ -1,6 +1,6 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """
-Whole-catalog cross-match (issue 27): astroalign_nd.cross_match against FITSH
+Whole-catalog cross-match: astroalign_nd.cross_match against FITSH
 grmatch and astroalign, on the same simulated catalogs, in one run.
 
 Two catalogs of a 4096x4096 field with a random similarity (rotation -180 to
@@ -290,7 +290,7 @@ def run_million(folder, n):
 
 
 def markdown(summary, million):
-    lines = ["# Issue 27: whole-catalog cross-match", "",
+    lines = ["# Whole-catalog cross-match", "",
              "Medians over the seeds; times best of the repeats, in the same run.", ""]
     head = ("| N | tool | pairs returned | true pairs found | recall | false | "
             "error RMS (px) | error max (px) | wall time (s) | CPU time (s) |")

@@ -1,5 +1,5 @@
 """
-Wide-field distortion (issue 18): astroalign_nd's projective and polynomial
+Wide-field distortion: astroalign_nd's projective and polynomial
 models against aafitrans and scikit-image, accuracy over the whole frame,
 robustness to wrong matches, and time, on the same inputs in one run.
 
@@ -293,7 +293,7 @@ def main(argv=None):
         print(s, flush=True)
         lines.append(s)
 
-    say("Wide-field distortion (issue 18): astroalign_nd vs aafitrans and skimage")
+    say("Wide-field distortion: astroalign_nd vs aafitrans and skimage")
     say(f"astroalign_nd from {os.path.dirname(astroalign_nd.__file__)}; astroalign "
         f"{astroalign.__version__}; scikit-image {skimage.__version__}")
     say(f"frames {args.size}x{args.size}, {args.n_stars} stars; error = distance to the true "

@@ -1,5 +1,5 @@
 """
-Distortion models on real frames (issue 18): astroalign_nd against
+Distortion models on real frames: astroalign_nd against
 astroalign, aafitrans and scikit-image on the same real images, in one run.
 
 The simulator is not the judge, so this benchmark puts known non-linear

@@ -1,5 +1,5 @@
 """
-First call in a fresh process, astroalign_nd against astroalign (issue 16).
+First call in a fresh process, astroalign_nd against astroalign.
 
 What a command-line user feels on every command: start Python, import the
 tool, read two FITS files and register one onto the other.  Each repeat

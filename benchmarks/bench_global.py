@@ -1,5 +1,5 @@
 """
-A night or a mosaic as one (issue 28): `solve_sequence` (the global
+A night or a mosaic as one: `solve_sequence` (the global
 solution) against pairwise registration to the reference (astroalign_nd's
 ``find_transform`` onto a ``Reference``, and astroalign's
 ``find_transform``), on the same inputs in one run.
@@ -376,7 +376,7 @@ def run_speed(n_frames, workers=None, repeats=1):
 
 
 def markdown(results):
-    lines = ["# Issue 28: the global solution (`solve_sequence`) against pairwise", ""]
+    lines = ["# The global solution (`solve_sequence`) against pairwise", ""]
     for r in results.get("real", []):
         diffs = [f["global_vs_ours"] for f in r["frames"] if f["global_vs_ours"] is not None]
         lines += [f"## {r['name']} ({r['n_frames']} frames)", "",

@@ -1,5 +1,5 @@
 """
-What real frames do, simulated (issue 10): astroalign_nd against astroalign on
+What real frames do, simulated: astroalign_nd against astroalign on
 the same pairs, in one run.
 
 Six pairs per category, made with the package's simulator and its effects

@@ -1,5 +1,5 @@
 """
-Speed of astroalign_nd against astroalign, in one run (issue 6).
+Speed of astroalign_nd against astroalign, in one run.
 
 Sections
 --------

@@ -194,7 +194,7 @@ class NumpyKernels:
 
     @contextlib.contextmanager
     def _off(self):
-        # Before issue 24 the resampler had its own switch; now conf.use_compiled is the one.
+        # Older trees (--old): the resampler had its own switch; now conf.use_compiled is the one.
         resample = importlib.import_module(self.mod.__name__ + ".resample")
         old = getattr(resample, "_USE_COMPILED", None)
         if old is not None:

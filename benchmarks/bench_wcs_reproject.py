@@ -1,6 +1,6 @@
 """
 astroalign_nd against what a ccdproc user with WCS frames would call:
-`reproject.reproject_interp` and `ccdproc.wcs_project` (issue 16).
+`reproject.reproject_interp` and `ccdproc.wcs_project`.
 
 A 4096x4096 float32 pair of the second simulator of ``bench_speed_workloads.py``
 (photutils Moffat stars) with a known similarity transform; both frames get

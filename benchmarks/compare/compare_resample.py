@@ -56,7 +56,7 @@ def _cases():
                                                            conserve_flux=cf, _variance_kind=k)
                 key = f"rgb_{dt.__name__}_{mi}_{order}"
                 yield key, (rgb, m, order), dict(variance=s * s, mask=bad)
-    # A frame large enough for several bands of output rows (issue 16's banded
+    # A frame large enough for several bands of output rows (the banded
     # working planes, before the kernel read the mask and standard deviation).
     big = rng.normal(100, 10, (2600, 2600)).astype(np.float32)
     big_std = rng.uniform(1, 3, big.shape).astype(np.float32)

@@ -92,7 +92,7 @@ def _run(source, target, **kw):
         "target_index": np.asarray(r.target_index).tolist(),
         "counts": [int(r.n_source), int(r.n_target), int(r.n_triangle_matches),
                    int(r.n_hypotheses), int(extra.get("n_sources_used", -1))],
-        # match_points' results hold the points only since issue 17: indices suffice.
+        # match_points' results may hold the points only: indices suffice.
         "source_points": _exact(extra["source_points"]) if "n_sources_used" in extra else 0,
         "target_points": _exact(extra["target_points"]) if "n_sources_used" in extra else 0,
         "extra": {k: _exact(extra[k]) for k in ("model_misfit", "predicted_error")},
