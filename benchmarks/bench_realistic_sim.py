@@ -16,6 +16,7 @@ Usage::
     python benchmarks/bench_realistic_sim.py
 """
 
+import argparse
 import sys
 import warnings
 from pathlib import Path
@@ -57,7 +58,8 @@ def cases():
                pr.truth_matrix)
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args(argv)
     import astroalign
 
     from astroalign_nd import find_transform
