@@ -15,11 +15,9 @@ reads and writes, `~astroalign_nd.batch` runs many frames and
 Code written for astroalign 2.6 runs on this package's engine with
 ``from astroalign_nd import compat as aa`` (`astroalign_nd.compat`).
 
-Public names are imported on first use, so that ``import astroalign_nd``
-(and the command line's ``--help``) stays fast.
+Public names are imported on first use (``astroalign_nd._lazy``), so that
+``import astroalign_nd`` (and the command line's ``--help``) stays fast.
 """
-
-import importlib
 
 try:
     from ._version import version as __version__
@@ -28,6 +26,7 @@ except ImportError:  # running from a source tree that was never built
 
 from .exceptions import (AstroalignError, AstroalignWarning, PoorCoverageError, PoorFitWarning,
                          TooFewSourcesError, TransformNotFoundError)
+from ._lazy import attach
 
 # name -> submodule that defines it
 _LAZY = {
@@ -67,16 +66,5 @@ __all__ = [
 # (matplotlib stays optional: visualization imports it only when a plot is drawn).
 _SUBMODULES = ("compat", "visualization")
 
-
-def __getattr__(name):
-    if name in _SUBMODULES:
-        return importlib.import_module(f".{name}", __name__)
-    if name in _LAZY:
-        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value  # later look-ups skip this function
-        return value
-    raise AttributeError(f"module 'astroalign_nd' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__) | set(_SUBMODULES))
+__getattr__, __dir__ = attach(__name__, _LAZY, _SUBMODULES)
+del attach

@@ -91,9 +91,6 @@ def threads_chosen():
     return conf.num_threads != 0 or bool(_ENV_NUM_THREADS)
 
 
-_threads_chosen = threads_chosen  # the former name
-
-
 def _compiled():
     """Run the compiled loops: built, and not turned off by ``conf.use_compiled``."""
     return HAVE_COMPILED and conf.use_compiled

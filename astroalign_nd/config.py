@@ -315,13 +315,6 @@ class DetectionConfig:
     def __post_init__(self):
         _checked(self)
 
-    def find_sources_kwargs(self):
-        """The fields as `~astroalign_nd.find_sources`' keywords (nsigma left out when None)."""
-        kwargs = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}  # no deep copy
-        if kwargs["nsigma"] is None:
-            del kwargs["nsigma"]
-        return kwargs
-
 
 @dataclasses.dataclass(frozen=True)
 class MatchingConfig:

@@ -24,16 +24,14 @@ from astropy.utils.exceptions import AstropyWarning
 from ._input import parse_input
 from .config import (DEFAULT_NEIGHBORS, DetectionConfig, MatchingConfig, RegistrationConfig,
                      ResampleConfig, split_options)
-# Module attributes under these names: benchmarks/ wrap them to time the stages.
-from .detection.daofind import control_sources as _control_sources
+from .detection.daofind import control_sources
 from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads, side_pool
 from ._validate import check_points
 from .matching.asterisms import build_asterisms, check_triangle_budget
-from .matching.search import match_control_points as _match_points
-from .matching.search import search_tolerance
+from .matching.search import match_control_points, search_tolerance
 from .resample.nddata import apply_transform
-from .transforms import selection as model_selection
+from .transforms.selection import SEARCH_TOLERANCE_FACTOR, extend_match, nonlinear_name
 from .exceptions import PoorFitWarning
 
 if TYPE_CHECKING:
@@ -211,9 +209,9 @@ class Reference:
                     # An empty image is reported by the caller (TooFewSourcesError),
                     # not by photutils' per-frame warning.
                     warnings.simplefilter("ignore", _no_detections_warning())
-                    table, nsigma = _control_sources(p.detection_image, mask=p.mask,
-                                                     n_sources=2 * n_sources,
-                                                     n_enough=n_sources, config=det)
+                    table, nsigma = control_sources(p.detection_image, mask=p.mask,
+                                                    n_sources=2 * n_sources,
+                                                    n_enough=n_sources, config=det)
                 if len(table) < 3:
                     raise TooFewSourcesError(_too_few_advice(
                         self._role, len(table), table.meta, nsigma, det.fwhm is not None))
@@ -301,7 +299,7 @@ def _escalate(src, dst, plan, config):
                 grow_tolerance = search_tolerance(dst.fwhm)
                 tolerance = grow_tolerance
                 if nonlinear:  # a linear model is pixels off at the corners of a wide field
-                    tolerance *= model_selection.SEARCH_TOLERANCE_FACTOR
+                    tolerance *= SEARCH_TOLERANCE_FACTOR
                 # A copy for this attempt: the config the caller built stays as it was.
                 attempt_matching = dataclasses.replace(matching, tolerance=tolerance)
             log.debug(f"astroalign_nd: attempt {len(tried)}: {key[0]} of {key[2]} source and "
@@ -361,7 +359,7 @@ def _detect_both(src, ns, dst, nd):
 
 def _attempt(src, dst, sizes, src_stars, dst_stars, matching, trials, *, linear_type,
              nonlinear):
-    """One attempt of the search: ``_match_points`` on ``sizes = (ns, nd, nn)``."""
+    """One attempt of the search: ``match_control_points`` on ``sizes = (ns, nd, nn)``."""
     ns, nd, nn = sizes
     settings = matching.match_kwargs()
     del settings["n_neighbors"]  # the attempt's own: ``nn``
@@ -369,13 +367,13 @@ def _attempt(src, dst, sizes, src_stars, dst_stars, matching, trials, *, linear_
     with warnings.catch_warnings():
         if nonlinear:  # the distortion model answers the linear fit's misfit
             warnings.simplefilter("ignore", PoorFitWarning)
-        return _match_points(src_pts, dst_pts, transform_type=linear_type,
-                             source_frame=src_frame, target_frame=dst_frame,
-                             source_errors=src_err, target_errors=dst_err,
-                             n_control=(ns, nd), n_neighbors=nn,
-                             source_asterisms=src.asterisms(ns, nn),
-                             target_asterisms=dst.asterisms(nd, nn),
-                             prior_trials=trials, **settings)
+        return match_control_points(src_pts, dst_pts, transform_type=linear_type,
+                                    source_frame=src_frame, target_frame=dst_frame,
+                                    source_errors=src_err, target_errors=dst_err,
+                                    n_control=(ns, nd), n_neighbors=nn,
+                                    source_asterisms=src.asterisms(ns, nn),
+                                    target_asterisms=dst.asterisms(nd, nn),
+                                    prior_trials=trials, **settings)
 
 
 def find_match(source: Any, target: Any, *, transform_type: str | type = "similarity",
@@ -458,14 +456,14 @@ def find_match_from_config(source: Any, target: Any, config: RegistrationConfig,
 def _grow(result, src, dst, config, n_control, grow_tolerance):
     """The distortion model, grown from the linear ``result`` over more stars."""
     model = config.model
-    kind = model_selection.nonlinear_name(model.transform_type)
+    kind = nonlinear_name(model.transform_type)
     # The growth pairs stars with the usual radius, not the widened search's:
     # it follows the distortion disc by disc, and in a crowded field a wide
     # radius pairs chance neighbours that a polynomial then chases.
     tol = grow_tolerance if config.matching.tolerance is None else config.matching.tolerance
-    result = model_selection.extend_match(result, src, dst, transform_type=kind,
-                                          degree=model.degree, tolerance=tol,
-                                          n_control=n_control)
+    result = extend_match(result, src, dst, transform_type=kind,
+                          degree=model.degree, tolerance=tol,
+                          n_control=n_control)
     info = result.extra["model_selection"]
     log.debug(f"astroalign_nd: {info['model']} model (degree {info['degree']}) over "
               f"{result.n_matches} stars, RMS {result.rms:.3f} px")

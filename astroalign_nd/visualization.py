@@ -595,10 +595,6 @@ def check_plot_path(path, overwrite=False):
     check_output_path(path, overwrite, extensions=extensions)
 
 
-#: The former private name.
-_check_plot_path = check_plot_path
-
-
 def save_diagnostic_figure(path, source, target, aligned=None, *, overwrite=False, dpi=100,
                            **options):
     """

@@ -1,5 +1,5 @@
 """
-Throughput and memory of a night of frames (issue 13).
+Throughput and memory of a night of frames.
 
 A simulated night: one reference and N frames of 2048x2048 (the same star
 field, each frame turned by up to 1.5 degrees and shifted by up to 40 px),

@@ -1,6 +1,6 @@
 """
 Peak memory of a FITS-to-FITS ``astroalign-nd register`` run on large frames
-(issue 16: at most 3 times the bytes of the input plus output frames).
+(the aim: at most 3 times the bytes of the input plus output frames).
 
 Two float32 star fields of ``--size`` pixels on a side (default 16000, 1 GB
 each) are written to ``--workdir`` with a known similarity transform between

@@ -1,5 +1,5 @@
 """
-Wide-field distortion (issue 18): astroalign_nd's projective and polynomial
+Wide-field distortion: astroalign_nd's projective and polynomial
 models against aafitrans and scikit-image, accuracy over the whole frame,
 robustness to wrong matches, and time, on the same inputs in one run.
 
@@ -44,7 +44,7 @@ fitter gets the same pairs, clean, then with 30% of them wrong:
   themselves (each wrong pair points at another real star: the
   mismatch a matcher makes).
 
-Fitters: ours (``model_selection.fit_nonlinear(src, dst, None,
+Fitters: ours (``transforms.fit_nonlinear(src, dst, None,
 pairs_given=True, tolerance=8)``, polynomial degree 3, auto, projective:
 it finds its own affine start by consensus), skimage PolynomialTransform
 order 3 by least squares, skimage ``measure.ransac`` with
@@ -206,7 +206,7 @@ def part_b(pair, size, rows, label):
     from skimage.measure import ransac
     from skimage.transform import PolynomialTransform
 
-    from astroalign_nd.model_selection import fit_nonlinear
+    from astroalign_nd.transforms import fit_nonlinear
 
     src, dst = _given_pairs(pair)
     n = len(src)
@@ -293,7 +293,7 @@ def main(argv=None):
         print(s, flush=True)
         lines.append(s)
 
-    say("Wide-field distortion (issue 18): astroalign_nd vs aafitrans and skimage")
+    say("Wide-field distortion: astroalign_nd vs aafitrans and skimage")
     say(f"astroalign_nd from {os.path.dirname(astroalign_nd.__file__)}; astroalign "
         f"{astroalign.__version__}; scikit-image {skimage.__version__}")
     say(f"frames {args.size}x{args.size}, {args.n_stars} stars; error = distance to the true "

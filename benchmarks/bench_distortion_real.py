@@ -1,5 +1,5 @@
 """
-Distortion models on real frames (issue 18): astroalign_nd against
+Distortion models on real frames: astroalign_nd against
 astroalign, aafitrans and scikit-image on the same real images, in one run.
 
 The simulator is not the judge, so this benchmark puts known non-linear
@@ -37,13 +37,25 @@ grid of source pixels (every 16th) that land inside the target frame; the
 table gives the largest (``max``) and the median over the frame.  Solved:
 max error <= 1 px.
 
+``--loops``: instead, loop closure of the distortion models on a real night.
+The five HAT-P-32 frames of ``../shared/data/real/pairs`` drift by up to
+275 px over the detector during the night.  No truth is known, but the
+transforms of a consistent method close loops: over each triplet i, j, k,
+``T_jk(T_ij(p))`` must land where ``T_ik(p)`` does.  This prints, for the
+affine model and ``transform_type='polynomial'`` with ``degree='auto'`` and
+``degree=2``, the largest loop non-closure over the part of frame i that
+all three frames see (median over the 10 triplets, and the worst), and the
+median over the frame.
+
 Usage::
 
     python benchmarks/bench_distortion_real.py [--data ../shared/data] [--only NAME]
         [--corners 3 8] [--timeout 120]
+    python benchmarks/bench_distortion_real.py --loops [--data ../shared/data]
 """
 
 import argparse
+import itertools
 import signal
 import sys
 import time
@@ -189,9 +201,45 @@ def frame_error(f, truth, src_shape, dst_shape):
     return float(np.max(d)), float(np.median(d))
 
 
+#: The models whose loop closure ``--loops`` measures.
+LOOP_SETTINGS = (dict(transform_type="affine"),
+                 dict(transform_type="polynomial", degree="auto"),
+                 dict(transform_type="polynomial", degree=2))
+
+
+def loop_closure(data):
+    """Loop closure over the HAT-P-32 frame triplets, per model."""
+    import astroalign_nd
+
+    hat = sorted((data / "real" / "pairs" / "exotic_hatp32_microobservatory").glob("*.FITS"))
+    imgs = [load(p)[0] for p in hat]
+    ny, nx = imgs[0].shape
+    gx, gy = np.meshgrid(np.linspace(0, nx - 1, 40), np.linspace(0, ny - 1, 40))
+    for kw in LOOP_SETTINGS:
+        t = {(i, j): astroalign_nd.find_transform(imgs[i], imgs[j], **kw)[0]
+             for i, j in itertools.combinations(range(len(imgs)), 2)}
+        chosen = [str(m.meta["quality"].get("degree", 1)) for m in t.values()]
+        res = []
+        for i, j, k in itertools.combinations(range(len(imgs)), 3):
+            mx, my = t[i, j](gx, gy)
+            ax, ay = t[j, k](mx, my)
+            bx, by = t[i, k](gx, gy)
+            inside = np.ones(gx.shape, bool)
+            for x, y in ((mx, my), (ax, ay), (bx, by)):
+                inside &= (x >= 0) & (x < nx) & (y >= 0) & (y < ny)
+            d = np.hypot(ax - bx, ay - by)[inside]
+            res.append((d.max(), np.median(d)))
+        r = np.array(res)
+        print(f"{str(kw):55s} degrees {','.join(chosen)}: loop closure over {len(r)} triplets: "
+              f"median of max {np.median(r[:, 0]):.3f} px, worst {r[:, 0].max():.3f} px, "
+              f"median {np.median(r[:, 1]):.3f} px", flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    ap.add_argument("--loops", action="store_true",
+                    help="loop closure of the models on the HAT-P-32 night instead")
     ap.add_argument("--only", default=None, help="substring of the frame names to run")
     ap.add_argument("--corners", type=float, nargs="+", default=[-4.0, 8.0],
                     help="corner displacements in px (negative: barrel)")
@@ -200,6 +248,8 @@ def main(argv=None):
     ap.add_argument("--no-pairs", action="store_true")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
+    if args.loops:
+        return loop_closure(args.data)
 
     rows = []
     files = [f for f in singles(args.data) if args.only is None or args.only in f.name]

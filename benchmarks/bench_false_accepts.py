@@ -1,5 +1,5 @@
 """
-Unrelated pairs must raise, never return a transform (issue 5).
+Unrelated pairs must raise, never return a transform.
 
 Runs astroalign_nd and astroalign on the same pairs of *unrelated*
 simulated fields (independent star positions) of varied density, from

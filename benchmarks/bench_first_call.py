@@ -1,5 +1,5 @@
 """
-First call in a fresh process, astroalign_nd against astroalign (issue 16).
+First call in a fresh process, astroalign_nd against astroalign.
 
 What a command-line user feels on every command: start Python, import the
 tool, read two FITS files and register one onto the other.  Each repeat
@@ -142,7 +142,9 @@ else:
     import astropy.modeling; lap("astropy.modeling (+nddata, table, coordinates, wcs)")
     import scipy.ndimage; lap("scipy.ndimage")
     import astroalign_nd as mod
-    from astroalign_nd import ccddata, registration, model_selection
+    from astroalign_nd import registration
+    from astroalign_nd.resample import nddata
+    from astroalign_nd.transforms import selection
     lap("astroalign_nd modules")
     import photutils.detection; lap("photutils.detection")
 mod.register(a, b); lap("first register, imports done")

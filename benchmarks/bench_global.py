@@ -1,5 +1,5 @@
 """
-A night or a mosaic as one (issue 28): `solve_sequence` (the global
+A night or a mosaic as one: `solve_sequence` (the global
 solution) against pairwise registration to the reference (astroalign_nd's
 ``find_transform`` onto a ``Reference``, and astroalign's
 ``find_transform``), on the same inputs in one run.
@@ -31,7 +31,7 @@ Parts (each can be run alone with ``--only``):
 Usage::
 
     python benchmarks/bench_global.py [--data ../shared/data] [--only real mosaic ...]
-        [--sequences 8] [--frames 60] [--out benchmarks/results/issue28_global]
+        [--sequences 8] [--frames 60] [--out /tmp/global]
 """
 
 import argparse
@@ -376,7 +376,7 @@ def run_speed(n_frames, workers=None, repeats=1):
 
 
 def markdown(results):
-    lines = ["# Issue 28: the global solution (`solve_sequence`) against pairwise", ""]
+    lines = ["# The global solution (`solve_sequence`) against pairwise", ""]
     for r in results.get("real", []):
         diffs = [f["global_vs_ours"] for f in r["frames"] if f["global_vs_ours"] is not None]
         lines += [f"## {r['name']} ({r['n_frames']} frames)", "",
@@ -477,7 +477,7 @@ def main():
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--speed-child", nargs=4, help=argparse.SUPPRESS)
-    ap.add_argument("--out", default=str(HERE / "results" / "issue28_global"))
+    ap.add_argument("--out", default=None, help="also write OUT.json and OUT.md")
     args = ap.parse_args()
     if args.speed_child:
         folder, solve, workers, out = args.speed_child
@@ -499,8 +499,9 @@ def main():
         results["speed"] = run_speed(args.frames, args.workers, args.repeats)
     text = markdown(results)
     print(text)
-    Path(args.out + ".json").write_text(json.dumps(results, indent=1, default=float))
-    Path(args.out + ".md").write_text(text + "\n")
+    if args.out:
+        Path(args.out + ".json").write_text(json.dumps(results, indent=1, default=float))
+        Path(args.out + ".md").write_text(text + "\n")
 
 
 if __name__ == "__main__":

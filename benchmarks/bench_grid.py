@@ -1,5 +1,5 @@
 """
-astroalign_nd vs astroalign on the seed paper's grid of simulated pairs (issue 2).
+astroalign_nd vs astroalign on the seed paper's grid of simulated pairs.
 
 Both tools' ``find_transform`` run on the *same* simulated source/target
 pairs over the grid of the astroalign paper: square sizes 256, 512, 768,

@@ -1,5 +1,5 @@
 """
-Hard registration cases (issue 5): astroalign_nd against astroalign,
+Hard registration cases: astroalign_nd against astroalign,
 aafitrans and spalipy on the same simulated inputs.
 
 For every category and seed one pair is simulated (astroalign_nd.simulate,
@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-TITLE = ("Hard registration cases (issue 5): astroalign_nd against astroalign, aafitrans and "
+TITLE = ("Hard registration cases: astroalign_nd against astroalign, aafitrans and "
          "spalipy on the same simulated inputs")
 METHODS = ("astroalign_nd", "astroalign", "aafitrans", "spalipy", "spalipy-affine")
 BRIGHT = dict(flux_range=(1e3, 3e5))

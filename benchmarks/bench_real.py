@@ -1,5 +1,5 @@
 """
-Real frames (issue 10): astroalign_nd against astroalign and aafitrans on the
+Real frames: astroalign_nd against astroalign and aafitrans on the
 same real images, in one run.
 
 Inputs are every frame in ``../shared/data/real`` and ``../shared/data/field``

@@ -1,5 +1,5 @@
 """
-What real frames do, simulated (issue 10): astroalign_nd against astroalign on
+What real frames do, simulated: astroalign_nd against astroalign on
 the same pairs, in one run.
 
 Six pairs per category, made with the package's simulator and its effects
@@ -16,6 +16,7 @@ Usage::
     python benchmarks/bench_realistic_sim.py
 """
 
+import argparse
 import sys
 import warnings
 from pathlib import Path
@@ -57,7 +58,8 @@ def cases():
                pr.truth_matrix)
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args(argv)
     import astroalign
 
     from astroalign_nd import find_transform

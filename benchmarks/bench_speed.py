@@ -1,5 +1,5 @@
 """
-Speed of astroalign_nd against astroalign, in one run (issue 6).
+Speed of astroalign_nd against astroalign, in one run.
 
 Sections
 --------
@@ -182,10 +182,9 @@ def ccddata_cost(size, n_stars, repeats):
 def stage_breakdown(size, n_stars, repeats):
     import astroalign_nd
     from astroalign_nd._input import parse_input
-    from astroalign_nd.ccddata import apply_transform
-    from astroalign_nd.matching.search import _match_points, _search_tolerance
+    from astroalign_nd.matching.search import match_control_points, search_tolerance
     from astroalign_nd.registration import Reference
-    from astroalign_nd.resample import resample
+    from astroalign_nd.resample import apply_transform, resample
 
     rows = {k: [] for k in ("parse", "detect source", "detect target", "match",
                             "resample (bilinear)", "CCDData assembly", "total register")}
@@ -199,9 +198,9 @@ def stage_breakdown(size, n_stars, repeats):
         rows["detect source"].append(t)
         t, (dp, de, df) = timed(rt.stars, 50)
         rows["detect target"].append(t)
-        t, res = timed(_match_points, sp, dp, source_frame=sf, target_frame=df,
+        t, res = timed(match_control_points, sp, dp, source_frame=sf, target_frame=df,
                        source_errors=se, target_errors=de, n_control=50,
-                       tolerance=_search_tolerance(rt.fwhm))
+                       tolerance=search_tolerance(rt.fwhm))
         rows["match"].append(t)
         t, _ = timed(resample, pair.source, res.transform.matrix, pair.target.shape,
                      order="bilinear")

@@ -1,5 +1,5 @@
 """
-Stacking (issue 29): ``astroalign_nd.stack`` against astroalign + numpy / ccdproc.
+Stacking: ``astroalign_nd.stack`` against astroalign + numpy / ccdproc.
 
 Two inputs, each run by every tool in the same process, one after the other:
 
@@ -26,7 +26,7 @@ Two inputs, each run by every tool in the same process, one after the other:
 
 Usage::
 
-    python benchmarks/bench_stack.py --out benchmarks/results/issue29_stack
+    python benchmarks/bench_stack.py --out /tmp/stack
 """
 
 import argparse
@@ -191,7 +191,7 @@ def run_simulated(repeats, n_cosmic_rays=60):
 
 
 def _markdown(res):
-    lines = ["# Stacking (issue 29): astroalign_nd.stack vs astroalign + numpy/ccdproc", ""]
+    lines = ["# Stacking: astroalign_nd.stack vs astroalign + numpy/ccdproc", ""]
     for name, block in res.items():
         if block is None:
             lines += [f"## {name}: skipped (data absent)", ""]

@@ -1,5 +1,5 @@
 """
-The trust cases of issue 26: astroalign_nd, astroalign and aafitrans on the same pairs.
+The trust cases: astroalign_nd, astroalign and aafitrans on the same pairs.
 
 Each case is drawn by `astroalign_nd.simulate.simulate_trust_case` (seeds
 ``--first-seed`` to ``--first-seed + n - 1``):

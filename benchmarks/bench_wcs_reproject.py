@@ -1,8 +1,8 @@
 """
 astroalign_nd against what a ccdproc user with WCS frames would call:
-`reproject.reproject_interp` and `ccdproc.wcs_project` (issue 16).
+`reproject.reproject_interp` and `ccdproc.wcs_project`.
 
-A 4096x4096 float32 pair of the second simulator of ``bench_speed2.py``
+A 4096x4096 float32 pair of the second simulator of ``bench_speed_workloads.py``
 (photutils Moffat stars) with a known similarity transform; both frames get
 TAN WCSs consistent with it (the target's: 0.5 arcsec per pixel about
 RA 150, Dec 30; the source's: the target's composed with the transform), so
@@ -38,7 +38,7 @@ import numpy as np
 warnings.simplefilter("ignore")
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from bench_speed2 import frame_error, photutils_pair  # noqa: E402
+from bench_speed_workloads import frame_error, photutils_pair  # noqa: E402
 
 
 def wcs_pair(truth, size):

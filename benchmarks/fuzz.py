@@ -1,6 +1,6 @@
 """
 Fuzz campaign: no hang, no raw exception, no modified input, no confident
-wrong answer, bounded memory (issue 12).
+wrong answer, bounded memory.
 
 Parts (``--part``, several allowed):
 

@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from astroalign_nd.asterisms import build_asterisms
+from astroalign_nd.matching import build_asterisms
 from astroalign_nd.detection import estimate_fwhm
 from astroalign_nd.matching.verify import _log10_false_alarm, _model_misfit
 from astroalign_nd.simulate import simulate_field

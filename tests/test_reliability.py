@@ -26,7 +26,7 @@ from astroalign_nd import apply_transform, find_transform, register, transform_f
 from astroalign_nd import _kernels
 from astroalign_nd._kernels import PointGrid
 from astroalign_nd.config import OPTIONS, check_option
-from astroalign_nd.asterisms import build_asterisms
+from astroalign_nd.matching import build_asterisms
 from astroalign_nd.exceptions import AstroalignError, AstroalignWarning, TransformNotFoundError
 from astroalign_nd.io import transform_to_header
 from astroalign_nd.io.asdf import extension

@@ -22,7 +22,7 @@ from astropy.visualization import ImageNormalize, ZScaleInterval  # noqa: E402
 
 import astroalign_nd  # noqa: E402
 from astroalign_nd import visualization as vis  # noqa: E402
-from astroalign_nd.asterisms import build_asterisms  # noqa: E402
+from astroalign_nd.matching import build_asterisms  # noqa: E402
 from astroalign_nd.cli import main  # noqa: E402
 from astroalign_nd.simulate import simulate_pair  # noqa: E402
 

@@ -137,9 +137,6 @@ def _add_demo_command(sub):
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
 
 
-#: The former private name (tests use it).
-_build_parser = build_parser
-
 _SIGINT = 2  # signal.SIGINT, the same number on every platform
 
 

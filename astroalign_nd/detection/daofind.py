@@ -853,7 +853,3 @@ def control_sources(image, *, mask, n_sources, n_enough, config):
         if len(strong) >= n_enough:
             table = strong
     return table, threshold
-
-
-#: The former private name, kept until every caller uses the public one.
-_control_sources = control_sources

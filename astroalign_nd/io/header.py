@@ -755,9 +755,6 @@ def add_history(header, text):
         header.add_history(line)
 
 
-_add_history = add_history  # the former name
-
-
 def add_provenance(header: fits.Header, model: Model, *,
                    quality: dict | None = None, source_name: str = "source",
                    target_name: str = "target", order: str | None = None,
@@ -814,9 +811,9 @@ def add_provenance(header: fits.Header, model: Model, *,
     m = _model_matrix(model)  # for a polynomial, its linear part about crpix
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
     # File names may hold characters a FITS card cannot (escaped, not fatal).
-    _add_history(out, f"astroalign_nd {__version__} {now} UTC: registered "
-                      f"{fits_text(source_name)} onto the pixel grid of "
-                      f"{fits_text(target_name)}")
+    add_history(out, f"astroalign_nd {__version__} {now} UTC: registered "
+                     f"{fits_text(source_name)} onto the pixel grid of "
+                     f"{fits_text(target_name)}")
     det = np.linalg.det(m[:2, :2])
     desc = (f"{type(model).__name__} scale={np.sqrt(abs(det)):.6f}"
             f" rot={np.degrees(np.arctan2(m[1, 0], m[0, 0])):.5f}deg"
@@ -826,13 +823,13 @@ def add_provenance(header: fits.Header, model: Model, *,
     elif isinstance(model, PolynomialTransform):
         desc += (f" (linear part about crpix=({model.crpix[0]:.2f},{model.crpix[1]:.2f}))"
                  f" degree={model.degree} distortion")
-    _add_history(out, f"astroalign_nd transform: {desc}")
+    add_history(out, f"astroalign_nd transform: {desc}")
     if order is not None:
-        _add_history(out, f"astroalign_nd resampling: {order}, conserve_flux={conserve_flux}")
+        add_history(out, f"astroalign_nd resampling: {order}, conserve_flux={conserve_flux}")
     if quality:
-        _add_history(out, f"astroalign_nd fit: {quality['n_matches']} matched stars, "
-                          f"RMS {quality['rms']:.4f} px, log10 false-alarm "
-                          f"{quality['log10_false_alarm']:.1f}")
+        add_history(out, f"astroalign_nd fit: {quality['n_matches']} matched stars, "
+                         f"RMS {quality['rms']:.4f} px, log10 false-alarm "
+                         f"{quality['log10_false_alarm']:.1f}")
         for suffix, key, decimals, comment in QUALITY_KEYWORDS:
             value = quality[key]
             value = int(value) if decimals is None else round(float(value), decimals)

@@ -578,10 +578,6 @@ def check_writable_dir(folder):
     os.unlink(probe)
 
 
-#: The former private name, kept until every caller uses the public one.
-_check_writable_dir = check_writable_dir
-
-
 def check_output_dir(folder):
     """
     Check, before any work, that files can be created in ``folder``.

@@ -169,10 +169,6 @@ def search_tolerance(fwhm=None):
     return max(DEFAULT_TOLERANCE, 0.5 * (fwhm or 0.0))
 
 
-#: The former private name, kept until every caller uses the public one.
-_search_tolerance = search_tolerance
-
-
 def match_control_points(src_pts, dst_pts, *, n_control=None, source_asterisms=None,
                          target_asterisms=None, prior_trials=0, **settings):
     """
@@ -315,10 +311,6 @@ def _prepare(src_pts, dst_pts, settings, n_control, prior_trials):
         accept_at=min(opts["accept_matches"], n_possible), n_possible=n_possible,
         batch_size=opts["batch_size"], max_hypotheses=opts["max_hypotheses"],
         prior_trials=prior_trials)
-
-
-#: The former private name, kept until every caller uses the public one.
-_match_points = match_control_points
 
 
 class _Hypotheses:

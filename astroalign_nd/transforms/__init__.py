@@ -36,11 +36,12 @@ The types by name are the entries of `TRANSFORM_REGISTRY`
 The modules, bottom up: ``_matrix`` (matrix and point helpers, a leaf),
 ``linear``, ``projective`` and ``polynomial`` (the models), ``registry``
 (the types by name), ``fitting`` and ``convert``, and ``selection``
-(model selection for distortion).  Names are imported on first use, so
-that reading the registry's names (``astroalign-nd --help``) stays cheap.
+(model selection for distortion).  Names are imported on first use
+(``astroalign_nd._lazy``), so that reading the registry's names
+(``astroalign-nd --help``) stays cheap.
 """
 
-import importlib
+from .._lazy import attach
 
 # name -> submodule that defines it
 _LAZY = {
@@ -77,14 +78,5 @@ _LAZY = {
 
 __all__ = list(_LAZY)
 
-
-def __getattr__(name):
-    if name in _LAZY:
-        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value  # later look-ups skip this function
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = attach(__name__, _LAZY)
+del attach

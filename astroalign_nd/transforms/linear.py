@@ -124,11 +124,6 @@ class LinearTransform2D(Model):
         return lin, shift
 
     @property
-    def parameters_list(self):
-        """Parameter values in ``param_names`` order."""
-        return [getattr(self, name).value for name in self.param_names]
-
-    @property
     def inverse(self):
         """The analytic inverse, a model of the same class (target -> source)."""
         m = self.matrix

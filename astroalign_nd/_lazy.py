@@ -1,0 +1,67 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+A package's public names, imported on first use (PEP 562).
+
+``import astroalign_nd`` must stay cheap: the command line's ``--help``
+and every worker process start with it, while the stages behind the public
+names import astropy.modeling, scipy and photutils, which take seconds on a
+cold machine.  ``astroalign_nd/__init__.py`` and
+``astroalign_nd/transforms/__init__.py`` therefore say which submodule
+defines each public name, and `attach` gives them the module-level
+``__getattr__`` and ``__dir__`` (PEP 562) that import that submodule when
+the name is first read.  This is the shape of scientific Python's SPEC 1
+(``lazy_loader.attach``, used by scikit-image), without the dependency.
+
+To add a public name, add it to the package's ``_LAZY`` table; a static
+``from astroalign_nd import name`` and ``__all__`` work as usual.
+"""
+
+import importlib
+import sys
+
+__all__ = ["attach"]
+
+
+def attach(package, names, submodules=()):
+    """
+    The ``__getattr__`` and ``__dir__`` of a package whose names are imported on first use.
+
+    Parameters
+    ----------
+    package : str
+        The package's ``__name__``.
+    names : dict
+        Public name -> the submodule (relative to ``package``) that defines it.
+    submodules : iterable of str, optional
+        Submodules reachable as attributes without an explicit import.
+
+    Returns
+    -------
+    getattr, dir : callable
+        To assign to the package's ``__getattr__`` and ``__dir__``.
+
+    Examples
+    --------
+    >>> import astroalign_nd
+    >>> "find_transform" in dir(astroalign_nd), "importlib" in dir(astroalign_nd)
+    (True, False)
+    >>> astroalign_nd.no_such_name
+    Traceback (most recent call last):
+    ...
+    AttributeError: module 'astroalign_nd' has no attribute 'no_such_name'
+    """
+    submodules = frozenset(submodules)
+
+    def __getattr__(name):
+        if name in submodules:  # the import binds it on the package: asked once
+            return importlib.import_module(f".{name}", package)
+        if name in names:
+            value = getattr(importlib.import_module(f".{names[name]}", package), name)
+            setattr(sys.modules[package], name, value)  # later look-ups skip this function
+            return value
+        raise AttributeError(f"module {package!r} has no attribute {name!r}")
+
+    def __dir__():
+        return sorted(set(vars(sys.modules[package])) | set(names) | submodules)
+
+    return __getattr__, __dir__
