@@ -252,22 +252,25 @@ def peak_candidates(img, threshold, n_max, border=0):
     else:  # same result without the compiled module (the tests compare them)
         img = np.asarray(img, dtype=np.float32)
         ny, nx = img.shape
-        pad = np.pad(img.astype(np.float64), 1, constant_values=-np.inf)
+        pad = np.pad(img, 1, constant_values=-np.inf)
         cand = img > threshold
-        total = np.zeros(img.shape)
         for di in (-1, 0, 1):
             for dj in (-1, 0, 1):
-                w = pad[1 + di:1 + di + ny, 1 + dj:1 + dj + nx]
-                total += np.where(np.isfinite(w), w, 0.0)
                 if di == 0 and dj == 0:
                     continue
+                w = pad[1 + di:1 + di + ny, 1 + dj:1 + dj + nx]
                 # Ties go to the first pixel in raster order.
                 cand &= (img > w) if (di < 0 or (di == 0 and dj < 0)) else (img >= w)
         if border:
             cand[:border] = cand[ny - border:] = False
             cand[:, :border] = cand[:, nx - border:] = False
         y, x = np.nonzero(cand)
-        s = total[y, x]
+        # The 3x3 sums at the peaks only (in float64, in the compiled loop's order).
+        s = np.zeros(len(y))
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                w = pad[1 + di + y, 1 + dj + x].astype(np.float64)
+                s += np.where(np.isfinite(w), w, 0.0)
     order = np.lexsort((x, y, -s))[:n_max]
     return y[order], x[order], s[order]
 
