@@ -61,7 +61,11 @@ class Reference:
 
     Detection, and the triangles of its control points, are computed on
     first use and kept, so registering thousands of frames onto one
-    reference pays for the reference only once.  Pass it wherever a
+    reference pays for the reference only once.  The largest detection
+    made so far serves every smaller number of control points (its
+    brightest stars), so the frame is detected again only when a search
+    needs more stars than any before it, and never when its detection
+    already measured every candidate it has.  Pass it wherever a
     ``target`` (or ``source``) is accepted.
 
     Parameters
