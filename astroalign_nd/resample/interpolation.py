@@ -133,20 +133,35 @@ def _bilinear_finite(data, var, has_var, u, v, fill, sd, sv, out, out_var, out_m
     base = jy * nx + jx
     taps = ((wy0 * wx0, base), (wy0 * wx1, base + 1), (wy1 * wx0, base + nx),
             (wy1 * wx1, base + (nx + 1)))
-    flat = data.ravel()
-    acc = np.zeros(inside.shape)
-    for w, idx in taps:
-        acc += w * flat.take(idx, mode="clip")
+    acc = _weighted_sum(data.ravel(), taps, squared=False)
     good = inside & np.isfinite(acc)
     if has_var:
-        flat_var = var.ravel()
-        accv = np.zeros(inside.shape)
-        for w, idx in taps:
-            accv += w * w * flat_var.take(idx, mode="clip")
+        accv = _weighted_sum(var.ravel(), taps, squared=True)
         good &= np.isfinite(accv)
         out_var[...] = np.where(good, accv * sv, np.inf)
     out[...] = np.where(good, acc * sd, fill)
     out_mask[...] = ~good
+
+
+def _weighted_sum(flat, taps, squared):
+    """
+    The sum over ``taps`` of each weight (squared for a variance) times the
+    tap's value of ``flat``, in the taps' order: the compiled kernel's sum
+    (which starts from zero; zero plus the first term is the first term).
+    """
+    acc = term = None
+    for w, idx in taps:
+        vals = flat.take(idx, mode="clip")
+        if squared:
+            term = np.multiply(w, w, out=term)
+            term *= vals
+        else:
+            term = np.multiply(w, vals, out=term)
+        if acc is None:
+            acc, term = term, None
+        else:
+            acc += term
+    return acc
 
 
 def _resample_numpy(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask, *, order):
