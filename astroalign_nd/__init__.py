@@ -27,7 +27,7 @@ except ImportError:  # running from a source tree that was never built
     __version__ = "0.0.0"
 
 from .exceptions import (AstroalignError, AstroalignWarning, PoorCoverageError, PoorFitWarning,
-                         TooFewSourcesError, TransformNotFoundError)
+                         SlowKernelsWarning, TooFewSourcesError, TransformNotFoundError)
 
 # name -> submodule that defines it
 _LAZY = {
@@ -58,7 +58,7 @@ _LAZY = {
 __all__ = [
     "__version__",
     "AstroalignError", "AstroalignWarning", "PoorFitWarning", "TooFewSourcesError",
-    "TransformNotFoundError", "PoorCoverageError",
+    "TransformNotFoundError", "PoorCoverageError", "SlowKernelsWarning",
     *_LAZY,
 ]
 
