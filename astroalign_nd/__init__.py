@@ -25,7 +25,7 @@ except ImportError:  # running from a source tree that was never built
     __version__ = "0.0.0"
 
 from .exceptions import (AstroalignError, AstroalignWarning, PoorCoverageError, PoorFitWarning,
-                         TooFewSourcesError, TransformNotFoundError)
+                         SlowKernelsWarning, TooFewSourcesError, TransformNotFoundError)
 from ._lazy import attach
 
 # name -> submodule that defines it
@@ -57,7 +57,7 @@ _LAZY = {
 __all__ = [
     "__version__",
     "AstroalignError", "AstroalignWarning", "PoorFitWarning", "TooFewSourcesError",
-    "TransformNotFoundError", "PoorCoverageError",
+    "TransformNotFoundError", "PoorCoverageError", "SlowKernelsWarning",
     *_LAZY,
 ]
 

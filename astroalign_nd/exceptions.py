@@ -16,6 +16,7 @@ __all__ = [
     "PoorCoverageError",
     "AstroalignWarning",
     "PoorFitWarning",
+    "SlowKernelsWarning",
 ]
 
 
@@ -140,6 +141,32 @@ class PoorFitWarning(AstroalignWarning):
     ...     warnings.warn("RMS 2.1 px for a centroid noise of 0.3 px", PoorFitWarning)
     >>> [w.category.__name__ for w in caught]
     ['PoorFitWarning']
+    """
+
+
+class SlowKernelsWarning(AstroalignWarning):
+    """
+    astroalign_nd's compiled loops are not built: it runs their NumPy
+    versions (the same results, several times slower).
+
+    Issued once per process, at the first registration, by an install from
+    the source distribution without a C compiler (or with
+    ``ASTROALIGN_ND_NO_EXTENSION=1``).  ``astroalign_nd.HAVE_COMPILED``
+    says which kernels run.
+
+    Examples
+    --------
+    A pipeline that knows it runs without the compiled loops can silence it
+    (here around a call, with ``warnings.catch_warnings``):
+
+    >>> import warnings
+    >>> from astroalign_nd import find_transform
+    >>> from astroalign_nd.exceptions import SlowKernelsWarning
+    >>> from astroalign_nd.simulate import simulate_pair
+    >>> pair = simulate_pair((128, 128), n_stars=40, seed=1)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore", SlowKernelsWarning)
+    ...     t, _ = find_transform(pair.source, pair.target)
     """
 
 

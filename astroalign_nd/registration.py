@@ -24,9 +24,9 @@ from astropy.utils.exceptions import AstropyWarning
 from ._input import parse_input
 from .config import (DEFAULT_NEIGHBORS, DetectionConfig, MatchingConfig, RegistrationConfig,
                      ResampleConfig, split_options)
-from .detection.daofind import control_sources
+from .detection.daofind import _CONFIDENT_NSIGMA, control_sources
 from .exceptions import TooFewSourcesError, TransformNotFoundError
-from ._kernels import num_threads, side_pool
+from ._kernels import num_threads, side_pool, warn_if_slow
 from ._validate import check_points
 from .matching.asterisms import build_asterisms, check_triangle_budget
 from .matching.search import match_control_points, search_tolerance
@@ -58,7 +58,11 @@ class Reference:
 
     Detection, and the triangles of its control points, are computed on
     first use and kept, so registering thousands of frames onto one
-    reference pays for the reference only once.  Pass it wherever a
+    reference pays for the reference only once.  The largest detection
+    made so far serves every smaller number of control points (its
+    brightest stars), so the frame is detected again only when a search
+    needs more stars than any before it, and never when its detection
+    already measured every candidate it has.  Pass it wherever a
     ``target`` (or ``source``) is accepted.
 
     Parameters
@@ -112,6 +116,8 @@ class Reference:
                                if k in detect_options or getattr(_config, k) != getattr(
                                    defaults, k)}
         self._stars = {}
+        # (control points it was made for, table, threshold) of the largest detection.
+        self._detected = None
         self._asterisms = {}
         self._fwhms = {}
         self.fwhm = None
@@ -202,28 +208,56 @@ class Reference:
                 # a cap keeps a million-point catalog from costing a million.
                 cap = max(2 * n_sources, _CATALOG_POINTS)
                 self._stars[key] = (p.points[:cap], None, None)
+                return self._stars[key]
+            if fixed:
+                det = dataclasses.replace(self.config, fwhm=float(fwhm))
+                table, nsigma = self._detect(p, det, n_sources)
             else:
-                det = dataclasses.replace(self.config, fwhm=float(fwhm)) if fixed \
-                    else self.config
-                with warnings.catch_warnings():
-                    # An empty image is reported by the caller (TooFewSourcesError),
-                    # not by photutils' per-frame warning.
-                    warnings.simplefilter("ignore", _no_detections_warning())
-                    table, nsigma = control_sources(p.detection_image, mask=p.mask,
-                                                    n_sources=2 * n_sources,
-                                                    n_enough=n_sources, config=det)
-                if len(table) < 3:
-                    raise TooFewSourcesError(_too_few_advice(
-                        self._role, len(table), table.meta, nsigma, det.fwhm is not None))
-                ny, nx = p.shape
-                pts = np.column_stack([np.asarray(table["x"], float),
-                                       np.asarray(table["y"], float)])
-                self._stars[key] = (pts, np.asarray(table["position_error"], float),
-                                    (-0.5, nx - 0.5, -0.5, ny - 0.5))
-                self._fwhms[key] = table.meta.get("fwhm")
-                if not fixed:
-                    self.fwhm = self._fwhms[key]
+                # The largest detection so far serves every smaller count: a
+                # frame met again (a Reference, a batch's target) is not
+                # detected again for fewer stars.
+                if self._needs_detection(n_sources):
+                    self._detected = (n_sources, *self._detect(p, self.config, n_sources))
+                det = self.config
+                _, table, nsigma = self._detected
+            table = _brightest(table, n_sources, det)
+            if len(table) < 3:
+                raise TooFewSourcesError(_too_few_advice(
+                    self._role, len(table), table.meta, nsigma, det.fwhm is not None))
+            ny, nx = p.shape
+            pts = np.column_stack([np.asarray(table["x"], float),
+                                   np.asarray(table["y"], float)])
+            self._stars[key] = (pts, np.asarray(table["position_error"], float),
+                                (-0.5, nx - 0.5, -0.5, ny - 0.5))
+            self._fwhms[key] = table.meta.get("fwhm")
+            if not fixed:
+                self.fwhm = self._fwhms[key]
         return self._stars[key]
+
+    def _needs_detection(self, n_sources: int) -> bool:
+        """Would `stars` ``(n_sources)`` run detection?"""
+        if self._is_catalog or n_sources in self._stars:
+            return False
+        if self._detected is None:
+            return True
+        n, table, _ = self._detected
+        # A detection that measured every candidate of the frame has all
+        # the stars a larger one would find (the sparse frames of refusals).
+        return n < n_sources and not table.meta.get("all_candidates", False)
+
+    def _detect(self, parsed, config, n_sources):
+        """
+        Every source detection can give for ``n_sources`` control points:
+        up to ``2 * n_sources`` stars, the faint ones too (`_brightest` picks).
+        """
+        with warnings.catch_warnings():
+            # An empty image is reported by the caller (TooFewSourcesError),
+            # not by photutils' per-frame warning.
+            warnings.simplefilter("ignore", _no_detections_warning())
+            # (More than it can return: the confident ones are never kept alone here.)
+            return control_sources(parsed.detection_image, mask=parsed.mask,
+                                   n_sources=2 * n_sources, n_enough=2 * n_sources + 1,
+                                   config=config)
 
     def detection_fwhm(self, n_sources: int) -> float | None:
         """The FWHM (pixels) the detection of `stars` ``(n_sources)`` used; None
@@ -237,6 +271,20 @@ class Reference:
             pts = self.stars(n_sources)[0][:n_sources]
             self._asterisms[key] = build_asterisms(pts, n_neighbors=n_neighbors)
         return self._asterisms[key]
+
+
+def _brightest(table, n_sources, config):
+    """
+    The stars for ``n_sources`` control points from a detection for as many
+    or more: the ``2 * n_sources`` brightest, of the confident ones only when
+    there are ``n_sources`` of them (`~astroalign_nd.detection.daofind.control_sources`'
+    rule, so that the list is the one a detection for ``n_sources`` gives).
+    """
+    if config.nsigma is None and config.finder is None:
+        strong = table[np.asarray(table["snr"]) >= _CONFIDENT_NSIGMA]
+        if len(strong) >= n_sources:
+            table = strong
+    return table[:2 * n_sources]
 
 
 def _no_detections_warning():
@@ -335,8 +383,7 @@ def _detect_both(src, ns, dst, nd):
     same (each frame is detected alone, from its own data); errors are
     raised in the sequential order (the source's first).
     """
-    todo = [ref for ref, n in ((src, ns), (dst, nd))
-            if n not in ref._stars and not ref._is_catalog]
+    todo = [ref for ref, n in ((src, ns), (dst, nd)) if ref._needs_detection(n)]
     if len(todo) < 2 or src is dst or num_threads() < 2:
         return
     # The warning filters are one global list, and ``catch_warnings`` blocks
@@ -439,6 +486,7 @@ def find_match_from_config(source: Any, target: Any, config: RegistrationConfig,
     True
     """
     num_threads()  # a bad thread setting is reported before any work
+    warn_if_slow()
     nn = config.matching.n_neighbors or DEFAULT_NEIGHBORS
     # Memory is bounded before any work: the largest attempt's triangles.
     check_triangle_budget(config.max_sources, nn)

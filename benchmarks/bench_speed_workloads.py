@@ -39,9 +39,25 @@ timed on its own, with less noise than the whole call on a shared machine;
 per tool, the tools (this one and ``--old``) alternating.  Wall time and
 process CPU time (all threads) are reported, median and minimum per call.
 
+``--hard`` adds the pairs where the search does not stop at its first
+attempt, timed with ``find_transform`` against astroalign's on the same
+pair (per pair: the ratio of the two times):
+
+- ``refused 8-bit``: two unrelated sparse 8-bit frames
+  (`~astroalign_nd.simulate.simulate_trust_case` 'sparse_8bit', seeds s
+  and s + 100), which every tool must refuse;
+- ``refused 1024``: two unrelated 1024x1024 fields of 300 stars;
+- ``small overlap 2048``: a 2048x2048 pair of 3000 stars shifted by
+  (1400, 1100) px, so that the brightest stars of each frame lie mostly
+  outside the overlap and the first attempt fails.
+
+The summary then gives the ratio to astroalign over every pair, solved
+(the workloads and the small overlap) and refused separately: median,
+90th percentile and worst.
+
 Usage::
 
-    PYTHONPATH=. python benchmarks/bench_speed_workloads.py --repeats 5 [--old /tmp/oldpkg]
+    PYTHONPATH=. python benchmarks/bench_speed_workloads.py --repeats 5 [--old /tmp/oldpkg] [--hard]
     PYTHONPATH=. python benchmarks/bench_speed_workloads.py --no-detect [--old /tmp/oldpkg]
 """
 
@@ -120,6 +136,74 @@ WORKLOADS = {  # name -> (maker, stars at 1024^2, stars at 4096^2)
     "sparse": (photutils_pair, 300, 300),
     "crowded": (photutils_pair, 10000, 10000),
 }
+
+
+def refused_8bit(seed):
+    """Two unrelated sparse 8-bit frames: (source, target, None)."""
+    from astroalign_nd.simulate import simulate_trust_case
+
+    return (simulate_trust_case("sparse_8bit", seed=seed).source,
+            simulate_trust_case("sparse_8bit", seed=seed + 100).target, None)
+
+
+def refused_1024(seed):
+    """Two unrelated 1024x1024 fields of 300 stars: (source, target, None)."""
+    from astroalign_nd.simulate import simulate_field
+
+    return (simulate_field((1024, 1024), n_stars=300, seed=seed)[0],
+            simulate_field((1024, 1024), n_stars=300, seed=seed + 10_000)[0], None)
+
+
+def small_overlap_2048(seed):
+    """A 2048x2048 pair overlapping in a corner: the first attempt fails."""
+    from astroalign_nd.simulate import simulate_pair
+
+    pair = simulate_pair((2048, 2048), n_stars=3000, rotation=5.0,
+                         translation=(1400.0, 1100.0), seed=seed)
+    return (np.asarray(pair.source, np.float32), np.asarray(pair.target, np.float32),
+            np.asarray(pair.truth_matrix, float))
+
+
+HARD = {"refused 8-bit": refused_8bit, "refused 1024": refused_1024,
+        "small overlap 2048": small_overlap_2048}
+
+
+def run_hard(tools, astroalign, repeats, seed):
+    """
+    ``find_transform`` of each tool and of astroalign on the hard pairs:
+    {case: {tool: [(seconds, error px or None if refused), ...]}}.
+    """
+    out = {}
+    for case, maker in HARD.items():
+        out[case] = {k: [] for k in (*tools, "astroalign")}
+        for r in range(repeats):
+            src, dst, truth = maker(seed + r)
+            for k in out[case]:
+                t0 = time.perf_counter()
+                try:
+                    if k == "astroalign":
+                        m = astroalign.find_transform(src, dst)[0].params
+                    else:
+                        m = tools[k].find_transform(src, dst)[0].matrix
+                    err = frame_error(m, truth, dst.shape) if truth is not None else np.inf
+                except Exception:  # noqa: BLE001 - a refusal is recorded
+                    err = None
+                out[case][k].append((time.perf_counter() - t0, err))
+        line = f"{case:>20}: " + ", ".join(
+            f"{k} {np.median([t for t, _ in v]):.3f} s "
+            f"({sum(e is None for _, e in v)} refused)" for k, v in out[case].items())
+        print(line, flush=True)
+    return out
+
+
+def _spread(ratios):
+    """'median m, p90 p, worst w (n pairs)' of a list of time ratios."""
+    if not ratios:
+        return "no pairs"
+    r = np.asarray(ratios)
+    return (f"median {np.median(r):.2f}, p90 {np.percentile(r, 90):.2f}, worst {r.max():.2f} "
+            f"({len(r)} pairs)")
+
 
 STAGES = ("detect", "asterisms", "match", "resample")
 
@@ -272,6 +356,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--numpy-kernels", action="store_true",
                     help="also time astroalign_nd with its NumPy kernels (no compiled loops)")
+    ap.add_argument("--hard", action="store_true",
+                    help="also time refused pairs and a pair whose first attempt fails")
     args = ap.parse_args(argv)
 
     import astroalign_nd
@@ -302,6 +388,9 @@ def main(argv=None):
 
     names = list(tools) + ["astroalign"]
     summary = []
+    # Per pair, each tool's time over astroalign's: solved pairs and refusals apart.
+    solved_ratios = {k: [] for k in tools}
+    refused_ratios = {k: [] for k in tools}
     for size in args.sizes:
         for wl in args.workloads:
             maker, n1, n4 = WORKLOADS[wl]
@@ -340,6 +429,8 @@ def main(argv=None):
                         errs[k].append(frame_error(m, truth, dst.shape))
                     except Exception:  # noqa: BLE001
                         errs[k].append(np.inf)
+            for k in tools:
+                solved_ratios[k] += [a / b for a, b in zip(times[k], times["astroalign"])]
             med = {k: float(np.median(v)) for k, v in times.items()}
             line = f"{size:>5}^2 {wl:>8} ({n:>5} stars): " + ", ".join(
                 f"{k} {med[k]:.3f} s" for k in names)
@@ -359,10 +450,24 @@ def main(argv=None):
             print(flush=True)
             summary.append((size, wl, {k: med[k] / med["astroalign"] for k in tools}))
 
+    if args.hard:
+        # (The NumPy kernels are timed on the workloads only.)
+        compiled = {k: m for k, m in tools.items() if k != "numpy"}
+        hard = run_hard(compiled, astroalign, args.repeats, args.seed)
+        for case, res in hard.items():
+            for k in compiled:
+                for (t, err), (ta, _) in zip(res[k], res["astroalign"]):
+                    (refused_ratios if err is None else solved_ratios)[k].append(t / ta)
+        print()
+
     print("Summary, ratio of register time to astroalign's (target: <= 0.25 at 1024^2, "
           "<= 0.10 at 4096^2):")
     for size, wl, rat in summary:
         print(f"  {size:>5}^2 {wl:>8}: " + ", ".join(f"{k} {v:.3f}" for k, v in rat.items()))
+    print("Per pair, time over astroalign's in the same run:")
+    for k in tools:
+        print(f"  {k:>6} solved:  {_spread(solved_ratios[k])}")
+        print(f"  {k:>6} refused: {_spread(refused_ratios[k])}")
 
 
 if __name__ == "__main__":

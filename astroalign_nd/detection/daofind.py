@@ -158,17 +158,19 @@ def _detect(image, mask, n_sources, config, nsigma):
     if fwhm is not None:
         tab = _measure(data, mask, cand, fwhm, noise, b, opts)
         tab.meta["fwhm_source"] = "user"
-        return tab
-
-    # Stage 2: the FWHM of the population of compact sources.
-    est = _estimate_fwhm(data, mask, cand, noise)
-    tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
-    tab.meta["fwhm_source"] = "estimate"
-    if est.doubtful or _too_few(tab, cand, n_sources):
-        tab = _best_scale(data, mask, cand, noise, b, opts, tab,
-                          est.alternatives + _SCALE_LADDER)
-    elif est.alternatives:
-        tab = _best_scale(data, mask, cand, noise, b, opts, tab, est.alternatives)
+    else:
+        # Stage 2: the FWHM of the population of compact sources.
+        est = _estimate_fwhm(data, mask, cand, noise)
+        tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
+        tab.meta["fwhm_source"] = "estimate"
+        if est.doubtful or _too_few(tab, cand, n_sources):
+            tab = _best_scale(data, mask, cand, noise, b, opts, tab,
+                              est.alternatives + _SCALE_LADDER)
+        elif est.alternatives:
+            tab = _best_scale(data, mask, cand, noise, b, opts, tab, est.alternatives)
+    # Every candidate was measured, and all could be kept: a detection for
+    # more sources finds the same (registration does not detect again).
+    tab.meta["all_candidates"] = len(cand["x"]) <= n_sources
     return tab
 
 

@@ -1,0 +1,127 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Each frame is detected once per call, a frame met again never twice, and a
+missing compiled extension is said once (`SlowKernelsWarning`).
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import astroalign_nd.registration as registration
+from astroalign_nd import Reference, conf, find_transform, register
+from astroalign_nd import _kernels
+from astroalign_nd.exceptions import SlowKernelsWarning, TransformNotFoundError
+from astroalign_nd.simulate import simulate_pair
+
+
+@pytest.fixture
+def detections(monkeypatch):
+    """The ``n_sources`` of every detection run by the registration module."""
+    calls = []
+    detect = registration._control_sources
+
+    def counted(image, **kwargs):
+        calls.append(kwargs["n_sources"])
+        return detect(image, **kwargs)
+
+    monkeypatch.setattr(registration, "_control_sources", counted)
+    return calls
+
+
+def _pair(seed, **kwargs):
+    return simulate_pair((256, 256), n_stars=120, rotation=25.0, translation=(6.0, -4.0),
+                         seed=seed, **kwargs)
+
+
+def _truth_error(t, pair):
+    """Largest distance (px) between the found and true maps over the frame's corners."""
+    xy = np.array([[0.0, 0.0], [255.0, 0.0], [0.0, 255.0], [255.0, 255.0]])
+    m = np.asarray(pair.truth_matrix, float)
+    found = np.asarray(t.matrix, float)
+    diff = xy @ (found - m)[:2, :2].T + (found - m)[:2, 2]
+    return float(np.max(np.hypot(diff[:, 0], diff[:, 1])))
+
+
+def test_find_transform_and_register_detect_each_frame_once(detections):
+    pair = _pair(1)
+    t, _ = find_transform(pair.source, pair.target)
+    assert _truth_error(t, pair) < 0.1
+    assert len(detections) == 2
+    detections.clear()
+    register(pair.source, pair.target)
+    assert len(detections) == 2
+
+
+def test_reference_is_detected_once_over_several_sources(detections):
+    pair = _pair(2)
+    # Three exposures of one field onto one reference (other gains and skies).
+    sources = [pair.source, 1.5 * pair.source, pair.source + 20.0]
+    ref = Reference(pair.target)
+    for src in sources:
+        t, _ = find_transform(src, ref)
+        assert _truth_error(t, pair) < 0.1
+    # The reference once, each source once.
+    assert len(detections) == 1 + len(sources)
+
+
+def test_smaller_count_is_taken_from_a_larger_detection(detections):
+    pair = _pair(5)
+    ref = Reference(pair.target)
+    big = ref.stars(100)[0]
+    small = ref.stars(25)[0]
+    assert len(detections) == 1
+    # The brightest first: the smaller list is the start of the larger one.
+    np.testing.assert_array_equal(small, big[:len(small)])
+    assert len(small) == 50
+
+
+def test_refused_pair_detects_each_frame_once(detections):
+    # Two unrelated sparse fields: every attempt of the search fails, and a
+    # larger detection could find no star that the first one did not.
+    a = simulate_pair((200, 200), n_stars=15, seed=11)
+    b = simulate_pair((200, 200), n_stars=15, seed=12)
+    with pytest.raises(TransformNotFoundError, match="no trustworthy transform"):
+        find_transform(a.source, b.target)
+    assert len(detections) == 2
+
+
+def test_later_attempts_detect_once_more_at_the_largest_count(detections):
+    # A small overlap: the 10 brightest stars of each frame are mostly
+    # outside it, so the first attempt fails and later ones need more stars.
+    # Each frame is detected again once, at the largest count of the search
+    # (2 x max_sources stars), which serves every later attempt.
+    pair = simulate_pair((384, 384), n_stars=400, rotation=10.0, translation=(250.0, 200.0),
+                         seed=0)
+    t, _ = find_transform(pair.source, pair.target, n_sources=10, max_sources=40)
+    assert _truth_error(t, pair) < 0.2
+    assert sorted(detections) == [20, 20, 80, 80]
+
+
+def test_missing_compiled_loops_are_said_once(monkeypatch):
+    monkeypatch.setattr(_kernels, "HAVE_COMPILED", False)
+    monkeypatch.setattr(_kernels, "_WARNED_SLOW", False)
+    pair = _pair(6)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        find_transform(pair.source, pair.target)
+        find_transform(pair.target, pair.source)
+    slow = [w for w in caught if issubclass(w.category, SlowKernelsWarning)]
+    assert len(slow) == 1
+    message = str(slow[0].message)
+    assert "slower" in message and "wheel" in message
+    # Pointed at the caller's line, not inside the package.
+    assert slow[0].filename == __file__
+
+
+def test_no_warning_when_the_numpy_kernels_are_chosen(monkeypatch):
+    # Built, but turned off by the user (conf.use_compiled): a choice, not a
+    # missing install, so nothing to say (and this runs without the build too).
+    monkeypatch.setattr(_kernels, "HAVE_COMPILED", True)
+    monkeypatch.setattr(_kernels, "_WARNED_SLOW", False)
+    monkeypatch.setattr(conf, "use_compiled", False)
+    pair = _pair(8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SlowKernelsWarning)
+        find_transform(pair.source, pair.target)
