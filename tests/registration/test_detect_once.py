@@ -20,13 +20,13 @@ from astroalign_nd.simulate import simulate_pair
 def detections(monkeypatch):
     """The ``n_sources`` of every detection run by the registration module."""
     calls = []
-    detect = registration._control_sources
+    detect = registration.control_sources
 
     def counted(image, **kwargs):
         calls.append(kwargs["n_sources"])
         return detect(image, **kwargs)
 
-    monkeypatch.setattr(registration, "_control_sources", counted)
+    monkeypatch.setattr(registration, "control_sources", counted)
     return calls
 
 
