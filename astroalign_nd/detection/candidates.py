@@ -8,6 +8,7 @@ from .._kernels import bin_despike, finite_sample, peak_candidates
 from .._kernels import median as _median
 from .._kernels import windowed_centroid as _windowed_centroid
 from .background import _background_map
+from .lines import _bright_lines
 
 __all__ = []
 
@@ -81,13 +82,21 @@ def _as_image(data, mask, caller="find_sources"):
     return arr, mask
 
 
-def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
+def _binned_candidates(data, mask, b, noise, nsigma, n_candidates, lines=None,
+                       check_lines=False):
     """
     Stage 1: candidate peaks on the binned, background-subtracted image.
 
     Binning drops each block's brightest pixel (hot pixels and cosmic rays
     go), and candidates are ranked by the flux around the peak.  Positions
     are good to about a binned pixel; stage 2 measures them properly.
+
+    ``lines`` (a `~astroalign_nd.detection.lines.LineBackground` of a frame
+    whose bright lines are already subtracted from ``data``) gives each
+    binned pixel its own noise: the image is searched in local sigmas, so
+    that the noise peaks of a band or a bad column are not candidates.
+    With ``check_lines``, None is returned instead when the binned image
+    has bright or noisy rows or columns (the caller then measures them).
     """
     fill = 0.0
     if mask is not None or not np.all(np.isfinite(data[:: max(1, data.shape[0] // 64)])):
@@ -106,15 +115,24 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
     box = max(4, int(round(128 / b)))
     bkg_map, _ = _background_map(binned, box)
     resid = binned - bkg_map
+    if check_lines and _bright_lines(resid, noise_b):
+        return None
+    factor = None
+    if lines is not None:
+        factor = lines.binned_factor(resid.shape, b) if b > 1 else lines.factor(
+            np.arange(resid.shape[0])[:, None], np.arange(resid.shape[1])[None, :])
+        resid = resid / factor
     y, x, score = peak_candidates(resid, nsigma * noise_b, n_candidates)
+    if factor is not None:  # fluxes in counts again (ranking stays local)
+        score = score * factor[y, x]
     if len(x) == 0:
         return {"x": np.empty(0), "y": np.empty(0), "bkg": np.empty(0), "flux": np.empty(0),
                 "snr": np.empty(0)}
     # Binned pixel i covers full-res pixels [i*b, i*b + b - 1].  The score
     # is a 3x3 sum, whose noise is 3 binned-pixel sigmas.
+    snr = score / (3.0 * noise_b) if factor is None else score / (3.0 * noise_b * factor[y, x])
     return {"x": x * b + (b - 1) / 2.0, "y": y * b + (b - 1) / 2.0,
-            "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b),
-            "snr": score / (3.0 * noise_b)}
+            "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b), "snr": snr}
 
 
 def _recenter(data, mask, cand, b, fwhm):

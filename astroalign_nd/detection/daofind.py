@@ -14,6 +14,7 @@ from .._kernels import windowed_centroid as _windowed_centroid
 from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
 from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
 from .background import _bin_mean, _local_background, estimate_noise
+from .lines import line_background
 from ..config import DetectionConfig
 from .base import SourceFinderBase, _standard_table
 
@@ -150,7 +151,16 @@ def _detect(image, mask, n_sources, config, nsigma):
     # Spare candidates for what stage 2 rejects (binning already removed
     # most hot pixels and cosmic rays).
     n_cand = n_sources + n_sources // 2 + 30
-    cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand)
+    cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand, check_lines=True)
+    if cand is None:
+        # Bright or noisy rows or columns (an edge band, a bad column):
+        # their excess is subtracted and candidates on them are judged
+        # against their own noise (`lines`).
+        lines = line_background(data, mask, noise)
+        if lines is not None:
+            data = lines.subtract(data)
+        opts["lines"] = lines
+        cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand, lines=lines)
     if len(cand["x"]) == 0:
         return _empty_table(fwhm or 0.0, noise, b)
     cand = _recenter(data, mask, cand, b, fwhm)
@@ -318,6 +328,11 @@ def _measure_at(data, mask, cand, fwhm, noise, b, opts):
     xs, ys = _refined_positions(cut[kk], bad[kk], lx[sel], ly[sel], fwhm, opts)
     tab = {c: np.asarray(tab[c], float)[sel] for c in ("peak", "sharpness", "roundness1",
                                                        "roundness2")}
+    lines = opts.get("lines")
+    if lines is not None:  # each tile pixel's noise, in units of the frame's
+        offs = np.arange(-half, half + 1)
+        tab["noise_factor"] = lines.factor((yc[kk, None] + offs)[:, :, None],
+                                           (xc[kk, None] + offs)[:, None, :])
     tab["plateau_error"] = np.full(len(xs), np.nan)
     if sat is not None and opts["refine_centroids"]:
         xs, ys, tab["plateau_error"] = _plateau_centroids(sat[kk], bad[kk], xs, ys, fwhm)
@@ -431,7 +446,8 @@ def _filtered_table(cut, bad, gx, gy, xs, ys, dao, half, fwhm, noise, b, opts):
     DAOStarFinder measurements.
     """
     nsigma = opts["nsigma"]
-    aflux, perr, snr = _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise)
+    aflux, perr, snr = _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise,
+                                                dao.get("noise_factor"))
     # A saturated star's (clipped) flux says nothing of its centroid: its plateau does.
     perr = np.where(np.isfinite(dao["plateau_error"]), np.hypot(dao["plateau_error"], 0.005),
                     perr)
@@ -570,7 +586,7 @@ def _mirrored_support(xx, yy, valid, cx, cy, n_iter=5):
     return cx, cy, use
 
 
-def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
+def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise, factor=None):
     """
     Aperture flux (radius 1.5 FWHM), expected centroid error and
     matched-filter signal-to-noise.
@@ -578,6 +594,8 @@ def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
     The error is the background-limited centroid precision of a Gaussian
     star, ``sqrt(8 pi) sigma_psf^2 sigma_noise / flux`` per axis, with a
     0.005 px floor; it is used to weight stars in the final fit.
+    ``factor`` (tiles' shape, optional) is each pixel's noise in units of
+    ``noise`` (a band's, a bad column's).
     """
     n, size, _ = cut.shape
     g = np.arange(size, dtype=float)
@@ -588,6 +606,11 @@ def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
     sig_psf = fwhm / _GAUSS_SIGMA_TO_FWHM
     # Matched-filter signal-to-noise: the PSF-weighted sum over its noise.
     w = np.where(bad, 0.0, np.exp(-0.5 * d2 / sig_psf**2))
+    if factor is not None:
+        # The noise seen through the PSF window, per star.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.sqrt((w * w * factor**2).sum(axis=(1, 2)) / (w * w).sum(axis=(1, 2)))
+        noise = noise * np.where(np.isfinite(f), np.maximum(f, 1.0), 1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         snr = (w * cut).sum(axis=(1, 2)) / (noise * np.sqrt((w * w).sum(axis=(1, 2))))
     snr = np.where(np.isfinite(snr), snr, 0.0)
@@ -611,7 +634,8 @@ _LOST_WINDOW = 0.01
 def _find_on_binned(data, mask, k, fwhm, opts):
     """find_sources on a k x k mean-binned copy, in full-resolution pixels."""
     binned, bmask = _bin_mean(data, mask, k)
-    tab = find_sources(binned, mask=bmask, fwhm=fwhm, **opts)
+    tab = find_sources(binned, mask=bmask, fwhm=fwhm,
+                       **{k: v for k, v in opts.items() if k != "lines"})
     tab["x"] = tab["x"] * k + (k - 1) / 2.0
     tab["y"] = tab["y"] * k + (k - 1) / 2.0
     tab["position_error"] = tab["position_error"] * k
