@@ -14,7 +14,8 @@ from .._kernels import windowed_centroid as _windowed_centroid
 from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
 from .candidates import (_as_image, _auto_bin, _binned_candidates, _despike,
                          _extract_cutouts, _recenter)
-from .background import _bin_mean, _local_background, estimate_noise
+from .background import (_bin_mean, _correlated_noise_factor, _local_background,
+                         estimate_noise)
 from .lines import line_background
 from ..config import DetectionConfig
 from .base import SourceFinderBase, _standard_table
@@ -147,6 +148,9 @@ def _detect(image, mask, n_sources, config, nsigma):
     noise = estimate_noise(data, mask)
     if not np.isfinite(noise) or noise <= 0:
         return _empty_table(fwhm or 0.0, noise, 1)
+    # Correlated noise (resampled frames): the matched filter's S/N is
+    # judged against the noise it really sees.
+    opts["noise_corr"] = _correlated_noise_factor(data, mask, noise)
     b = _auto_bin(data.shape) if bin_factor is None else bin_factor
     b = min(b, max(1, min(data.shape) // 8))  # a few binned pixels across at least
     # Spare candidates for what stage 2 rejects (binning already removed
@@ -451,6 +455,7 @@ def _filtered_table(cut, bad, gx, gy, xs, ys, dao, half, fwhm, noise, b, opts):
     nsigma = opts["nsigma"]
     aflux, perr, snr = _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise,
                                                 dao.get("noise_factor"))
+    snr = snr / opts.get("noise_corr", 1.0)
     # A saturated star's (clipped) flux says nothing of its centroid: its plateau does.
     perr = np.where(np.isfinite(dao["plateau_error"]), np.hypot(dao["plateau_error"], 0.005),
                     perr)
@@ -638,7 +643,7 @@ def _find_on_binned(data, mask, k, fwhm, opts):
     """find_sources on a k x k mean-binned copy, in full-resolution pixels."""
     binned, bmask = _bin_mean(data, mask, k)
     tab = find_sources(binned, mask=bmask, fwhm=fwhm,
-                       **{k: v for k, v in opts.items() if k != "lines"})
+                       **{k: v for k, v in opts.items() if k not in ("lines", "noise_corr")})
     tab["x"] = tab["x"] * k + (k - 1) / 2.0
     tab["y"] = tab["y"] * k + (k - 1) / 2.0
     tab["position_error"] = tab["position_error"] * k
