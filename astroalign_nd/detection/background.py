@@ -146,7 +146,7 @@ def _bin_mean(data, mask, k):
 _MIN_CORRELATION = 1.08
 
 
-def _correlated_noise_factor(data, mask, noise, k=2, max_side=512):
+def _correlated_noise_factor(data, mask, noise, k=2, max_side=256):
     """
     How much more noise a sum over ``k`` x ``k`` pixels has than white noise
     of the per-pixel ``noise`` would give (1 for white noise).
@@ -160,7 +160,7 @@ def _correlated_noise_factor(data, mask, noise, k=2, max_side=512):
     """
     ny, nx = data.shape
     y0, x0 = max(0, (ny - max_side) // 2), max(0, (nx - max_side) // 2)
-    crop = np.asarray(data[y0:y0 + max_side, x0:x0 + max_side], dtype=np.float64)
+    crop = np.asarray(data[y0:y0 + max_side, x0:x0 + max_side], dtype=np.float32)
     bad = ~np.isfinite(crop)
     if mask is not None:
         bad |= mask[y0:y0 + max_side, x0:x0 + max_side]
@@ -169,7 +169,7 @@ def _correlated_noise_factor(data, mask, noise, k=2, max_side=512):
     cy, cx = (crop.shape[0] // k) * k, (crop.shape[1] // k) * k
     if cy < 8 * k or cx < 8 * k or not (np.isfinite(noise) and noise > 0):
         return 1.0
-    blocks = crop[:cy, :cx].reshape(cy // k, k, cx // k, k).sum(axis=(1, 3))
+    blocks = crop[:cy, :cx].reshape(cy // k, k, cx // k, k).sum(axis=(1, 3), dtype=np.float64)
     diff = np.diff(blocks, axis=1).ravel()
     diff = diff[np.isfinite(diff)]
     if diff.size < 50:

@@ -83,7 +83,7 @@ def _bright_lines(resid, noise):
     if min(resid.shape) < 16:
         return False
     for axis in (1, 0):
-        level, _, _ = _profiles(resid, axis)
+        level = _median(resid if axis == 1 else resid.T, axis=1)  # finite: filled
         # A narrow window: a defect stands out from the very next lines,
         # where smooth structure (clusters, nebulae) does not.
         excess = level - _trend(level, _BINNED_WINDOW)
