@@ -91,7 +91,7 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates, lines=None,
     go), and candidates are ranked by the flux around the peak.  Positions
     are good to about a binned pixel; stage 2 measures them properly.
 
-    ``lines`` (a `~astroalign_nd.detection.lines.LineBackground` of a frame
+    ``lines`` (a ``detection.lines.LineBackground`` of a frame
     whose bright lines are already subtracted from ``data``) gives each
     binned pixel its own noise: the image is searched in local sigmas, so
     that the noise peaks of a band or a bad column are not candidates.
