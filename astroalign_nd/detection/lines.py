@@ -16,6 +16,8 @@ full-frame pass); only a frame with such a line is measured again at full
 resolution.
 """
 
+import warnings
+
 import numpy as np
 from .._kernels import median as _median
 
@@ -36,8 +38,8 @@ _EXCESS = 0.3
 #: ... and its own noise counts when this many times the frame's.
 _NOISY = 1.15
 
-#: Lines sampled per row (or column) at full resolution.
-_SAMPLES = 512
+#: Pixels sampled per row (or column) at full resolution.
+_SAMPLES = 256
 
 
 def _trend(level, window):
@@ -51,26 +53,27 @@ def _trend(level, window):
     return median_filter(level, size=window, mode="reflect")
 
 
-def _profiles(sub, axis):
-    """
-    Level and noise of each line of ``sub`` (lines along ``axis`` 0 or 1),
-    NaN-aware: the median, and the MAD of neighbouring samples' differences.
-    """
-    work = sub if axis == 1 else sub.T
+def _levels(work):
+    """Median of each row of ``work`` (NaN-aware), and its count of finite samples."""
     if np.isnan(work).any():
-        level = np.nanmedian(work, axis=1)
-        diff = np.diff(work, axis=1)
-        dev = np.abs(diff - np.nanmedian(diff, axis=1)[:, None])
-        sig = 1.4826 * np.nanmedian(dev, axis=1) / np.sqrt(2.0)
         n = np.sum(np.isfinite(work), axis=1)
-    else:
-        work = np.ascontiguousarray(work, dtype=np.float64)
-        level = _median(work, axis=1)
-        diff = np.diff(work, axis=1)
-        dev = np.abs(diff - _median(diff, axis=1)[:, None])
-        sig = 1.4826 * _median(dev, axis=1) / np.sqrt(2.0)
-        n = np.full(work.shape[0], work.shape[1])
-    return level, sig, n
+        level = np.full(work.shape[0], np.nan)
+        some = n > 0
+        level[some] = np.nanmedian(work[some], axis=1)
+        # Lines with nothing valid follow the others (the trend ignores them).
+        level[~some] = np.nanmedian(level) if some.any() else 0.0
+        return level, n
+    return _median(work, axis=1), np.full(work.shape[0], work.shape[1])
+
+
+def _line_noise(lines):
+    """Noise of each row of ``lines`` from differences of neighbouring samples
+    (which cancel gradients): their MAD, as a standard deviation of one pixel."""
+    diff = np.diff(lines, axis=1)
+    with warnings.catch_warnings():  # a line with no two valid neighbours: NaN, left out
+        warnings.simplefilter("ignore", RuntimeWarning)
+        dev = np.abs(diff - np.nanmedian(diff, axis=1)[:, None])
+        return 1.4826 * np.nanmedian(dev, axis=1) / np.sqrt(2.0)
 
 
 def _bright_lines(resid, noise):
@@ -160,20 +163,29 @@ def line_background(data, mask, noise):
     out = []
     for axis, n_lines, n_along in ((1, ny, nx), (0, nx, ny)):
         step = max(1, n_along // _SAMPLES)
-        sub = arr[:, ::step] if axis == 1 else arr[::step, :]
-        level, sig, n = _profiles(sub.astype(np.float64, copy=False), axis)
+        sub = arr[:, ::step] if axis == 1 else arr[::step, :].T
+        sub = np.ascontiguousarray(sub, dtype=np.float32)
+        level, n = _levels(sub)
         excess = level - _trend(level, max(31, (n_lines // 16) | 1))
-        # Significant against the line's own noise (the median's error is
-        # 1.25 sigma / sqrt(n)), and above a floor: the faint tails of a
-        # band add little.  Only bright lines: a line below the sky
-        # (overscan, dead columns) makes no false peaks.
-        err = 1.25 * np.maximum(sig, noise) / np.sqrt(np.maximum(n, 1))
+        excess_out = np.zeros(n_lines)
+        factor = np.ones(n_lines)
         with np.errstate(invalid="ignore"):
-            bright = (excess > _EXCESS * noise) & (excess > 5.0 * err)
-            # Only the bright lines' own noise counts (a band's, a bad
-            # column's): elsewhere the frame's noise judges, as before.
-            factor = np.where(bright & (sig > _NOISY * noise), sig / noise, 1.0)
-        out += [np.where(bright, excess, 0.0), np.where(np.isfinite(factor), factor, 1.0)]
+            cand = np.flatnonzero(excess > _EXCESS * noise)
+        if cand.size:
+            # Only lines above the floor are measured further (few): their
+            # noise, and whether the excess is significant against it (the
+            # median's error is 1.25 sigma / sqrt(n)).  Lines below the sky
+            # (overscan, dead columns) make no false peaks and are left.
+            sig = _line_noise(sub[cand].astype(np.float64))
+            err = 1.25 * np.maximum(sig, noise) / np.sqrt(np.maximum(n[cand], 1))
+            with np.errstate(invalid="ignore"):
+                bright = excess[cand] > 5.0 * err
+                # Only the bright lines' own noise counts (a band's, a bad
+                # column's): elsewhere the frame's noise judges, as before.
+                noisy = bright & (sig > _NOISY * noise)
+            excess_out[cand[bright]] = excess[cand[bright]]
+            factor[cand[noisy]] = sig[noisy] / noise
+        out += [excess_out, factor]
     lines = LineBackground(*out)
     if not (lines.row_excess.any() or lines.col_excess.any()):
         return None
