@@ -12,12 +12,21 @@ work is avoided (it dominates the cost of a naive DAOStarFinder run on a
    pixel, which removes hot pixels and most cosmic-ray hits; after a
    coarse block-median sky is subtracted, a compiled local-maximum search
    finds candidate peaks, ranked by flux (the only full-frame passes);
+   a row or column that stands out from the lines next to it (the
+   decaying band along a raw frame's first rows, a bad column) has its
+   excess subtracted and its candidates judged against its own noise
+   (``detection.lines``), so that its noise peaks are not
+   stars;
 3. full-resolution cutouts around the candidates are tiled into one
    mosaic, and `~photutils.detection.DAOStarFinder` measures every
    candidate there (given their positions) with the full-resolution FWHM
-   and its sharpness and roundness limits; sources whose shape is unlike
+   and its sharpness and roundness limits, after single-pixel spikes (hot
+   pixels, cosmic-ray hits beside a star) are replaced by their
+   neighbours; sources whose shape is unlike
    the population's (hot pixels, cosmic-ray tracks) or whose
-   matched-filter signal-to-noise is below the threshold are dropped;
+   matched-filter signal-to-noise (against the noise a sum of pixels
+   really has: resampled frames' noise is correlated) is below the
+   threshold are dropped;
 4. centroids are refined with an iterative Gaussian-windowed centroid
    (the estimator of SExtractor's ``XWIN_IMAGE``), vectorised over all
    stars, which is more precise than DAOFIND's marginal fits.

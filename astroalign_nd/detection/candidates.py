@@ -8,6 +8,7 @@ from .._kernels import bin_despike, finite_sample, peak_candidates
 from .._kernels import median as _median
 from .._kernels import windowed_centroid as _windowed_centroid
 from .background import _background_map
+from .lines import _bright_lines
 
 __all__ = []
 
@@ -81,13 +82,21 @@ def _as_image(data, mask, caller="find_sources"):
     return arr, mask
 
 
-def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
+def _binned_candidates(data, mask, b, noise, nsigma, n_candidates, lines=None,
+                       check_lines=False):
     """
     Stage 1: candidate peaks on the binned, background-subtracted image.
 
     Binning drops each block's brightest pixel (hot pixels and cosmic rays
     go), and candidates are ranked by the flux around the peak.  Positions
     are good to about a binned pixel; stage 2 measures them properly.
+
+    ``lines`` (a ``detection.lines.LineBackground`` of a frame
+    whose bright lines are already subtracted from ``data``) gives each
+    binned pixel its own noise: the image is searched in local sigmas, so
+    that the noise peaks of a band or a bad column are not candidates.
+    With ``check_lines``, None is returned instead when the binned image
+    has bright or noisy rows or columns (the caller then measures them).
     """
     fill = 0.0
     if mask is not None or not np.all(np.isfinite(data[:: max(1, data.shape[0] // 64)])):
@@ -106,18 +115,27 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates):
     box = max(4, int(round(128 / b)))
     bkg_map, _ = _background_map(binned, box)
     resid = binned - bkg_map
+    if check_lines and _bright_lines(resid, noise_b):
+        return None
+    factor = None
+    if lines is not None:
+        factor = lines.binned_factor(resid.shape, b) if b > 1 else lines.factor(
+            np.arange(resid.shape[0])[:, None], np.arange(resid.shape[1])[None, :])
+        resid = resid / factor
     y, x, score = peak_candidates(resid, nsigma * noise_b, n_candidates)
+    if factor is not None:  # fluxes in counts again (ranking stays local)
+        score = score * factor[y, x]
     if len(x) == 0:
         return {"x": np.empty(0), "y": np.empty(0), "bkg": np.empty(0), "flux": np.empty(0),
                 "snr": np.empty(0)}
     # Binned pixel i covers full-res pixels [i*b, i*b + b - 1].  The score
     # is a 3x3 sum, whose noise is 3 binned-pixel sigmas.
+    snr = score / (3.0 * noise_b) if factor is None else score / (3.0 * noise_b * factor[y, x])
     return {"x": x * b + (b - 1) / 2.0, "y": y * b + (b - 1) / 2.0,
-            "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b),
-            "snr": score / (3.0 * noise_b)}
+            "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b), "snr": snr}
 
 
-def _recenter(data, mask, cand, b, fwhm):
+def _recenter(data, mask, cand, b, fwhm, noise=np.nan):
     """
     Recentre the coarse candidates at full resolution.
 
@@ -130,6 +148,9 @@ def _recenter(data, mask, cand, b, fwhm):
     cut, bad = _extract_cutouts(data, mask, xc, yc, rc, 0.0)
     cut -= cand["bkg"][:, None, None]
     cut[bad] = 0.0
+    # Hot pixels and cosmic-ray hits would win the 3x3 sums beside faint
+    # stars (when the stars' width is known: undersampled stars are spikes).
+    cut = _despike(cut, bad, fwhm, noise)
     box = np.zeros_like(cut)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
@@ -144,3 +165,51 @@ def _recenter(data, mask, cand, b, fwhm):
     out["x"] = xc - rc + lx
     out["y"] = yc - rc + ly
     return out
+
+
+#: A pixel is a spike when it stands this many noise sigmas ...
+_SPIKE_NSIGMA = 5.0
+
+#: ... and this many times more above its 4 neighbours than the sharpest
+#: star (centred on the pixel) allows.
+_SPIKE_MARGIN = 2.0
+
+#: Undersampled stars are spikes themselves: no cleaning below this FWHM.
+_SPIKE_MIN_FWHM = 1.5
+
+
+def _despike(cut, bad, fwhm, noise):
+    """
+    Tiles (background subtracted) with single-pixel spikes replaced by the
+    mean of their 4 neighbours; ``cut`` is modified and returned.
+
+    A hot pixel or a cosmic-ray hit beside a star pulls its centroid (a
+    50-sigma hot pixel 2 px from a faint star: a tenth of a pixel) and
+    adds to its flux.  A star of FWHM ``fwhm``, centred on a pixel, is at
+    most ``exp(0.5 / sigma**2)`` times brighter there than the mean of the
+    4 neighbours; a pixel brighter than `_SPIKE_MARGIN` times that (plus
+    `_SPIKE_NSIGMA` sigmas) has no PSF-shaped neighbours.
+    """
+    if fwhm is None or fwhm < _SPIKE_MIN_FWHM or not np.isfinite(noise) or cut.size == 0:
+        return cut
+    sig = fwhm / _GAUSS_SIGMA_TO_FWHM
+    ratio = _SPIKE_MARGIN * np.exp(0.5 / sig**2)
+    good = (~bad).astype(float)
+    val = np.where(bad, 0.0, cut)
+    s4 = np.zeros_like(val)
+    n4 = np.zeros_like(val)
+    # Sums of the 4 neighbours (and how many are valid), by shifted slices.
+    s4[:, 1:, :] += val[:, :-1, :]
+    n4[:, 1:, :] += good[:, :-1, :]
+    s4[:, :-1, :] += val[:, 1:, :]
+    n4[:, :-1, :] += good[:, 1:, :]
+    s4[:, :, 1:] += val[:, :, :-1]
+    n4[:, :, 1:] += good[:, :, :-1]
+    s4[:, :, :-1] += val[:, :, 1:]
+    n4[:, :, :-1] += good[:, :, 1:]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m4 = s4 / n4
+    spike = (~bad) & (n4 >= 2) & (val > ratio * np.maximum(m4, 0.0) + _SPIKE_NSIGMA * noise)
+    if spike.any():
+        cut[spike] = m4[spike]
+    return cut

@@ -12,8 +12,11 @@ from .._kernels import lost_window_fraction as _lost_window_fraction
 from .._kernels import mirrored_windowed_centroid as _mirrored_windowed_centroid
 from .._kernels import windowed_centroid as _windowed_centroid
 from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
-from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
-from .background import _bin_mean, _local_background, estimate_noise
+from .candidates import (_as_image, _auto_bin, _binned_candidates, _despike,
+                         _extract_cutouts, _recenter)
+from .background import (_bin_mean, _correlated_noise_factor, _local_background,
+                         estimate_noise)
+from .lines import line_background
 from ..config import DetectionConfig
 from .base import SourceFinderBase, _standard_table
 
@@ -145,15 +148,27 @@ def _detect(image, mask, n_sources, config, nsigma):
     noise = estimate_noise(data, mask)
     if not np.isfinite(noise) or noise <= 0:
         return _empty_table(fwhm or 0.0, noise, 1)
+    # Correlated noise (resampled frames): the matched filter's S/N is
+    # judged against the noise it really sees.
+    opts["noise_corr"] = _correlated_noise_factor(data, mask, noise)
     b = _auto_bin(data.shape) if bin_factor is None else bin_factor
     b = min(b, max(1, min(data.shape) // 8))  # a few binned pixels across at least
     # Spare candidates for what stage 2 rejects (binning already removed
     # most hot pixels and cosmic rays).
     n_cand = n_sources + n_sources // 2 + 30
-    cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand)
+    cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand, check_lines=True)
+    if cand is None:
+        # Bright or noisy rows or columns (an edge band, a bad column):
+        # their excess is subtracted and candidates on them are judged
+        # against their own noise (`lines`).
+        lines = line_background(data, mask, noise)
+        if lines is not None:
+            data = lines.subtract(data)
+        opts["lines"] = lines
+        cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand, lines=lines)
     if len(cand["x"]) == 0:
         return _empty_table(fwhm or 0.0, noise, b)
-    cand = _recenter(data, mask, cand, b, fwhm)
+    cand = _recenter(data, mask, cand, b, fwhm, noise)
 
     if fwhm is not None:
         tab = _measure(data, mask, cand, fwhm, noise, b, opts)
@@ -311,6 +326,8 @@ def _measure_at(data, mask, cand, fwhm, noise, b, opts):
     # biases fluxes and pulls centroids towards the tile centre.
     cut = cut - _local_background(cut, bad, min(2.0 * fwhm, half - 1.0))[:, None, None]
     cut[bad] = 0.0
+    # Hot pixels and cosmic-ray hits in a star's tile: not part of it.
+    cut = _despike(cut, bad, fwhm, noise)
     tab, ncol = _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts)
     if tab is None or len(tab["flux"]) == 0:
         return _empty_table(fwhm, noise, b)
@@ -320,6 +337,11 @@ def _measure_at(data, mask, cand, fwhm, noise, b, opts):
     xs, ys = _refined_positions(cut[kk], bad[kk], lx[sel], ly[sel], fwhm, opts)
     tab = {c: np.asarray(tab[c], float)[sel] for c in ("peak", "sharpness", "roundness1",
                                                        "roundness2")}
+    lines = opts.get("lines")
+    if lines is not None:  # each tile pixel's noise, in units of the frame's
+        offs = np.arange(-half, half + 1)
+        tab["noise_factor"] = lines.factor((yc[kk, None] + offs)[:, :, None],
+                                           (xc[kk, None] + offs)[:, None, :])
     tab["plateau_error"] = np.full(len(xs), np.nan)
     if sat is not None and opts["refine_centroids"]:
         xs, ys, tab["plateau_error"] = _plateau_centroids(sat[kk], bad[kk], xs, ys, fwhm)
@@ -433,7 +455,9 @@ def _filtered_table(cut, bad, gx, gy, xs, ys, dao, half, fwhm, noise, b, opts):
     DAOStarFinder measurements.
     """
     nsigma = opts["nsigma"]
-    aflux, perr, snr = _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise)
+    aflux, perr, snr = _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise,
+                                                dao.get("noise_factor"))
+    snr = snr / opts.get("noise_corr", 1.0)
     # A saturated star's (clipped) flux says nothing of its centroid: its plateau does.
     perr = np.where(np.isfinite(dao["plateau_error"]), np.hypot(dao["plateau_error"], 0.005),
                     perr)
@@ -572,7 +596,7 @@ def _mirrored_support(xx, yy, valid, cx, cy, n_iter=5):
     return cx, cy, use
 
 
-def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
+def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise, factor=None):
     """
     Aperture flux (radius 1.5 FWHM), expected centroid error and
     matched-filter signal-to-noise.
@@ -580,6 +604,8 @@ def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
     The error is the background-limited centroid precision of a Gaussian
     star, ``sqrt(8 pi) sigma_psf^2 sigma_noise / flux`` per axis, with a
     0.005 px floor; it is used to weight stars in the final fit.
+    ``factor`` (tiles' shape, optional) is each pixel's noise in units of
+    ``noise`` (a band's, a bad column's).
     """
     n, size, _ = cut.shape
     g = np.arange(size, dtype=float)
@@ -590,6 +616,11 @@ def _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise):
     sig_psf = fwhm / _GAUSS_SIGMA_TO_FWHM
     # Matched-filter signal-to-noise: the PSF-weighted sum over its noise.
     w = np.where(bad, 0.0, np.exp(-0.5 * d2 / sig_psf**2))
+    if factor is not None:
+        # The noise seen through the PSF window, per star.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.sqrt((w * w * factor**2).sum(axis=(1, 2)) / (w * w).sum(axis=(1, 2)))
+        noise = noise * np.where(np.isfinite(f), np.maximum(f, 1.0), 1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         snr = (w * cut).sum(axis=(1, 2)) / (noise * np.sqrt((w * w).sum(axis=(1, 2))))
     snr = np.where(np.isfinite(snr), snr, 0.0)
@@ -613,7 +644,8 @@ _LOST_WINDOW = 0.01
 def _find_on_binned(data, mask, k, fwhm, opts):
     """find_sources on a k x k mean-binned copy, in full-resolution pixels."""
     binned, bmask = _bin_mean(data, mask, k)
-    tab = find_sources(binned, mask=bmask, fwhm=fwhm, **opts)
+    tab = find_sources(binned, mask=bmask, fwhm=fwhm,
+                       **{k: v for k, v in opts.items() if k not in ("lines", "noise_corr")})
     tab["x"] = tab["x"] * k + (k - 1) / 2.0
     tab["y"] = tab["y"] * k + (k - 1) / 2.0
     tab["position_error"] = tab["position_error"] * k
