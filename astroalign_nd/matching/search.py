@@ -14,8 +14,8 @@ from ..exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundEr
 from ..transforms.registry import transform_class, transform_type_of
 from .result import MatchResult
 from .geometry import _overlap_box, bounding_frame
-from .verify import (MAX_ERROR_BOUND, WARN_ERROR_BOUND, _log10_false_alarm, _model_misfit,
-                     _predicted_error, _refine)
+from .verify import (MAX_ERROR_BOUND, WARN_ERROR_BOUND, _degenerate, _log10_false_alarm,
+                     _model_misfit, _predicted_error, _refine)
 from .triangles import hypothesis_matrices, match_triangles
 
 __all__ = ['match_points', 'search_tolerance']
@@ -398,6 +398,7 @@ class _Candidate:
     bound: float          # how far off the self-consistency witnesses say it can be (px)
     inconsistent: object  # why the stars do not support the model over the frame, or None
     ok: bool              # passes the false-alarm and self-consistency tests
+    degenerate: object = None  # why the stars cannot pin a 2-D transform (a line), or None
 
     def rank(self):
         # A trustworthy candidate beats any other; then the less likely chance.
@@ -434,7 +435,10 @@ def _evaluate(s, hyp, h, n_scored):
     model, si, dj, resid, cov, tol = res
     lfa = _log10_false_alarm(model.matrix, s.src_pts, s.dst_pts, len(si), tol, s.src_frame,
                              s.dst_frame, n_scored + s.prior_trials, hyp.tri_rms[h],
-                             hyp.tri_size[h], s.invariant_radius, s.n_dof)
+                             hyp.tri_size[h], s.invariant_radius, s.n_dof, matched=(si, dj))
+    # Stars along one line (a band of detections on a raw frame's edge) fix
+    # no 2-D transform, however many: refused, and the search goes on.
+    degenerate = _degenerate(s.src_pts[si], s.dst_pts[dj], s.src_frame, s.dst_frame, tol)
     # Where the registered image has data: the overlap of the two frames.
     box = _overlap_box(model.matrix, s.src_frame, s.dst_frame)
     pred = _predicted_error(model, cov, box)
@@ -448,8 +452,9 @@ def _evaluate(s, hyp, h, n_scored):
         None if s.dst_err is None else s.dst_err[dj], box, min(s.tolerance, MAX_ERROR_BOUND),
         pred)
     return _Candidate(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h,
-                      pred=pred, bound=bound, inconsistent=inconsistent,
-                      ok=bool(lfa <= s.log_limit and inconsistent is None))
+                      pred=pred, bound=bound, inconsistent=inconsistent, degenerate=degenerate,
+                      ok=bool(lfa <= s.log_limit and inconsistent is None
+                              and degenerate is None))
 
 
 @dataclass
@@ -516,7 +521,12 @@ def _failure_message(s, progress, n_tri):
     counts, best = progress.counts, progress.best
     best_count = int(counts.max()) if len(counts) else 0
     detail = ""
-    if best is not None and best.lfa > s.log_limit:
+    if best is not None and best.degenerate is not None:
+        detail = (f"; the best candidate matched {len(best.si)} stars (false-alarm "
+                  f"probability 10^{best.lfa:.1f}), but {best.degenerate}: a 2-D transform "
+                  "needs stars spread over the frame, and a row of detections (a bright band "
+                  "or a bad row or column) pairs by chance along its length")
+    elif best is not None and best.lfa > s.log_limit:
         detail = (f"; the best candidate matched {len(best.si)} stars but its false-alarm "
                   f"probability is 10^{best.lfa:.1f} (limit {s.max_false_alarm:g})")
     elif best is not None:
