@@ -450,6 +450,23 @@ def _densest_line(pts, half_width, n_lines=600):
     return mask, c, u
 
 
+def _on_line(points, matched, tol):
+    """
+    Which of ``points`` lie on the line of the ``matched`` ones, when all
+    but fewer than `MIN_OFF_LINE` of these lie on one (`_densest_line`);
+    none otherwise.
+    """
+    half = _strip_halfwidth(tol)
+    n = len(matched)
+    if n < 4:
+        return np.zeros(len(points), bool)
+    on, c, u = _densest_line(matched, half)
+    k = int(on.sum())
+    if k < max(4, n // 2) or n - k >= MIN_OFF_LINE:
+        return np.zeros(len(points), bool)
+    return np.abs((points - c) @ np.array([-u[1], u[0]])) <= half
+
+
 def _box_of(pts, centre, u, pad):
     """Oriented box (centre, u, along range, across range) around ``pts``, ``pad`` wider."""
     v = np.array([-u[1], u[0]])

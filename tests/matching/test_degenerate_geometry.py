@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from astroalign_nd import find_transform
-from astroalign_nd.exceptions import TransformNotFoundError
+from astroalign_nd.exceptions import PoorFitWarning, TransformNotFoundError
 from astroalign_nd.matching import match_points
 from astroalign_nd.matching.verify import _degenerate, _log10_false_alarm
 from astroalign_nd.simulate import add_edge_band, simulate_pair
@@ -92,3 +92,26 @@ def test_related_images_with_edge_bands_keep_their_answer():
         t, _ = find_transform(src, dst)
     g = np.array([[0.0, 0.0], [255.0, 0.0], [0.0, 255.0], [255.0, 255.0]])
     np.testing.assert_allclose(t(*g.T), pair.transform(*g.T), atol=0.3)
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+def test_search_goes_on_past_a_row_of_detections_to_the_real_stars(seed):
+    # 60 detections on a row (exactly collinear, as a band's peaks on row 0)
+    # outnumber 20 real stars: the row's chance hypotheses have the most
+    # inliers, and the search must set them aside and find the stars.
+    # (The old code raised LinAlgError on the collinear stars.)
+    rng = np.random.default_rng(seed)
+    stars = rng.uniform(0, 511, (20, 2))
+    c, s = np.cos(np.deg2rad(3.0)), np.sin(np.deg2rad(3.0))
+    truth = np.array([[c, -s, 5.0], [s, c, -2.0], [0, 0, 1]])
+    mapped = stars @ truth[:2, :2].T + truth[:2, 2]
+    src = np.vstack([stars, np.column_stack([rng.uniform(0, 511, 60), np.zeros(60)])])
+    dst = np.vstack([mapped, np.column_stack([rng.uniform(0, 511, 60), np.full(60, 0.6)])])
+    src, dst = src[rng.permutation(len(src))], dst[rng.permutation(len(dst))]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PoorFitWarning)  # a chance pair on the row may join
+        result = match_points(src, dst, source_frame=FRAME, target_frame=FRAME)
+    g = np.array([[0.0, 0.0], [511.0, 0.0], [0.0, 511.0], [511.0, 511.0]])
+    expected = g @ truth[:2, :2].T + truth[:2, 2]
+    assert result.n_matches >= 20
+    np.testing.assert_allclose(np.column_stack(result.transform(*g.T)), expected, atol=0.3)
