@@ -14,8 +14,8 @@ from ..exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundEr
 from ..transforms.registry import transform_class, transform_type_of
 from .result import MatchResult
 from .geometry import _overlap_box, bounding_frame
-from .verify import (MAX_ERROR_BOUND, WARN_ERROR_BOUND, _log10_false_alarm, _model_misfit,
-                     _predicted_error, _refine)
+from .verify import (MAX_ERROR_BOUND, WARN_ERROR_BOUND, _degenerate, _log10_false_alarm,
+                     _model_misfit, _on_line, _predicted_error, _refine)
 from .triangles import hypothesis_matrices, match_triangles
 
 __all__ = ['match_points', 'search_tolerance']
@@ -390,6 +390,7 @@ class _Candidate:
     bound: float          # how far off the self-consistency witnesses say it can be (px)
     inconsistent: object  # why the stars do not support the model over the frame, or None
     ok: bool              # passes the false-alarm and self-consistency tests
+    degenerate: object = None  # why the stars cannot pin a 2-D transform (a line), or None
 
     def rank(self):
         # A trustworthy candidate beats any other; then the less likely chance.
@@ -426,7 +427,14 @@ def _evaluate(s, hyp, h, n_scored):
     model, si, dj, resid, cov, tol = res
     lfa = _log10_false_alarm(model.matrix, s.src_pts, s.dst_pts, len(si), tol, s.src_frame,
                              s.dst_frame, n_scored + s.prior_trials, hyp.tri_rms[h],
-                             hyp.tri_size[h], s.invariant_radius, s.n_dof)
+                             hyp.tri_size[h], s.invariant_radius, s.n_dof, matched=(si, dj))
+    # Stars along one line (a band of detections on a raw frame's edge) fix
+    # no 2-D transform, however many: refused, and the search goes on.
+    degenerate = _degenerate(s.src_pts[si], s.dst_pts[dj], s.src_frame, s.dst_frame, tol)
+    if degenerate is not None:  # (an affine fit of collinear stars is singular)
+        return _Candidate(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h,
+                          pred=0.0, bound=0.0, inconsistent=None, degenerate=degenerate,
+                          ok=False)
     # Where the registered image has data: the overlap of the two frames.
     box = _overlap_box(model.matrix, s.src_frame, s.dst_frame)
     pred = _predicted_error(model, cov, box)
@@ -453,19 +461,27 @@ class _Progress:
     n_scored: int = 0
     refined: set = field(default_factory=set)   # hypotheses refined so far
     accepted: bool = False                      # early acceptance
+    n_degenerate: int = 0                       # refined candidates along one line
+    ctl_keep: np.ndarray = None                 # source control points that score
+
+
+#: Degenerate candidates (`_degenerate`) refined before they count in the
+#: refinement budget of `_score_batches`.
+MAX_DEGENERATE = 30
 
 
 def _score_batches(s, hyp):
     """Score the hypotheses batch by batch, refining the best few of each."""
     counts = np.zeros(hyp.n_pairs, int)  # the hypotheses' (at most one per pair)
-    progress = _Progress(counts=counts[:0])
+    progress = _Progress(counts=counts[:0], ctl_keep=np.ones(len(s.src_ctl), bool))
     refined_max, start = 0, 0
     while hyp.grow(start + s.batch_size) > start:
         stop = min(start + s.batch_size, len(hyp))
         progress.counts = counts[:stop]
         # Control points of the source against every target star: a true
         # match also counts stars that are not among the target's brightest.
-        counts[start:stop] = count_inliers(hyp.mats[start:stop], s.src_ctl, s.grid)
+        counts[start:stop] = count_inliers(hyp.mats[start:stop], s.src_ctl[progress.ctl_keep],
+                                           s.grid)
         progress.n_scored = stop
         # Try the best few of this batch (ties broken by invariant distance).
         order = start + np.argsort(-counts[start:stop], kind="stable")[:3]
@@ -478,7 +494,16 @@ def _score_batches(s, hyp):
                 break
             cand = _evaluate(s, hyp, h, progress.n_scored)
             progress.refined.add(int(h))
-            refined_max = max(refined_max, int(counts[h]))
+            if cand is not None and cand.degenerate is not None:
+                # A row of detections pairs with another by chance, often with
+                # more inliers than the real stars: it sets no bar for them,
+                # and its stars no longer score (a few dozen refined at most).
+                progress.n_degenerate += 1
+                if progress.n_degenerate > MAX_DEGENERATE:
+                    refined_max = max(refined_max, int(counts[h]))
+                _set_aside_line(s, hyp, progress, cand)
+            else:
+                refined_max = max(refined_max, int(counts[h]))
             if cand is None:
                 continue
             if progress.best is None or cand.rank() < progress.best.rank():
@@ -490,6 +515,23 @@ def _score_batches(s, hyp):
                 return progress
         start = stop
     return progress
+
+
+def _set_aside_line(s, hyp, progress, cand):
+    """
+    Stop scoring with the source control points on a degenerate candidate's
+    line (a row of detections), and score the hypotheses so far again.
+
+    Rows of detections make many triangles and hypotheses that pair them
+    with each other; without them the real stars' hypotheses come first.
+    """
+    on = _on_line(s.src_ctl, s.src_pts[cand.si], s.min_tolerance)
+    keep = progress.ctl_keep & ~on
+    if keep.sum() < 3 or keep.sum() == progress.ctl_keep.sum():
+        return
+    progress.ctl_keep = keep
+    n = len(progress.counts)
+    progress.counts[:] = count_inliers(hyp.mats[:n], s.src_ctl[keep], s.grid)
 
 
 def _final_pass(s, hyp, progress):
@@ -508,7 +550,12 @@ def _failure_message(s, progress, n_tri):
     counts, best = progress.counts, progress.best
     best_count = int(counts.max()) if len(counts) else 0
     detail = ""
-    if best is not None and best.lfa > s.log_limit:
+    if best is not None and best.degenerate is not None:
+        detail = (f"; the best candidate matched {len(best.si)} stars (false-alarm "
+                  f"probability 10^{best.lfa:.1f}), but {best.degenerate}: a 2-D transform "
+                  "needs stars spread over the frame, and a row of detections (a bright band "
+                  "or a bad row or column) pairs by chance along its length")
+    elif best is not None and best.lfa > s.log_limit:
         detail = (f"; the best candidate matched {len(best.si)} stars but its false-alarm "
                   f"probability is 10^{best.lfa:.1f} (limit {s.max_false_alarm:g})")
     elif best is not None:

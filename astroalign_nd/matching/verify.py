@@ -15,7 +15,7 @@ __all__ = []
 
 
 def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame,
-                       n_trials, tri_rms, tri_size, inv_radius, n_dof=4):
+                       n_trials, tri_rms, tri_size, inv_radius, n_dof=4, matched=None):
     """
     log10 probability that ``n_matched`` stars agree by chance.
 
@@ -26,6 +26,13 @@ def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame
     tail is taken over the others, and the defining triangle contributes
     the chance that random triangles agree as closely as it does.  The
     trials factor counts every hypothesis examined.
+
+    With ``matched`` (the matched source and target indices), the chance
+    of the pairs is also taken from the density of detections where the
+    matched stars are, over the area they actually span
+    (`_local_log_tail`), and the larger of the two figures is returned: a
+    match along a row of detections is not credited with the frame's
+    average density.
     """
     frac, area = _frame_area_fraction(m, src_frame, dst_frame)
     if area <= 0:
@@ -41,6 +48,8 @@ def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame
         log_tail = np.log10(tail) if tail > 0 else -300.0
     else:
         log_tail = 0.0
+    if matched is not None and len(matched[0]) >= 4:
+        log_tail = max(log_tail, _local_log_tail(m, src_pts, dst_pts, matched, tol))
     # Chance that a random triangle pair within the invariant radius fits
     # its own three vertices as well as this one does: the 6 coordinates of
     # the 3 vertex pairs less the model's free parameters (2 spare for a
@@ -394,3 +403,172 @@ def _predicted_error(model, cov, frame):
         jac[:, k] = ((at({**values, name: values[name] + step}) - base) / step).T.ravel()
     var = np.einsum("ik,kl,il->i", jac, cov, jac).reshape(len(corners), 2)
     return float(np.sqrt(np.max(var.sum(axis=1))))
+
+
+#: A match needs at least this many matched stars off its densest line
+#: (`_degenerate`): three pairs off a line fix what the line leaves free.
+MIN_OFF_LINE = 3
+
+
+def _strip_halfwidth(tol):
+    """Half-width (px) of the strip in which stars count as lying along one line."""
+    return max(2.0 * tol, 2.0)
+
+
+def _densest_line(pts, half_width, n_lines=600):
+    """
+    The line through the most of ``pts`` (within ``half_width``).
+
+    Candidate lines pass through two of the points (every pair for a few
+    points, a fixed sample of pairs otherwise: deterministic) and through
+    the centroid along the principal axis.  Returns ``(mask, centre,
+    direction)``: the points on the line, and the line.
+    """
+    n = len(pts)
+    i, j = np.triu_indices(n, 1)
+    if len(i) > n_lines:
+        pick = np.random.default_rng(0).choice(len(i), n_lines, replace=False)
+        i, j = i[pick], j[pick]
+    centre = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
+    starts = np.vstack([pts[i], centre[None]])
+    dirs = np.vstack([pts[j] - pts[i], vt[:1]])
+    length = np.hypot(*dirs.T)
+    ok = length > 0
+    starts, dirs = starts[ok], dirs[ok] / length[ok, None]
+    normals = np.column_stack([-dirs[:, 1], dirs[:, 0]])
+    # (lines, points) perpendicular distances
+    dist = np.abs(np.einsum("lk,lnk->ln", normals, pts[None] - starts[:, None]))
+    best = int(np.argmax((dist <= half_width).sum(axis=1)))
+    mask = dist[best] <= half_width
+    # The line through its own stars (principal axis), then its stars again.
+    on = pts[mask]
+    c = on.mean(axis=0)
+    _, _, vt = np.linalg.svd(on - c, full_matrices=False)
+    u = vt[0]
+    mask = np.abs((pts - c) @ np.array([-u[1], u[0]])) <= half_width
+    return mask, c, u
+
+
+def _on_line(points, matched, tol):
+    """
+    Which of ``points`` lie on the line of the ``matched`` ones, when all
+    but fewer than `MIN_OFF_LINE` of these lie on one (`_densest_line`);
+    none otherwise.
+    """
+    half = _strip_halfwidth(tol)
+    n = len(matched)
+    if n < 4:
+        return np.zeros(len(points), bool)
+    on, c, u = _densest_line(matched, half)
+    k = int(on.sum())
+    if k < max(4, n // 2) or n - k >= MIN_OFF_LINE:
+        return np.zeros(len(points), bool)
+    return np.abs((points - c) @ np.array([-u[1], u[0]])) <= half
+
+
+def _box_of(pts, centre, u, pad):
+    """Oriented box (centre, u, along range, across range) around ``pts``, ``pad`` wider."""
+    v = np.array([-u[1], u[0]])
+    a, b = (pts - centre) @ u, (pts - centre) @ v
+    return centre, u, (a.min() - pad, a.max() + pad), (b.min() - pad, b.max() + pad)
+
+
+def _in_box(pts, box):
+    centre, u, (a0, a1), (b0, b1) = box
+    v = np.array([-u[1], u[0]])
+    a, b = (pts - centre) @ u, (pts - centre) @ v
+    return (a >= a0) & (a <= a1) & (b >= b0) & (b <= b1)
+
+
+def _log_tail(k, n, p):
+    """log10 P(X >= k), X ~ Binomial(n, p); 0 for k <= 0."""
+    if k <= 0:
+        return 0.0
+    n = max(n, k)
+    tail = betainc(k, n - k + 1, p) if p < 1 else 1.0
+    return float(np.log10(tail)) if tail > 0 else -300.0
+
+
+def _local_log_tail(m, src_pts, dst_pts, matched, tol):
+    """
+    log10 chance of the matched pairs, from the density of detections where
+    they are, not over the whole frame.
+
+    The matched target stars are split into those along their densest line
+    (`_densest_line`, when it holds 4 or more) and the others.  Each group
+    is given the oriented box its stars span (principal axes, ``tol``
+    wider); a star of the source mapped into a box pairs by chance with
+    probability ``(target detections in the box) * pi * tol^2 / (box
+    area)``.  A row of detections along a frame's edge thus counts with
+    the density along that row, where chance pairs are likely.  The 3 stars
+    of the proposing triangle match by construction and are not counted.
+    """
+    si, dj = matched
+    d = dst_pts[dj]
+    mapped = apply_matrix(m, src_pts)
+    groups = [np.ones(len(dj), bool)]
+    if len(dj) >= 4:
+        on, c, u = _densest_line(d, _strip_halfwidth(tol))
+        if on.sum() >= 4:
+            groups = [~on, on] if (~on).any() else [on]
+    log_tail, spare = 0.0, 3  # the triangle's stars, taken off the largest group first
+    for g in sorted(groups, key=lambda g: -g.sum()):
+        pts = d[g]
+        k = int(g.sum())
+        if k == 0:
+            continue
+        if k >= 2:
+            c = pts.mean(axis=0)
+            _, _, vt = np.linalg.svd(pts - c, full_matrices=False)
+            u = vt[0]
+        else:
+            c, u = pts[0], np.array([1.0, 0.0])
+        box = _box_of(pts, c, u, tol)
+        area = (box[2][1] - box[2][0]) * (box[3][1] - box[3][0])
+        m_box = max(int(_in_box(dst_pts, box).sum()), 1)
+        n_box = int(_in_box(mapped, box).sum())
+        p = min(1.0, m_box * np.pi * tol ** 2 / area)
+        k_extra = k - min(spare, k)
+        spare -= k - k_extra
+        log_tail += _log_tail(k_extra, n_box - (k - k_extra), p)
+    return log_tail
+
+
+def _degenerate(src, dst, src_frame, dst_frame, tol):
+    """
+    Why the matched stars cannot pin a 2-D transform, or None.
+
+    They cannot when, in either frame, all but fewer than `MIN_OFF_LINE`
+    of them lie along one line (within `_strip_halfwidth`: collinear, or
+    a thin strip), or all lie within a few pixels of one edge (a band of
+    detections along a raw frame's first rows).  Along a line, a transform
+    is fixed only along that line, and a row of detections makes chance
+    pairs along it likely.
+    """
+    n = len(src)
+    if n < 4:
+        return None
+    half = _strip_halfwidth(tol)
+    for name, pts, frame in (("source", src, src_frame), ("target", dst, dst_frame)):
+        x0, x1, y0, y1 = frame
+        near = max(3.0 * tol, 0.02 * min(x1 - x0, y1 - y0))
+        edges = {"left": pts[:, 0] - x0, "right": x1 - pts[:, 0],
+                 "bottom": pts[:, 1] - y0, "top": y1 - pts[:, 1]}
+        on, c, u = _densest_line(pts, half)
+        k = int(on.sum())
+        if k >= max(4, n // 2) and n - k < MIN_OFF_LINE:
+            across = np.abs((pts[on] - c) @ np.array([-u[1], u[0]]))
+            along = (pts[on] - c) @ u
+            where = ""
+            for edge, dist in edges.items():
+                if np.all(dist[on] <= half + 1.0):
+                    where = f" by the {edge} edge"
+            who = f"{k} of the {n} matched stars lie" if n > k else f"the {n} matched stars lie"
+            return (f"{who} along a line{where} of the {name} frame (spread "
+                    f"{2.0 * across.max():.1f} px across, {np.ptp(along):.0f} px along)")
+        for edge, dist in edges.items():
+            if np.all(dist <= near):
+                return (f"all {n} matched stars lie within {near:.0f} px of the {edge} edge "
+                        f"of the {name} frame (at most {dist.max():.1f} px from it)")
+    return None
