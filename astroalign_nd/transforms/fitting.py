@@ -103,8 +103,9 @@ def _fit_design(cls, src, dst, weights, parity, degree=None, crpix=None, domain=
 #: Mixing fractions tried between the claimed variances (0) and equal ones (1).
 _MIX_GRID = np.concatenate([[0.0], np.logspace(-4.0, 0.0, 33)])
 
-#: Twice the log-likelihood gain a weighting must show over equal weights to
-#: be kept (the 95% point of the half chi-square with 1 dof of a boundary test).
+#: Twice the log-likelihood by which a floor may fall short of the best one
+#: and still be taken (the 95% point of a one-sided test, chi-square 1 dof):
+#: so equal weights unless the claimed errors do significantly better.
 _WEIGHTS_KEPT_AT = 2.71
 
 
@@ -128,8 +129,9 @@ def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
     allows for the fit pulling a heavily weighted pair's residual towards
     zero: such a pair cannot hide its own error); the claimed errors keep a
     say only when they explain the residuals significantly better than
-    equal weights do (a likelihood ratio test at 5%).  Otherwise the
-    weights are equal.
+    equal weights do (a likelihood ratio test at 5%), and then with the
+    largest floor the residuals allow (the upper end of its likelihood
+    interval), since a floor estimated from few pairs is noisy.
 
     Parameters
     ----------
@@ -191,8 +193,9 @@ def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
 def _floor_fraction(rows, resid, claimed):
     """
     The error floor ``f`` (a fraction of the median claimed variance) and the
-    variance scale ``s`` that best explain the residuals; ``f = 1`` (equal
-    weights) unless the claimed variances do significantly better.
+    variance scale ``s``: the largest ``f`` the residuals allow at 95%, so
+    ``f = 1`` (equal weights) unless the claimed variances do significantly
+    better.
 
     ``rows`` are the pairs' (2, k) rows of the design and ``resid`` their
     residuals under one fit.  The model being linear in its parameters (or
@@ -224,9 +227,11 @@ def _floor_fraction(rows, resid, claimed):
         scales[i] = s
     if not np.isfinite(nll[-1]):
         return 1.0, 1.0
-    best = int(np.argmin(nll))
-    if nll[-1] - nll[best] < _WEIGHTS_KEPT_AT:
-        best = len(_MIX_GRID) - 1
+    # The most even weights the residuals allow (the upper end of the
+    # floor's likelihood interval): an estimated floor is noisy with few
+    # pairs, and erring towards equal weights costs little, while erring
+    # towards the claims lets a few stars pin the fit.
+    best = int(np.flatnonzero(nll <= np.min(nll) + _WEIGHTS_KEPT_AT)[-1])
     return float(_MIX_GRID[best]), float(scales[best])
 
 
