@@ -103,10 +103,9 @@ def _fit_design(cls, src, dst, weights, parity, degree=None, crpix=None, domain=
 #: Mixing fractions tried between the claimed variances (0) and equal ones (1).
 _MIX_GRID = np.concatenate([[0.0], np.logspace(-4.0, 0.0, 33)])
 
-#: Twice the log-likelihood by which a floor may fall short of the best one
-#: and still be taken (the 95% point of a one-sided test, chi-square 1 dof):
-#: so equal weights unless the claimed errors do significantly better.
-_WEIGHTS_KEPT_AT = 2.71
+#: The floor taken is the largest whose -2 log-likelihood is within this of
+#: the best one's (the upper end of its 68% interval).
+_FLOOR_INTERVAL = 1.0
 
 
 def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
@@ -125,13 +124,15 @@ def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
     f)``, with ``c_i`` the claimed variances (``1 / weights``, relative to
     their median): ``f = 0`` trusts them up to a scale, ``f = 1`` is equal
     weights, and between them ``f`` is an error floor.  ``s`` and ``f`` are
-    fitted by restricted maximum likelihood to the residuals (which
-    allows for the fit pulling a heavily weighted pair's residual towards
-    zero: such a pair cannot hide its own error); the claimed errors keep a
-    say only when they explain the residuals significantly better than
-    equal weights do (a likelihood ratio test at 5%), and then with the
-    largest floor the residuals allow (the upper end of its likelihood
-    interval), since a floor estimated from few pairs is noisy.
+    fitted by restricted maximum likelihood to the residuals, which allows
+    for the fit pulling a heavily weighted pair's residual towards zero:
+    such a pair cannot hide its own error.  Claimed errors that the
+    residuals bear out keep their weight; claims far below the scatter
+    give way to a floor, up to equal weights.  Of the floors the residuals
+    allow (a 68% likelihood interval), the largest is taken: a floor
+    estimated from few pairs is noisy, and erring towards the claims lets
+    a few stars pin the fit, while erring towards equal weights costs
+    little.
 
     Parameters
     ----------
@@ -193,9 +194,8 @@ def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
 def _floor_fraction(rows, resid, claimed):
     """
     The error floor ``f`` (a fraction of the median claimed variance) and the
-    variance scale ``s``: the largest ``f`` the residuals allow at 95%, so
-    ``f = 1`` (equal weights) unless the claimed variances do significantly
-    better.
+    variance scale ``s``: the largest ``f`` within the 68% likelihood
+    interval of the best one.
 
     ``rows`` are the pairs' (2, k) rows of the design and ``resid`` their
     residuals under one fit.  The model being linear in its parameters (or
@@ -227,11 +227,11 @@ def _floor_fraction(rows, resid, claimed):
         scales[i] = s
     if not np.isfinite(nll[-1]):
         return 1.0, 1.0
-    # The most even weights the residuals allow (the upper end of the
-    # floor's likelihood interval): an estimated floor is noisy with few
-    # pairs, and erring towards equal weights costs little, while erring
-    # towards the claims lets a few stars pin the fit.
-    best = int(np.flatnonzero(nll <= np.min(nll) + _WEIGHTS_KEPT_AT)[-1])
+    # The most even weights within 1 sigma of the best (the upper end of
+    # the floor's likelihood interval): a floor estimated from few pairs is
+    # noisy, and erring towards the claims lets a few stars pin the fit,
+    # while erring towards equal weights costs little.
+    best = int(np.flatnonzero(nll <= np.min(nll) + _FLOOR_INTERVAL)[-1])
     return float(_MIX_GRID[best]), float(scales[best])
 
 
