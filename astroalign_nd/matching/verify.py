@@ -6,7 +6,7 @@ from scipy.special import betainc
 from .._kernels import median as _median
 from ..transforms.linear import AffineTransform
 from ..transforms import apply_matrix
-from ..transforms.fitting import fit_transform
+from ..transforms.fitting import checked_weights, fit_transform
 from ..transforms.registry import transform_class, transform_type_of
 from .geometry import _frame_area_fraction, bounding_frame, overlap_counts
 from .pairing import mutual_matches
@@ -242,11 +242,14 @@ def _random_pairs(last, src_pts, dst_pts, tol):
 def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
     """The model, with its covariance and residuals, on the last fit's pairs; or None."""
     si, dj, total, used_tol = last
+    parity = fit_parity if transform_type_of(cls).parity else None
     try:
-        model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls,
-                                          parity=fit_parity if transform_type_of(cls).parity
-                                          else None,
-                                          weights=1.0 / total)
+        # The detections' errors are checked against the residuals' scatter:
+        # on faint frames they can be wrong, and a few stars claiming tiny
+        # errors would pin the fit.
+        w = checked_weights(src_pts[si], dst_pts[dj], 1.0 / total, cls, parity=parity)
+        model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls, parity=parity,
+                                          weights=w)
     except ValueError:  # collinear or coincident stars: no transform to trust
         return None
     return model, si, dj, resid, cov, used_tol

@@ -63,6 +63,7 @@ _LAZY = {
     'transform_class': 'registry',
     'transform_type_of': 'registry',
     'fit_transform': 'fitting',
+    'checked_weights': 'fitting',
     'as_matrix': 'convert',
     'from_matrix': 'convert',
     'to_skimage': 'convert',

@@ -11,7 +11,7 @@ from .linear import EuclideanTransform, SimilarityTransform
 from ._matrix import _check_parity, _check_spread, apply_matrix, check_invertible
 from .registry import transform_class
 
-__all__ = ['fit_transform']
+__all__ = ['fit_transform', 'checked_weights']
 
 
 def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "similarity", *,
@@ -80,20 +80,159 @@ def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "
     True
     """
     cls = transform_class(transform_type)
+    model, design, resid = _fit_design(cls, src, dst, weights, parity, degree, crpix, domain)
+    return model, _covariance(model, design, resid, weights), resid
+
+
+def _fit_design(cls, src, dst, weights, parity, degree=None, crpix=None, domain=None):
+    """The model, its linear design (2 rows a pair, x then y) and its residuals."""
     if parity is not None:
         _check_parity(parity)
     if cls is PolynomialTransform:
-        model, design, resid = cls._fit(src, dst, weights=weights, crpix=crpix, domain=domain,
-                                        degree=3 if degree is None else degree)
-    else:
-        given = [k for k, v in (("degree", degree), ("crpix", crpix), ("domain", domain))
-                 if v is not None]
-        if given:
-            raise ValueError(
-                f"{', '.join(given)} are for transform_type='polynomial' only; got them with "
-                f"{cls.__name__}.")
-        model, design, resid = cls._fit(src, dst, weights=weights, parity=parity)
-    return model, _covariance(model, design, resid, weights), resid
+        return cls._fit(src, dst, weights=weights, crpix=crpix, domain=domain,
+                        degree=3 if degree is None else degree)
+    given = [k for k, v in (("degree", degree), ("crpix", crpix), ("domain", domain))
+             if v is not None]
+    if given:
+        raise ValueError(
+            f"{', '.join(given)} are for transform_type='polynomial' only; got them with "
+            f"{cls.__name__}.")
+    return cls._fit(src, dst, weights=weights, parity=parity)
+
+
+#: Mixing fractions tried between the claimed variances (0) and equal ones (1).
+_MIX_GRID = np.concatenate([[0.0], np.logspace(-4.0, 0.0, 33)])
+
+#: The floor taken is the largest whose -2 log-likelihood is within this of
+#: the best one's (the upper end of its 68% interval).
+_FLOOR_INTERVAL = 1.0
+
+
+def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
+                    transform_type: str | type = "similarity", *, parity: int | None = None,
+                    degree: int | None = None, crpix: ArrayLike | None = None,
+                    domain: ArrayLike | None = None) -> np.ndarray:
+    """
+    Weights checked against the scatter of the residuals they give.
+
+    Weights from estimated position errors (``1 / sigma**2``) are only as
+    good as those errors: on faint, low-S/N frames, or when the two frames'
+    centroids differ by more than their noise (another band, another PSF, a
+    cosmic ray on a star), a few stars can claim errors far below their
+    real scatter and pin the fit, which is then worse than an unweighted
+    one.  Here the variance of pair ``i`` is modelled as ``s ((1 - f) c_i +
+    f)``, with ``c_i`` the claimed variances (``1 / weights``, relative to
+    their median): ``f = 0`` trusts them up to a scale, ``f = 1`` is equal
+    weights, and between them ``f`` is an error floor.  ``s`` and ``f`` are
+    fitted by restricted maximum likelihood to the residuals, which allows
+    for the fit pulling a heavily weighted pair's residual towards zero:
+    such a pair cannot hide its own error.  Claimed errors that the
+    residuals bear out keep their weight; claims far below the scatter
+    give way to a floor, up to equal weights.  Of the floors the residuals
+    allow (a 68% likelihood interval), the largest is taken: a floor
+    estimated from few pairs is noisy, and erring towards the claims lets
+    a few stars pin the fit, while erring towards equal weights costs
+    little.
+
+    Parameters
+    ----------
+    src, dst : (N, 2) array-like
+        Matched (x, y) positions in the source and target frames.
+    weights : (N,) array-like
+        Claimed non-negative weights (inverse variances); pairs with weight 0
+        stay out of the fit.
+    transform_type, parity, degree, crpix, domain
+        The model, as for `fit_transform`.
+
+    Returns
+    -------
+    weights : (N,) ndarray
+        The checked weights: inverse variances in squared target pixels per
+        axis, scaled to the residuals (0 where the given weight was 0).
+        The given weights when there are too few pairs to judge them (fewer
+        than twice as many pairs as the model has parameters).
+
+    Examples
+    --------
+    Twenty pairs with 0.2 px errors, five of which claim 0.01 px but have a
+    0.2 px error too: the claim is not borne out, the weights become equal.
+
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms import checked_weights
+    >>> rng = np.random.default_rng(3)
+    >>> src = rng.uniform(0, 500, (20, 2))
+    >>> dst = src + [5.0, -3.0] + rng.normal(0, 0.2, (20, 2))
+    >>> claimed = np.r_[np.full(5, 0.01), np.full(15, 0.2)] ** -2
+    >>> w = checked_weights(src, dst, claimed)
+    >>> bool(np.ptp(w) < 1e-9 * w.max())
+    True
+
+    With errors as claimed (a 20 times range), the weights are kept:
+
+    >>> sigma = np.r_[np.full(5, 0.01), np.full(15, 0.2)]
+    >>> dst = src + [5.0, -3.0] + rng.normal(0, 1, (20, 2)) * sigma[:, None]
+    >>> w = checked_weights(src, dst, sigma ** -2)
+    >>> bool(w[0] / w[-1] > 100)
+    True
+    """
+    cls = transform_class(transform_type)
+    w0 = np.asarray(weights, dtype=float)
+    # fit_transform's own checks say what is wrong with bad input.
+    _, design, resid = _fit_design(cls, src, dst, weights, parity, degree, crpix, domain)
+    used = w0 > 0
+    n, k = int(used.sum()), design.shape[1]
+    if design.shape[0] != 2 * len(w0) or n < 2 * k:
+        return w0.copy()  # too few spare residuals to judge the weights by
+    claimed = 1.0 / w0[used]
+    claimed /= float(np.median(claimed))
+    f, scale = _floor_fraction(design.reshape(len(w0), 2, k)[used], resid[used], claimed)
+    out = np.zeros(len(w0))
+    out[used] = 1.0 / (scale * ((1.0 - f) * claimed + f))
+    return out
+
+
+def _floor_fraction(rows, resid, claimed):
+    """
+    The error floor ``f`` (a fraction of the median claimed variance) and the
+    variance scale ``s``: the largest ``f`` within the 68% likelihood
+    interval of the best one.
+
+    ``rows`` are the pairs' (2, k) rows of the design and ``resid`` their
+    residuals under one fit.  The model being linear in its parameters (or
+    nearly so), the residuals under other weights follow from these without
+    a refit, and the restricted likelihood (REML: that of the residuals,
+    which the fitted parameters have already pulled towards zero, most of
+    all at the heavily weighted pairs) is maximised over a grid of ``f``.
+    """
+    n, _, k = rows.shape
+    d = rows.reshape(2 * n, k)
+    d = d / np.maximum(np.linalg.norm(d, axis=0), 1e-300)  # conditioning only
+    r0 = resid.reshape(2 * n)
+    dof = 2 * n - k
+    nll = np.full(len(_MIX_GRID), np.inf)
+    scales = np.ones(len(_MIX_GRID))
+    for i, f in enumerate(_MIX_GRID):
+        v = (1.0 - f) * claimed + f
+        w = np.repeat(1.0 / v, 2)
+        a = d.T @ (d * w[:, None])
+        sign, logdet = np.linalg.slogdet(a)
+        if sign <= 0:
+            continue
+        r = r0 - d @ np.linalg.solve(a, d.T @ (w * r0))
+        s = float(np.sum(w * r * r)) / dof
+        if s <= 0:
+            continue
+        # -2 log L_R up to a constant: dof log s + log|V| + log|D' V^-1 D|.
+        nll[i] = dof * np.log(s) + 2.0 * np.sum(np.log(v)) + logdet
+        scales[i] = s
+    if not np.isfinite(nll[-1]):
+        return 1.0, 1.0
+    # The most even weights within 1 sigma of the best (the upper end of
+    # the floor's likelihood interval): a floor estimated from few pairs is
+    # noisy, and erring towards the claims lets a few stars pin the fit,
+    # while erring towards equal weights costs little.
+    best = int(np.flatnonzero(nll <= np.min(nll) + _FLOOR_INTERVAL)[-1])
+    return float(_MIX_GRID[best]), float(scales[best])
 
 
 def _fit_from_matrix(transform_type, matrix, src, dst, parity=1):

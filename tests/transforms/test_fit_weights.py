@@ -1,0 +1,103 @@
+"""The final fit's per-star weights are checked against the residuals' scatter."""
+
+import numpy as np
+import pytest
+
+from astroalign_nd.matching.verify import _final_fit
+from astroalign_nd.transforms import SimilarityTransform, apply_matrix, checked_weights, \
+    fit_transform
+
+TRUTH = SimilarityTransform(scale=1.02, rotation=33.0, translation_x=40.0, translation_y=-25.0)
+CORNERS = np.array([[0.0, 0.0], [1024.0, 0.0], [0.0, 1024.0], [1024.0, 1024.0]])
+
+
+def corner_error(matrix):
+    return float(np.max(np.hypot(*(apply_matrix(matrix, CORNERS)
+                                   - apply_matrix(TRUTH.matrix, CORNERS)).T)))
+
+
+def sparse_pairs(seed, bright_error):
+    """
+    24 pairs over a 1024 px frame: 20 faint stars (0.25 px, as claimed) and 4
+    bright ones near the centre claiming 0.01 px, whose real per-axis error
+    is ``bright_error``.  Returns ``(src, dst, claimed variances)``.
+    """
+    rng = np.random.default_rng(seed)
+    src = np.vstack([rng.uniform(0, 1024, (20, 2)), rng.uniform(400, 624, (4, 2))])
+    sigma = np.r_[np.full(20, 0.25), np.full(4, bright_error)]
+    dst = apply_matrix(TRUTH.matrix, src) + rng.normal(0, 1, (24, 2)) * sigma[:, None]
+    claimed = np.r_[np.full(20, 0.25), np.full(4, 0.01)] ** 2
+    return src, dst, claimed
+
+
+def errors(bright_error, fit, n_seeds=30):
+    return np.array([corner_error(fit(*sparse_pairs(seed, bright_error)))
+                     for seed in range(n_seeds)])
+
+
+def fit_claimed(src, dst, var):
+    return fit_transform(src, dst, weights=1.0 / var, parity=1)[0].matrix
+
+
+def fit_unweighted(src, dst, var):
+    return fit_transform(src, dst, parity=1)[0].matrix
+
+
+def fit_final(src, dst, var):
+    """The search's final refit of these pairs, from their claimed variances."""
+    n = len(src)
+    out = _final_fit((np.arange(n), np.arange(n), var, 2.0), SimilarityTransform, 1, src, dst)
+    return out[0].matrix
+
+
+def summary(e):
+    return np.median(e), np.percentile(e, 90)
+
+
+def test_wrong_errors_no_worse_than_unweighted():
+    # The bright stars' errors are 15 times what they claim: weighting by
+    # the claims is clearly worse than no weights at all ...
+    claimed = summary(errors(0.15, fit_claimed))
+    unweighted = summary(errors(0.15, fit_unweighted))
+    assert claimed[0] > 1.3 * unweighted[0]
+    # ... and the search's final fit, with its weights checked, is not.
+    ours = summary(errors(0.15, fit_final))
+    assert ours[0] <= unweighted[0] * 1.02 + 0.005, (ours, unweighted)
+    assert ours[1] <= unweighted[1] * 1.02 + 0.005, (ours, unweighted)
+
+
+def test_honest_errors_keep_their_weight():
+    src, dst, var = sparse_pairs(0, 0.01)
+    w = checked_weights(src, dst, 1.0 / var)
+    assert w[-1] / w[0] > 100  # bright over faint: the claims hold
+    ours = summary(errors(0.01, fit_final))
+    unweighted = summary(errors(0.01, fit_unweighted))
+    claimed = summary(errors(0.01, fit_claimed))
+    assert ours[0] < 0.6 * unweighted[0] and ours[1] < 0.7 * unweighted[1]
+    # (The check leans towards equal weights: it keeps most of the gain.)
+    assert ours[0] <= 1.3 * claimed[0]
+
+
+def test_scale_and_zero_weights():
+    # Weights come back as inverse variances scaled to the scatter; a pair
+    # left out (weight 0) stays out; the caller's array is not modified.
+    rng = np.random.default_rng(5)
+    src = rng.uniform(0, 500, (30, 2))
+    dst = apply_matrix(TRUTH.matrix, src) + rng.normal(0, 0.3, (30, 2))
+    given = np.full(30, 1.0 / 0.01**2)
+    given[3] = 0.0
+    before = given.copy()
+    w = checked_weights(src, dst, given, "similarity", parity=1)
+    assert np.array_equal(given, before)
+    assert w[3] == 0.0
+    assert np.allclose(w[w > 0], w[0])
+    assert 0.5 < 1.0 / np.sqrt(w[0]) / 0.3 < 1.5  # per-axis sigma from the scatter
+
+
+def test_too_few_pairs_and_bad_input():
+    src = np.array([[0.0, 0.0], [100.0, 0.0], [0.0, 100.0], [80.0, 90.0]])
+    dst = src + 1.0
+    w = np.array([1.0, 2.0, 3.0, 4.0])
+    assert np.array_equal(checked_weights(src, dst, w), w)  # too few to judge
+    with pytest.raises(ValueError, match="weights"):
+        checked_weights(src, dst, [1.0, -1.0, 1.0, 1.0])
