@@ -28,8 +28,8 @@ import numbers
 
 import numpy as np
 
-from .transforms.registry import (LINEAR_TYPES, NONLINEAR_TYPES, check_degree, is_nonlinear,
-                                  transform_class)
+# The transform registry is imported where a model option is checked, not here: every
+# stage reads this module (detection too), and the transforms are a later stage.
 
 
 # The resampler's interpolation orders and methods, the one table of them.
@@ -212,7 +212,8 @@ class _Any:
 def _option(default, check, help="", *, auto=False, **cli):
     """
     A config field: its default, its accepted values (``check``), its help
-    text (``{default}`` in it is replaced by the default) and, when ``cli``
+    text (``{default}`` in it is replaced by the default; a callable gives it
+    when asked) and, when ``cli``
     holds a ``flag``, how the command line spells it (``metavar``, ``type``,
     ``nargs``, ``action``, ``cli_default``).  ``auto``: None is accepted too,
     and means that the registration chooses (``check`` itself refuses None,
@@ -396,6 +397,15 @@ class MatchingConfig:
         return kwargs
 
 
+def _transform_type_help():
+    """The help of ``--transform-type``: the registry's types when it is asked for."""
+    from .transforms.registry import LINEAR_TYPES, NONLINEAR_TYPES
+
+    return (f"model fitted between the images: {', '.join(LINEAR_TYPES)}, or for wide fields "
+            f"with distortion {' or '.join(NONLINEAR_TYPES)} (see --degree) "
+            "(default: %(default)s)")
+
+
 @dataclasses.dataclass(frozen=True)
 class ModelConfig:
     """
@@ -416,10 +426,7 @@ class ModelConfig:
     """
 
     transform_type: object = _option(
-        "similarity", _Any(),
-        f"model fitted between the images: {', '.join(LINEAR_TYPES)}, or for wide fields "
-        f"with distortion {' or '.join(NONLINEAR_TYPES)} (see --degree) "
-        "(default: %(default)s)",
+        "similarity", _Any(), lambda: _transform_type_help(),
         flag="--transform-type", metavar="TYPE")
     degree: object = _option(
         None, _Any(),
@@ -429,6 +436,8 @@ class ModelConfig:
         flag="--degree", metavar="N")
 
     def __post_init__(self):
+        from .transforms.registry import check_degree, is_nonlinear, transform_class
+
         object.__setattr__(self, "degree", check_degree(self.transform_type, self.degree))
         # Not a field: derived from transform_type, checked once here.
         object.__setattr__(self, "_nonlinear", is_nonlinear(self.transform_type))
@@ -692,7 +701,9 @@ def cli_fields(config_class):
         kwargs = dict(default=cli.pop("cli_default", f.default), **cli)
         if cli.get("action") == "store_false":
             kwargs["dest"] = f.name
-        kwargs["help"] = f.metadata["help"].replace("{default}", _shown(f.default))
+        text = f.metadata["help"]
+        text = text() if callable(text) else text
+        kwargs["help"] = text.replace("{default}", _shown(f.default))
         found.append((f.name, flag, kwargs))
     return found
 

@@ -12,7 +12,8 @@ from astropy.nddata import NDData
 
 from astroalign_nd import find_match, find_transform, register
 from astroalign_nd.exceptions import PoorCoverageError, PoorFitWarning
-from astroalign_nd.model_selection import check_degree, fit_nonlinear
+from astroalign_nd.matching import fit_nonlinear
+from astroalign_nd.model_selection import check_degree
 from astroalign_nd.nonlinear import PolynomialTransform, ProjectiveTransform
 from astroalign_nd.simulate import simulate_pair
 from astroalign_nd.transforms import LinearTransform2D, fit_transform

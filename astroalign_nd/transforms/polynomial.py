@@ -11,6 +11,7 @@ from ._matrix import check_invertible
 from .linear import AffineTransform
 from ._pairs import _check_pairs, _scalar_values
 from .registry import TRANSFORM_REGISTRY, HeaderHooks, _check_degree
+from .layers import ParameterLayer
 
 __all__ = ['PolynomialTransform']
 
@@ -82,6 +83,36 @@ def _check_domain(domain):
             "domain must be (x_min, x_max, y_min, y_max), finite, with x_max > x_min and "
             f"y_max > y_min: the source pixels the inverse must cover; got {domain!r}.")
     return tuple(float(v) for v in d)
+
+
+class PolynomialLayer(ParameterLayer):
+    """
+    A full polynomial of total degree ``degree`` per axis (degree 1: an
+    affine map), coefficients of `polynomial_terms` for x', then for y'.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms.polynomial import PolynomialLayer
+    >>> layer = PolynomialLayer(2)
+    >>> layer.k, layer.design(np.array([[2.0, 3.0]]))[0, 0]
+    (12, array([1., 2., 3., 4., 6., 9., 0., 0., 0., 0., 0., 0.]))
+    """
+
+    def __init__(self, degree):
+        self.degree = degree
+        self.terms = polynomial_terms(degree)
+        self.k = 2 * len(self.terms)
+        self.name = "affine" if degree == 1 else f"polynomial degree {degree}"
+        self.affine_in_position = degree == 1
+
+    def design(self, q, params=None):
+        base = monomials(q[:, 0], q[:, 1], self.terms)
+        t = len(self.terms)
+        d = np.zeros((len(q), 2, self.k))
+        d[:, 0, :t] = base
+        d[:, 1, t:] = base
+        return d
 
 
 class _PerDegree:
@@ -322,6 +353,18 @@ class PolynomialTransform(Model):
         return self._fit_inverse()[1]
 
     # -- fitting -------------------------------------------------------------------------
+    @classmethod
+    def layer(cls, parity=1, degree=3):
+        """The parameters and design of the degree: a `PolynomialLayer`."""
+        return PolynomialLayer(int(degree))
+
+    fit_layer = layer
+
+    @classmethod
+    def iterated_exactly(cls):
+        """True: `fit_layer` is the model's own least-squares problem."""
+        return True
+
     @staticmethod
     def min_points_for(degree):
         """
