@@ -291,7 +291,7 @@ def _prepare(src_pts, dst_pts, settings, n_control, prior_trials):
                 "a transform. Lower nsigma, give fwhm, or pass a catalog of positions."
             )
     scale_range = opts["scale_range"]
-    if scale_range is None and transform_type in ("translation", "euclidean"):
+    if scale_range is None and getattr(cls, "layer", None) and cls.layer().unit_scale:
         scale_range = (0.9, 1.1)
     if n_control is None:
         ns, nd = len(src_pts), len(dst_pts)

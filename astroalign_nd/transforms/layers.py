@@ -45,6 +45,9 @@ class ParameterLayer:
     adds_position : bool
         True if the prediction is ``q + design @ params`` (a shift): the
         fixed part ``q`` is subtracted from the target before a fit.
+    unit_scale : bool
+        True if the type keeps the scale whatever its parameters (its
+        linear part's determinant is 1 in magnitude).
 
     Examples
     --------
@@ -65,6 +68,7 @@ class ParameterLayer:
     linear = True
     affine_in_position = False
     adds_position = False
+    unit_scale = False
 
     def design(self, q, params=None):
         """(N, 2, k): the derivatives of the predicted ``(x', y')`` of ``q``."""

@@ -255,6 +255,10 @@ class LinearTransform2D(Model):
         `~astroalign_nd.transforms.layers.ParameterLayer` (for ``parity``,
         of the models that hold one).
         """
+        if cls._layer is None:
+            raise NotImplementedError(
+                f"{cls.__name__} has no parameter layer: set its _layer to a "
+                "ParameterLayer subclass (astroalign_nd.transforms.layers).")
         return cls._layer(parity)
 
     @classmethod
@@ -266,20 +270,23 @@ class LinearTransform2D(Model):
         similarity's.  An affine type is iterated as the polynomial of
         degree 1, the distortion stage's own affine candidate.
         """
-        return cls.layer(parity) if cls._layer.linear else SimilarityLayer(parity)
+        return cls.layer(parity) if cls.layer(parity).linear else SimilarityLayer(parity)
 
     @classmethod
     def iterated_exactly(cls):
         """True if `fit_layer` solves the type's own least-squares problem."""
-        return cls._layer.linear
+        return cls.layer().linear
 
     @classmethod
     def _design(cls, src, weights, parity=1):
         """
         The design matrix `fit_matrix` returns for ``src``, weights and
-        parity (rows x, y per point): the layer's, for the models linear in
-        their parameters (it does not depend on the target).
+        parity (rows x, y per point), as if fitting ``src`` onto itself: the
+        layer's, for the models linear in their parameters (it does not
+        depend on the target); else the fit's own.
         """
+        if cls._layer is None or not cls._layer.linear:
+            return cls._linear_fit(src, src, weights, parity)[1]
         return cls.layer(parity).design(src).reshape(2 * len(src), -1)
 
     @classmethod
@@ -302,6 +309,17 @@ class LinearTransform2D(Model):
         return cls._from_matrix(matrix), design, resid
 
     _parities = (1,)
+
+    @classmethod
+    def _linear_fit(cls, src, dst, w, parity):
+        """
+        Weighted least squares of a type linear in its layer's parameters:
+        (matrix, design, parameters).  Types not linear in them override it.
+        """
+        layer = cls.layer(parity)
+        design = layer.design(src).reshape(2 * len(src), layer.k)
+        theta = _weighted_lstsq(design, dst.ravel(), w)
+        return layer.to_matrix(theta), design, theta
 
 
 class TranslationTransform(LinearTransform2D):
@@ -627,7 +645,7 @@ def _rotation_part(lin, parity):
 class TranslationLayer(ParameterLayer):
     """``x' = x + tx, y' = y + ty``: parameters ``(tx, ty)``."""
 
-    name, k, affine_in_position, adds_position = "translation", 2, True, True
+    name, k, affine_in_position, adds_position, unit_scale = "translation", 2, True, True, True
 
     def __init__(self, parity=1):
         self.parity = parity
@@ -651,7 +669,7 @@ class TranslationLayer(ParameterLayer):
 class EuclideanLayer(ParameterLayer):
     """A rotation (radians) and shift of ``(x, parity * y)``: ``(angle, tx, ty)``."""
 
-    name, k, linear = "euclidean", 3, False
+    name, k, linear, unit_scale = "euclidean", 3, False, True
 
     def __init__(self, parity=1):
         self.parity = parity
