@@ -397,12 +397,18 @@ class MatchingConfig:
         return kwargs
 
 
+def _registry():
+    """The transform registry (`astroalign_nd.transforms.registry`), on first use."""
+    from .transforms import registry
+
+    return registry
+
+
 def _transform_type_help():
     """The help of ``--transform-type``: the registry's types when it is asked for."""
-    from .transforms.registry import LINEAR_TYPES, NONLINEAR_TYPES
-
-    return (f"model fitted between the images: {', '.join(LINEAR_TYPES)}, or for wide fields "
-            f"with distortion {' or '.join(NONLINEAR_TYPES)} (see --degree) "
+    reg = _registry()
+    return (f"model fitted between the images: {', '.join(reg.LINEAR_TYPES)}, or for wide "
+            f"fields with distortion {' or '.join(reg.NONLINEAR_TYPES)} (see --degree) "
             "(default: %(default)s)")
 
 
@@ -436,12 +442,11 @@ class ModelConfig:
         flag="--degree", metavar="N")
 
     def __post_init__(self):
-        from .transforms.registry import check_degree, is_nonlinear, transform_class
-
-        object.__setattr__(self, "degree", check_degree(self.transform_type, self.degree))
+        reg = _registry()
+        object.__setattr__(self, "degree", reg.check_degree(self.transform_type, self.degree))
         # Not a field: derived from transform_type, checked once here.
-        object.__setattr__(self, "_nonlinear", is_nonlinear(self.transform_type))
-        transform_class(self.linear_type)  # an unknown type: a clear message, before any work
+        object.__setattr__(self, "_nonlinear", reg.is_nonlinear(self.transform_type))
+        reg.transform_class(self.linear_type)  # an unknown type: a clear message, first
 
     @property
     def nonlinear(self):

@@ -17,7 +17,8 @@ from astroalign_nd.transforms import (AffineTransform, PolynomialTransform, Proj
                                       SimilarityTransform, check_degree)
 from astroalign_nd.transforms import selection
 from astroalign_nd.transforms._matrix import SINGULAR_RTOL, check_invertible, is_singular
-from astroalign_nd.transforms.polynomial import DEGREES, monomials, polynomial_terms
+from astroalign_nd.transforms.layers import monomials, polynomial_terms
+from astroalign_nd.transforms.polynomial import DEGREES
 from astroalign_nd.transforms.projective import _homography_jacobian
 
 

@@ -33,9 +33,9 @@ from scipy.stats import poisson
 from .._kernels import PointGrid, two_nearest
 from ..exceptions import TooFewSourcesError, TransformNotFoundError
 from ..transforms.convert import as_matrix
-from ..transforms.fitting import _fit_from_matrix, fit_transform
+from ..transforms.fitting import fit_from_matrix, fit_transform
 from ..transforms.linear import LinearTransform2D, SimilarityLayer
-from ..transforms.polynomial import PolynomialLayer
+from ..transforms.layers import PolynomialLayer
 from ..transforms.registry import TRANSFORM_REGISTRY, transform_type_of
 from ..transforms.selection import (normalise, predict_with, solve_normal_equations,
                                     weighted_fit)
@@ -525,11 +525,11 @@ def _fit_final(state, name, kw):
     p = state.p
     s, d = np.take(p.src, state.si, axis=0), np.take(p.dst, state.dj, axis=0)
     # The linear types whose iterations solved their own problem: their final
-    # model is the last of these fits (built by `_fit_from_matrix`, not solved again).
+    # model is the last of these fits (built by `fit_from_matrix`, not solved again).
     entry = TRANSFORM_REGISTRY[name]
     if (entry.linear and entry.cls.iterated_exactly() and state.cand is not None
             and state.cand.affine_in_position):
-        return _fit_from_matrix(name, _pixel_matrix(state), s, d, kw.get("parity", 1))
+        return fit_from_matrix(name, _pixel_matrix(state), s, d, kw.get("parity", 1))
     return fit_transform(s, d, name, **kw)
 
 

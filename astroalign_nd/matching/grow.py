@@ -31,7 +31,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..exceptions import TooFewSourcesError
-from ..transforms.polynomial import PolynomialLayer
+from ..transforms.layers import PolynomialLayer
 from ..transforms.registry import nonlinear_name, transform_type_of
 from ..transforms.selection import (choose_model, kept_pairs, predict_with, prepare_problem)
 from .pairing import mutual_matches

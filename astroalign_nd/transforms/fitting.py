@@ -96,7 +96,7 @@ def fit_transform(src: ArrayLike, dst: ArrayLike, transform_type: str | type = "
     return model, _covariance(model, design, resid, weights), resid
 
 
-def _fit_from_matrix(transform_type, matrix, src, dst, parity=1):
+def fit_from_matrix(transform_type, matrix, src, dst, parity=1):
     """
     `fit_transform`'s (model, covariance, residuals) of a linear model whose
     unweighted least-squares matrix on these pairs is already known.

@@ -16,7 +16,7 @@ from ._matrix import (apply_matrix, as_3x3, check_invertible, is_singular, _as_d
                       _rotate_shift, _rotation_matrix, _rotation_parameters,
                       _rotation_shift_parameters, _weighted_lstsq)
 from ._pairs import _check_pairs
-from .layers import ParameterLayer
+from .layers import ParameterLayer, PolynomialLayer
 
 __all__ = ['LinearTransform2D', 'TranslationTransform', 'EuclideanTransform',
            'SimilarityTransform', 'AffineTransform']
@@ -598,7 +598,6 @@ class AffineTransform(LinearTransform2D):
 
     @classmethod
     def fit_layer(cls, parity=1, degree=None):
-        from .polynomial import PolynomialLayer  # (polynomial imports this module)
         return PolynomialLayer(1)
 
 

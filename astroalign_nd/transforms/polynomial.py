@@ -11,7 +11,7 @@ from ._matrix import check_invertible
 from .linear import AffineTransform
 from ._pairs import _check_pairs, _scalar_values
 from .registry import TRANSFORM_REGISTRY, HeaderHooks, _check_degree
-from .layers import ParameterLayer
+from .layers import PolynomialLayer, monomials, polynomial_terms
 
 __all__ = ['PolynomialTransform']
 
@@ -19,50 +19,6 @@ __all__ = ['PolynomialTransform']
 DEGREES = TRANSFORM_REGISTRY["polynomial"].degrees
 
 # -- polynomial (SIP) ------------------------------------------------------------------
-
-
-def polynomial_terms(degree, lowest=0):
-    """
-    The exponents ``(p, q)`` of the terms ``x**p y**q`` of total degree ``lowest`` to ``degree``.
-
-    By total degree, then ``p`` descending: the order of the
-    `PolynomialTransform` coefficients (``lowest=2``: its distortion terms)
-    and of every polynomial design matrix of the package.
-
-    Examples
-    --------
-    >>> from astroalign_nd.transforms.polynomial import polynomial_terms
-    >>> polynomial_terms(2)
-    [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]
-    >>> polynomial_terms(3, lowest=3)
-    [(3, 0), (2, 1), (1, 2), (0, 3)]
-    """
-    return [(p, n - p) for n in range(lowest, degree + 1) for p in range(n, -1, -1)]
-
-
-def monomials(x, y, terms):
-    """
-    The design matrix of polynomial terms: column ``k`` is ``x**p * y**q`` for ``terms[k]``.
-
-    Parameters
-    ----------
-    x, y : (N,) ndarray
-        The coordinates (scaled by the caller to about 1, for conditioning).
-    terms : list of (int, int)
-        Exponents, e.g. `polynomial_terms`.
-
-    Returns
-    -------
-    design : (N, len(terms)) ndarray
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from astroalign_nd.transforms.polynomial import monomials, polynomial_terms
-    >>> monomials(np.array([2.0]), np.array([3.0]), polynomial_terms(2))
-    array([[1., 2., 3., 4., 6., 9.]])
-    """
-    return np.column_stack([x ** p * y ** q for p, q in terms])
 
 
 def _exponents(degree):
@@ -83,36 +39,6 @@ def _check_domain(domain):
             "domain must be (x_min, x_max, y_min, y_max), finite, with x_max > x_min and "
             f"y_max > y_min: the source pixels the inverse must cover; got {domain!r}.")
     return tuple(float(v) for v in d)
-
-
-class PolynomialLayer(ParameterLayer):
-    """
-    A full polynomial of total degree ``degree`` per axis (degree 1: an
-    affine map), coefficients of `polynomial_terms` for x', then for y'.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from astroalign_nd.transforms.polynomial import PolynomialLayer
-    >>> layer = PolynomialLayer(2)
-    >>> layer.k, layer.design(np.array([[2.0, 3.0]]))[0, 0]
-    (12, array([1., 2., 3., 4., 6., 9., 0., 0., 0., 0., 0., 0.]))
-    """
-
-    def __init__(self, degree):
-        self.degree = degree
-        self.terms = polynomial_terms(degree)
-        self.k = 2 * len(self.terms)
-        self.name = "affine" if degree == 1 else f"polynomial degree {degree}"
-        self.affine_in_position = degree == 1
-
-    def design(self, q, params=None):
-        base = monomials(q[:, 0], q[:, 1], self.terms)
-        t = len(self.terms)
-        d = np.zeros((len(q), 2, self.k))
-        d[:, 0, :t] = base
-        d[:, 1, t:] = base
-        return d
 
 
 class _PerDegree:

@@ -208,7 +208,7 @@ class ProjectiveLayer(ParameterLayer):
     >>> layer = ProjectiveLayer()
     >>> h = layer.from_affine(np.array([1.0, 2.0, 0.0, -1.0, 0.0, 2.0]))
     >>> layer.predict(h, np.array([[1.0, 1.0]]))
-    array([[ 3., 1.]])
+    array([[3., 1.]])
     """
 
     name, k, linear = "projective", 8, False

@@ -59,7 +59,8 @@ from ..exceptions import PoorCoverageError, PoorFitWarning, TooFewSourcesError, 
 from .convert import as_matrix
 from .fitting import fit_transform
 from .linear import SimilarityLayer
-from .polynomial import DEGREES, PolynomialLayer, polynomial_terms
+from .layers import PolynomialLayer, polynomial_terms
+from .polynomial import DEGREES
 from .registry import check_degree, is_nonlinear, nonlinear_name
 from .registry import NONLINEAR_TYPES, TRANSFORM_REGISTRY, transform_type_of
 
