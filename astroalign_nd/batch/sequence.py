@@ -36,7 +36,9 @@ from ..exceptions import AstroalignError
 from ..matching.pairing import mutual_matches
 from ..registration import Reference
 from ..transforms.convert import as_matrix, from_matrix
-from ..transforms.registry import LINEAR_TYPES, TRANSFORM_REGISTRY, transform_type_of
+from ..transforms.layers import layer_of
+from ..transforms.registry import (LINEAR_TYPES, TRANSFORM_REGISTRY, transform_class,
+                                   transform_type_of)
 from . import adjust
 from .links import (Graph, Link, bridge_pairs, chain_pairs, choose_hubs, guided_link,
                     match_link, wanted)
@@ -316,8 +318,9 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
 
 
 def _check_arguments(transform_type, all_pairs, n_hubs, min_overlap, link_tolerance):
-    if not isinstance(transform_type, str) or transform_type not in LINEAR_TYPES:
-        raise ValueError(f"transform_type must be one of {sorted(LINEAR_TYPES)} for a "
+    solvable = sorted(t for t in LINEAR_TYPES if layer_of(transform_class(t)) is not None)
+    if not isinstance(transform_type, str) or transform_type not in solvable:
+        raise ValueError(f"transform_type must be one of {solvable} for a "
                          f"joint solution; got {transform_type!r} (a distortion model is "
                          "fitted pair by pair: use register_batch without solve='global').")
     for name, value, lo in (("all_pairs", all_pairs, 2), ("n_hubs", n_hubs, 1)):

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['ParameterLayer', 'PolynomialLayer', 'polynomial_terms', 'monomials']
+__all__ = ['ParameterLayer', 'PolynomialLayer', 'layer_of', 'polynomial_terms', 'monomials']
 
 
 class ParameterLayer:
@@ -106,6 +106,24 @@ class ParameterLayer:
         parameters (F, j); None if the determinant is 1 whatever the
         parameters.
         """
+        return None
+
+
+def layer_of(cls, parity=1, degree=None):
+    """
+    The parameter layer of a model class (its ``layer``), or None for a
+    class that has none (a type registered without one).
+
+    Examples
+    --------
+    >>> from astroalign_nd.transforms import AffineTransform
+    >>> from astroalign_nd.transforms.layers import layer_of
+    >>> layer_of(AffineTransform).k, layer_of(object) is None
+    (6, True)
+    """
+    try:
+        return cls.layer(parity=parity, degree=degree)
+    except (AttributeError, NotImplementedError):
         return None
 
 

@@ -17,6 +17,7 @@ from ._matrix import (apply_matrix, as_3x3, check_invertible, is_singular, _as_d
                       _rotation_shift_parameters, _weighted_lstsq)
 from ._pairs import _check_pairs
 from .layers import ParameterLayer, PolynomialLayer
+from .registry import transform_type_of
 
 __all__ = ['LinearTransform2D', 'TranslationTransform', 'EuclideanTransform',
            'SimilarityTransform', 'AffineTransform']
@@ -270,12 +271,16 @@ class LinearTransform2D(Model):
         similarity's.  An affine type is iterated as the polynomial of
         degree 1, the distortion stage's own affine candidate.
         """
+        if cls._layer is None:  # a type without a layer: the nearest of the built-in ones
+            entry = transform_type_of(cls)
+            return (SimilarityLayer(parity) if entry is not None and entry.conformal
+                    else PolynomialLayer(1))
         return cls.layer(parity) if cls.layer(parity).linear else SimilarityLayer(parity)
 
     @classmethod
     def iterated_exactly(cls):
         """True if `fit_layer` solves the type's own least-squares problem."""
-        return cls.layer().linear
+        return cls._layer is not None and cls.layer().linear
 
     @classmethod
     def _design(cls, src, weights, parity=1):

@@ -280,9 +280,9 @@ class PolynomialTransform(Model):
 
     # -- fitting -------------------------------------------------------------------------
     @classmethod
-    def layer(cls, parity=1, degree=3):
-        """The parameters and design of the degree: a `PolynomialLayer`."""
-        return PolynomialLayer(int(degree))
+    def layer(cls, parity=1, degree=None):
+        """The parameters and design of the degree (default 3): a `PolynomialLayer`."""
+        return PolynomialLayer(3 if degree is None else int(degree))
 
     fit_layer = layer
 
