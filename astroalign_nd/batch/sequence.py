@@ -221,8 +221,11 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
         The reference frame: its index, the frame itself (the same object,
         or the same path), or None (default) for the best-connected frame
         (the one with the most links).
-    transform_type : {'similarity', 'euclidean', 'translation', 'affine'}, optional
-        The model of every frame (default 'similarity').
+    transform_type : str, optional
+        The model of every frame (default 'similarity'): a linear type of
+        the registry ('similarity', 'euclidean', 'translation', 'affine', or
+        one registered with its parameter layer, which the joint solution
+        adjusts).
     all_pairs : int, optional
         Up to this many frames, every pair predicted to overlap is matched
         (default 10); more frames get the sparse graph.

@@ -438,7 +438,7 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
         The source frame (by default the sources' bounding box).
     significance : float, optional
         The F-test level of ``degree='auto'`` (see
-        `~astroalign_nd.transforms.fit_nonlinear`).
+        `~astroalign_nd.matching.fit_nonlinear`).
     workers : int, optional
         Threads of the nearest-neighbour look-ups.
 

@@ -27,9 +27,13 @@ class LinearTransform2D(Model):
     """
     Base class of the package's 2-D linear (affine-family) transforms.
 
-    Subclasses define their parameters, ``evaluate`` and the two class
-    methods ``_from_matrix`` and ``_linear_fit``; everything else (``matrix``,
-    ``inverse``, ``from_points``, skimage-style attributes) is shared.
+    Subclasses define their parameters, ``evaluate``, the class method
+    ``_from_matrix`` and their parameter layer (``_layer``, a
+    `~astroalign_nd.transforms.layers.ParameterLayer` class: parameters,
+    design matrix, matrix conversions), whose least squares is their
+    ``_linear_fit`` unless they override it (a rotation's angle is not
+    linear); everything else (``matrix``, ``inverse``, ``from_points``,
+    skimage-style attributes) is shared.
 
     Examples
     --------
@@ -318,9 +322,12 @@ class LinearTransform2D(Model):
     @classmethod
     def _linear_fit(cls, src, dst, w, parity):
         """
-        Weighted least squares of a type linear in its layer's parameters:
+        Weighted least squares of a type linear in its layer's parameters
+        (the similarity's ``(a, b, tx, ty)``, the affine's six):
         (matrix, design, parameters).  Types not linear in them override it.
         """
+        if "parity" in cls.param_names:
+            _check_parity(parity)
         layer = cls.layer(parity)
         design = layer.design(src).reshape(2 * len(src), layer.k)
         theta = _weighted_lstsq(design, dst.ravel(), w)
@@ -515,15 +522,6 @@ class SimilarityTransform(LinearTransform2D):
             m, det, scale, "matrix has a shear or anisotropic scale; use AffineTransform "
             "instead of SimilarityTransform."))
 
-    @classmethod
-    def _linear_fit(cls, src, dst, w, parity):
-        # Linear in (a, b, tx, ty): x' = a x - b p y + tx ; y' = b x + a p y + ty.
-        _check_parity(parity)
-        design = cls._design(src, w, parity)
-        a, b, tx, ty = _weighted_lstsq(design, dst.ravel(), w)
-        m = np.array([[a, -b * parity, tx], [b, a * parity, ty], [0.0, 0.0, 1.0]])
-        return m, design, np.array([a, b, tx, ty])
-
 
 class AffineTransform(LinearTransform2D):
     """
@@ -593,13 +591,6 @@ class AffineTransform(LinearTransform2D):
             a11=m[0, 0], a12=m[0, 1], a21=m[1, 0], a22=m[1, 1],
             translation_x=m[0, 2], translation_y=m[1, 2],
         )
-
-    @classmethod
-    def _linear_fit(cls, src, dst, w, parity):
-        design = cls._design(src, w, parity)
-        a11, a12, a21, a22, tx, ty = _weighted_lstsq(design, dst.ravel(), w)
-        m = np.array([[a11, a12, tx], [a21, a22, ty], [0.0, 0.0, 1.0]])
-        return m, design, np.array([a11, a12, a21, a22, tx, ty])
 
     @classmethod
     def fit_layer(cls, parity=1, degree=None):

@@ -575,7 +575,7 @@ def _choose_polynomial(prob, cand, p, significance, linear_type, repair):
         chosen, chosen_params, chosen_cov = _check_and_fit(
             c, p.fuv, p.fdst, p.w, prob.frame_uv, d, strict=True, start=None,
             what=f"a polynomial of degree {d}")
-    deg = d if label == "polynomial" else 1
+    deg = d if TRANSFORM_REGISTRY[label].degrees else 1
     return _Choice(chosen, chosen_params, chosen_cov, label, deg, candidates), p
 
 
@@ -702,7 +702,7 @@ def _warn_trust(prob, choice, p, trust):
              f"{WARN_OCCUPANCY:.0%} and {WARN_STARS_PER_TERM:g}); the model is poorly "
              "constrained where there are no stars. Use a lower degree (or degree='auto') or "
              "more stars (n_sources, nsigma).", PoorFitWarning)
-    if (prob.degree == "auto" and name != "polynomial"
+    if (prob.degree == "auto" and not TRANSFORM_REGISTRY[name].degrees
             and (excess > WARN_EXCESS or trust.tested == [1])):
         why = (f"its residuals are {excess:.1f} times what the centroid errors predict"
                if excess > WARN_EXCESS else "no polynomial could be tested")
