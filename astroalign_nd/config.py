@@ -28,8 +28,8 @@ import numbers
 
 import numpy as np
 
-from .transforms.registry import (LINEAR_TYPES, NONLINEAR_TYPES, check_degree, is_nonlinear,
-                                  transform_class)
+# The transform registry is imported where a model option is checked, not here: every
+# stage reads this module (detection too), and the transforms are a later stage.
 
 
 # The resampler's interpolation orders and methods, the one table of them.
@@ -214,7 +214,8 @@ class _Any:
 def _option(default, check, help="", *, auto=False, **cli):
     """
     A config field: its default, its accepted values (``check``), its help
-    text (``{default}`` in it is replaced by the default) and, when ``cli``
+    text (``{default}`` in it is replaced by the default; a callable gives it
+    when asked) and, when ``cli``
     holds a ``flag``, how the command line spells it (``metavar``, ``type``,
     ``nargs``, ``action``, ``cli_default``).  ``auto``: None is accepted too,
     and means that the registration chooses (``check`` itself refuses None,
@@ -391,6 +392,21 @@ class MatchingConfig:
         return kwargs
 
 
+def _registry():
+    """The transform registry (`astroalign_nd.transforms.registry`), on first use."""
+    from .transforms import registry
+
+    return registry
+
+
+def _transform_type_help():
+    """The help of ``--transform-type``: the registry's types when it is asked for."""
+    reg = _registry()
+    return (f"model fitted between the images: {', '.join(reg.LINEAR_TYPES)}, or for wide "
+            f"fields with distortion {' or '.join(reg.NONLINEAR_TYPES)} (see --degree) "
+            "(default: %(default)s)")
+
+
 @dataclasses.dataclass(frozen=True)
 class ModelConfig:
     """
@@ -411,10 +427,7 @@ class ModelConfig:
     """
 
     transform_type: object = _option(
-        "similarity", _Any(),
-        f"model fitted between the images: {', '.join(LINEAR_TYPES)}, or for wide fields "
-        f"with distortion {' or '.join(NONLINEAR_TYPES)} (see --degree) "
-        "(default: %(default)s)",
+        "similarity", _Any(), lambda: _transform_type_help(),
         flag="--transform-type", metavar="TYPE")
     degree: object = _option(
         None, _Any(),
@@ -424,10 +437,11 @@ class ModelConfig:
         flag="--degree", metavar="N")
 
     def __post_init__(self):
-        object.__setattr__(self, "degree", check_degree(self.transform_type, self.degree))
+        reg = _registry()
+        object.__setattr__(self, "degree", reg.check_degree(self.transform_type, self.degree))
         # Not a field: derived from transform_type, checked once here.
-        object.__setattr__(self, "_nonlinear", is_nonlinear(self.transform_type))
-        transform_class(self.linear_type)  # an unknown type: a clear message, before any work
+        object.__setattr__(self, "_nonlinear", reg.is_nonlinear(self.transform_type))
+        reg.transform_class(self.linear_type)  # an unknown type: a clear message, first
 
     @property
     def nonlinear(self):
@@ -687,7 +701,9 @@ def cli_fields(config_class):
         kwargs = dict(default=cli.pop("cli_default", f.default), **cli)
         if cli.get("action") == "store_false":
             kwargs["dest"] = f.name
-        kwargs["help"] = f.metadata["help"].replace("{default}", _shown(f.default))
+        text = f.metadata["help"]
+        text = text() if callable(text) else text
+        kwargs["help"] = text.replace("{default}", _shown(f.default))
         found.append((f.name, flag, kwargs))
     return found
 

@@ -6,7 +6,7 @@ Cross-match whole catalogs: every star of two lists paired under the transform.
 detected) -> find the transform on the brightest stars
 (`~astroalign_nd.find_match`, or the caller's ``transform=``) -> pair every
 star and refit on all the pairs until they are stable
-(`~astroalign_nd.transforms.allpairs.pair_all`) -> a table of the pairs,
+(`~astroalign_nd.matching.allpairs.pair_all`) -> a table of the pairs,
 by rows of the caller's inputs.
 """
 
@@ -26,15 +26,15 @@ from ._input import parse_input, position_columns
 from ._kernels import num_threads
 from .config import RegistrationConfig
 from .detection import find_sources
+from .matching.allpairs import bounds, pair_all
 from .registration import find_match_from_config
-from .transforms.allpairs import bounds, pair_all
 from .transforms.convert import as_matrix
 from .transforms.registry import transform_type_of
 
 __all__ = ["cross_match", "CrossMatch", "read_catalog"]
 
 #: Brightest stars of each side handed to a search for a distortion model:
-#: the stars it is grown on (`~astroalign_nd.transforms.extend_match`).  A
+#: the stars it is grown on (`~astroalign_nd.matching.extend_match`).  A
 #: linear search gets ``2 * max_sources``, the most its escalation reads.
 DISTORTION_SEARCH_STARS = 2000
 
@@ -454,7 +454,7 @@ def cross_match(source: Any, target: Any, *, transform: Any = None,
     degree : int or 'auto', optional
         Of a 'polynomial' model, 2 to 5 (default 3), or 'auto': chosen on
         the pairs (F-test, BIC and blocked cross-validation, as
-        `~astroalign_nd.transforms.fit_nonlinear` chooses), a linear model
+        `~astroalign_nd.matching.fit_nonlinear` chooses), a linear model
         included.
     source_columns, target_columns : (str, str), optional
         The x and y columns of a Table.

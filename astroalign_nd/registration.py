@@ -31,7 +31,8 @@ from ._validate import check_points
 from .matching.asterisms import build_asterisms, check_triangle_budget
 from .matching.search import match_control_points, search_tolerance
 from .resample.nddata import apply_transform
-from .transforms.selection import SEARCH_TOLERANCE_FACTOR, extend_match, nonlinear_name
+from .matching.grow import SEARCH_TOLERANCE_FACTOR, extend_match
+from .transforms.registry import nonlinear_name
 from .exceptions import PoorFitWarning
 
 if TYPE_CHECKING:
@@ -577,7 +578,7 @@ def find_transform(source: Any, target: Any, *, transform_type: str | type = "si
         mirrored or not).  'projective' (a homography) and 'polynomial'
         (distortion in the SIP form) are for wide fields: they start from
         the similarity match of the brightest stars and grow the fit over
-        up to 2000 stars per image (``astroalign_nd.transforms.selection``).
+        up to 2000 stars per image (``astroalign_nd.matching.grow``).
     n_sources : int, optional
         Brightest sources used as control points (default 50).
     max_sources : int, optional

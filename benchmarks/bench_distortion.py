@@ -44,7 +44,7 @@ fitter gets the same pairs, clean, then with 30% of them wrong:
   themselves (each wrong pair points at another real star: the
   mismatch a matcher makes).
 
-Fitters: ours (``transforms.fit_nonlinear(src, dst, None,
+Fitters: ours (``matching.fit_nonlinear(src, dst, None,
 pairs_given=True, tolerance=8)``, polynomial degree 3, auto, projective:
 it finds its own affine start by consensus), skimage PolynomialTransform
 order 3 by least squares, skimage ``measure.ransac`` with
@@ -206,7 +206,7 @@ def part_b(pair, size, rows, label):
     from skimage.measure import ransac
     from skimage.transform import PolynomialTransform
 
-    from astroalign_nd.transforms import fit_nonlinear
+    from astroalign_nd.matching import fit_nonlinear
 
     src, dst = _given_pairs(pair)
     n = len(src)

@@ -7,10 +7,10 @@ from astropy.table import Table
 
 from astroalign_nd import cross_match, TooFewSourcesError, TransformNotFoundError
 from astroalign_nd.crossmatch import CrossMatch, read_catalog
+from astroalign_nd.matching.allpairs import pair_all, pairing_radius
 from astroalign_nd.matching.pairing import resolve_claims
 from astroalign_nd.simulate import simulate_catalogs, simulate_pair
 from astroalign_nd.transforms import PolynomialTransform, SimilarityTransform
-from astroalign_nd.transforms.allpairs import pair_all, pairing_radius
 
 N_STARS = 4000
 

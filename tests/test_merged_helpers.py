@@ -10,13 +10,15 @@ from astroalign_nd import _kernels, conf
 from astroalign_nd import resample as rs
 from astroalign_nd.io import transform_from_header, transform_to_header
 from astroalign_nd.matching import match_points
+from astroalign_nd.matching import grow
 from astroalign_nd.matching.pairing import mutual_matches
 from astroalign_nd.resample import resample
 from astroalign_nd.transforms import (AffineTransform, PolynomialTransform, ProjectiveTransform,
                                       SimilarityTransform, check_degree)
 from astroalign_nd.transforms import selection
 from astroalign_nd.transforms._matrix import SINGULAR_RTOL, check_invertible, is_singular
-from astroalign_nd.transforms.polynomial import DEGREES, monomials, polynomial_terms
+from astroalign_nd.transforms.layers import monomials, polynomial_terms
+from astroalign_nd.transforms.polynomial import DEGREES
 from astroalign_nd.transforms.projective import _homography_jacobian
 
 
@@ -40,7 +42,7 @@ def test_mutual_matches_resolves_conflicts_and_ties():
 def test_distortion_stage_pairs_through_mutual_matches():
     rng = np.random.default_rng(2)
     dst = rng.uniform(0, 500, (60, 2))
-    pairs = selection._Pairs(dst + 0.1, dst, given=False)
+    pairs = grow._Pairs(dst + 0.1, dst, given=False)
     si, dj = pairs.pair(dst + 0.1, np.arange(60), 1.0)
     assert np.array_equal(si, dj) and len(si) == 60
 
@@ -50,14 +52,14 @@ def test_distortion_stage_pairs_through_mutual_matches():
 def test_candidate_design_matrices_are_the_models():
     rng = np.random.default_rng(4)
     uv = rng.uniform(-1, 1, (30, 2))
-    poly = selection._Poly(3).design(uv)
+    poly = PolynomialTransform.layer(degree=3).design(uv)
     base = monomials(uv[:, 0], uv[:, 1], polynomial_terms(3))
     assert np.array_equal(poly[:, 0, :10], base) and np.array_equal(poly[:, 1, 10:], base)
     for parity in (1, -1):
-        sim = selection._Similarity(parity).design(uv)
+        sim = SimilarityTransform.layer(parity).design(uv)
         assert np.array_equal(sim.reshape(-1, 4), SimilarityTransform._design(uv, None, parity))
     params = np.array([1.01, 0.02, 0.1, -0.03, 0.99, -0.2, 0.05, -0.04])
-    cand = selection._Projective()
+    cand = ProjectiveTransform.layer()
     h = cand._matrix(params)
     assert np.array_equal(cand.design(uv, params).reshape(-1, 8), _homography_jacobian(h, uv))
     model = ProjectiveTransform.from_matrix(h)

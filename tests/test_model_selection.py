@@ -12,9 +12,10 @@ from astropy.nddata import NDData
 
 from astroalign_nd import find_match, find_transform, register
 from astroalign_nd.exceptions import PoorCoverageError, PoorFitWarning
+from astroalign_nd.matching import fit_nonlinear
 from astroalign_nd.simulate import simulate_pair
 from astroalign_nd.transforms import (LinearTransform2D, PolynomialTransform, ProjectiveTransform,
-                                      check_degree, fit_nonlinear, fit_transform)
+                                      check_degree, fit_transform)
 
 N = 1024
 HALF = 0.5 * np.hypot(N, N)

@@ -10,18 +10,18 @@ import numpy as np
 import pytest
 import yaml
 from asdf.extension import Extension, TagDefinition
-from astropy.modeling import Parameter
+from astropy.modeling import Model, Parameter
 
 import astroalign_nd
 from astroalign_nd.cli.main import build_parser
 from astroalign_nd.io import transform_from_header, transform_to_header
 from astroalign_nd.io.asdf import converters, extension
-from astroalign_nd.matching import match_points
+from astroalign_nd.matching import fit_nonlinear, match_points
 from astroalign_nd.transforms import registry
 from astroalign_nd.transforms import (LINEAR_TYPES, NONLINEAR_TYPES, TRANSFORM_REGISTRY,
                                       TRANSFORM_TYPES, AffineTransform, LinearTransform2D,
-                                      ProjectiveTransform, SimilarityTransform, fit_nonlinear,
-                                      fit_transform, register_transform_type, transform_class,
+                                      ProjectiveTransform, SimilarityTransform, fit_transform,
+                                      register_transform_type, transform_class,
                                       transform_type_of, unregister_transform_type)
 
 BUILTIN = ("translation", "euclidean", "similarity", "affine", "projective", "polynomial")
@@ -170,9 +170,29 @@ def test_a_new_nonlinear_type(toy_homography):
     hdr = transform_to_header(model)
     assert hdr["AATTYPE"] == "toy_homography" and "AATM21" in hdr  # three rows stored
     assert type(transform_from_header(hdr)) is ToyHomography
+    # Its class's parameter layer (the homography's) is what the distortion stage grows.
     src = np.random.default_rng(0).uniform(0, 1000, (100, 2))
-    with pytest.raises(ValueError, match="grows"):  # the distortion stage has no candidate
-        fit_nonlinear(src, src, np.eye(3), transform_type="toy_homography", pairs_given=True)
+    fit = fit_nonlinear(src, src + [2.0, -1.0], np.eye(3), transform_type="toy_homography",
+                        pairs_given=True)
+    assert type(fit.transform) is ToyHomography and fit.info["model"] == "toy_homography"
+    assert np.allclose(fit.transform.matrix[:2, 2], [2.0, -1.0], rtol=0, atol=1e-9)
+
+
+def test_a_nonlinear_type_without_a_layer_is_not_grown():
+    class Bare(Model):
+        n_inputs, n_outputs = 2, 2
+
+        @staticmethod
+        def evaluate(x, y):
+            return x, y
+
+    register_transform_type("bare", Bare, linear=False)
+    try:
+        src = np.random.default_rng(0).uniform(0, 1000, (100, 2))
+        with pytest.raises(ValueError, match="grows"):  # no candidate model for it
+            fit_nonlinear(src, src, np.eye(3), transform_type="bare", pairs_given=True)
+    finally:
+        unregister_transform_type("bare")
 
 
 def test_transform_type_of():

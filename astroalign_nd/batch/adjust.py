@@ -18,7 +18,10 @@ frames are so interlinked that the matrix is nearly full:
 
 Each frame's parameters act on its pixel coordinates centred on the frame
 (and with y flipped for a mirrored frame), which keeps the problem well
-conditioned.  The reference frame is held fixed at the identity.
+conditioned.  The reference frame is held fixed at the identity.  The
+parameters, their Jacobian and their matrix are those of the transform
+type's parameter layer (`~astroalign_nd.transforms.layers`): any linear
+type of the registry is solved.
 """
 
 from __future__ import annotations
@@ -29,12 +32,10 @@ import numpy as np
 from scipy import linalg, sparse
 from scipy.sparse.linalg import splu
 
+from ..transforms.registry import transform_class
+
 __all__ = []
 
-#: The number of parameters of each linear type the solve supports.
-N_PARAMS = {"translation": 2, "euclidean": 3, "similarity": 4, "affine": 6}
-#: The types whose prediction is linear in the parameters: one Gauss-Newton step is exact.
-LINEAR_KINDS = ("translation", "similarity", "affine")
 #: A normal matrix fuller than this (fraction of its elements) is factored as a dense one:
 #: a long sequence whose frames all share the reference's stars couples every frame.
 _DENSE_FILL = 0.2
@@ -61,6 +62,11 @@ class Frames:
     #: Free parameters that no detection constrains would make the normal matrix singular.
     fixed: frozenset = frozenset()
 
+    @property
+    def layer(self):
+        """The parameter layer of the frames' transform type (`layer_of`)."""
+        return layer_of(self.kind)
+
     def local(self, f, pts):
         """Frame ``f``'s pixel positions in its centred (and unmirrored) coordinates."""
         q = np.asarray(pts, float) - self.centres[f]
@@ -69,78 +75,42 @@ class Frames:
 
     def index(self):
         """Column offset of each frame's parameters (-1 for the reference and fixed ones)."""
-        k = N_PARAMS[self.kind]
+        k = self.layer.k
         cols = np.full(len(self.theta), -1)
         free = [f for f in range(len(self.theta)) if f != self.reference and f not in self.fixed]
         cols[free] = np.arange(len(free)) * k
         return cols, len(free) * k
 
 
-def predict(kind, theta, q):
+def layer_of(kind):
     """
-    ``T(q)`` for parameters ``theta`` and centred points ``q`` (n, 2);
-    ``theta`` is one frame's (k,) or one row per point (n, k).
+    The parameter layer of a linear transform type, as the solve adjusts
+    it: on a frame's centred coordinates, whose y axis is already flipped
+    for a mirrored frame (parity 1).
     """
-    x, y = q[:, 0], q[:, 1]
-    t = np.asarray(theta).T  # t[i]: parameter i, a scalar or one per point
-    if kind == "translation":
-        return np.column_stack([x + t[0], y + t[1]])
-    if kind == "euclidean":
-        c, s = np.cos(t[0]), np.sin(t[0])
-        return np.column_stack([c * x - s * y + t[1], s * x + c * y + t[2]])
-    if kind == "similarity":
-        return np.column_stack([t[0] * x - t[1] * y + t[2], t[1] * x + t[0] * y + t[3]])
-    return np.column_stack([t[0] * x + t[1] * y + t[4], t[2] * x + t[3] * y + t[5]])
+    return transform_class(kind).layer()
 
 
-def jacobian(kind, theta, q):
-    """(n, 2, k): the derivative of `predict` with respect to ``theta`` ((k,) or (n, k))."""
-    n = len(q)
-    x, y = q[:, 0], q[:, 1]
-    jac = np.zeros((n, 2, N_PARAMS[kind]))
-    if kind == "translation":
-        jac[:, 0, 0] = jac[:, 1, 1] = 1.0
-    elif kind == "euclidean":
-        a = np.asarray(theta).T[0]
-        c, s = np.cos(a), np.sin(a)
-        jac[:, 0, 0], jac[:, 1, 0] = -s * x - c * y, c * x - s * y
-        jac[:, 0, 1] = jac[:, 1, 2] = 1.0
-    elif kind == "similarity":
-        jac[:, 0, 0], jac[:, 0, 1], jac[:, 0, 2] = x, -y, 1.0
-        jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 3] = y, x, 1.0
-    else:
-        jac[:, 0, 0], jac[:, 0, 1], jac[:, 0, 4] = x, y, 1.0
-        jac[:, 1, 2], jac[:, 1, 3], jac[:, 1, 5] = x, y, 1.0
-    return jac
+def jacobian(layer, theta, q):
+    """(n, 2, k): the derivative of the prediction with respect to ``theta`` (one
+    frame's (k,), or one row per point (n, k))."""
+    # (One row per point, as the bundle step has them: the same arithmetic
+    # whichever step asks.)
+    return layer.design(q, np.broadcast_to(theta, (len(q), layer.k)))
 
 
-def theta_from_matrix(kind, m, centre, parity):
-    """The parameters of the 3x3 pixel-to-common matrix ``m`` (its nearest of ``kind``)."""
+def theta_from_matrix(layer, m, centre, parity):
+    """The parameters of the 3x3 pixel-to-common matrix ``m`` (its nearest of the layer's type)."""
     flip = np.diag([1.0, parity])
     lin = m[:2, :2] @ flip
     t = m[:2, :2] @ centre + m[:2, 2]
-    if kind == "translation":
-        return t.copy()
-    if kind == "affine":
-        return np.array([*lin.ravel(), *t])
-    a, b = (lin[0, 0] + lin[1, 1]) / 2.0, (lin[1, 0] - lin[0, 1]) / 2.0
-    if kind == "euclidean":
-        return np.array([np.arctan2(b, a), *t])
-    return np.array([a, b, *t])
+    return layer.from_parts(lin, t)
 
 
-def matrix_from_theta(kind, theta, centre, parity):
+def matrix_from_theta(layer, theta, centre, parity):
     """The 3x3 pixel-to-common matrix of the parameters ``theta``."""
     flip = np.diag([1.0, parity])
-    if kind == "translation":
-        lin, t = np.eye(2), theta[:2]
-    elif kind == "euclidean":
-        c, s = np.cos(theta[0]), np.sin(theta[0])
-        lin, t = np.array([[c, -s], [s, c]]), theta[1:]
-    elif kind == "similarity":
-        lin, t = np.array([[theta[0], -theta[1]], [theta[1], theta[0]]]), theta[2:]
-    else:
-        lin, t = theta[:4].reshape(2, 2), theta[4:]
+    lin, t = layer.to_parts(theta)
     m = np.eye(3)
     m[:2, :2] = lin @ flip
     m[:2, 2] = t - lin @ flip @ centre
@@ -155,9 +125,10 @@ def _blocks(rows, cols, vals, shape):
 
 def _normal_terms(frames, f, q, w, cols):
     """(jacobian (n, 2, k), its normal block k x k, the prediction) of frame ``f``'s points."""
-    jac = jacobian(frames.kind, frames.theta[f], q)
+    layer = frames.layer
+    jac = jacobian(layer, frames.theta[f], q)
     block = np.einsum("nik,n,nil->kl", jac, w, jac)
-    return jac, block, predict(frames.kind, frames.theta[f], q)
+    return jac, block, layer.predict(frames.theta[f], q)
 
 
 class _DenseFactor:
@@ -212,7 +183,7 @@ def link_step(frames, pairs):
     parameter change (F, k) and each link's residuals (common frame pixels).
     """
     cols, p = frames.index()
-    k = N_PARAMS[frames.kind]
+    k = frames.layer.k
     rows_i, cols_i, vals, rhs, resid = [], [], [], np.zeros(p), []
     grid = np.arange(k)
     for a, b, qa, qb, w in pairs:
@@ -240,7 +211,7 @@ def link_step(frames, pairs):
 def _unpack(frames, delta, cols):
     if delta is None:
         return None
-    k = N_PARAMS[frames.kind]
+    k = frames.layer.k
     out = np.zeros_like(frames.theta)
     for f in range(len(out)):
         if cols[f] >= 0:
@@ -293,16 +264,10 @@ def _area_terms(frames):
     """
     n, k = frames.theta.shape
     g2, dlog = np.ones(n), np.zeros((n, k))
-    if frames.kind not in ("similarity", "affine"):
-        return g2, dlog  # translation, euclidean: |det A| = 1
-    t = frames.theta
-    if frames.kind == "similarity":
-        det = t[:, 0] ** 2 + t[:, 1] ** 2
-        grad = np.column_stack([-t[:, 0], -t[:, 1]])  # d log g / d(a, b), times det
-    else:
-        det = t[:, 0] * t[:, 3] - t[:, 1] * t[:, 2]
-        # d log|det| / dA = A^-T, so d log g / dA = -A^-T / 2 (times det).
-        grad = 0.5 * np.column_stack([-t[:, 3], t[:, 2], t[:, 1], -t[:, 0]])
+    area = frames.layer.area(frames.theta)
+    if area is None:
+        return g2, dlog  # (translation, euclidean: |det A| = 1)
+    det, grad = area
     ok = det != 0  # a frame outside the solve keeps zero parameters
     g2[ok] = 1.0 / np.abs(det[ok])
     dlog[ok, :grad.shape[1]] = grad[ok] / det[ok, None]
@@ -326,7 +291,7 @@ def star_positions(frames, obs):
 
 
 def _predictions(frames, obs):
-    return predict(frames.kind, frames.theta[obs.frame], obs.q)
+    return frames.layer.predict(frames.theta[obs.frame], obs.q)
 
 
 def _bundle_system(frames, obs):
@@ -337,12 +302,12 @@ def _bundle_system(frames, obs):
     right-hand side (p,) and the residuals (n, 2) at the current parameters.
     """
     cols, p = frames.index()
-    k = N_PARAMS[frames.kind]
+    k = frames.layer.k
     xs, pred = star_positions(frames, obs)
     resid = pred - xs[obs.track]
     # Every detection at once (one parameter row per detection): a loop over
     # the frames costs a pass over all detections per frame.
-    jac = jacobian(frames.kind, frames.theta[obs.frame], obs.q)
+    jac = jacobian(frames.layer, frames.theta[obs.frame], obs.q)
     # The residuals weighed in their own frame's pixels (`_area_terms`):
     # g (T(q) - X), whose derivative adds g's own, times the residual.
     g2, dlog = _area_terms(frames)
@@ -456,7 +421,7 @@ def bundle_step(frames, obs, precond=None):
         delta = _pcg(a, b, d_inv, rhs, precond)
         if delta is not None:
             return _unpack(frames, delta, cols), resid, None
-    reduced = _reduced(a, b, d_inv, N_PARAMS[frames.kind])
+    reduced = _reduced(a, b, d_inv, frames.layer.k)
     # The residuals are those of the mean star positions: their gradient is
     # zero, so the reduced right-hand side is the frames' own.
     delta, lu = _solve(reduced, rhs)
@@ -466,7 +431,7 @@ def bundle_step(frames, obs, precond=None):
 def frame_covariances(frames, lu, scale):
     """Each frame's (k, k) parameter covariance from the reduced normal matrix's factor."""
     cols, p = frames.index()
-    k = N_PARAMS[frames.kind]
+    k = frames.layer.k
     out = np.zeros((len(frames.theta), k, k))
     if lu is None or p == 0:
         return out
@@ -491,6 +456,6 @@ def predicted_error(frames, f, cov, shape):
     ny, nx = shape
     corners = np.array([[-0.5, -0.5], [nx - 0.5, -0.5], [-0.5, ny - 0.5],
                         [nx - 0.5, ny - 0.5]])
-    jac = jacobian(frames.kind, frames.theta[f], frames.local(f, corners))
+    jac = jacobian(frames.layer, frames.theta[f], frames.local(f, corners))
     var = np.einsum("nik,kl,nil->ni", jac, cov, jac)
     return float(np.sqrt(np.max(var.sum(axis=1))))

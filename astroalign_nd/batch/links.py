@@ -15,8 +15,8 @@ import numpy as np
 
 from ..exceptions import AstroalignError
 from ..matching import bounding_frame, chance_pairs_log10
+from ..matching.allpairs import pair_all
 from ..registration import find_match_from_config
-from ..transforms.allpairs import pair_all
 from ..transforms.convert import as_matrix
 from ..transforms.registry import transform_type_of
 
@@ -122,7 +122,7 @@ def guided_link(src, dst, config, a, b, start):
     The link ``a`` -> ``b`` from a predicted transform ``start`` (3x3: the
     composition of two trusted links through a third frame), without a
     search: the stars paired under it and the model refitted on all pairs
-    (`~astroalign_nd.transforms.allpairs.pair_all`), verified by the share
+    (`~astroalign_nd.matching.allpairs.pair_all`), verified by the share
     of the stars predicted on the target that pair and by the pairs'
     false-alarm figure.  A `Link`, or the reason there is none (str): the
     caller then runs the full search.

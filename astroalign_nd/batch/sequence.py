@@ -36,6 +36,9 @@ from ..exceptions import AstroalignError, warn
 from ..matching.pairing import mutual_matches
 from ..registration import Reference
 from ..transforms.convert import as_matrix, from_matrix
+from ..transforms.layers import layer_of
+from ..transforms.registry import (LINEAR_TYPES, TRANSFORM_REGISTRY, transform_class,
+                                   transform_type_of)
 from . import adjust
 from .links import (Graph, Link, bridge_pairs, chain_pairs, choose_hubs, guided_link,
                     match_link, wanted)
@@ -52,8 +55,6 @@ _MAX_STEPS, _CONVERGED = 30, 1e-7
 SOLVE_OPTIONS = ("n_stars", "all_pairs", "n_hubs", "min_overlap", "link_tolerance")
 #: Detections further than this many robust sigmas from their star's mean are clipped.
 _CLIP_SIGMA = 5.0
-#: The link models a guided link refits (`guided_link`).
-_GUIDED_KINDS = ("similarity", "affine")
 
 
 @dataclasses.dataclass
@@ -228,8 +229,11 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
         The reference frame: its index, the frame itself (the same object,
         or the same path), or None (default) for the best-connected frame
         (the one with the most links).
-    transform_type : {'similarity', 'euclidean', 'translation', 'affine'}, optional
-        The model of every frame (default 'similarity').
+    transform_type : str, optional
+        The model of every frame (default 'similarity'): a linear type of
+        the registry ('similarity', 'euclidean', 'translation', 'affine', or
+        one registered with its parameter layer, which the joint solution
+        adjusts).
     all_pairs : int, optional
         Up to this many frames, every pair predicted to overlap is matched
         (default 10); more frames get the sparse graph.
@@ -292,8 +296,10 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
     if n_stars is not None and (isinstance(n_stars, bool) or not isinstance(
             n_stars, (int, np.integer)) or n_stars < 3):
         raise ValueError(f"n_stars must be an integer >= 3 or None; got {n_stars!r}.")
+    # The links are matched as similarities for the conformal types (a
+    # similarity's links are no worse for them), else as the type itself.
     config = RegistrationConfig.from_keywords(
-        transform_type="similarity" if kind != "affine" else "affine", **options)
+        transform_type="similarity" if TRANSFORM_REGISTRY[kind].conformal else kind, **options)
     items, frames_hdu = batch_frames(frames, hdu)
     items = list(items)
     if not items:
@@ -327,8 +333,9 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
 
 
 def _check_arguments(transform_type, all_pairs, n_hubs, min_overlap, link_tolerance):
-    if not isinstance(transform_type, str) or transform_type not in adjust.N_PARAMS:
-        raise ValueError(f"transform_type must be one of {sorted(adjust.N_PARAMS)} for a "
+    solvable = sorted(t for t in LINEAR_TYPES if layer_of(transform_class(t)) is not None)
+    if not isinstance(transform_type, str) or transform_type not in solvable:
+        raise ValueError(f"transform_type must be one of {solvable} for a "
                          f"joint solution; got {transform_type!r} (a distortion model is "
                          "fitted pair by pair: use register_batch without solve='global').")
     for name, value, lo in (("all_pairs", all_pairs, 2), ("n_hubs", n_hubs, 1)):
@@ -527,7 +534,7 @@ def _link(refs, shapes, config, ref, numbers, runners):
         hubs = choose_hubs(graph, valid, n_hubs, graph.placement(), fixed=ref)
         cands = [(f, h) for h in hubs for f in valid if f != h]
         # A hub link predicted by the frame's neighbour's is verified, not searched.
-        guide = config.model.transform_type in _GUIDED_KINDS
+        guide = transform_type_of(config.model.transform_type).linear
     run_pruned(cands)
     guide = False
     for _ in range(3):  # bridges across the groups still apart
@@ -647,13 +654,14 @@ def _initial(graph, shapes, ref, kind, solved):
     place = graph.placement(root=ref)
     n = len(shapes)
     centres = np.zeros((n, 2))
-    parity, theta = np.ones(n), np.zeros((n, adjust.N_PARAMS[kind]))
+    layer = adjust.layer_of(kind)
+    parity, theta = np.ones(n), np.zeros((n, layer.k))
     for f in solved:
         ny, nx = shapes[f]
         centres[f] = ((nx - 1) / 2.0, (ny - 1) / 2.0)
         m = place[f][1]
         parity[f] = 1.0 if np.linalg.det(m[:2, :2]) > 0 else -1.0
-        theta[f] = adjust.theta_from_matrix(kind, m, centres[f], parity[f])
+        theta[f] = adjust.theta_from_matrix(layer, m, centres[f], parity[f])
     return adjust.Frames(kind, centres, parity, theta, ref, frozenset(range(n)) - set(solved))
 
 
@@ -682,12 +690,12 @@ def _adjust_links(frames, links, stars, idx):
             break
         frames.theta += delta
         # As in the bundle: a model linear in its parameters needs one step.
-        if _small(delta, radius) or frames.kind in adjust.LINEAR_KINDS:
+        if _small(delta, radius) or frames.layer.linear:
             break
 
 
 def _matrix(frames, f):
-    return adjust.matrix_from_theta(frames.kind, frames.theta[f], frames.centres[f],
+    return adjust.matrix_from_theta(frames.layer, frames.theta[f], frames.centres[f],
                                     frames.parity[f])
 
 
@@ -825,7 +833,7 @@ def _adjust_bundle(frames, obs):
             # would only confirm it, at the cost of a solve of every frame):
             # the area-scale weights (`adjust.weights`) vary by parts in 1e4,
             # and 300 frames solved to convergence differ by 1e-8 px.
-            if _small(delta, radius) or frames.kind in adjust.LINEAR_KINDS:
+            if _small(delta, radius) or frames.layer.linear:
                 break
         xs, _ = adjust.star_positions(frames, sub)
         pred = adjust.star_positions(frames, obs)[1]
@@ -856,7 +864,7 @@ def _matrix_covariance(frames, f, cov):
         step = 1e-7 * max(1.0, abs(theta[j]))
         t = theta.copy()
         t[j] += step
-        m = adjust.matrix_from_theta(frames.kind, t, frames.centres[f], frames.parity[f])
+        m = adjust.matrix_from_theta(frames.layer, t, frames.centres[f], frames.parity[f])
         jac[:, j] = (m[:2].ravel() - base) / step
     return jac @ cov @ jac.T
 

@@ -69,7 +69,8 @@ from astropy.utils.exceptions import AstropyUserWarning
 
 from .. import __version__
 from ..exceptions import warn
-from ..transforms.polynomial import PolynomialTransform, monomials, polynomial_terms
+from ..transforms.layers import monomials, polynomial_terms
+from ..transforms.polynomial import PolynomialTransform
 from ..transforms.projective import ProjectiveTransform
 from ..transforms.registry import TRANSFORM_REGISTRY, transform_type_of
 from ..transforms.linear import AffineTransform, EuclideanTransform, SimilarityTransform

@@ -17,6 +17,10 @@
 5. It is accepted only if the number of matched stars is very unlikely to
    be chance (a binomial false-alarm probability, with a trials factor for
    every hypothesis tried, in the spirit of astrometry.net's odds test).
+
+For wide fields, `extend_match` grows the linear match into a distortion
+model over many more stars (``grow``); ``allpairs`` pairs every star of two
+catalogs under a model (the engine of `~astroalign_nd.cross_match`).
 """
 
 from .result import MatchResult
@@ -24,6 +28,7 @@ from .search import match_points, search_tolerance
 from .geometry import bounding_frame, chance_pairs_log10, overlap_counts
 from .triangles import match_triangles, hypothesis_matrices
 from .asterisms import Asterisms, build_asterisms, check_triangle_budget
+from .grow import extend_match, fit_nonlinear
 
 __all__ = [
     'MatchResult',
@@ -37,4 +42,6 @@ __all__ = [
     'Asterisms',
     'build_asterisms',
     'check_triangle_budget',
+    'fit_nonlinear',
+    'extend_match',
 ]

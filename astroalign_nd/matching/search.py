@@ -11,6 +11,7 @@ from ..config import OPTIONS, check_options
 from ..config import DEFAULT_TOLERANCE
 from .asterisms import build_asterisms
 from ..exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
+from ..transforms.layers import layer_of
 from ..transforms.registry import transform_class, transform_type_of
 from .result import MatchResult
 from .geometry import _overlap_box, bounding_frame
@@ -287,7 +288,8 @@ def _prepare(src_pts, dst_pts, settings, n_control, prior_trials):
                 "a transform. Lower nsigma, give fwhm, or pass a catalog of positions."
             )
     scale_range = opts["scale_range"]
-    if scale_range is None and transform_type in ("translation", "euclidean"):
+    layer = layer_of(cls)
+    if scale_range is None and layer is not None and layer.unit_scale:
         scale_range = (0.9, 1.1)
     if n_control is None:
         ns, nd = len(src_pts), len(dst_pts)

@@ -28,13 +28,21 @@ weights, or `fit_transform` for the parameter covariance too.
 
 The non-linear models, `ProjectiveTransform` (a homography) and
 `PolynomialTransform` (SIP-style distortion), live beside the linear ones;
-`fit_nonlinear` and `extend_match` choose among them (model selection).
+``selection`` chooses among them (model selection) for the matching's
+`~astroalign_nd.matching.fit_nonlinear` and `~astroalign_nd.matching.extend_match`.
+Each type's parameters, design matrix and matrix conversions are its
+parameter layer (``layers``; the model class's ``layer``), which every
+solver of the package fits.
+
+This subpackage imports no other stage (detection, matching, resample,
+batch, stacking, io, the command line): they build on it.
 
 The types by name are the entries of `TRANSFORM_REGISTRY`
 (`register_transform_type` adds one); every list of names derives from it.
 
 The modules, bottom up: ``_matrix`` (matrix and point helpers, a leaf),
-``linear``, ``projective`` and ``polynomial`` (the models), ``registry``
+``layers`` (the parameter layer's base), ``linear``, ``projective`` and
+``polynomial`` (the models and their layers), ``registry``
 (the types by name), ``fitting`` and ``convert``, and ``selection``
 (model selection for distortion).  Names are imported on first use
 (``astroalign_nd._lazy``), so that reading the registry's names
@@ -72,9 +80,8 @@ _LAZY = {
     'from_astropy_affine': 'convert',
     'apply_matrix': '_matrix',
     'check_degree': 'registry',
-    'fit_nonlinear': 'selection',
-    'extend_match': 'selection',
     'DistortionFit': 'selection',
+    'ParameterLayer': 'layers',
 }
 
 __all__ = list(_LAZY)

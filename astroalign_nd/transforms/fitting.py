@@ -235,7 +235,7 @@ def _floor_fraction(rows, resid, claimed):
     return float(_MIX_GRID[best]), float(scales[best])
 
 
-def _fit_from_matrix(transform_type, matrix, src, dst, parity=1):
+def fit_from_matrix(transform_type, matrix, src, dst, parity=1):
     """
     `fit_transform`'s (model, covariance, residuals) of a linear model whose
     unweighted least-squares matrix on these pairs is already known.

@@ -16,6 +16,8 @@ from ._matrix import (apply_matrix, as_3x3, check_invertible, is_singular, _as_d
                       _rotate_shift, _rotation_matrix, _rotation_parameters,
                       _rotation_shift_parameters, _weighted_lstsq)
 from ._pairs import _check_pairs
+from .layers import ParameterLayer, PolynomialLayer
+from .registry import transform_type_of
 
 __all__ = ['LinearTransform2D', 'TranslationTransform', 'EuclideanTransform',
            'SimilarityTransform', 'AffineTransform']
@@ -25,9 +27,13 @@ class LinearTransform2D(Model):
     """
     Base class of the package's 2-D linear (affine-family) transforms.
 
-    Subclasses define their parameters, ``evaluate`` and the two class
-    methods ``_from_matrix`` and ``_linear_fit``; everything else (``matrix``,
-    ``inverse``, ``from_points``, skimage-style attributes) is shared.
+    Subclasses define their parameters, ``evaluate``, the class method
+    ``_from_matrix`` and their parameter layer (``_layer``, a
+    `~astroalign_nd.transforms.layers.ParameterLayer` class: parameters,
+    design matrix, matrix conversions), whose least squares is their
+    ``_linear_fit`` unless they override it (a rotation's angle is not
+    linear); everything else (``matrix``, ``inverse``, ``from_points``,
+    skimage-style attributes) is shared.
 
     Examples
     --------
@@ -238,15 +244,54 @@ class LinearTransform2D(Model):
         matrix, design, _ = cls._linear_fit(src, dst, weights, parity)
         return matrix, design
 
+    #: The `~astroalign_nd.transforms.layers.ParameterLayer` class of the type's
+    #: parameters (set by each subclass).
+    _layer = None
+
+    @classmethod
+    def layer(cls, parity=1, degree=None):
+        """
+        The type's parameters, design matrix and matrix conversions: a
+        `~astroalign_nd.transforms.layers.ParameterLayer` (for ``parity``,
+        of the models that hold one).
+        """
+        if cls._layer is None:
+            raise NotImplementedError(
+                f"{cls.__name__} has no parameter layer: set its _layer to a "
+                "ParameterLayer subclass (astroalign_nd.transforms.layers).")
+        return cls._layer(parity)
+
+    @classmethod
+    def fit_layer(cls, parity=1, degree=None):
+        """
+        The layer the normalised solvers (model selection, the whole-catalog
+        pairing) iterate for this type: its own when linear in its
+        parameters; else (a rotation) the nearest one that is, the
+        similarity's.  An affine type is iterated as the polynomial of
+        degree 1, the distortion stage's own affine candidate.
+        """
+        if cls._layer is None:  # a type without a layer: the nearest of the built-in ones
+            entry = transform_type_of(cls)
+            return (SimilarityLayer(parity) if entry is not None and entry.conformal
+                    else PolynomialLayer(1))
+        return cls.layer(parity) if cls.layer(parity).linear else SimilarityLayer(parity)
+
+    @classmethod
+    def iterated_exactly(cls):
+        """True if `fit_layer` solves the type's own least-squares problem."""
+        return cls._layer is not None and cls.layer().linear
+
     @classmethod
     def _design(cls, src, weights, parity=1):
         """
         The design matrix `fit_matrix` returns for ``src``, weights and
-        parity, as if fitting ``src`` onto itself (it does not depend on the
-        target for the models linear in their parameters, which override
-        this to skip the fit).
+        parity (rows x, y per point), as if fitting ``src`` onto itself: the
+        layer's, for the models linear in their parameters (it does not
+        depend on the target); else the fit's own.
         """
-        return cls._linear_fit(src, src, weights, parity)[1]
+        if cls._layer is None or not cls._layer.linear:
+            return cls._linear_fit(src, src, weights, parity)[1]
+        return cls.layer(parity).design(src).reshape(2 * len(src), -1)
 
     @classmethod
     def _fit(cls, src, dst, *, weights=None, parity=None):
@@ -268,6 +313,20 @@ class LinearTransform2D(Model):
         return cls._from_matrix(matrix), design, resid
 
     _parities = (1,)
+
+    @classmethod
+    def _linear_fit(cls, src, dst, w, parity):
+        """
+        Weighted least squares of a type linear in its layer's parameters
+        (the similarity's ``(a, b, tx, ty)``, the affine's six):
+        (matrix, design, parameters).  Types not linear in them override it.
+        """
+        if "parity" in cls.param_names:
+            _check_parity(parity)
+        layer = cls.layer(parity)
+        design = layer.design(src).reshape(2 * len(src), layer.k)
+        theta = _weighted_lstsq(design, dst.ravel(), w)
+        return layer.to_matrix(theta), design, theta
 
 
 class TranslationTransform(LinearTransform2D):
@@ -325,10 +384,6 @@ class TranslationTransform(LinearTransform2D):
         m = np.eye(3)
         m[:2, 2] = shift
         return m, cls._design(src, w, parity), shift
-
-    @classmethod
-    def _design(cls, src, weights, parity=1):
-        return np.tile(np.eye(2), (len(src), 1))
 
 
 class EuclideanTransform(LinearTransform2D):
@@ -398,13 +453,9 @@ class EuclideanTransform(LinearTransform2D):
         m[:2, :2] = rot @ flip
         m[:2, 2] = md - rot @ ms
         # Linearised design for the covariance: d(angle), d(tx), d(ty).
-        n = len(src)
-        design = np.zeros((2 * n, 3))
-        design[0::2, 0] = -(s @ rot.T)[:, 1]
-        design[1::2, 0] = (s @ rot.T)[:, 0]
-        design[0::2, 1] = 1.0
-        design[1::2, 2] = 1.0
-        return m, design, np.array([angle, *m[:2, 2]])
+        theta = np.array([angle, *m[:2, 2]])
+        design = cls.layer(parity).design(src, theta).reshape(2 * len(src), 3)
+        return m, design, theta
 
 
 class SimilarityTransform(LinearTransform2D):
@@ -465,23 +516,6 @@ class SimilarityTransform(LinearTransform2D):
         return cls(scale=scale, **_rotation_parameters(
             m, det, scale, "matrix has a shear or anisotropic scale; use AffineTransform "
             "instead of SimilarityTransform."))
-
-    @classmethod
-    def _linear_fit(cls, src, dst, w, parity):
-        # Linear in (a, b, tx, ty): x' = a x - b p y + tx ; y' = b x + a p y + ty.
-        _check_parity(parity)
-        design = cls._design(src, w, parity)
-        a, b, tx, ty = _weighted_lstsq(design, dst.ravel(), w)
-        m = np.array([[a, -b * parity, tx], [b, a * parity, ty], [0.0, 0.0, 1.0]])
-        return m, design, np.array([a, b, tx, ty])
-
-    @classmethod
-    def _design(cls, src, weights, parity=1):
-        x, y = src[:, 0], float(parity) * src[:, 1]
-        design = np.zeros((2 * len(src), 4))
-        design[0::2, 0], design[0::2, 1], design[0::2, 2] = x, -y, 1.0
-        design[1::2, 0], design[1::2, 1], design[1::2, 3] = y, x, 1.0
-        return design
 
 
 class AffineTransform(LinearTransform2D):
@@ -554,20 +588,8 @@ class AffineTransform(LinearTransform2D):
         )
 
     @classmethod
-    def _linear_fit(cls, src, dst, w, parity):
-        design = cls._design(src, w, parity)
-        a11, a12, a21, a22, tx, ty = _weighted_lstsq(design, dst.ravel(), w)
-        m = np.array([[a11, a12, tx], [a21, a22, ty], [0.0, 0.0, 1.0]])
-        return m, design, np.array([a11, a12, a21, a22, tx, ty])
-
-    @classmethod
-    def _design(cls, src, weights, parity=1):
-        design = np.zeros((2 * len(src), 6))
-        design[0::2, 0:2] = src
-        design[0::2, 4] = 1.0
-        design[1::2, 2:4] = src
-        design[1::2, 5] = 1.0
-        return design
+    def fit_layer(cls, parity=1, degree=None):
+        return PolynomialLayer(1)
 
 
 def _check_values(values):
@@ -588,3 +610,157 @@ def _check_values(values):
                 det = float(np.linalg.det(lin))
             raise ValueError(f"it holds a singular or overflowing matrix (a11 a22 - a12 a21 = "
                              f"{det:g}); it cannot map an image")
+
+
+# -- the parameter layers (`~astroalign_nd.transforms.layers`) -------------------------
+
+
+def _flipped(q, parity):
+    """``(x, parity * y)`` of the (N, 2) points ``q``."""
+    return q[:, 0], float(parity) * q[:, 1]
+
+
+def _unflip(lin, parity):
+    """``lin @ diag(1, parity)``."""
+    return lin if parity == 1 else lin @ np.diag([1.0, float(parity)])
+
+
+def _rotation_part(lin, parity):
+    """``(a, b)`` of the scaled rotation ``[[a, -b], [b, a]]`` nearest to ``lin``
+    (after its y axis is flipped, for ``parity`` -1)."""
+    lin = _unflip(lin, parity)
+    return (lin[0, 0] + lin[1, 1]) / 2.0, (lin[1, 0] - lin[0, 1]) / 2.0
+
+
+class TranslationLayer(ParameterLayer):
+    """``x' = x + tx, y' = y + ty``: parameters ``(tx, ty)``."""
+
+    name, k, affine_in_position, adds_position, unit_scale = "translation", 2, True, True, True
+
+    def __init__(self, parity=1):
+        self.parity = parity
+
+    def design(self, q, params=None):
+        d = np.zeros((len(q), 2, 2))
+        d[:, 0, 0] = d[:, 1, 1] = 1.0
+        return d
+
+    def predict(self, params, q):
+        t = np.asarray(params).T
+        return np.column_stack([q[:, 0] + t[0], q[:, 1] + t[1]])
+
+    def to_parts(self, params):
+        return np.eye(2), params[:2]
+
+    def from_parts(self, lin, shift):
+        return np.array(shift, float)
+
+
+class EuclideanLayer(ParameterLayer):
+    """A rotation (radians) and shift of ``(x, parity * y)``: ``(angle, tx, ty)``."""
+
+    name, k, linear, unit_scale = "euclidean", 3, False, True
+
+    def __init__(self, parity=1):
+        self.parity = parity
+
+    def design(self, q, params=None):
+        """The derivatives at ``params``: (3,), or one row per point (N, 3)."""
+        params = np.asarray(params, float)
+        d = np.zeros((len(q), 2, 3))
+        d[:, 0, 1] = d[:, 1, 2] = 1.0
+        x, y = _flipped(q, self.parity)
+        if params.ndim == 1:
+            # Through the rotated points (a matrix product): the fit's own form.
+            r = np.column_stack([x, y]) @ _rotation_matrix(params[0], 1.0).T
+            d[:, 0, 0], d[:, 1, 0] = -r[:, 1], r[:, 0]
+        else:
+            c, s = np.cos(params[:, 0]), np.sin(params[:, 0])
+            d[:, 0, 0], d[:, 1, 0] = -s * x - c * y, c * x - s * y
+        return d
+
+    def predict(self, params, q):
+        t = np.asarray(params).T
+        x, y = _flipped(q, self.parity)
+        c, s = np.cos(t[0]), np.sin(t[0])
+        return np.column_stack([c * x - s * y + t[1], s * x + c * y + t[2]])
+
+    def to_parts(self, params):
+        c, s = np.cos(params[0]), np.sin(params[0])
+        return _unflip(np.array([[c, -s], [s, c]]), self.parity), params[1:]
+
+    def from_parts(self, lin, shift):
+        a, b = _rotation_part(lin, self.parity)
+        return np.array([np.arctan2(b, a), *shift])
+
+
+class SimilarityLayer(ParameterLayer):
+    """``x' = a x - b p y + tx, y' = b x + a p y + ty``: ``(a, b, tx, ty)``, ``p`` the parity."""
+
+    name, k, affine_in_position = "similarity", 4, True
+
+    def __init__(self, parity=1):
+        self.parity = parity
+
+    def design(self, q, params=None):
+        x, y = _flipped(q, self.parity)
+        d = np.zeros((len(q), 2, 4))
+        d[:, 0, 0], d[:, 0, 1], d[:, 0, 2] = x, -y, 1.0
+        d[:, 1, 0], d[:, 1, 1], d[:, 1, 3] = y, x, 1.0
+        return d
+
+    def predict(self, params, q):
+        t = np.asarray(params).T
+        x, y = _flipped(q, self.parity)
+        return np.column_stack([t[0] * x - t[1] * y + t[2], t[1] * x + t[0] * y + t[3]])
+
+    def to_parts(self, params):
+        a, b = params[0], params[1]
+        return _unflip(np.array([[a, -b], [b, a]]), self.parity), params[2:]
+
+    def from_parts(self, lin, shift):
+        return np.array([*_rotation_part(lin, self.parity), *shift])
+
+    def area(self, params):
+        t = params
+        return t[:, 0] ** 2 + t[:, 1] ** 2, np.column_stack([-t[:, 0], -t[:, 1]])
+
+
+class AffineLayer(ParameterLayer):
+    """``x' = a11 x + a12 y + tx, y' = a21 x + a22 y + ty``: ``(a11, a12, a21, a22, tx, ty)``."""
+
+    name, k, affine_in_position = "affine", 6, True
+
+    def __init__(self, parity=1):
+        self.parity = parity  # (not used: an affine model holds its own)
+
+    def design(self, q, params=None):
+        d = np.zeros((len(q), 2, 6))
+        d[:, 0, 0:2] = q
+        d[:, 0, 4] = 1.0
+        d[:, 1, 2:4] = q
+        d[:, 1, 5] = 1.0
+        return d
+
+    def predict(self, params, q):
+        t = np.asarray(params).T
+        x, y = q[:, 0], q[:, 1]
+        return np.column_stack([t[0] * x + t[1] * y + t[4], t[2] * x + t[3] * y + t[5]])
+
+    def to_parts(self, params):
+        return np.asarray(params[:4]).reshape(2, 2), params[4:]
+
+    def from_parts(self, lin, shift):
+        return np.array([*np.asarray(lin).ravel(), *shift])
+
+    def area(self, params):
+        t = params
+        # d log|det| / dA = A^-T, so d log g / dA = -A^-T / 2 (times det).
+        return (t[:, 0] * t[:, 3] - t[:, 1] * t[:, 2],
+                0.5 * np.column_stack([-t[:, 3], t[:, 2], t[:, 1], -t[:, 0]]))
+
+
+TranslationTransform._layer = TranslationLayer
+EuclideanTransform._layer = EuclideanLayer
+SimilarityTransform._layer = SimilarityLayer
+AffineTransform._layer = AffineLayer

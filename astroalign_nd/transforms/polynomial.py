@@ -11,6 +11,7 @@ from ._matrix import check_invertible
 from .linear import AffineTransform
 from ._pairs import _check_pairs, _scalar_values
 from .registry import TRANSFORM_REGISTRY, HeaderHooks, _check_degree
+from .layers import PolynomialLayer, monomials, polynomial_terms
 
 __all__ = ['PolynomialTransform']
 
@@ -18,50 +19,6 @@ __all__ = ['PolynomialTransform']
 DEGREES = TRANSFORM_REGISTRY["polynomial"].degrees
 
 # -- polynomial (SIP) ------------------------------------------------------------------
-
-
-def polynomial_terms(degree, lowest=0):
-    """
-    The exponents ``(p, q)`` of the terms ``x**p y**q`` of total degree ``lowest`` to ``degree``.
-
-    By total degree, then ``p`` descending: the order of the
-    `PolynomialTransform` coefficients (``lowest=2``: its distortion terms)
-    and of every polynomial design matrix of the package.
-
-    Examples
-    --------
-    >>> from astroalign_nd.transforms.polynomial import polynomial_terms
-    >>> polynomial_terms(2)
-    [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]
-    >>> polynomial_terms(3, lowest=3)
-    [(3, 0), (2, 1), (1, 2), (0, 3)]
-    """
-    return [(p, n - p) for n in range(lowest, degree + 1) for p in range(n, -1, -1)]
-
-
-def monomials(x, y, terms):
-    """
-    The design matrix of polynomial terms: column ``k`` is ``x**p * y**q`` for ``terms[k]``.
-
-    Parameters
-    ----------
-    x, y : (N,) ndarray
-        The coordinates (scaled by the caller to about 1, for conditioning).
-    terms : list of (int, int)
-        Exponents, e.g. `polynomial_terms`.
-
-    Returns
-    -------
-    design : (N, len(terms)) ndarray
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from astroalign_nd.transforms.polynomial import monomials, polynomial_terms
-    >>> monomials(np.array([2.0]), np.array([3.0]), polynomial_terms(2))
-    array([[1., 2., 3., 4., 6., 9.]])
-    """
-    return np.column_stack([x ** p * y ** q for p, q in terms])
 
 
 def _exponents(degree):
@@ -322,6 +279,18 @@ class PolynomialTransform(Model):
         return self._fit_inverse()[1]
 
     # -- fitting -------------------------------------------------------------------------
+    @classmethod
+    def layer(cls, parity=1, degree=None):
+        """The parameters and design of the degree (default 3): a `PolynomialLayer`."""
+        return PolynomialLayer(3 if degree is None else int(degree))
+
+    fit_layer = layer
+
+    @classmethod
+    def iterated_exactly(cls):
+        """True: `fit_layer` is the model's own least-squares problem."""
+        return True
+
     @staticmethod
     def min_points_for(degree):
         """

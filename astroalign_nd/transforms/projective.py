@@ -8,8 +8,9 @@ from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
 from ._matrix import as_3x3, is_singular
 from ._pairs import _check_pairs, _scalar_values
+from .layers import ParameterLayer
 
-__all__ = ['ProjectiveTransform']
+__all__ = ['ProjectiveTransform', 'ProjectiveLayer']
 
 # -- projective ------------------------------------------------------------------------
 
@@ -123,6 +124,18 @@ class ProjectiveTransform(Model):
                    h23=m[1, 2], h31=m[2, 0], h32=m[2, 1])
 
     @classmethod
+    def layer(cls, parity=1, degree=None):
+        """The parameters and design of the homography: a `ProjectiveLayer`."""
+        return ProjectiveLayer()
+
+    fit_layer = layer
+
+    @classmethod
+    def iterated_exactly(cls):
+        """True: `fit_layer` is the model's own least-squares problem."""
+        return True
+
+    @classmethod
     def from_points(cls, src: ArrayLike, dst: ArrayLike, *,
                     weights: ArrayLike | None = None) -> ProjectiveTransform:
         """
@@ -182,6 +195,40 @@ class ProjectiveTransform(Model):
         jac = _homography_jacobian(h, src)
         resid = np.column_stack(model(src[:, 0], src[:, 1])) - dst
         return model, jac, resid
+
+
+class ProjectiveLayer(ParameterLayer):
+    """
+    The homography's h11 .. h32 (h33 = 1): not linear in them (Gauss-Newton).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.transforms.projective import ProjectiveLayer
+    >>> layer = ProjectiveLayer()
+    >>> h = layer.from_affine(np.array([1.0, 2.0, 0.0, -1.0, 0.0, 2.0]))
+    >>> layer.predict(h, np.array([[1.0, 1.0]]))
+    array([[3., 1.]])
+    """
+
+    name, k, linear = "projective", 8, False
+
+    @staticmethod
+    def _matrix(params):
+        h = params
+        return np.array([h[0:3], h[3:6], [h[6], h[7], 1.0]])
+
+    def predict(self, params, q):
+        return np.column_stack(_homography_apply(self._matrix(params), q[:, 0], q[:, 1]))
+
+    def design(self, q, params=None):
+        return _homography_jacobian(self._matrix(params), q).reshape(len(q), 2, 8)
+
+    @staticmethod
+    def from_affine(c):
+        """The homography equal to the affine map of ``PolynomialLayer(1)``'s parameters."""
+        # x: 1, u, v ; y: 1, u, v
+        return np.array([c[1], c[2], c[0], c[4], c[5], c[3], 0.0, 0.0])
 
 
 def _check_homography(m, fitted=False):

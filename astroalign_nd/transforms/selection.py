@@ -1,6 +1,7 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """
-Stage 4 (for wide fields): non-linear models grown from the linear match.
+Stage 4 (for wide fields): the choice of a non-linear model, and how far it
+can be trusted.
 
 Wide-field optics (camera lenses, small refractors, all-sky cameras) leave
 several pixels of residual at the corners under any linear model.  This
@@ -41,32 +42,36 @@ polynomial-distortion model over all detected stars:
    parameter covariance gives the predicted 1-sigma error of the mapping on
    a grid over the frame (largest and RMS), reported in the quality dict.
 
-The fitting is done here on numpy design matrices (coordinates normalised
-to the half diagonal of the frame, for conditioning); the returned models
-are built by `~astroalign_nd.transforms.fit_transform` on the final pairs,
-like the linear ones.
+Steps 1 and 2 pair stars: they are the matching's
+(`~astroalign_nd.matching.grow`, whose ``fit_nonlinear`` runs the four);
+this module holds what they fit (`Problem`, the robust fit) and steps 3
+and 4 (`choose_model`).  The fitting is done here on the models' parameter
+layers (`~astroalign_nd.transforms.layers`; coordinates normalised to the
+half diagonal of the frame, for conditioning); the returned models are
+built by `~astroalign_nd.transforms.fit_transform` on the final pairs, like
+the linear ones.
 """
 
 from dataclasses import dataclass
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.special import betainc
 from ..exceptions import PoorCoverageError, PoorFitWarning, TooFewSourcesError, warn
-from ..matching.pairing import mutual_matches
-from ..matching.result import MatchResult
 from .convert import as_matrix
 from .fitting import fit_transform
-from .linear import SimilarityTransform
-from .polynomial import DEGREES, monomials, polynomial_terms
+from .linear import SimilarityLayer
+from .layers import PolynomialLayer, polynomial_terms
+from .polynomial import DEGREES
 from .registry import check_degree, is_nonlinear, nonlinear_name
-from .projective import _homography_apply, _homography_jacobian
 from .registry import NONLINEAR_TYPES, TRANSFORM_REGISTRY, transform_type_of
 
-__all__ = ['NONLINEAR_TYPES', 'check_degree', 'fit_nonlinear', 'extend_match', 'DistortionFit']
+__all__ = ['NONLINEAR_TYPES', 'check_degree', 'DistortionFit', 'choose_model', 'grown_types']
 
-#: The non-linear types (`NONLINEAR_TYPES`) this stage has candidate models for:
-#: another registered one needs its own here.
-_GROWN = ("projective", "polynomial")
+
+def grown_types():
+    """The non-linear types (`NONLINEAR_TYPES`) whose model class has a parameter
+    layer: those the distortion stage can grow."""
+    return tuple(n for n in NONLINEAR_TYPES if hasattr(TRANSFORM_REGISTRY[n].cls, "layer"))
+
 
 #: Chi-square (2 degrees of freedom) above which a pair is clipped: p = 3e-4.
 CLIP_CHI2 = 16.0
@@ -107,77 +112,19 @@ CV_MARGIN = 1.1
 #: held-out error.
 CV_ALL_DEGREES_PAIRS = 200
 
-#: The linear search's matching radius is this many times the usual one when a
-#: distortion model follows: a tilted or distorted wide field is several
-#: pixels off any linear model away from the centre.
-SEARCH_TOLERANCE_FACTOR = 2.5
-
 
 # -- the candidate models, as design matrices ---------------------------------------
 
 
-# Each candidate's design matrix is its model's own: the polynomial terms of
-# `PolynomialTransform`, the similarity's and the homography's Jacobians.
+# Each candidate is its model's parameter layer: the polynomial terms of
+# `PolynomialLayer`, the similarity's and the homography's Jacobians.
 
 def _n_terms(degree):
     return len(polynomial_terms(degree))
 
 
-class _Poly:
-    """A full polynomial of total degree ``degree`` per axis (degree 1: affine)."""
-
-    def __init__(self, degree):
-        self.degree = degree
-        self.terms = polynomial_terms(degree)
-        self.k = 2 * len(self.terms)
-        self.name = "affine" if degree == 1 else f"polynomial degree {degree}"
-        self.linear = True
-
-    def design(self, uv, params=None):
-        """(N, 2, k) derivatives of (x', y') with respect to the parameters."""
-        base = monomials(uv[:, 0], uv[:, 1], self.terms)
-        t = len(self.terms)
-        d = np.zeros((len(uv), 2, self.k))
-        d[:, 0, :t] = base
-        d[:, 1, t:] = base
-        return d
-
-
-class _Similarity:
-    """Scale, rotation, shift (mirrored when ``parity`` is -1): 4 parameters."""
-
-    def __init__(self, parity):
-        self.parity = parity
-        self.k = 4
-        self.name = "similarity"
-        self.linear = True
-
-    def design(self, uv, params=None):
-        # (rows x', y' of each star, as SimilarityTransform's fit has them)
-        return SimilarityTransform._design(uv, None, self.parity).reshape(len(uv), 2, 4)
-
-
-class _Projective:
-    """Homography h1..h8 (h9 = 1) in normalised coordinates: non-linear, Gauss-Newton."""
-
-    def __init__(self):
-        self.k = 8
-        self.name = "projective"
-        self.linear = False
-
-    @staticmethod
-    def _matrix(params):
-        h = params
-        return np.array([h[0:3], h[3:6], [h[6], h[7], 1.0]])
-
-    def predict(self, params, uv):
-        return np.column_stack(_homography_apply(self._matrix(params), uv[:, 0], uv[:, 1]))
-
-    def design(self, uv, params):
-        return _homography_jacobian(self._matrix(params), uv).reshape(len(uv), 2, 8)
-
-
-def _predict(cand, params, uv):
+def predict_with(cand, params, uv):
+    """The predicted positions of ``uv`` under a candidate layer's parameters."""
     if cand.linear:
         return np.einsum("nik,k->ni", cand.design(uv), params)
     return cand.predict(params, uv)
@@ -204,7 +151,7 @@ def solve_normal_equations(n, v):
     return inv @ v, inv
 
 
-def _wls(cand, uv, dst, w, start=None):
+def weighted_fit(cand, uv, dst, w, start=None):
     """Weighted least squares: (params, unscaled covariance), or None if degenerate."""
     sw = np.sqrt(np.repeat(w, 2))
     if cand.linear:
@@ -232,30 +179,6 @@ def _prediction_var(cand, params, cov, uv):
     return np.einsum("nik,kl,nil->n", d, cov, d)
 
 
-def _projective_start(aff_params):
-    """The homography equal to an affine fit (``_Poly(1)`` parameter order)."""
-    c = aff_params  # x: 1, u, v ; y: 1, u, v
-    return np.array([c[1], c[2], c[0], c[4], c[5], c[3], 0.0, 0.0])
-
-# -- pairing ------------------------------------------------------------------------
-
-
-class _Pairs:
-    """How source and target stars are paired: by position, or as given."""
-
-    def __init__(self, src, dst, given):
-        self.src, self.dst, self.given = src, dst, given
-        self.tree = None if given else cKDTree(dst)
-
-    def pair(self, pred, idx, tol):
-        """Pairs among source stars ``idx`` whose prediction lies within ``tol``."""
-        if self.given:
-            r = np.hypot(*(pred - self.dst[idx]).T)
-            ok = r <= tol
-            return idx[ok], idx[ok]
-        si, dj = mutual_matches(pred, self.tree, tol)
-        return idx[si], dj
-
 # -- the robust fit -----------------------------------------------------------------
 
 
@@ -272,11 +195,11 @@ def _robust_fit(cand, uv, dst, var, start=None, keep=None):
     for _ in range(12):
         if keep.sum() * 2 <= cand.k:
             return out
-        fit = _wls(cand, uv[keep], dst[keep], 1.0 / var[keep], start)
+        fit = weighted_fit(cand, uv[keep], dst[keep], 1.0 / var[keep], start)
         if fit is None:
             return out
         params, cov = fit
-        r = _predict(cand, params, uv) - dst
+        r = predict_with(cand, params, uv) - dst
         r2 = np.einsum("ij,ij->i", r, r)
         # A median is not moved by the wrong pairs the cut must remove.
         infl = max(1.0, float(np.median(r2[keep] / var[keep])) / (2.0 * np.log(2.0)))
@@ -415,7 +338,8 @@ class DistortionFit:
     Examples
     --------
     >>> import numpy as np
-    >>> from astroalign_nd.transforms import DistortionFit, fit_nonlinear
+    >>> from astroalign_nd.matching import fit_nonlinear
+    >>> from astroalign_nd.transforms import DistortionFit
     >>> rng = np.random.default_rng(0)
     >>> src = rng.uniform(0, 1000, (200, 2))
     >>> fit = fit_nonlinear(src, src + 2.0, np.eye(3), transform_type="projective",
@@ -439,110 +363,9 @@ class DistortionFit:
                 f"rms={self.rms:.3f} px>")
 
 
-def fit_nonlinear(src_pts, dst_pts, linear, *, transform_type="polynomial", degree=3,
-                  seed_points=None, source_errors=None, target_errors=None, source_frame=None,
-                  tolerance=3.0, min_tolerance=0.3, significance=1e-4, pairs_given=False,
-                  linear_type=None):
-    """
-    Grow a linear match into a projective or polynomial model over all stars.
-
-    Parameters
-    ----------
-    src_pts, dst_pts : (N, 2), (M, 2) array-like
-        Source and target star positions (pixels).  With ``pairs_given``,
-        two arrays of the same length whose rows are candidate pairs (some
-        may be wrong).
-    linear : (3, 3) array-like, linear model or None
-        The linear source-to-target transform to start from (the matched
-        similarity or affine transform).  None, with ``pairs_given``: the
-        affine transform that the most pairs agree with, to ``tolerance``
-        (a deterministic consensus over 1000 triples of pairs).
-    transform_type : {'polynomial', 'projective'}, optional
-    degree : int or 'auto', optional
-        Polynomial degree, 2 to 5, or 'auto' to choose it (linear
-        included): a candidate with more terms is chosen only if an F-test
-        (p < ``significance``) and the BIC both prefer it, and, for degrees
-        4 and 5, its held-out error in a spatially blocked cross-validation
-        is meaningfully lower.
-    seed_points : (K, 2) array-like, optional
-        Source positions of the stars matched by the linear stage: the
-        growth starts around them (by default around the stars the linear
-        model pairs within ``tolerance``).
-    source_errors, target_errors : (N,), (M,) array-like, optional
-        Expected centroid errors (pixels); 0.1 px when not given.
-    source_frame : (x0, x1, y0, y1), optional
-        The source image's extent; the source stars' bounding box by default.
-        Coverage and the predicted error are evaluated over it.
-    tolerance : float, optional
-        Pairing radius (pixels) while growing.
-    min_tolerance : float, optional
-        Smallest pairing radius of the final refinement.
-    significance : float, optional
-        F-test p-value below which extra terms are accepted (``'auto'``).
-    pairs_given : bool, optional
-        Treat rows of ``src_pts`` and ``dst_pts`` as given pairs instead of
-        pairing stars by position.
-    linear_type : str, optional
-        The linear match's type: with ``degree='auto'``, a conformal one
-        ('similarity', 'euclidean', 'translation') adds a similarity
-        candidate before the affine model (default: affine only).
-
-    Returns
-    -------
-    `DistortionFit`
-
-    Raises
-    ------
-    PoorCoverageError
-        If the paired stars do not cover the frame well enough for the
-        requested degree (or any projective model).
-    TooFewSourcesError
-        If too few stars pair up to fit even an affine model.
-
-    Examples
-    --------
-    Stars of a 4096-pixel frame through a barrel distortion of 10 px at
-    the corners, and 30% of the pairs wrong:
-
-    >>> import numpy as np
-    >>> from astroalign_nd.transforms import fit_nonlinear
-    >>> rng = np.random.default_rng(0)
-    >>> src = rng.uniform(0, 4095, (600, 2))
-    >>> u = (src - 2047.5) / 2896.0
-    >>> dst = src + (u * -0.0035 * (u ** 2).sum(1)[:, None]) * 2896.0
-    >>> dst[:180] = rng.uniform(0, 4095, (180, 2))       # wrong pairs
-    >>> fit = fit_nonlinear(src, dst, np.eye(3), degree="auto", pairs_given=True,
-    ...                     tolerance=15.0, source_frame=(-0.5, 4095.5, -0.5, 4095.5))
-    >>> fit.info["model"], fit.info["degree"], fit.info["n_pairs"]
-    ('polynomial', 3, 420)
-    >>> bool(fit.rms < 0.01)
-    True
-    """
-    prob = _prepare(src_pts, dst_pts, linear, transform_type=transform_type, degree=degree,
-                    source_errors=source_errors, target_errors=target_errors,
-                    source_frame=source_frame, tolerance=tolerance,
-                    min_tolerance=min_tolerance, pairs_given=pairs_given)
-    # 1. Grow outwards from the linear match's stars.
-    cand, params = _grow(prob, seed_points)
-    # 2. Refine over the whole frame with a shrinking pairing radius.
-    cand, params, final, tol = _refine(prob, cand, params)
-    paired = _kept_pairs(prob, final, tol)
-    # 3. Choose (degree='auto') or check the requested model.
-    if prob.transform_type == "projective":
-        choice = _choose_projective(prob, cand, params, paired)
-    else:
-        choice, paired = _choose_polynomial(prob, cand, paired, significance, linear_type)
-    # 4. Trust: coverage and predicted error over the frame.
-    trust = _trust(prob, choice, paired)
-    _warn_trust(prob, choice, paired, trust)
-    return _build(prob, choice, paired, trust, significance)
-
-# -- fit_nonlinear's stages ---------------------------------------------------------
-
-
 @dataclass
-class _Problem:
-    """The validated inputs of `fit_nonlinear`, in normalised coordinates."""
+class Problem:
+    """The validated inputs of ``fit_nonlinear``, in normalised coordinates."""
 
     transform_type: str
     degree: object  # int, 'auto' or None (projective)
@@ -561,10 +384,10 @@ class _Problem:
     var_scale: float
     e_src: np.ndarray
     e_dst: np.ndarray
-    pairs: _Pairs
+    pairs: object  # ``pair(predicted, idx, tolerance)``: the pairs among sources ``idx``
     tolerance: float
     min_tolerance: float
-    lin_params: np.ndarray  # the linear start as affine parameters (``_Poly(1)``)
+    lin_params: np.ndarray  # the linear start as affine parameters (``PolynomialLayer(1)``)
     top: int  # the highest degree offered while growing
 
     def variance(self, si, dj):
@@ -573,12 +396,14 @@ class _Problem:
     def growth_model(self, n_pairs, cap=None):
         """The most flexible model ``n_pairs`` pairs support while growing
         (of degree ``cap`` at most)."""
-        if self.transform_type == "projective":
-            return _Projective() if n_pairs >= 4 * 8 else _Poly(1)
+        entry = TRANSFORM_REGISTRY[self.transform_type]
+        if not entry.degrees:  # a model of its own, once enough pairs support it
+            own = entry.cls.layer()
+            return own if n_pairs >= 4 * own.k else PolynomialLayer(1)
         d = self.top if cap is None else cap
         while d > 1 and n_pairs < 2 * WARN_STARS_PER_TERM * _n_terms(d):
             d -= 1
-        return _Poly(d)
+        return PolynomialLayer(d)
 
     def fit_on(self, cand_new, cand_old, params_old, si, dj):
         """Robust fit of ``cand_new`` to these pairs, started from the previous model."""
@@ -587,7 +412,7 @@ class _Problem:
         start = None
         if not cand_new.linear:
             start = (params_old if not cand_old.linear
-                     else _projective_start(_fit_affine(uv, dst, var, params_old)))
+                     else cand_new.from_affine(_fit_affine(uv, dst, var, params_old)))
         return _robust_fit(cand_new, uv, dst, var, start)
 
 
@@ -627,17 +452,22 @@ class _Trust:
     tested: list
 
 
-def _prepare(src_pts, dst_pts, linear, *, transform_type, degree, source_errors,
-             target_errors, source_frame, tolerance, min_tolerance, pairs_given):
-    """Validate `fit_nonlinear`'s inputs and normalise them: a `_Problem`."""
+def prepare_problem(src_pts, dst_pts, linear, *, transform_type, degree, source_errors,
+                    target_errors, source_frame, tolerance, min_tolerance, pairs_given,
+                    pairing):
+    """
+    Validate ``fit_nonlinear``'s inputs and normalise them: a `Problem`;
+    ``pairing(src, dst, pairs_given)`` makes its ``pairs``.
+    """
     if not is_nonlinear(transform_type):
         raise ValueError(f"transform_type must be one of {list(NONLINEAR_TYPES)}; got "
                          f"{transform_type!r}.")
     transform_type = nonlinear_name(transform_type)
-    if transform_type not in _GROWN:
-        raise ValueError(f"fit_nonlinear grows {list(_GROWN)} models; it has no candidate "
-                         f"model for transform_type={transform_type!r}.")
-    degree = check_degree("polynomial", degree) if transform_type == "polynomial" else None
+    if transform_type not in grown_types():
+        raise ValueError(f"fit_nonlinear grows {list(grown_types())} models; it has no "
+                         f"candidate model for transform_type={transform_type!r}.")
+    degree = (check_degree(transform_type, degree) if TRANSFORM_REGISTRY[transform_type].degrees
+              else None)
     src = np.asarray(src_pts, float).reshape(-1, 2)
     dst = np.asarray(dst_pts, float).reshape(-1, 2)
     if pairs_given and len(src) != len(dst):
@@ -649,7 +479,7 @@ def _prepare(src_pts, dst_pts, linear, *, transform_type, degree, source_errors,
                              "matrix or model to grow from.")
         linear = _consensus_affine(src, dst, tolerance)
     m = _as_matrix(linear)
-    frame, centre, half, uv, frame_uv = _normalise(src, source_frame)
+    frame, centre, half, uv, frame_uv = normalise(src, source_frame)
     e_src = np.full(len(src), 0.1) if source_errors is None else np.asarray(source_errors, float)
     e_dst = np.full(len(dst), 0.1) if target_errors is None else np.asarray(target_errors, float)
     lin_params = np.array([m[0, 2] + m[0, 0] * centre[0] + m[0, 1] * centre[1],
@@ -657,12 +487,12 @@ def _prepare(src_pts, dst_pts, linear, *, transform_type, degree, source_errors,
                            m[1, 2] + m[1, 0] * centre[0] + m[1, 1] * centre[1],
                            m[1, 0] * half, m[1, 1] * half])
     top = 5 if degree == "auto" else (degree if degree is not None else 1)
-    return _Problem(transform_type, degree, src, dst, m, centre, half, uv, frame, frame_uv,
-                    abs(np.linalg.det(m[:2, :2])), e_src, e_dst, _Pairs(src, dst, pairs_given),
-                    tolerance, min_tolerance, lin_params, top)
+    return Problem(transform_type, degree, src, dst, m, centre, half, uv, frame, frame_uv,
+                   abs(np.linalg.det(m[:2, :2])), e_src, e_dst, pairing(src, dst, pairs_given),
+                   tolerance, min_tolerance, lin_params, top)
 
 
-def _normalise(src, source_frame):
+def normalise(src, source_frame):
     """(frame, centre, half diagonal, normalised source points, normalised frame)."""
     if source_frame is None:
         x0, y0 = src.min(axis=0) - 0.5
@@ -677,65 +507,7 @@ def _normalise(src, source_frame):
     return (x0, x1, y0, y1), centre, half, uv, frame_uv
 
 
-def _grow(prob, seed_points):
-    """Grow the fit from the linear match's stars in discs of growing radius:
-    (candidate, parameters)."""
-    cand, params = _Poly(1), prob.lin_params
-    uv, all_idx = prob.uv, np.arange(len(prob.src))
-    if seed_points is None or len(seed_points) == 0:
-        seed_si, _ = prob.pairs.pair(_predict(cand, params, uv), all_idx, prob.tolerance)
-        seed_uv = uv[seed_si]
-    else:
-        seed_uv = (np.asarray(seed_points, float).reshape(-1, 2) - prob.centre) / prob.half
-    if len(seed_uv) < 3:
-        raise TooFewSourcesError(
-            f"only {len(seed_uv)} star(s) pair up under the linear transform within "
-            f"{prob.tolerance:g} px; a distortion model needs many more. Pass more stars or a "
-            "larger tolerance.")
-    seed_centre = seed_uv.mean(axis=0)
-    dist = np.hypot(*(uv - seed_centre).T)
-    radius = max(float(np.median(np.hypot(*(seed_uv - seed_centre).T))), 1e-3)
-    r_max = float(dist.max())
-    while True:
-        idx = all_idx[dist <= radius]
-        si, dj = prob.pairs.pair(_predict(cand, params, uv[idx]), idx, prob.tolerance)
-        new = prob.growth_model(len(si))
-        fit = prob.fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
-        if fit is not None:
-            cand, params = new, fit[0]
-        if radius >= r_max:
-            break
-        radius = min(radius * 1.4, r_max)
-    return cand, params
-
-
-def _refine(prob, cand, params, cap=None):
-    """Pair over the whole frame, refit and clip with a shrinking pairing radius:
-    (candidate, parameters, (si, dj, keep, total variance), pairing radius)."""
-    all_idx = np.arange(len(prob.src))
-    tol = float(prob.tolerance)
-    final = None
-    for _ in range(10):
-        si, dj = prob.pairs.pair(_predict(cand, params, prob.uv), all_idx, tol)
-        new = prob.growth_model(len(si), cap)
-        fit = prob.fit_on(new, cand, params, si, dj) if len(si) * 2 > new.k else None
-        if fit is None:
-            break
-        cand, params = new, fit[0]
-        _, _, keep, total = fit
-        final = (si, dj, keep, total)
-        new_tol = float(np.clip(5.0 * np.sqrt(np.median(total[keep])), prob.min_tolerance, tol))
-        if new_tol == tol:
-            break
-        tol = new_tol
-    if final is None:
-        raise TooFewSourcesError(
-            f"too few stars pair up under the linear transform to fit a {prob.transform_type} "
-            f"model; pass more stars (n_sources, nsigma) or use transform_type='affine'.")
-    return cand, params, final, tol
-
-
-def _kept_pairs(prob, final, tol):
+def kept_pairs(prob, final, tol):
     """The `_Paired` of a refinement's outcome."""
     si, dj, keep, total = final
     n_paired = len(si)
@@ -743,19 +515,42 @@ def _kept_pairs(prob, final, tol):
     return _Paired(si, dj, 1.0 / total, prob.uv[si], prob.dst[dj], n_paired, tol)
 
 
-def _choose_projective(prob, cand, params, p):
-    """Check the coverage and fit the homography to the kept pairs: a `_Choice`."""
+def choose_model(prob, cand, params, paired, significance, linear_type, repair):
+    """
+    Steps 3 and 4 of ``fit_nonlinear``: choose (``degree='auto'``) or check
+    the requested model on the kept pairs, judge how far it can be trusted
+    (warning when it cannot quite), and build it: a `DistortionFit`.
+
+    ``cand``, ``params``: the refinement's last layer and parameters;
+    ``paired``: its `kept_pairs`; ``repair(layer, params, degree)``: the
+    pairs kept by a refinement with that model, of that degree at most.
+    """
+    if TRANSFORM_REGISTRY[prob.transform_type].degrees:
+        choice, paired = _choose_polynomial(prob, cand, paired, significance, linear_type,
+                                            repair)
+    else:
+        choice = _choose_fixed(prob, cand, params, paired)
+    trust = _trust(prob, choice, paired)
+    _warn_trust(prob, choice, paired, trust)
+    return _build(prob, choice, paired, trust, significance)
+
+
+def _choose_fixed(prob, cand, params, p):
+    """Check the coverage and fit a model without degrees (the homography) to the
+    kept pairs: a `_Choice`."""
     # Too few pairs while growing leave the affine model of the growth
-    # stage (6 parameters): the homography starts from its equivalent.
-    start = params if isinstance(cand, _Projective) else _projective_start(
+    # stage (6 parameters): the model starts from its equivalent.
+    name = prob.transform_type
+    own = TRANSFORM_REGISTRY[name].cls.layer()
+    start = params if not cand.linear else own.from_affine(
         _fit_affine(p.fuv, p.fdst, 1.0 / p.w, params))
     chosen, chosen_params, chosen_cov = _check_and_fit(
-        _Projective(), p.fuv, p.fdst, p.w, prob.frame_uv, 1, strict=True, start=start,
-        what="a projective model")
-    return _Choice(chosen, chosen_params, chosen_cov, "projective", None, [])
+        own, p.fuv, p.fdst, p.w, prob.frame_uv, 1, strict=True, start=start,
+        what=f"a {name} model")
+    return _Choice(chosen, chosen_params, chosen_cov, name, None, [])
 
 
-def _choose_polynomial(prob, cand, p, significance, linear_type):
+def _choose_polynomial(prob, cand, p, significance, linear_type, repair):
     """The requested polynomial, checked, or (``'auto'``) the chosen candidate:
     (`_Choice`, `_Paired`: re-paired when ``'auto'`` chose a lower degree)."""
     fits = _fit_pool(_candidate_pool(prob, p, linear_type), p)
@@ -767,38 +562,37 @@ def _choose_polynomial(prob, cand, p, significance, linear_type):
     c, d, label, _, _ = fits[best]
     if prob.degree == "auto":
         chosen, chosen_params, chosen_cov = c, *fits[best][3]
-        if d < prob.top and isinstance(cand, _Poly) and cand.degree > d:
+        if d < prob.top and isinstance(cand, PolynomialLayer) and cand.degree > d:
             # The pairs were paired and clipped by a model of higher degree:
             # pair and clip again with the chosen one, as an explicit degree
             # would have (a few pairs that only the discarded terms followed
             # would otherwise stay).
-            _, _, final, tol = _refine(prob, c, chosen_params, cap=d)
-            p = _kept_pairs(prob, final, tol)
-            refit = _wls(c, p.fuv, p.fdst, p.w)
+            p = repair(c, chosen_params, d)
+            refit = weighted_fit(c, p.fuv, p.fdst, p.w)
             if refit is not None:
                 chosen_params, chosen_cov = refit
     else:
         chosen, chosen_params, chosen_cov = _check_and_fit(
             c, p.fuv, p.fdst, p.w, prob.frame_uv, d, strict=True, start=None,
             what=f"a polynomial of degree {d}")
-    deg = d if label == "polynomial" else 1
+    deg = d if TRANSFORM_REGISTRY[label].degrees else 1
     return _Choice(chosen, chosen_params, chosen_cov, label, deg, candidates), p
 
 
 def _candidate_pool(prob, p, linear_type):
     """(candidate, degree, label) of the models to compare, fewest terms first."""
     if prob.degree != "auto":
-        return [(_Poly(prob.degree), prob.degree, "polynomial")]
+        return [(PolynomialLayer(prob.degree), prob.degree, "polynomial")]
     pool = []
     parity = 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1
     linear_entry = transform_type_of(linear_type) if isinstance(linear_type, str) else None
     if linear_entry is not None and linear_entry.conformal:
-        pool.append((_Similarity(parity), 1, "similarity"))
-    pool.append((_Poly(1), 1, "affine"))
+        pool.append((SimilarityLayer(parity), 1, "similarity"))
+    pool.append((PolynomialLayer(1), 1, "affine"))
     for d in DEGREES:
         cov_d = _coverage(p.fuv, prob.frame_uv, d, _n_terms(d))
         if _coverage_ok(cov_d, strict=True):
-            pool.append((_Poly(d), d, "polynomial"))
+            pool.append((PolynomialLayer(d), d, "polynomial"))
     return pool
 
 
@@ -806,10 +600,10 @@ def _fit_pool(pool, p):
     """(candidate, degree, label, (params, cov), chi-square) of each candidate that fits."""
     fits = []
     for c, d, label in pool:
-        fit = _wls(c, p.fuv, p.fdst, p.w)
+        fit = weighted_fit(c, p.fuv, p.fdst, p.w)
         if fit is None:
             continue
-        r = _predict(c, fit[0], p.fuv) - p.fdst
+        r = predict_with(c, fit[0], p.fuv) - p.fdst
         chi2 = float(np.sum(p.w * np.einsum("ij,ij->i", r, r)))
         fits.append((c, d, label, fit, chi2))
     if not fits:
@@ -882,7 +676,7 @@ def _trust(prob, choice, p):
     """Coverage, predicted error over the frame and residual excess: a `_Trust`."""
     chosen, fuv, frame_uv = choice.cand, p.fuv, prob.frame_uv
     coverage = _coverage(fuv, frame_uv, choice.deg or 1, chosen.k / 2.0)
-    r = _predict(chosen, choice.params, fuv) - p.fdst
+    r = predict_with(chosen, choice.params, fuv) - p.fdst
     r2 = np.einsum("ij,ij->i", r, r)
     dof = max(2 * len(fuv) - chosen.k, 1)
     chi_red = float(np.sum(p.w * r2)) / dof
@@ -901,14 +695,14 @@ def _warn_trust(prob, choice, p, trust):
     """The PoorFitWarnings of a fit: sparse coverage, excess residuals, uncertainty."""
     name, n, coverage, excess = choice.name, len(p.fuv), trust.coverage, trust.excess
     what = _label(name, choice.deg)
-    if name in ("polynomial", "projective") and not _coverage_ok(coverage, strict=False):
+    if not TRANSFORM_REGISTRY[name].linear and not _coverage_ok(coverage, strict=False):
         warn(f"the {n} stars fitting the {what} cover "
              f"{coverage['occupancy']:.0%} of a {coverage['grid'][0]}x{coverage['grid'][1]} grid "
              f"over the frame with {coverage['stars_per_term']:.1f} stars per term (want "
              f"{WARN_OCCUPANCY:.0%} and {WARN_STARS_PER_TERM:g}); the model is poorly "
              "constrained where there are no stars. Use a lower degree (or degree='auto') or "
              "more stars (n_sources, nsigma).", PoorFitWarning)
-    if (prob.degree == "auto" and name != "polynomial"
+    if (prob.degree == "auto" and not TRANSFORM_REGISTRY[name].degrees
             and (excess > WARN_EXCESS or trust.tested == [1])):
         why = (f"its residuals are {excess:.1f} times what the centroid errors predict"
                if excess > WARN_EXCESS else "no polynomial could be tested")
@@ -936,7 +730,8 @@ def _build(prob, choice, p, trust, significance):
     and the `DistortionFit`."""
     name, deg, degree = choice.name, choice.deg, prob.degree
     s_pts, d_pts = prob.src[p.si], prob.dst[p.dj]
-    if name == "polynomial":
+    entry = TRANSFORM_REGISTRY[name]
+    if entry.degrees:
         model, cov, resid = _fit_polynomial(fit_transform, s_pts, d_pts, deg, p.w, prob.centre,
                                             prob.frame)
     else:
@@ -944,7 +739,8 @@ def _build(prob, choice, p, trust, significance):
         kw = ({"parity": 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1}
               if TRANSFORM_REGISTRY[name].parity else {})
         model, cov, resid = fit_transform(s_pts, d_pts, name, weights=p.w, **kw)
-    info = dict(model=name, degree=deg, requested_degree=degree if name != "projective" else None,
+    info = dict(model=name, degree=deg, requested_degree=(
+                    degree if entry.linear or entry.degrees else None),
                 selection=("F-test, BIC and blocked cross-validation" if degree == "auto"
                            else None), significance=significance,
                 candidates=choice.candidates, coverage=trust.coverage,
@@ -986,12 +782,14 @@ def _consensus_affine(src, dst, tolerance, n_trials=1000):
 
 
 def _label(name, degree):
-    return f"polynomial model of degree {degree}" if name == "polynomial" else f"{name} model"
+    if TRANSFORM_REGISTRY[name].degrees:
+        return f"{name} model of degree {degree}"
+    return f"{name} model"
 
 
 def _fit_affine(uv, dst, var, params):
-    """Affine parameters (``_Poly(1)``) of these pairs (``params`` if degenerate)."""
-    fit = _wls(_Poly(1), uv, dst, 1.0 / var)
+    """Affine parameters (``PolynomialLayer(1)``) of these pairs (``params`` if degenerate)."""
+    fit = weighted_fit(PolynomialLayer(1), uv, dst, 1.0 / var)
     return params if fit is None else fit[0]
 
 
@@ -1006,7 +804,7 @@ def _check_and_fit(cand, uv, dst, w, frame_uv, degree, *, strict, start, what):
             f"(need {MIN_OCCUPANCY:.0%}) with {cov['stars_per_term']:.1f} stars per term (need "
             f"{MIN_STARS_PER_TERM:g}). Pass a lower degree or degree='auto', "
             "transform_type='affine', or more stars (n_sources, nsigma).")
-    fit = _wls(cand, uv, dst, w, start)
+    fit = weighted_fit(cand, uv, dst, w, start)
     if fit is None:
         raise PoorCoverageError(f"the paired stars cannot constrain {what} (degenerate "
                                 "geometry); use a lower degree or transform_type='affine'.")
@@ -1025,99 +823,3 @@ def _as_matrix(linear):
     if m.shape != (3, 3) or not np.all(np.isfinite(m)):
         raise ValueError("linear must be a finite 3x3 matrix or a linear transform model.")
     return m
-
-
-#: Stars of each image used to grow a distortion model: ``Reference.stars``
-#: detects twice this many (brightest first).
-FIT_SOURCES = 1000
-
-#: Stellar widths of the two frames (at the same scale) that differ by less than
-#: this factor are taken as consistent measurements.
-FWHM_AGREEMENT = 1.25
-
-
-def _fwhm_mismatch(fwhm_src, fwhm_dst, scale):
-    """|log| of the target FWHM over the source FWHM mapped to the target scale."""
-    return abs(float(np.log(fwhm_dst / (scale * fwhm_src))))
-
-
-def extend_match(result, source, target, *, transform_type, degree=3, tolerance=3.0,
-                 significance=1e-4, n_fit=FIT_SOURCES, n_control=None):
-    """
-    Grow the linear `~astroalign_nd.matching.MatchResult` of
-    `~astroalign_nd.find_match` into a non-linear one over many more stars.
-
-    Parameters
-    ----------
-    result : `~astroalign_nd.matching.MatchResult`
-        The trusted linear match.
-    source, target : `~astroalign_nd.Reference`
-        The two frames (their detections are cached and reused).
-    transform_type, degree, tolerance, significance
-        See `fit_nonlinear`.
-    n_fit : int, optional
-        Detect up to ``2 * n_fit`` stars per image for the fit.
-    n_control : (int, int), optional
-        The control points of each frame in the linear match (by default
-        ``result.n_sources_used`` for both).  When the larger star lists'
-        detections found stellar widths that disagree between the frames
-        (by more than ``FWHM_AGREEMENT``, at the match's scale) and the
-        control points' widths agree better, the larger lists are detected
-        again at the control points' widths, so that both frames are
-        measured consistently.
-
-    Returns
-    -------
-    `~astroalign_nd.matching.MatchResult`
-        ``transform`` is the chosen model; the indices refer to the larger
-        star lists; ``extra['model_selection']`` holds the ``info`` of the
-        `~astroalign_nd.transforms.DistortionFit` and
-        ``extra['linear_transform']`` the linear match.
-
-    Examples
-    --------
-    >>> from astroalign_nd import Reference, find_match
-    >>> from astroalign_nd.simulate import simulate_pair
-    >>> from astroalign_nd.transforms import extend_match
-    >>> pair = simulate_pair((512, 512), n_stars=300, rotation=30.0, seed=1)
-    >>> source, target = Reference(pair.source), Reference(pair.target)
-    >>> linear = find_match(source, target)
-    >>> grown = extend_match(linear, source, target, transform_type="polynomial", degree=2)
-    >>> type(grown.transform).__name__, len(grown.source_index) > len(linear.source_index)
-    ('PolynomialTransform', True)
-    """
-    n = max(int(n_fit), int(result.n_sources_used or 0))
-    if n_control is None:
-        n_control = (result.n_sources_used, result.n_sources_used)
-    src_pts, src_err, src_frame = source.stars(n)
-    dst_pts, dst_err, _ = target.stars(n)
-    # Asking for many more stars can make detection search other scales and
-    # choose a very different width in one frame only; centroids of asymmetric
-    # stars (plate scans) then shift between the frames by a good fraction of
-    # a pixel.  If the control points' widths agreed better, detect again at them.
-    scale = float(np.sqrt(abs(np.linalg.det(result.transform.matrix[:2, :2]))))
-    free = (source.detection_fwhm(n), target.detection_fwhm(n))
-    ctrl = (source.detection_fwhm(n_control[0]), target.detection_fwhm(n_control[1]))
-    if (None not in free + ctrl and _fwhm_mismatch(*free, scale) > np.log(FWHM_AGREEMENT)
-            and _fwhm_mismatch(*ctrl, scale) < _fwhm_mismatch(*free, scale)):
-        if free[0] != ctrl[0]:
-            src_pts, src_err, src_frame = source.stars(n, fwhm=ctrl[0])
-        if free[1] != ctrl[1]:
-            dst_pts, dst_err, _ = target.stars(n, fwhm=ctrl[1])
-    fit = fit_nonlinear(src_pts, dst_pts, result.transform.matrix, transform_type=transform_type,
-                        degree=degree, seed_points=result.source_points,
-                        source_errors=src_err, target_errors=dst_err, source_frame=src_frame,
-                        tolerance=tolerance, significance=significance,
-                        linear_type=transform_type_of(result.transform).name)
-    out = MatchResult(
-        transform=fit.transform, source_index=fit.source_index, target_index=fit.target_index,
-        residuals=fit.residuals, rms=fit.rms, covariance=fit.covariance,
-        log10_false_alarm=result.log10_false_alarm, n_source=len(src_pts),
-        n_target=len(dst_pts), n_triangle_matches=result.n_triangle_matches,
-        n_hypotheses=result.n_hypotheses, model_misfit=0.0,
-        predicted_error=fit.info["predicted_error_max"],
-        source_points=src_pts[fit.source_index], target_points=dst_pts[fit.target_index],
-        n_sources_used=result.n_sources_used)
-    out.extra["model_selection"] = fit.info
-    out.extra["linear_transform"] = result.transform
-    return out

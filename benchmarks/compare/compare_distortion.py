@@ -3,7 +3,7 @@ Bit-for-bit check of a refactor of the distortion stage (model selection).
 
 Runs, on a fixed set of inputs, ``find_transform(..., transform_type=
 'polynomial')`` (``degree`` 2, 3 and ``'auto'``) and ``transform_type=
-'projective'``, and ``transforms.fit_nonlinear`` on given pairs, and
+'projective'``, and ``matching.fit_nonlinear`` on given pairs, and
 writes per input the model's class and parameters, the covariance, the pairs'
 indices, the quality dict (without timing) and the warnings' texts, or the
 exception's type and message, to a JSON file (floats through their hex
@@ -117,7 +117,10 @@ def _find(source, target, kw):
 
 
 def _fit(src, dst, linear, kw):
-    from astroalign_nd.transforms import fit_nonlinear
+    try:  # (its home since the transforms stopped importing the matching)
+        from astroalign_nd.matching import fit_nonlinear
+    except ImportError:
+        from astroalign_nd.model_selection import fit_nonlinear
 
     r, caught = _catch(lambda: fit_nonlinear(src, dst, linear, **kw))
     if r is None:

@@ -18,9 +18,9 @@ and, in later iterations, only the distances to these candidates.  A
 candidate list is exact for a moved prediction as long as the prediction
 moved by less than the gap to the next target: the sources where it is
 not are looked up again (usually none).  The fits of the iterations are
-normal-equation fits of the model's design matrix (the same candidate
-models as the distortion stage, ``transforms.selection``), accumulated in
-chunks; the final model is `~astroalign_nd.transforms.fit_transform`'s, of
+normal-equation fits of the model's parameter layer (its ``fit_layer``,
+as the distortion stage fits it: `~astroalign_nd.transforms.layers`),
+accumulated in chunks; the final model is `~astroalign_nd.transforms.fit_transform`'s, of
 the last of these fits for the linear models (the same least-squares
 problem), or fitted by it for the others.
 """
@@ -32,13 +32,15 @@ from scipy.stats import poisson
 
 from .._kernels import PointGrid, two_nearest
 from ..exceptions import TooFewSourcesError, TransformNotFoundError
-from ..matching.pairing import resolve_claims
-from .convert import as_matrix
-from .fitting import _fit_from_matrix, fit_transform
-from .linear import LinearTransform2D
-from .registry import TRANSFORM_REGISTRY, transform_type_of
-from .selection import (_Poly, _Projective, _Similarity, _normalise, _predict, _projective_start,
-                        _wls, fit_nonlinear, solve_normal_equations)
+from ..transforms.convert import as_matrix
+from ..transforms.fitting import fit_from_matrix, fit_transform
+from ..transforms.linear import LinearTransform2D, SimilarityLayer
+from ..transforms.layers import PolynomialLayer
+from ..transforms.registry import TRANSFORM_REGISTRY, transform_type_of
+from ..transforms.selection import (normalise, predict_with, solve_normal_equations,
+                                    weighted_fit)
+from .grow import fit_nonlinear
+from .pairing import resolve_claims
 
 __all__ = ['pair_all', 'AllPairs', 'pairing_radius', 'bounds']
 
@@ -92,7 +94,7 @@ class AllPairs:
     Examples
     --------
     >>> import numpy as np
-    >>> from astroalign_nd.transforms.allpairs import AllPairs, pair_all
+    >>> from astroalign_nd.matching.allpairs import AllPairs, pair_all
     >>> rng = np.random.default_rng(1)
     >>> src = rng.uniform(0, 1000, (400, 2))
     >>> out = pair_all(src, src + [3.0, -2.0] + rng.normal(0, 0.05, src.shape), np.eye(3),
@@ -182,7 +184,7 @@ def bounds(points):
     Examples
     --------
     >>> import numpy as np
-    >>> from astroalign_nd.transforms.allpairs import bounds
+    >>> from astroalign_nd.matching.allpairs import bounds
     >>> bounds(np.array([[1.0, 5.0], [3.0, -2.0]]))
     (array([ 1., -2.]), array([3., 5.]))
     """
@@ -203,7 +205,7 @@ def pairing_radius(sigma, density, n_pairs, n_unpaired):
 
     Examples
     --------
-    >>> from astroalign_nd.transforms.allpairs import pairing_radius
+    >>> from astroalign_nd.matching.allpairs import pairing_radius
     >>> round(pairing_radius(0.14, 5e-3, 64000, 26000), 3)  # 100,000 stars on 4096 px
     0.57
     """
@@ -213,52 +215,10 @@ def pairing_radius(sigma, density, n_pairs, n_unpaired):
     return float(sigma * np.clip(k, MIN_SIGMAS, MAX_SIGMAS))
 
 
-class _Translation:
-    """A shift only, ``x' = x + tx``: 2 parameters, and the fixed part ``x``
-    (in pixels: ``centre + half * uv``), which the fit subtracts."""
-
-    k = 2
-    name = "translation"
-    linear = True
-
-    def __init__(self, centre, half):
-        self.centre, self.half = np.asarray(centre, float), float(half)
-
-    def design(self, uv, params=None):
-        d = np.zeros((len(uv), 2, 2))
-        d[:, 0, 0] = d[:, 1, 1] = 1.0
-        return d
-
-    def offset(self, uv):
-        return self.centre + self.half * uv
-
-
-#: The types whose candidate model of the iterations is the model itself (the
-#: same least-squares problem); any other (a Euclidean transform: rotation
-#: and shift) is iterated as the nearest of these, then paired again under
-#: its own fits until the pairs repeat.
-_SAME_PROBLEM = ("translation", "similarity", "affine", "polynomial", "projective")
-
-
-def _working_model(transform_type, degree, parity, centre, half):
-    """The candidate model of the iterations: (candidate, its degree or None)."""
-    entry = transform_type_of(transform_type)
-    if entry.name == "polynomial":
-        return _Poly(int(degree)), int(degree)
-    if entry.name == "projective":
-        return _Projective(), None
-    if entry.name == "translation":
-        return _Translation(centre, half), None
-    if entry.conformal:
-        return _Similarity(parity), None
-    return _Poly(1), None
-
-
-def _is_affine_in_uv(cand):
-    """True for the candidates whose design is linear in (1, u, v): translation,
-    similarity, affine."""
-    return isinstance(cand, (_Similarity, _Translation)) or (
-        isinstance(cand, _Poly) and cand.degree == 1)
+def _working_model(entry, degree, parity):
+    """The layer of the iterations (the type's ``fit_layer``): (layer, its degree or None)."""
+    layer = entry.cls.fit_layer(parity=parity, degree=degree)
+    return layer, (layer.degree if entry.degrees else None)
 
 
 def _design_parts(cand):
@@ -270,7 +230,7 @@ def _design_parts(cand):
 def _normal_equations(cand, uv, dst):
     """(A^T A, A^T b) of the candidate's design over these pairs."""
     k = cand.k
-    if _is_affine_in_uv(cand):
+    if cand.affine_in_position:
         # From the moments of (u, v): no design matrix of all the pairs.
         # (Sums of column products: a matrix product of (N, 2) arrays is slower, and
         # threaded BLAS calls stall on a busy machine.)
@@ -301,25 +261,30 @@ def _chunked_fit(cand, uv, dst):
     return None if sol is None else sol[0]
 
 
-def _fit_params(cand, uv, dst, params):
+def _offset(problem, uv):
+    """The pixel positions of normalised source points."""
+    return problem.centre + problem.half * uv
+
+
+def _fit_params(problem, cand, uv, dst, params):
     """The candidate's parameters on these pairs (None if degenerate)."""
-    if hasattr(cand, "offset"):
-        dst = dst - cand.offset(uv)
+    if cand.adds_position:  # (a shift: the fixed part, the position, is subtracted)
+        dst = dst - _offset(problem, uv)
     if cand.linear:
         return _chunked_fit(cand, uv, dst)
     if params is None or len(params) != cand.k:  # from an affine fit of the same pairs
-        aff = _chunked_fit(_Poly(1), uv, dst)
+        aff = _chunked_fit(PolynomialLayer(1), uv, dst)
         if aff is None:
             return None
-        params = _projective_start(aff)
-    fit = _wls(cand, uv, dst, np.ones(len(uv)), params)
+        params = cand.from_affine(aff)
+    fit = weighted_fit(cand, uv, dst, np.ones(len(uv)), params)
     return None if fit is None else fit[0]
 
 
-def _chunked_predict(cand, params, uv):
+def _chunked_predict(problem, cand, params, uv):
     """The candidate's predicted target positions of all the sources."""
-    if _is_affine_in_uv(cand):
-        p = _predict(cand, params, np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
+    if cand.affine_in_position:
+        p = predict_with(cand, params, np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
         j = p[1:] - p[0]
         out = np.empty_like(uv)
         out[:, 0] = uv[:, 0] * j[0, 0] + uv[:, 1] * j[1, 0] + p[0, 0]
@@ -327,9 +292,9 @@ def _chunked_predict(cand, params, uv):
     else:
         out = np.empty_like(uv)
         for lo in range(0, len(uv), CHUNK):
-            out[lo:lo + CHUNK] = _predict(cand, params, uv[lo:lo + CHUNK])
-    if hasattr(cand, "offset"):
-        out += cand.offset(uv)
+            out[lo:lo + CHUNK] = predict_with(cand, params, uv[lo:lo + CHUNK])
+    if cand.adds_position:
+        out += _offset(problem, uv)
     return out
 
 
@@ -368,11 +333,11 @@ class _State:
         """Fit ``cand`` on the pairs, predict all sources, set the next radius."""
         p = self.p
         uv, dst = np.take(p.uv, si, axis=0), np.take(p.dst, dj, axis=0)
-        params = _fit_params(cand, uv, dst, self.params)
+        params = _fit_params(p, cand, uv, dst, self.params)
         if params is None:
             return False
         self.params, self.si, self.dj, self.cand = params, si, dj, cand
-        self.pred = _chunked_predict(cand, params, p.uv)
+        self.pred = _chunked_predict(p, cand, params, p.uv)
         r = np.take(self.pred, si, axis=0) - dst
         self.sigma = _sigma(r[:, 0] ** 2 + r[:, 1] ** 2)
         if p.fixed_radius is None:
@@ -426,7 +391,7 @@ def _choose_degree(state, conformal, significance):
     if len(si) > AUTO_PAIRS:
         pick = np.sort(np.random.default_rng(0).choice(len(si), AUTO_PAIRS, replace=False))
         si, dj = si[pick], dj[pick]
-    aff = _chunked_fit(_Poly(1), p.uv[si], p.dst[dj])
+    aff = _chunked_fit(PolynomialLayer(1), p.uv[si], p.dst[dj])
     m = np.eye(3)  # the affine fit, back in pixels
     m[0, :2], m[1, :2] = aff[1:3] / p.half, aff[4:6] / p.half
     m[0, 2] = aff[0] - m[0, :2] @ p.centre
@@ -436,9 +401,10 @@ def _choose_degree(state, conformal, significance):
                         min_tolerance=state.radius, source_frame=p.frame,
                         significance=significance, linear_type="similarity")
     info = fit.info
-    if info["model"] == "polynomial":
-        return _Poly(info["degree"]), "polynomial", info["degree"]
-    return conformal if info["model"] == "similarity" else _Poly(1), info["model"], None
+    entry = TRANSFORM_REGISTRY[info["model"]]
+    if entry.degrees:
+        return entry.cls.fit_layer(degree=info["degree"]), entry.name, info["degree"]
+    return conformal if entry.conformal else PolynomialLayer(1), entry.name, None
 
 
 def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parity=None,
@@ -472,7 +438,7 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
         The source frame (by default the sources' bounding box).
     significance : float, optional
         The F-test level of ``degree='auto'`` (see
-        `~astroalign_nd.transforms.fit_nonlinear`).
+        `~astroalign_nd.matching.fit_nonlinear`).
     workers : int, optional
         Threads of the nearest-neighbour look-ups.
 
@@ -489,7 +455,7 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
     --------
     >>> import numpy as np
     >>> from astroalign_nd.transforms import SimilarityTransform
-    >>> from astroalign_nd.transforms.allpairs import pair_all
+    >>> from astroalign_nd.matching.allpairs import pair_all
     >>> rng = np.random.default_rng(0)
     >>> src = rng.uniform(0, 2048, (5000, 2))
     >>> truth = SimilarityTransform(scale=1.1, rotation=30.0, translation_x=5.0)
@@ -505,12 +471,13 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
         c = np.array([src[:, 0].mean(), src[:, 1].mean()]) if len(src) else np.zeros(2)
         q = _predict_start(start, np.array([c, c + [1.0, 0.0], c + [0.0, 1.0]]))
         parity = 1 if np.linalg.det(np.array([q[1] - q[0], q[2] - q[0]])) > 0 else -1
-    if frame is None:  # the sources' bounding box, as _normalise takes it
+    if frame is None:  # the sources' bounding box, as normalise takes it
         lo, hi = bounds(src)
         frame = (lo[0] - 0.5, hi[0] + 0.5, lo[1] - 0.5, hi[1] + 0.5)
-    frame, centre, half, uv, _ = _normalise(src, frame)
-    first = "affine" if degree == "auto" else entry.name
-    cand, deg = _working_model(first, 1 if degree == "auto" else degree, parity, centre, half)
+    frame, centre, half, uv, _ = normalise(src, frame)
+    # degree='auto' starts from the polynomial of degree 1 (an affine map).
+    cand, deg = ((PolynomialLayer(1), None) if degree == "auto"
+                 else _working_model(entry, degree, parity))
     lo, hi = bounds(dst)
     density = len(dst) / max(float(np.prod(hi - lo)), 1.0)
     tol = float(tolerance if radius is None else max(radius, 0.0))
@@ -520,7 +487,7 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
     n_it, converged = _iterate(state, cand, max_iterations)
     name = entry.name
     if degree == "auto":
-        cand, name, deg = _choose_degree(state, _Similarity(parity), significance)
+        cand, name, deg = _choose_degree(state, SimilarityLayer(parity), significance)
         state.params = state.si = None  # refit at least once with the chosen model
         more, converged = _iterate(state, cand, max_iterations)
         n_it += more
@@ -541,19 +508,13 @@ def _check_not_chance(state):
             "transform= (or let the search find it), or pass a larger first radius (max_radius).")
 
 
-#: The types whose final model is the iterations' own last fit (the same
-#: least-squares problem, solved through its normal equations): built from
-#: it by `~astroalign_nd.transforms.fitting._fit_from_matrix`, not solved again.
-_FROM_LAST_FIT = ("translation", "similarity", "affine")
-
-
 def _pixel_matrix(state):
     """The 3x3 pixel matrix of the last fit of a candidate affine in (u, v)."""
     p = state.p
-    q = _chunked_predict(state.cand, state.params, np.array([[0.0, 0.0], [1.0, 0.0],
-                                                             [0.0, 1.0]]))
+    q = _chunked_predict(p, state.cand, state.params, np.array([[0.0, 0.0], [1.0, 0.0],
+                                                                [0.0, 1.0]]))
     m = np.eye(3)
-    if not isinstance(state.cand, _Translation):  # (a shift keeps its exact identity)
+    if not state.cand.adds_position:  # (a shift keeps its exact identity)
         m[:2, :2] = np.column_stack([q[1] - q[0], q[2] - q[0]]) / p.half
     m[:2, 2] = q[0] - m[:2, :2] @ p.centre
     return m
@@ -563,8 +524,12 @@ def _fit_final(state, name, kw):
     """`fit_transform`'s (model, covariance, residuals) on the current pairs."""
     p = state.p
     s, d = np.take(p.src, state.si, axis=0), np.take(p.dst, state.dj, axis=0)
-    if name in _FROM_LAST_FIT and state.cand is not None and _is_affine_in_uv(state.cand):
-        return _fit_from_matrix(name, _pixel_matrix(state), s, d, kw.get("parity", 1))
+    # The linear types whose iterations solved their own problem: their final
+    # model is the last of these fits (built by `fit_from_matrix`, not solved again).
+    entry = TRANSFORM_REGISTRY[name]
+    if (entry.linear and entry.cls.iterated_exactly() and state.cand is not None
+            and state.cand.affine_in_position):
+        return fit_from_matrix(name, _pixel_matrix(state), s, d, kw.get("parity", 1))
     return fit_transform(s, d, name, **kw)
 
 
@@ -572,14 +537,15 @@ def _final(state, name, deg, parity, n_it, converged, max_iterations):
     """The model of the chosen type fitted on the final pairs: an `AllPairs`."""
     p = state.p
     kw = {}
-    if name == "polynomial":
+    entry = TRANSFORM_REGISTRY[name]
+    if entry.degrees:
         kw = dict(degree=deg, crpix=(float(p.centre[0]), float(p.centre[1])),
                   domain=tuple(float(v) for v in p.frame))
-    elif TRANSFORM_REGISTRY[name].parity:
+    elif entry.parity:
         kw = dict(parity=parity)
     for _ in range(max_iterations):
         model, cov, resid = _fit_final(state, name, kw)
-        if name in _SAME_PROBLEM:
+        if entry.cls.iterated_exactly():
             break
         # Another model than the iterations': pair again under its own fit.
         si, dj = resolve_claims(*p.cands.nearest(_predict_start(model, p.src), state.radius))
