@@ -229,7 +229,7 @@ def test_register_polynomial():
 def test_cli_polynomial(tmp_path):
     from astropy.io import fits
 
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
     pair = _wide_pair(5.0, seed=10)
@@ -250,7 +250,7 @@ def test_cli_polynomial(tmp_path):
 def test_cli_degree_checked(tmp_path):
     from astropy.io import fits
 
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
     pair = simulate_pair((128, 128), n_stars=40, seed=1)
     fits.writeto(tmp_path / "src.fits", pair.source)
