@@ -44,3 +44,25 @@ def run_cli(*args):
         warnings.filterwarnings("default", category=AstroalignWarning)
         code = main([str(a) for a in args])
     return code, out.getvalue(), err.getvalue()
+
+
+def random_matrix(rng, transform_type, mirrored=False, frame=1000.0):
+    """A source -> target matrix of the given type (modest shear for affine).
+
+    The centre of a ``frame`` x ``frame`` field stays inside the target field.
+    """
+    rot = rng.uniform(-np.pi, np.pi) if transform_type != "translation" else 0.0
+    scale = rng.uniform(0.6, 1.6) if transform_type in ("similarity", "affine") else 1.0
+    c, s = np.cos(rot), np.sin(rot)
+    lin = scale * np.array([[c, -s], [s, c]])
+    if transform_type == "affine":
+        lin = lin @ np.array([[rng.uniform(0.85, 1.15), rng.uniform(-0.1, 0.1)],
+                              [0.0, rng.uniform(0.85, 1.15)]])
+    if mirrored and transform_type != "translation":
+        lin = lin @ np.diag([1.0, -1.0])
+    m = np.eye(3)
+    m[:2, :2] = lin
+    # Keep the frame centre inside the target frame: the fields overlap.
+    centre = np.array([frame / 2, frame / 2])
+    m[:2, 2] = centre - lin @ centre + rng.uniform(-150, 150, 2)
+    return m
