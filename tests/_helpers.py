@@ -1,4 +1,13 @@
-"""Helpers shared by the test modules (not a test module itself)."""
+"""Helpers shared by the test modules (not a test module itself).
+
+The test folders hold no ``__init__.py``: pytest puts ``tests/`` (the folder of the
+root ``conftest.py``) on ``sys.path``, so every test module imports these as
+``from _helpers import ...``, and test file names are unique across the folders.
+"""
+
+import contextlib
+import io
+import warnings
 
 import numpy as np
 
@@ -16,3 +25,44 @@ def frame_error(estimate, truth, target_shape, n=17):
     p = np.column_stack([gx.ravel(), gy.ravel(), np.ones(gx.size)])
     r = p @ np.linalg.inv(m_true).T @ m_est.T
     return float(np.max(np.hypot(r[:, 0] - p[:, 0], r[:, 1] - p[:, 1])))
+
+
+def run_cli(*args):
+    """``astroalign-nd ARGS`` in this process: (exit code, stdout, stderr).
+
+    The package's own warnings print as the command line prints them (one line on
+    standard error), as in a process of its own; any other warning stays an error
+    (the suite's ``filterwarnings = error``).  A few tests start a real process
+    (signals, exit codes of ``python -m astroalign_nd.cli``); the rest use this.
+    """
+    from astroalign_nd import AstroalignWarning
+    from astroalign_nd.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with warnings.catch_warnings(), contextlib.redirect_stdout(out), \
+            contextlib.redirect_stderr(err):
+        warnings.filterwarnings("default", category=AstroalignWarning)
+        code = main([str(a) for a in args])
+    return code, out.getvalue(), err.getvalue()
+
+
+def random_matrix(rng, transform_type, mirrored=False, frame=1000.0):
+    """A source -> target matrix of the given type (modest shear for affine).
+
+    The centre of a ``frame`` x ``frame`` field stays inside the target field.
+    """
+    rot = rng.uniform(-np.pi, np.pi) if transform_type != "translation" else 0.0
+    scale = rng.uniform(0.6, 1.6) if transform_type in ("similarity", "affine") else 1.0
+    c, s = np.cos(rot), np.sin(rot)
+    lin = scale * np.array([[c, -s], [s, c]])
+    if transform_type == "affine":
+        lin = lin @ np.array([[rng.uniform(0.85, 1.15), rng.uniform(-0.1, 0.1)],
+                              [0.0, rng.uniform(0.85, 1.15)]])
+    if mirrored and transform_type != "translation":
+        lin = lin @ np.diag([1.0, -1.0])
+    m = np.eye(3)
+    m[:2, :2] = lin
+    # Keep the frame centre inside the target frame: the fields overlap.
+    centre = np.array([frame / 2, frame / 2])
+    m[:2, 2] = centre - lin @ centre + rng.uniform(-150, 150, 2)
+    return m

@@ -21,7 +21,7 @@ from astroalign_nd import PoorFitWarning, find_sources, find_transform
 from astroalign_nd.simulate import (add_nebulosity, add_overscan, bayer_bin, simulate_pair,
                                     to_8bit)
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 needs_data = pytest.mark.skipif(not (DATA / "real").is_dir() or not (DATA / "field").is_dir(),
                                 reason=f"real frames not available (expected {DATA})")
 

@@ -1,6 +1,6 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """
-A night's work through the real command line (issue 29): --fill-value, the
+A night's work through the command line: --fill-value, the
 reference written with the frames, the summary's transform columns, float32
 outputs, one table of exit codes, hints in the command line's own option
 names, batch --plot DIR, the union canvas's HISTORY, channels-first cubes,
@@ -8,8 +8,6 @@ image files flipped bottom-up, and a demo whose help is true.
 """
 
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -22,16 +20,9 @@ from astroalign_nd import transform_from_header
 from astroalign_nd.cli import main
 from astroalign_nd.simulate import simulate_pair
 
-WORKTREE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from _helpers import run_cli
 
-
-def _cli(*args, timeout=300):
-    """``astroalign-nd ARGS`` in a new process: (exit code, stdout, stderr)."""
-    env = dict(os.environ, PYTHONPATH=WORKTREE + os.pathsep + os.environ.get("PYTHONPATH", ""),
-               MPLBACKEND="Agg")
-    r = subprocess.run([sys.executable, "-m", "astroalign_nd.cli", *map(str, args)],
-                       capture_output=True, text=True, env=env, timeout=timeout)
-    return r.returncode, r.stdout, r.stderr
+WORKTREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def _write(path, data, **header):
@@ -72,9 +63,9 @@ def night(tmp_path_factory):
 def test_union_batch_fill_reference_summary_history(night, tmp_path):
     ref, frames, shape = night
     out, summary = tmp_path / "out", tmp_path / "night.ecsv"
-    code, stdout, stderr = _cli("batch", *[f for f, _ in frames], "-r", ref, "--output-dir",
-                                out, "--canvas", "union", "--fill-value", "0", "--summary",
-                                summary, "--no-progress")
+    code, stdout, stderr = run_cli("batch", *[f for f, _ in frames], "-r", ref, "--output-dir",
+                                   out, "--canvas", "union", "--fill-value", "0", "--summary",
+                                   summary, "--no-progress")
     assert code == 0, stderr
     refout = CCDData.read(out / "ref_reference.fits")
     frame0 = CCDData.read(out / "f0_aligned.fits")
@@ -119,8 +110,8 @@ def test_reference_mode_writes_the_reference_and_float32(night, tmp_path):
     ccd.mask[10:20, 30:40] = True
     ccd.write(d / "refm.fits")
     out = tmp_path / "out"
-    code, stdout, stderr = _cli("batch", frames[0][0], "-r", d / "refm.fits", "--output-dir",
-                                out, "--no-progress")
+    code, stdout, stderr = run_cli("batch", frames[0][0], "-r", d / "refm.fits", "--output-dir",
+                                   out, "--no-progress")
     assert code == 0, stderr
     refout = CCDData.read(out / "refm_reference.fits")
     np.testing.assert_array_equal(refout.mask, ccd.mask)
@@ -131,8 +122,8 @@ def test_reference_mode_writes_the_reference_and_float32(night, tmp_path):
     frame = CCDData.read(out / "f0_aligned.fits")
     assert frame.data.dtype == ">f4" == refout.data.dtype
     # Again: the reference exists; --skip-existing keeps it, without it the run refuses.
-    code, stdout, _ = _cli("batch", frames[0][0], "-r", d / "refm.fits", "--output-dir", out,
-                           "--skip-existing", "--no-progress")
+    code, stdout, _ = run_cli("batch", frames[0][0], "-r", d / "refm.fits", "--output-dir", out,
+                              "--skip-existing", "--no-progress")
     assert code == 0 and "skipped" in stdout
 
 
@@ -167,19 +158,19 @@ def sparse(tmp_path_factory):
 def test_exit_codes(night, sparse, tmp_path):
     ref, frames, _ = night
     # 3: refused, with the hint in the command line's words.
-    code, _, err = _cli("register", *sparse["none"], "-o", tmp_path / "x.fits")
+    code, _, err = run_cli("register", *sparse["none"], "-o", tmp_path / "x.fits")
     assert code == 3 and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert "--n-sources" in err and "n_sources" not in err.replace("--n-sources", "")
     assert not (tmp_path / "x.fits").exists()
     # 2: a usage error, an input given as the output among them.
-    code, _, err = _cli("register", frames[0][0], ref, "-o", ref, "--overwrite")
+    code, _, err = run_cli("register", frames[0][0], ref, "-o", ref, "--overwrite")
     assert code == 2 and "input" in err
-    assert _cli("register", frames[0][0], ref)[0] == 2  # no -o
-    assert _cli("register", frames[0][0], ref, "-o", tmp_path / "y.fits",
-                "--fill-value", "zero")[0] == 2
+    assert run_cli("register", frames[0][0], ref)[0] == 2  # no -o
+    assert run_cli("register", frames[0][0], ref, "-o", tmp_path / "y.fits",
+                   "--fill-value", "zero")[0] == 2
     # 1: a batch with a frame that failed (the refused one); the others are written.
-    code, out, _ = _cli("batch", frames[0][0], sparse["none"][0], "-r", ref, "--output-dir",
-                        tmp_path / "b", "--no-progress")
+    code, out, _ = run_cli("batch", frames[0][0], sparse["none"][0], "-r", ref, "--output-dir",
+                           tmp_path / "b", "--no-progress")
     assert code == 1 and "f0.fits: ok" in out and "FAILED" in out
 
 
@@ -196,8 +187,8 @@ def test_exit_code_table_in_every_help(capsys):
 def test_hints_and_plot_warn_once(sparse, tmp_path):
     """register --plot reuses the registration: its warning prints once, in CLI words."""
     pytest.importorskip("matplotlib")
-    code, out, err = _cli("register", *sparse["warn"], "-o", tmp_path / "a.fits", "--plot",
-                          tmp_path / "a.png")
+    code, out, err = run_cli("register", *sparse["warn"], "-o", tmp_path / "a.fits", "--plot",
+                             tmp_path / "a.png")
     assert code == 0, err
     warnings = [line for line in err.splitlines() if "warning:" in line]
     assert len(warnings) == 1 and "(--n-sources, --nsigma)" in warnings[0]
@@ -270,7 +261,7 @@ def test_channels_first_cubes(tmp_path):
     one = _write(tmp_path / "one_s.fits", pair.source[None].astype(np.float32))
     for source, n in ((src, 3), (one, 1)):
         out = tmp_path / f"out{n}.fits"
-        code, _, err = _cli("register", source, tgt, "-o", out)
+        code, _, err = run_cli("register", source, tgt, "-o", out)
         assert code == 0, err
         ccd = CCDData.read(out)
         assert ccd.shape == (n, 120, 150)  # the input's layout
@@ -300,7 +291,7 @@ def test_image_files_are_read_bottom_up(tmp_path):
     np.testing.assert_array_equal(parse_input(png).data, img)
     tgt = _write(tmp_path / "target.fits", pair.target)
     out = tmp_path / "out.fits"
-    code, _, err = _cli("register", png, tgt, "-o", out)
+    code, _, err = run_cli("register", png, tgt, "-o", out)
     assert code == 0, err
     ccd = CCDData.read(out)
     assert _corner_error(transform_from_header(ccd.meta), pair.transform, (160, 160)) < 0.2
@@ -313,7 +304,7 @@ def test_image_files_are_read_bottom_up(tmp_path):
 def test_demo_help_is_true_and_the_readme_command_runs_twice(tmp_path, capsys):
     from astroalign_nd.cli.commands import DEMO_PAIR
 
-    code, out, _ = _cli("demo", "--help")
+    code, out, _ = run_cli("demo", "--help")
     flat = " ".join(out.split())
     dx, dy = DEMO_PAIR["translation"]
     assert f"rotated by {DEMO_PAIR['rotation']:g} deg" in flat
@@ -321,7 +312,7 @@ def test_demo_help_is_true_and_the_readme_command_runs_twice(tmp_path, capsys):
     # What the demo prints is the same transform (about pixel (0, 0)).
     truth = simulate_pair(seed=0, **DEMO_PAIR).transform
     for run in range(2):  # the README's command, twice: the demo's own files are replaced
-        code, out, err = _cli("demo", "--output-dir", tmp_path / "demo_out")
+        code, out, err = run_cli("demo", "--output-dir", tmp_path / "demo_out")
         assert code == 0, err
         tx, ty = truth.translation
         assert f"translation=({tx:.3f}, {ty:.3f}) px" in out.splitlines()[0]

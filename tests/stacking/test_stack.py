@@ -20,7 +20,7 @@ from astroalign_nd.simulate import add_satellite_trail, simulate_sequence
 from astroalign_nd.stacking import LiveStack, watch_folder
 from astroalign_nd.stacking.combine import CombineOptions, reject
 
-WORKTREE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+WORKTREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 POSIX = pytest.mark.skipif(not hasattr(signal, "SIGINT") or os.name != "posix",
                            reason="signals to a subprocess need POSIX")
 

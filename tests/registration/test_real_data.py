@@ -16,7 +16,7 @@ import pytest
 
 from astroalign_nd import SimilarityTransform, find_sources, find_transform
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
 PAIRS = DATA / "pairs"
 
 pytestmark = pytest.mark.skipif(

@@ -18,7 +18,7 @@ from astroalign_nd import transform_from_header
 from astroalign_nd.cli import main
 from astroalign_nd.simulate import simulate_pair
 
-WORKTREE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+WORKTREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def _write(path, data):

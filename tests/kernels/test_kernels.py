@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from astroalign_nd import SimilarityTransform, conf
 from astroalign_nd import _kernels as k
-from astroalign_nd import conf
+from astroalign_nd import resample as rs
 
 
 @pytest.fixture
@@ -293,3 +294,21 @@ def test_median_nan_and_small_samples_as_numpy(n, compiled):
             b[n // 3] = np.nan
             assert np.isnan(median(b)) and np.isnan(np.median(b))
             assert_array_equal(a, x.astype(a.dtype))  # input untouched
+
+
+# -- one switch for the compiled code ------------------------------------------------------
+
+def test_one_compiled_switch(monkeypatch):
+    assert not hasattr(rs.core, "_USE_COMPILED")
+    img = np.random.default_rng(1).normal(size=(40, 40))
+    m = SimilarityTransform(scale=1.1, rotation=20.0, translation_x=3.0).matrix
+    fast = rs.resample(img, m, (40, 40), order="bicubic", variance=np.abs(img))
+    used = []
+    numpy_path = rs.core._resample_numpy
+    monkeypatch.setattr(rs.core, "_resample_numpy", lambda *a, **k: used.append(1)
+                        or numpy_path(*a, **k))
+    with conf.set_temp("use_compiled", False):
+        assert k.compiled_kernels() is None
+        slow = rs.resample(img, m, (40, 40), order="bicubic", variance=np.abs(img))
+    assert used and all(np.array_equal(a, b, equal_nan=True) for a, b in zip(fast, slow))
+    assert k.compiled_kernels() is (k._ckernels if k.HAVE_COMPILED else None)

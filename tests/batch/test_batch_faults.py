@@ -23,7 +23,7 @@ from astroalign_nd.io.write import write_ccddata
 from astroalign_nd.simulate import draw_fluxes, simulate_image
 
 POSIX = pytest.mark.skipif(os.name != "posix", reason="POSIX signals and fork")
-WORKTREE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+WORKTREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SHAPE = (128, 128)
 N_FRAMES = 12
 

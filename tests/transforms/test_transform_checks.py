@@ -1,17 +1,12 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
-"""The helpers that replaced duplicated logic (issue 24): each is the one place of its rule."""
+"""One rule each: candidate models' design matrices, the degree, point and singularity checks."""
 
 import numpy as np
 import pytest
 from astropy.io import fits
-from scipy.spatial import cKDTree
 
-from astroalign_nd import _kernels, conf
-from astroalign_nd import resample as rs
 from astroalign_nd.io import transform_from_header, transform_to_header
 from astroalign_nd.matching import match_points
-from astroalign_nd.matching import grow
-from astroalign_nd.matching.pairing import mutual_matches
 from astroalign_nd.resample import resample
 from astroalign_nd.transforms import (AffineTransform, PolynomialTransform, ProjectiveTransform,
                                       SimilarityTransform, check_degree)
@@ -20,31 +15,6 @@ from astroalign_nd.transforms._matrix import SINGULAR_RTOL, check_invertible, is
 from astroalign_nd.transforms.layers import monomials, polynomial_terms
 from astroalign_nd.transforms.polynomial import DEGREES
 from astroalign_nd.transforms.projective import _homography_jacobian
-
-
-# -- one mutual nearest-neighbour pairing --------------------------------------------------
-
-def test_mutual_matches_resolves_conflicts_and_ties():
-    targets = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
-    tree = cKDTree(targets)
-    # Sources 0 and 2 are equally near target 0: the lower index keeps it; source 1 is
-    # nearer target 1 than source 3; source 4 is beyond the tolerance.
-    pred = np.array([[0.5, 0.0], [10.1, 0.0], [-0.5, 0.0], [10.6, 0.0], [30.0, 0.0]])
-    si, dj = mutual_matches(pred, tree, 1.0)
-    assert si.tolist() == [0, 1] and dj.tolist() == [0, 1]
-    assert np.all(np.diff(si) > 0)  # by source index
-    empty = mutual_matches(np.zeros((0, 2)), tree, 1.0)
-    assert [a.tolist() for a in empty] == [[], []]
-    none = mutual_matches(pred + 100.0, tree, 1.0)
-    assert [a.tolist() for a in none] == [[], []]
-
-
-def test_distortion_stage_pairs_through_mutual_matches():
-    rng = np.random.default_rng(2)
-    dst = rng.uniform(0, 500, (60, 2))
-    pairs = grow._Pairs(dst + 0.1, dst, given=False)
-    si, dj = pairs.pair(dst + 0.1, np.arange(60), 1.0)
-    assert np.array_equal(si, dj) and len(si) == 60
 
 
 # -- one set of design matrices, one degree check --------------------------------------------
@@ -141,22 +111,3 @@ def test_every_singular_check_uses_it():
     hdr["AATM10"], hdr["AATM10S"], hdr["AATM11"], hdr["AATM11S"] = 1.0, "1.0", 2.0, "2.0"
     with pytest.raises(ValueError, match="singular"):
         transform_from_header(hdr)
-
-
-# -- one switch for the compiled code ------------------------------------------------------
-
-def test_one_compiled_switch(monkeypatch):
-    assert not hasattr(rs.core, "_USE_COMPILED")
-    img = np.random.default_rng(1).normal(size=(40, 40))
-    m = SimilarityTransform(scale=1.1, rotation=20.0, translation_x=3.0).matrix
-    fast = resample(img, m, (40, 40), order="bicubic", variance=np.abs(img))
-    used = []
-    numpy_path = rs.core._resample_numpy
-    monkeypatch.setattr(rs.core, "_resample_numpy", lambda *a, **k: used.append(1)
-                        or numpy_path(*a, **k))
-    with conf.set_temp("use_compiled", False):
-        assert _kernels.compiled_kernels() is None
-        slow = resample(img, m, (40, 40), order="bicubic", variance=np.abs(img))
-    assert used and all(np.array_equal(a, b, equal_nan=True) for a, b in zip(fast, slow))
-    assert _kernels.compiled_kernels() is (_kernels._ckernels if _kernels.HAVE_COMPILED
-                                           else None)

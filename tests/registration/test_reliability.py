@@ -5,18 +5,17 @@ memory, untrusted files validated (issue 12).
 
 The property-based tests (hypothesis) draw related catalogs under every
 transform type, which must be recovered within a pixel tolerance or
-refused, and unrelated catalogs, which must always be refused; resampling,
-the header round trip and the ASDF converters get their own properties.
+refused, and unrelated catalogs, which must always be refused (the
+properties of resampling, of the header round trip and of the ASDF
+converters are in tests/resample and tests/io).
 Example counts are kept small so that the file runs in well under 30 s;
 ``benchmarks/fuzz.py`` runs the long campaign.
 """
 
 import warnings
 
-import asdf
 import numpy as np
 import pytest
-from asdf.testing.helpers import yaml_to_asdf
 from astropy.io import fits
 from astropy.nddata import CCDData, NDData, StdDevUncertainty
 from hypothesis import HealthCheck, given, settings
@@ -28,13 +27,10 @@ from astroalign_nd._kernels import PointGrid
 from astroalign_nd.config import OPTIONS, check_option
 from astroalign_nd.matching import build_asterisms
 from astroalign_nd.exceptions import AstroalignError, AstroalignWarning, TransformNotFoundError
-from astroalign_nd.io import transform_to_header
-from astroalign_nd.io.asdf import extension
-from astroalign_nd.io.header import header_from_meta
 from astroalign_nd.matching import match_triangles
-from astroalign_nd.resample import resample
-from astroalign_nd.transforms import (AffineTransform, EuclideanTransform, SimilarityTransform,
-                                      TranslationTransform, transform_class)
+from astroalign_nd.transforms import AffineTransform, SimilarityTransform, TranslationTransform
+
+from _helpers import random_matrix
 
 FAST = settings(max_examples=12, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow])
@@ -42,25 +38,6 @@ MATCHER = settings(FAST, max_examples=40)
 TYPES = ["translation", "euclidean", "similarity", "affine"]
 FRAME = 1000.0
 CORNERS = np.array([[0.0, 0.0], [FRAME, 0.0], [0.0, FRAME], [FRAME, FRAME]])
-
-
-def random_matrix(rng, transform_type, mirrored=False):
-    """A source -> target matrix of the given type (modest shear for affine)."""
-    rot = rng.uniform(-np.pi, np.pi) if transform_type != "translation" else 0.0
-    scale = rng.uniform(0.6, 1.6) if transform_type in ("similarity", "affine") else 1.0
-    c, s = np.cos(rot), np.sin(rot)
-    lin = scale * np.array([[c, -s], [s, c]])
-    if transform_type == "affine":
-        lin = lin @ np.array([[rng.uniform(0.85, 1.15), rng.uniform(-0.1, 0.1)],
-                              [0.0, rng.uniform(0.85, 1.15)]])
-    if mirrored and transform_type != "translation":
-        lin = lin @ np.diag([1.0, -1.0])
-    m = np.eye(3)
-    m[:2, :2] = lin
-    # Keep the frame centre inside the target frame: the fields overlap.
-    centre = np.array([FRAME / 2, FRAME / 2])
-    m[:2, 2] = centre - lin @ centre + rng.uniform(-150, 150, 2)
-    return m
 
 
 def related_pair(seed, transform_type, mirrored, n_true, n_extra, noise, shuffle):
@@ -345,171 +322,3 @@ def test_register_non_ascii_file_name(image_pair, tmp_path):
     fits.writeto(path, src)
     ccd = register(path, dst)
     assert "\\xe9toile.fits" in "".join(ccd.meta["HISTORY"])
-
-
-def test_transform_from_header_ignores_unrelated_values():
-    hdr = dict(transform_to_header(SimilarityTransform(scale=1.1, rotation=0.2)))
-    hdr.update({"A": np.nan, "C": "\u00e9", "D": {"x": 1}})
-    assert abs(transform_from_header(hdr).scale.value - 1.1) < 1e-12
-
-
-@FAST
-@given(st.dictionaries(st.text(max_size=10),
-                       st.one_of(st.none(), st.booleans(), st.integers(-2**70, 2**70),
-                                 st.floats(), st.text(max_size=90),
-                                 st.dictionaries(st.text(max_size=2), st.integers(),
-                                                 max_size=2)),
-                       max_size=6))
-def test_header_from_any_meta_is_writable(meta):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", AstroalignWarning)
-        header = header_from_meta(meta)
-    header = transform_to_header(TranslationTransform(1.0, 2.0), header)
-    text = header.tostring()  # every card is valid FITS
-    back = fits.Header.fromstring(text)
-    assert transform_from_header(back).translation_x.value == 1.0
-
-
-# -- header round trip ---------------------------------------------------------------
-
-finite = st.floats(-1e6, 1e6, allow_nan=False)
-
-
-@FAST
-@given(transform_type=st.sampled_from(TYPES), seed=st.integers(0, 2**31),
-       mirrored=st.booleans(), shift=st.tuples(finite, finite))
-def test_header_round_trip_exact(transform_type, seed, mirrored, shift):
-    m = random_matrix(np.random.default_rng(seed), transform_type, mirrored)
-    m[:2, 2] = shift
-    model = transform_class(transform_type).from_matrix(m)
-    back = transform_from_header(fits.Header.fromstring(transform_to_header(model).tostring()))
-    assert type(back) is type(model)
-    np.testing.assert_array_equal(back.matrix, model.matrix)
-
-
-@pytest.mark.parametrize("transform_type", ["euclidean", "similarity"])
-def test_header_round_trip_exact_rotations(transform_type):
-    # from_matrix recovers the angle through arctan2, 1 ulp off for about one
-    # matrix in ten; the written ROT/SCALE cards must make the trip exact.
-    for seed in range(0, 3000, 7):
-        for mirrored in (False, True):
-            rng = np.random.default_rng(seed)
-            m = random_matrix(rng, transform_type, mirrored)
-            m[:2, 2] = rng.uniform(-1e6, 1e6, 2)
-            model = transform_class(transform_type).from_matrix(m)
-            header = fits.Header.fromstring(transform_to_header(model).tostring())
-            np.testing.assert_array_equal(transform_from_header(header).matrix, model.matrix)
-
-
-# -- resampling ----------------------------------------------------------------------
-
-@FAST
-@given(ny=st.integers(1, 40), nx=st.integers(1, 40), dx=st.integers(-45, 45),
-       dy=st.integers(-45, 45), order=st.sampled_from([0, 1, 3]), seed=st.integers(0, 99))
-def test_resample_integer_shift_exact(ny, nx, dx, dy, order, seed):
-    data = np.random.default_rng(seed).normal(size=(ny, nx))
-    before = data.copy()
-    m = np.array([[1.0, 0, dx], [0, 1.0, dy], [0, 0, 1]])
-    out, _, mask = resample(data, m, (ny, nx), order=order)
-    np.testing.assert_array_equal(data, before)
-    yo, xo = np.mgrid[:ny, :nx]
-    inside = (xo - dx >= 0) & (xo - dx < nx) & (yo - dy >= 0) & (yo - dy < ny)
-    # Interior pixels (away from the edge the kernel needs) copy the source exactly.
-    core = inside & (xo - dx >= 2) & (xo - dx < nx - 2) & (yo - dy >= 2) & (yo - dy < ny - 2)
-    np.testing.assert_allclose(out[core], data[(yo - dy)[core], (xo - dx)[core]], atol=1e-12)
-    assert mask[~inside].all() and np.isnan(out[~inside]).all()
-
-
-@FAST
-@given(seed=st.integers(0, 2**31), transform_type=st.sampled_from(TYPES),
-       mirrored=st.booleans(),
-       order=st.sampled_from(["nearest-neighbor", "bilinear", "bicubic"]))
-def test_resample_any_transform_finite_and_round_trips(seed, transform_type, mirrored, order):
-    rng = np.random.default_rng(seed)
-    m = random_matrix(rng, transform_type, mirrored)
-    m[:2, 2] = 0.0
-    m[:2, 2] = np.array([32.0, 32.0]) - m[:2, :2] @ np.array([32.0, 32.0])  # about the centre
-    data = rng.normal(100, 5, (64, 64))
-    out, var, mask = resample(data, m, (64, 64), order=order, variance=np.ones((64, 64)))
-    assert out.shape == (64, 64) and np.all(np.isfinite(out[~mask]))
-    assert np.all(var[~mask] >= 0)
-    # Values stay within the range of the data (up to the cubic's overshoot).
-    assert np.all(out[~mask] > 50) and np.all(out[~mask] < 150)
-
-
-# -- ASDF converters -----------------------------------------------------------------
-
-URI = "asdf://astroalign-nd.org/astroalign_nd/tags"
-
-
-@pytest.fixture(scope="module")
-def asdf_config():
-    with asdf.config_context() as config:
-        if not any(e.extension_uri.startswith("asdf://astroalign-nd.org")
-                   for e in config.extensions):
-            for mapping in extension.get_resource_mappings():
-                config.add_resource_mapping(mapping)
-            for ext in extension.get_extensions():
-                config.add_extension(ext)
-        config.validate_on_read = False  # asdf's default: the converters must check
-        config.warn_on_failed_conversion = False
-        yield config
-
-
-def _read(name, params):
-    body = "\n".join(f"  {k}: {v}" for k, v in params.items())
-    with asdf.open(yaml_to_asdf(f"model: !<{URI}/{name}_transform-1.0.0>\n{body}\n")) as af:
-        return af["model"]
-
-
-SIM = {"scale": 1.0, "rotation": 0.1, "translation_x": 1.0, "translation_y": 2.0,
-       "parity": 1}
-
-
-@pytest.mark.parametrize("bad, match", [
-    ({"parity": 0}, "parity"), ({"parity": 5}, "parity"), ({"scale": "[1, 2]"}, "scale"),
-    ({"scale": 0}, "scale"), ({"scale": -1}, "scale"), ({"rotation": ".nan"}, "rotation"),
-    ({"translation_x": ".inf"}, "translation_x"), ({"translation_y": "'ten'"}, "translation_y"),
-])
-def test_asdf_untrusted_values_refused(asdf_config, bad, match):
-    with pytest.raises(ValueError, match=match):
-        _read("similarity", {**SIM, **bad})
-
-
-def test_asdf_singular_affine_refused(asdf_config):
-    with pytest.raises(ValueError, match="singular"):
-        _read("affine", {"a11": 1, "a12": 2, "a21": 2, "a22": 4, "translation_x": 0,
-                         "translation_y": 0})
-
-
-def test_asdf_default_config_gives_no_bad_model(asdf_config):
-    """With asdf's own defaults the bad node stays raw data, with our message."""
-    with asdf.config_context() as config:
-        config.validate_on_read = False
-        config.warn_on_failed_conversion = True
-        with pytest.warns(Warning, match="parity must be"):
-            model = _read("similarity", {**SIM, "parity": 5})
-    assert not isinstance(model, SimilarityTransform)
-
-
-@FAST
-@given(name=st.sampled_from(["translation", "euclidean", "similarity", "affine"]),
-       values=st.lists(st.one_of(st.floats(), st.integers(-3, 3)), min_size=6, max_size=6))
-def test_asdf_any_values_give_valid_model_or_error(asdf_config, name, values):
-    cls = {"translation": TranslationTransform, "euclidean": EuclideanTransform,
-           "similarity": SimilarityTransform, "affine": AffineTransform}[name]
-    params = dict(zip(cls.param_names, values))
-    text = {k: (".nan" if np.isnan(v) else ".inf" if v == np.inf else "-.inf"
-                if v == -np.inf else repr(v)) for k, v in params.items()}
-    try:
-        model = _read(name, text)
-    except ValueError as exc:
-        assert "node" in str(exc)
-        return
-    m = model.matrix
-    assert np.all(np.isfinite(m)) and abs(np.linalg.det(m[:2, :2])) > 0
-    # The matrix and the evaluation agree.
-    x, y = np.array([0.0, 10.0, -3.0]), np.array([0.0, 5.0, 7.0])
-    got = np.column_stack(model(x, y))
-    np.testing.assert_allclose(got, np.column_stack([x, y]) @ m[:2, :2].T + m[:2, 2],
-                               rtol=1e-9, atol=1e-6 * max(1.0, np.abs(m).max()))

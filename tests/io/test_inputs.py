@@ -8,8 +8,6 @@ generators, through register, the CLI and register_batch.
 
 import gc
 import os
-import subprocess
-import sys
 import warnings
 import weakref
 
@@ -31,9 +29,8 @@ from astroalign_nd import (AstroalignWarning, PoorFitWarning, Reference, TooFewS
 from astroalign_nd.cli import main
 from astroalign_nd.simulate import simulate_pair
 
-from _helpers import frame_error
+from _helpers import frame_error, run_cli
 
-WORKTREE = os.path.dirname(os.path.dirname(os.path.abspath(astroalign_nd.__file__)))
 UNCERTAINTIES = [StdDevUncertainty, VarianceUncertainty, InverseVariance]
 
 
@@ -163,17 +160,13 @@ def test_unit_fallback_and_bunit(pair, tmp_path):
 # -- command line ----------------------------------------------------------------------------
 
 
-def test_cli_subprocess_keeps_everything(pair, tmp_path, target_file):
+def test_cli_keeps_everything(pair, tmp_path, target_file):
     ccd = _source_ccd(pair, StdDevUncertainty)
     src = _write(ccd, tmp_path / "src.fits")
     out = tmp_path / "out.fits"
-    env = dict(os.environ, PYTHONPATH=WORKTREE)
-    proc = subprocess.run(
-        [sys.executable, "-W", "error", "-m", "astroalign_nd.cli", "register", src,
-         target_file, "-o", str(out)],
-        capture_output=True, text=True, env=env, cwd=str(tmp_path), timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stderr == ""
+    code, _, err = run_cli("register", src, target_file, "-o", out)
+    assert code == 0, err
+    assert err == ""
     with fits.open(out) as hdul:
         assert [h.name for h in hdul] == ["PRIMARY", "MASK", "UNCERT", "FLAGS"]
     back = CCDData.read(out, hdu_flags="FLAGS")

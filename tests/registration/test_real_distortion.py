@@ -19,7 +19,7 @@ from astroalign_nd import find_transform
 from astroalign_nd._input import parse_input
 from astroalign_nd.exceptions import PoorFitWarning
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
 
 pytestmark = pytest.mark.skipif(
     not DATA.is_dir(), reason=f"real test images not available (expected {DATA})")

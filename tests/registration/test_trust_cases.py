@@ -21,7 +21,7 @@ from astroalign_nd.matching import match_points
 from astroalign_nd.simulate import (TRUST_CASES, resampled_copy, simulate_image,
                                     simulate_trust_case)
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 FRAME = (0.0, 511.0, 0.0, 511.0)
 CORNERS = np.array([[0.0, 0.0], [511.0, 0.0], [0.0, 511.0], [511.0, 511.0]])
 

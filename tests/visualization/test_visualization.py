@@ -296,7 +296,7 @@ def test_lazy_submodule_does_not_import_matplotlib():
             "assert v.__name__ == 'astroalign_nd.visualization'; "
             "assert 'visualization' in dir(astroalign_nd); "
             "assert 'matplotlib' not in sys.modules, 'matplotlib imported'")
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True,
                           text=True, timeout=120)
     assert done.returncode == 0, done.stderr

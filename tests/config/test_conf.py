@@ -18,7 +18,7 @@ from astroalign_nd.simulate import simulate_pair
 
 from _helpers import frame_error
 
-WORKTREE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+WORKTREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def test_conf_is_an_astropy_config_namespace():

@@ -22,7 +22,7 @@ from astroalign_nd.simulate import draw_fluxes, simulate_image
 from astroalign_nd.transforms import TranslationTransform
 
 SHAPE = (192, 192)
-WORKTREE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+WORKTREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def _sky(n=500, extent=320, seed=3):
