@@ -7,7 +7,7 @@ import sys
 from ..config import MatchingConfig, ModelConfig, RegistrationConfig, cli_fields
 from .errors import HelpFormatter, _CLIError, exit_codes_text
 
-__all__ = ['add_match_command']
+__all__ = []
 
 HELP = "cross-match two star catalogs: every star paired, written as a table"
 
@@ -29,7 +29,7 @@ FORMATS = {".ecsv": "ascii.ecsv", ".fits": "fits", ".fit": "fits", ".csv": "asci
 _CONFIGS = (ModelConfig, RegistrationConfig, MatchingConfig)
 
 
-def add_match_command(sub):
+def add_parser(sub):
     """Add the ``match`` subcommand to the subparsers ``sub``."""
     p = sub.add_parser("match", help=HELP, description=DESCRIPTION, epilog=exit_codes_text(),
                        formatter_class=HelpFormatter)

@@ -1,11 +1,16 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
-"""The registration options of the command line, and their translation to keywords."""
+"""
+What the commands share: the registration options and their translation to keywords,
+the checks of inputs and outputs, and a transform's one-line summary.
+"""
 
 import argparse
+import os
 
 # The configs hold no heavy import: --help stays fast.
 from ..config import (DetectionConfig, MatchingConfig, ModelConfig, RegistrationConfig,
                       ResampleConfig, cli_fields)
+from .errors import _CLIError
 
 __all__ = []
 
@@ -82,3 +87,82 @@ def _hdu(value):
     if value is None:
         return None
     return int(value) if value.lstrip("-").isdigit() else value
+
+
+def _add_sky_options(g):
+    """The sky and noise options of ``stack`` and ``watch``."""
+    g.add_argument("--normalize", choices=("offset", "scale", "none"), default="offset",
+                   help="bring each frame's sky to the reference's (default: %(default)s)")
+    g.add_argument("--gain", type=float, default=None,
+                   help="electrons per count, for frames without an uncertainty")
+    g.add_argument("--read-noise", type=float, default=None,
+                   help="read noise in electrons, with --gain")
+
+
+def _none(value):
+    """A choice of 'none' as None (the library's spelling)."""
+    return None if value == "none" else value
+
+# -- input and output checks -----------------------------------------------------------------
+
+
+def _check_writable(path, overwrite, inputs=()):
+    """Refuse, before any work, a path that cannot take the output (or is an input)."""
+    from astroalign_nd.io.write import check_not_input, check_output_path
+    from astroalign_nd.io.writers import output_suffixes
+
+    try:
+        check_not_input(path, inputs)
+    except ValueError as exc:
+        raise _CLIError(str(exc)) from None
+    try:
+        check_output_path(path, overwrite, extensions=output_suffixes())
+    except FileExistsError:
+        raise _CLIError(f"output file {path!r} already exists; pass --overwrite to replace "
+                        "it.") from None
+
+
+def _check_output_dir(path):
+    from astroalign_nd.io.write import check_output_dir
+
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise _CLIError(f"--output-dir {path!r} is a file, not a folder.")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as exc:
+        raise _CLIError(f"cannot create output folder {path!r}: {exc.strerror or exc}.") from None
+    check_output_dir(path)
+
+
+def _check_input(path):
+    if not os.path.isfile(path):
+        raise _CLIError(f"input file {path!r} does not exist or is not a file.")
+    return path
+
+
+def _describe(transform):
+    """One-line summary of a transform model."""
+    import numpy as np
+
+    parts = [type(transform).__name__]
+    scale = getattr(transform, "scale", None)
+    rotation = getattr(transform, "rotation", None)
+    translation = getattr(transform, "translation", None)
+    try:
+        if rotation is not None:
+            # Parameters hold degrees (astropy's convention); float() of a
+            # Parameter raises on astropy 8, so read its value.
+            value = getattr(rotation, "value", rotation)
+            parts.append(f"rotation={float(np.squeeze(value)):.4f} deg")
+        if scale is not None:
+            s = np.atleast_1d(np.squeeze(np.asarray(getattr(scale, "value", scale),
+                                                    dtype=float)))
+            parts.append("scale=" + ", ".join(f"{v:.5f}" for v in s))
+        if translation is not None:
+            t = np.ravel(np.asarray(translation, dtype=float))
+            parts.append("translation=(" + ", ".join(f"{v:.3f}" for v in t) + ") px")
+    except (TypeError, ValueError):
+        return repr(transform)
+    if len(parts) == 1:
+        return repr(transform)
+    return " ".join(parts)

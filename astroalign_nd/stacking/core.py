@@ -12,7 +12,7 @@ from typing import Any
 
 import astropy.units as u
 import numpy as np
-from astropy.nddata import CCDData, StdDevUncertainty
+from astropy.nddata import CCDData
 
 from .._input import batch_frames, parse_input
 from ..batch import BatchResult, reference_on_canvas, register_batch
@@ -23,7 +23,7 @@ from ..io.write import check_not_input, check_output_path
 from ..io.writers import output_suffixes
 from .combine import (CLIP_METHODS, NORMALIZE_METHODS, STACK_METHODS, CombineOptions,
                       combine_files, frame_stats, frame_weights, normalise)
-from .header import stack_header
+from .header import stack_ccddata
 
 __all__ = ["stack"]
 
@@ -437,23 +437,13 @@ def _settings(opts, n_used):
 
 
 def _stacked(value, variance, coverage, ref, wcs, dtype, names, stats, rejected, opts):
-    """The stack as a CCDData: data, uncertainty, mask, coverage and header."""
-    used = [dict(name=n, offset=st.offset, scale=st.scale, weight=st.weight,
-                 n_rejected=st.n_rejected) for n, st in zip(names, stats)]
-    header = stack_header(ref.meta, used, rejected, _settings(opts, len(names)))
-    for n, st in zip(names, stats):
-        if st.converted:
-            header.add_history(f"astroalign_nd stack: {n} {st.converted}")
+    """The stack as a CCDData, after warning when no frame reaches any of its pixels."""
     mask = coverage == 0
-    if mask.any():
-        n_masked = int(mask.sum())
-        if n_masked == mask.size:
-            warn("no frame reaches any pixel of the stack.")
-    with np.errstate(invalid="ignore"):
-        std = np.sqrt(variance)
-    return CCDData(_as_dtype(value, dtype, "value"), unit=ref.unit or "adu", mask=mask,
-                   uncertainty=StdDevUncertainty(_as_dtype(std, dtype, "uncertainty")),
-                   flags=coverage, wcs=wcs, meta=header)
+    if mask.any() and mask.all():
+        warn("no frame reaches any pixel of the stack.")
+    return stack_ccddata(value, variance, coverage, meta=ref.meta, names=names, stats=stats,
+                         rejected=rejected, settings=_settings(opts, len(names)), wcs=wcs,
+                         unit=ref.unit or "adu", dtype=dtype)
 
 
 def _check_dtype(dtype):
@@ -467,24 +457,3 @@ def _check_dtype(dtype):
         raise TypeError(f"dtype must be a real number type (float or integer), such as "
                         f"np.float32; got {dt}.")
     return dt
-
-
-def _as_dtype(values, dtype, what):
-    """
-    ``values`` as ``dtype``; an integer type gets them rounded, and clipped to its range
-    with a warning that counts the pixels (a cast alone would wrap them around).  Pixels
-    without a value (no frame reaches them; the mask marks them) are 0.
-    """
-    dt = np.dtype(dtype)
-    if dt.kind == "f":
-        return values.astype(dt)
-    info = np.iinfo(dt)
-    rounded = np.rint(values)
-    finite = np.isfinite(rounded)
-    outside = finite & ((rounded < info.min) | (rounded > info.max))
-    n_outside = int(outside.sum())
-    if n_outside:
-        warn(f"{n_outside} pixels of the stack's {what} lie outside the range of {dt} "
-             f"({info.min} to {info.max}) and were clipped to it; pass dtype=np.float32 "
-             "(the default) to keep them.")
-    return np.clip(np.where(finite, rounded, 0), info.min, info.max).astype(dt)

@@ -1,13 +1,19 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
-"""The header of a stack: every frame used and every frame rejected, and why."""
+"""
+The header of a stack (every frame used and every frame rejected, and why), and the
+stack as a CCDData: one builder for `~astroalign_nd.stack` and the live stack alike.
+"""
 
 from __future__ import annotations
 
+import numpy as np
 from astropy.io import fits
+from astropy.nddata import CCDData, StdDevUncertainty
 
+from ..exceptions import warn
 from ..io.header import header_from_meta, header_without_wcs
 
-__all__ = ["stack_header", "MAX_LISTED"]
+__all__ = ["stack_header", "stack_ccddata", "MAX_LISTED"]
 
 #: Structural cards of the reference's file: the stack's own are written with its data.
 _STRUCTURAL = ("SIMPLE", "BITPIX", "NAXIS", "NAXIS1", "NAXIS2", "NAXIS3", "EXTEND", "BZERO",
@@ -82,3 +88,70 @@ def stack_header(meta, used, rejected, settings):
             header[f"AAREJ{k:03d}"] = (f"{name}: {reason}", "frame left out: why")
         header.add_history(f"left out {name}: {reason}")
     return fits.Header(header)
+
+
+def stack_ccddata(value, variance, coverage, *, meta, names, stats, rejected, settings, wcs,
+                  unit, dtype=np.float32):
+    """
+    A stack as a CCDData: data, uncertainty, mask, coverage and header.
+
+    Parameters
+    ----------
+    value, variance : `~numpy.ndarray`
+        The combined value of each pixel and its variance.
+    coverage : `~numpy.ndarray` of int
+        The frames reaching each pixel (``flags``); the mask is where none does.
+    meta : dict-like
+        The reference's header (see `stack_header`).
+    names : list of str
+        The name of each frame combined.
+    stats : list of `~astroalign_nd.stacking.combine.FrameStats`
+        Their sky offset, scale, weight, pixels rejected and unit conversion.
+    rejected : list of (str, str)
+        ``(name, reason)`` of each frame left out.
+    settings : dict
+        ``{keyword: (value, comment)}`` of the combination's settings.
+    wcs : `~astropy.wcs.WCS` or None
+        The stack's WCS.
+    unit : `~astropy.units.Unit` or str
+        The stack's unit.
+    dtype : numpy dtype, optional
+        Of the data and the uncertainty (an integer type gets them rounded
+        and clipped to its range, with a warning).
+
+    Returns
+    -------
+    stacked : `~astropy.nddata.CCDData`
+    """
+    used = [dict(name=n, offset=st.offset, scale=st.scale, weight=st.weight,
+                 n_rejected=st.n_rejected) for n, st in zip(names, stats)]
+    header = stack_header(meta, used, rejected, settings)
+    for n, st in zip(names, stats):
+        if st.converted:
+            header.add_history(f"astroalign_nd stack: {n} {st.converted}")
+    with np.errstate(invalid="ignore"):
+        std = np.sqrt(variance)
+    return CCDData(_as_dtype(value, dtype, "value"), unit=unit, mask=coverage == 0,
+                   uncertainty=StdDevUncertainty(_as_dtype(std, dtype, "uncertainty")),
+                   flags=coverage, wcs=wcs, meta=header)
+
+
+def _as_dtype(values, dtype, what):
+    """
+    ``values`` as ``dtype``; an integer type gets them rounded, and clipped to its range
+    with a warning that counts the pixels (a cast alone would wrap them around).  Pixels
+    without a value (no frame reaches them; the mask marks them) are 0.
+    """
+    dt = np.dtype(dtype)
+    if dt.kind == "f":
+        return values.astype(dt)
+    info = np.iinfo(dt)
+    rounded = np.rint(values)
+    finite = np.isfinite(rounded)
+    outside = finite & ((rounded < info.min) | (rounded > info.max))
+    n_outside = int(outside.sum())
+    if n_outside:
+        warn(f"{n_outside} pixels of the stack's {what} lie outside the range of {dt} "
+             f"({info.min} to {info.max}) and were clipped to it; pass dtype=np.float32 "
+             "(the default) to keep them.")
+    return np.clip(np.where(finite, rounded, 0), info.min, info.max).astype(dt)

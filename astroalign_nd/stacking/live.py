@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 import numpy as np
 from astropy.io import fits
-from astropy.nddata import CCDData, StdDevUncertainty
+from astropy.nddata import CCDData
 
 from .._input import parse_input
 from ..config import RegistrationConfig, ResampleConfig
@@ -23,7 +23,7 @@ from ..io.write import FITS_EXTENSIONS, check_not_input, check_output_path
 from ..registration import prepare_target, register_and_match
 from .core import _check_options
 from .combine import array_stats, frame_variance, normalise, reject
-from .header import stack_header
+from .header import stack_ccddata
 
 __all__ = ["LiveStack", "watch_folder", "write_with_retry"]
 
@@ -179,17 +179,12 @@ class LiveStack:
         value, variance, coverage = self._acc.value(self._stats, self.opts)
         reach = coverage > 0
         value, variance = np.where(reach, value, np.nan), np.where(reach, variance, np.nan)
-        used = [dict(name=n, offset=st.offset, scale=st.scale, weight=st.weight,
-                     n_rejected=st.n_rejected) for n, st in zip(self.used, self._stats)]
         settings = {"AASTKMTH": ("live average", "astroalign_nd live stack"),
                     "AASTKCLP": (self.opts.clip or "none", "rejection vs the running stack"),
                     "AASTKNRM": (self.opts.normalize or "none", "sky normalisation")}
-        header = stack_header(self.meta, used, self.rejected, settings)
-        with np.errstate(invalid="ignore"):
-            std = np.sqrt(variance)
-        return CCDData(value.astype(np.float32), unit=self.unit_out, mask=~reach,
-                       uncertainty=StdDevUncertainty(std.astype(np.float32)), flags=coverage,
-                       wcs=self.wcs, meta=header)
+        return stack_ccddata(value, variance, coverage, meta=self.meta, names=self.used,
+                             stats=self._stats, rejected=self.rejected, settings=settings,
+                             wcs=self.wcs, unit=self.unit_out)
 
 
 class _Running:

@@ -302,7 +302,7 @@ def test_image_files_are_read_bottom_up(tmp_path):
 # -- the demo --------------------------------------------------------------------------------
 
 def test_demo_help_is_true_and_the_readme_command_runs_twice(tmp_path, capsys):
-    from astroalign_nd.cli.commands import DEMO_PAIR
+    from astroalign_nd.cli.demo import DEMO_PAIR
 
     code, out, _ = run_cli("demo", "--help")
     flat = " ".join(out.split())

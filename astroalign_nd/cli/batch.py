@@ -1,121 +1,72 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
-"""The commands: register, batch and demo."""
+"""The ``batch`` command: several images onto one target, going on past failures."""
 
 import dataclasses
 import os
 import sys
-from .errors import _CLIError, cli_words
-from .options import _registration_kwargs
+from .errors import HelpFormatter, _CLIError, cli_words, exit_codes_text
+from .options import _check_input, _check_output_dir, _registration_kwargs
 
 __all__ = []
 
+HELP = "register several images onto one target"
 
-def _check_writable(path, overwrite, inputs=()):
-    """Refuse, before any work, a path that cannot take the output (or is an input)."""
-    from astroalign_nd.io.write import check_not_input, check_output_path
-    from astroalign_nd.io.writers import output_suffixes
-
-    try:
-        check_not_input(path, inputs)
-    except ValueError as exc:
-        raise _CLIError(str(exc)) from None
-    try:
-        check_output_path(path, overwrite, extensions=output_suffixes())
-    except FileExistsError:
-        raise _CLIError(f"output file {path!r} already exists; pass --overwrite to replace "
-                        "it.") from None
+DESCRIPTION = (
+    "Register each SOURCE onto TARGET, writing DIR/<name>_aligned.fits for "
+    "each and the reference itself on the same grid as DIR/<target name>_reference.fits "
+    "(to stack it with the rest), and print each frame's line as soon as it is done. "
+    "Give the target with -r/--reference (sources first, as in register and in the Python API "
+    "register_batch(sources, target)); without -r, the first image is the target (the "
+    "older form 'batch TARGET SOURCES...'). A frame that fails is reported and the "
+    "others go on; the exit code is 1 if any frame failed.")
 
 
-def _check_output_dir(path):
-    from astroalign_nd.io.write import check_output_dir
+def add_parser(sub, reg_opts):
+    """Add the ``batch`` subcommand to the subparsers ``sub``."""
+    p = sub.add_parser("batch", parents=[reg_opts], help=HELP, description=DESCRIPTION,
+                       epilog=exit_codes_text(), formatter_class=HelpFormatter)
+    p.set_defaults(func=_cmd_batch)
+    p.add_argument("images", metavar="SOURCES", nargs="+",
+                   help="images to be transformed (FITS, or JPEG/PNG/TIFF); without "
+                   "-r/--reference, the first one is the target")
+    p.add_argument("-r", "--reference", metavar="TARGET", default=None,
+                   help="image that defines the output grid")
+    p.add_argument("--output-dir", required=True, metavar="DIR",
+                   help="folder for the aligned images (created if needed)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument("--skip-existing", action="store_true",
+                   help="resume: keep complete outputs already in DIR and report those frames "
+                   "as skipped")
+    p.add_argument("--canvas", choices=("reference", "union"), default="reference",
+                   help="output grid: the reference's (default), or 'union', a grid holding "
+                   "every frame (for dithered and mosaic sets)")
+    p.add_argument("--global", dest="solve", action="store_const", const="global",
+                   default="pairwise",
+                   help="solve every frame's transform together (solve_sequence): frames "
+                   "linked to each other, one least-squares solution over all their stars; "
+                   "for mosaics and long drifts")
+    p.add_argument("--summary", metavar="FILE.ecsv", default=None,
+                   help="write one row per frame (name, status, matches, RMS, false alarm, "
+                   "shift, rotation, scale, seconds, error), the reference's first, to this "
+                   "ECSV (or .csv) table")
+    p.add_argument("--plot", metavar="DIR", default=None,
+                   help="also write a diagnostic figure of each frame registered "
+                   "(DIR/<name>_aligned.png: matched stars, invariants, residuals, "
+                   "difference image; from the match found, no new search) and the night's "
+                   "summary (DIR/night_summary.png: drift, rotation, RMS and matched stars "
+                   "against frame), once the batch is done; needs matplotlib")
+    p.add_argument("--workers", type=int, default=0, metavar="N",
+                   help="run the frames in N local worker processes (default: one after the "
+                   "other in this process)")
+    p.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                   help="run the frames on this dask.distributed scheduler "
+                   "(e.g. tcp://host:8786)")
+    p.add_argument("--progress", dest="progress", action="store_true", default=None,
+                   help="show a progress bar (default: when standard error is a terminal)")
+    p.add_argument("--no-progress", dest="progress", action="store_false",
+                   help="never show a progress bar")
 
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise _CLIError(f"--output-dir {path!r} is a file, not a folder.")
-    try:
-        os.makedirs(path, exist_ok=True)
-    except OSError as exc:
-        raise _CLIError(f"cannot create output folder {path!r}: {exc.strerror or exc}.") from None
-    check_output_dir(path)
-
-
-def _check_input(path):
-    if not os.path.isfile(path):
-        raise _CLIError(f"input file {path!r} does not exist or is not a file.")
-    return path
-
-
-def _describe(transform):
-    """One-line summary of a transform model."""
-    import numpy as np
-
-    parts = [type(transform).__name__]
-    scale = getattr(transform, "scale", None)
-    rotation = getattr(transform, "rotation", None)
-    translation = getattr(transform, "translation", None)
-    try:
-        if rotation is not None:
-            # Parameters hold degrees (astropy's convention); float() of a
-            # Parameter raises on astropy 8, so read its value.
-            value = getattr(rotation, "value", rotation)
-            parts.append(f"rotation={float(np.squeeze(value)):.4f} deg")
-        if scale is not None:
-            s = np.atleast_1d(np.squeeze(np.asarray(getattr(scale, "value", scale),
-                                                    dtype=float)))
-            parts.append("scale=" + ", ".join(f"{v:.5f}" for v in s))
-        if translation is not None:
-            t = np.ravel(np.asarray(translation, dtype=float))
-            parts.append("translation=(" + ", ".join(f"{v:.3f}" for v in t) + ") px")
-    except (TypeError, ValueError):
-        return repr(transform)
-    if len(parts) == 1:
-        return repr(transform)
-    return " ".join(parts)
-
-
-def _max_corner_error(recovered, truth, shape):
-    """Largest distance (px) between two transforms evaluated at the frame corners."""
-    import numpy as np
-
-    ny, nx = shape
-    x = np.array([0.0, nx - 1.0, 0.0, nx - 1.0])
-    y = np.array([0.0, 0.0, ny - 1.0, ny - 1.0])
-    xr, yr = recovered(x, y)
-    xt, yt = truth(x, y)
-    return float(np.max(np.hypot(np.asarray(xr) - xt, np.asarray(yr) - yt)))
-
-# -- subcommands -----------------------------------------------------------------------------
-
-
-def _cmd_register(args):
-    import astroalign_nd
-    from astroalign_nd.io import write_output
-    from astroalign_nd.registration import register_and_match
-
-    _check_writable(args.output, args.overwrite, inputs=(args.source, args.target))
-    if args.plot:  # before the work: matplotlib missing or PLOT existing stops here
-        from astroalign_nd.io.write import check_not_input
-        from astroalign_nd.visualization import check_plot_path, save_diagnostic_figure
-
-        try:
-            check_not_input(args.plot, (args.source, args.target, args.output))
-        except ValueError as exc:
-            raise _CLIError(str(exc)) from None
-        check_plot_path(args.plot, args.overwrite)
-    kwargs = _registration_kwargs(args)
-    aligned, match = register_and_match(_check_input(args.source), _check_input(args.target),
-                                        unit=args.unit, **kwargs)
-    write_output(aligned, args.output, overwrite=args.overwrite)
-    q = aligned.meta
-    print(f"{_describe(astroalign_nd.transform_from_header(q))}; {q['AATNMAT']} matched "
-          f"stars, RMS {q['AATRMS']:.3f} px")
-    print(f"wrote {args.output}")
-    if args.plot:
-        # The match just found: the figure does not search again (nor warn twice).
-        points = (match.source_points, match.target_points)
-        print("wrote " + save_diagnostic_figure(args.plot, args.source, args.target, aligned,
-                                                overwrite=args.overwrite, hdu=kwargs["hdu"],
-                                                transform=match.transform, points=points))
-    return 0
+    return p
 
 
 def _frame_line(f):
@@ -413,86 +364,3 @@ def _batch_figures(args, target, result, plots):
         print(f"wrote {path}")
     night = os.path.join(args.plot, _NIGHT_FIGURE)
     print("wrote " + save_night_figure(night, result, overwrite=True))
-
-
-#: The demo's pair (`~astroalign_nd.simulate.simulate_pair`'s arguments); its help says so.
-DEMO_PAIR = dict(shape=(512, 512), n_stars=300, rotation=17.0, scale=1.05,
-                 translation=(12.3, -7.7))
-
-#: Header keyword of the demo's files: a later demo replaces them.
-_DEMO_KEY = "AADEMO"
-
-
-def demo_description():
-    """The demo's ``--help`` text, from `DEMO_PAIR`."""
-    p = DEMO_PAIR
-    ny, nx = p["shape"]
-    dx, dy = p["translation"]
-    return (f"Simulate a {nx}x{ny} star field ({p['n_stars']} stars) and a second view of it "
-            f"related by a known similarity transform: rotated by {p['rotation']:g} deg and "
-            f"scaled by {p['scale']:g} about the frame centre, the centre shifted by "
-            f"({dx:g}, {dy:g}) px (the transform printed is the same one, written about pixel "
-            "(0, 0), hence its larger translation). Write DIR/source.fits and "
-            "DIR/target.fits, register the source onto the target, write DIR/aligned.fits "
-            "and report the error of the recovered transform. Running the demo again "
-            "replaces the files an earlier demo wrote (other files under those names only "
-            "with --overwrite).")
-
-
-def _is_demo_output(path):
-    """``path`` is a FITS file an earlier demo wrote (its header says so)."""
-    from astropy.io import fits
-
-    if not os.path.isfile(path):
-        return False
-    try:
-        return fits.getval(path, _DEMO_KEY, ext=0) is True
-    except (OSError, KeyError, IndexError, ValueError):
-        return False
-
-
-def _cmd_demo(args):
-    import astropy.units as u
-    from astropy.nddata import CCDData
-
-    import astroalign_nd
-    from astroalign_nd.io.write import write_ccddata
-    from astroalign_nd.simulate import simulate_pair
-
-    if args.seed < 0:
-        raise _CLIError(f"--seed must be an integer >= 0; got {args.seed}.")
-    out_dir = args.output_dir
-    paths = {name: os.path.join(out_dir, f"{name}.fits")
-             for name in ("source", "target", "aligned")}
-    _check_output_dir(out_dir)
-    # The demo's own earlier outputs are replaced (the README's command runs again); any
-    # other file under those names is kept unless --overwrite.
-    replace = {name: args.overwrite or _is_demo_output(path) for name, path in paths.items()}
-    for name, path in paths.items():
-        _check_writable(path, replace[name])
-
-    pair = simulate_pair(seed=args.seed, **DEMO_PAIR)
-    meta = {_DEMO_KEY: (True, "written by astroalign-nd demo")}
-    source = CCDData(pair.source, unit=u.adu, meta=dict(meta))
-    target = CCDData(pair.target, unit=u.adu, meta=dict(meta))
-    write_ccddata(source, paths["source"], overwrite=replace["source"])
-    write_ccddata(target, paths["target"], overwrite=replace["target"])
-
-    aligned = astroalign_nd.register(source, target)  # the source's header: AADEMO too
-    write_ccddata(aligned, paths["aligned"], overwrite=replace["aligned"])
-
-    # The registered frame records how it was made: rebuild the transform.
-    recovered = astroalign_nd.transform_from_header(aligned.meta)
-    error = _max_corner_error(recovered, pair.transform, source.shape)
-
-    print(f"true transform:      {_describe(pair.transform)}")
-    print(f"recovered transform: {_describe(recovered)}")
-    print(f"max position error over the {source.shape[1]}x{source.shape[0]} frame: "
-          f"{error:.4f} px")
-    if not error < 1.0:
-        print("WARNING: the recovered transform is more than 1 px off the truth somewhere "
-              "in the frame.")
-    print(f"wrote {paths['source']}")
-    print(f"wrote {paths['target']}")
-    print(f"wrote {paths['aligned']}")
-    return 0
