@@ -135,7 +135,7 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates, lines=None,
             "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b), "snr": snr}
 
 
-def _recenter(data, mask, cand, b, fwhm, noise=np.nan):
+def _recenter(data, mask, cand, b, fwhm):
     """
     Recentre the coarse candidates at full resolution.
 
@@ -148,9 +148,6 @@ def _recenter(data, mask, cand, b, fwhm, noise=np.nan):
     cut, bad = _extract_cutouts(data, mask, xc, yc, rc, 0.0)
     cut -= cand["bkg"][:, None, None]
     cut[bad] = 0.0
-    # Hot pixels and cosmic-ray hits would win the 3x3 sums beside faint
-    # stars (when the stars' width is known: undersampled stars are spikes).
-    cut = _despike(cut, bad, fwhm, noise)
     box = np.zeros_like(cut)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
@@ -165,51 +162,3 @@ def _recenter(data, mask, cand, b, fwhm, noise=np.nan):
     out["x"] = xc - rc + lx
     out["y"] = yc - rc + ly
     return out
-
-
-#: A pixel is a spike when it stands this many noise sigmas ...
-_SPIKE_NSIGMA = 5.0
-
-#: ... and this many times more above its 4 neighbours than the sharpest
-#: star (centred on the pixel) allows.
-_SPIKE_MARGIN = 2.0
-
-#: Undersampled stars are spikes themselves: no cleaning below this FWHM.
-_SPIKE_MIN_FWHM = 1.5
-
-
-def _despike(cut, bad, fwhm, noise):
-    """
-    Tiles (background subtracted) with single-pixel spikes replaced by the
-    mean of their 4 neighbours; ``cut`` is modified and returned.
-
-    A hot pixel or a cosmic-ray hit beside a star pulls its centroid (a
-    50-sigma hot pixel 2 px from a faint star: a tenth of a pixel) and
-    adds to its flux.  A star of FWHM ``fwhm``, centred on a pixel, is at
-    most ``exp(0.5 / sigma**2)`` times brighter there than the mean of the
-    4 neighbours; a pixel brighter than `_SPIKE_MARGIN` times that (plus
-    `_SPIKE_NSIGMA` sigmas) has no PSF-shaped neighbours.
-    """
-    if fwhm is None or fwhm < _SPIKE_MIN_FWHM or not np.isfinite(noise) or cut.size == 0:
-        return cut
-    sig = fwhm / _GAUSS_SIGMA_TO_FWHM
-    ratio = _SPIKE_MARGIN * np.exp(0.5 / sig**2)
-    good = (~bad).astype(float)
-    val = np.where(bad, 0.0, cut)
-    s4 = np.zeros_like(val)
-    n4 = np.zeros_like(val)
-    # Sums of the 4 neighbours (and how many are valid), by shifted slices.
-    s4[:, 1:, :] += val[:, :-1, :]
-    n4[:, 1:, :] += good[:, :-1, :]
-    s4[:, :-1, :] += val[:, 1:, :]
-    n4[:, :-1, :] += good[:, 1:, :]
-    s4[:, :, 1:] += val[:, :, :-1]
-    n4[:, :, 1:] += good[:, :, :-1]
-    s4[:, :, :-1] += val[:, :, 1:]
-    n4[:, :, :-1] += good[:, :, 1:]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        m4 = s4 / n4
-    spike = (~bad) & (n4 >= 2) & (val > ratio * np.maximum(m4, 0.0) + _SPIKE_NSIGMA * noise)
-    if spike.any():
-        cut[spike] = m4[spike]
-    return cut

@@ -12,8 +12,7 @@ from .._kernels import lost_window_fraction as _lost_window_fraction
 from .._kernels import mirrored_windowed_centroid as _mirrored_windowed_centroid
 from .._kernels import windowed_centroid as _windowed_centroid
 from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
-from .candidates import (_as_image, _auto_bin, _binned_candidates, _despike,
-                         _extract_cutouts, _recenter)
+from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
 from .background import (_bin_mean, _correlated_noise_factor, _local_background,
                          estimate_noise)
 from .lines import line_background
@@ -168,7 +167,7 @@ def _detect(image, mask, n_sources, config, nsigma):
         cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand, lines=lines)
     if len(cand["x"]) == 0:
         return _empty_table(fwhm or 0.0, noise, b)
-    cand = _recenter(data, mask, cand, b, fwhm, noise)
+    cand = _recenter(data, mask, cand, b, fwhm)
 
     if fwhm is not None:
         tab = _measure(data, mask, cand, fwhm, noise, b, opts)
@@ -326,8 +325,6 @@ def _measure_at(data, mask, cand, fwhm, noise, b, opts):
     # biases fluxes and pulls centroids towards the tile centre.
     cut = cut - _local_background(cut, bad, min(2.0 * fwhm, half - 1.0))[:, None, None]
     cut[bad] = 0.0
-    # Hot pixels and cosmic-ray hits in a star's tile: not part of it.
-    cut = _despike(cut, bad, fwhm, noise)
     tab, ncol = _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts)
     if tab is None or len(tab["flux"]) == 0:
         return _empty_table(fwhm, noise, b)

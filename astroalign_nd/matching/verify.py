@@ -411,6 +411,9 @@ def _predicted_error(model, cov, frame):
 #: A match needs at least this many matched stars off its densest line
 #: (`_degenerate`): three pairs off a line fix what the line leaves free.
 MIN_OFF_LINE = 3
+#: Fewest matched stars on one line for the line to count as a row of detections (a few
+#: stars of a sparse field can lie near a line by chance and still pin the transform).
+MIN_ON_LINE = 8
 
 
 def _strip_halfwidth(tol):
@@ -465,7 +468,7 @@ def _on_line(points, matched, tol):
         return np.zeros(len(points), bool)
     on, c, u = _densest_line(matched, half)
     k = int(on.sum())
-    if k < max(4, n // 2) or n - k >= MIN_OFF_LINE:
+    if k < max(MIN_ON_LINE, n // 2) or n - k >= MIN_OFF_LINE:
         return np.zeros(len(points), bool)
     return np.abs((points - c) @ np.array([-u[1], u[0]])) <= half
 
@@ -513,7 +516,7 @@ def _local_log_tail(m, src_pts, dst_pts, matched, tol):
     groups = [np.ones(len(dj), bool)]
     if len(dj) >= 4:
         on, c, u = _densest_line(d, _strip_halfwidth(tol))
-        if on.sum() >= 4:
+        if on.sum() >= MIN_ON_LINE:
             groups = [~on, on] if (~on).any() else [on]
     log_tail, spare = 0.0, 3  # the triangle's stars, taken off the largest group first
     for g in sorted(groups, key=lambda g: -g.sum()):
@@ -560,7 +563,7 @@ def _degenerate(src, dst, src_frame, dst_frame, tol):
                  "bottom": pts[:, 1] - y0, "top": y1 - pts[:, 1]}
         on, c, u = _densest_line(pts, half)
         k = int(on.sum())
-        if k >= max(4, n // 2) and n - k < MIN_OFF_LINE:
+        if k >= max(MIN_ON_LINE, n // 2) and n - k < MIN_OFF_LINE:
             across = np.abs((pts[on] - c) @ np.array([-u[1], u[0]]))
             along = (pts[on] - c) @ u
             where = ""

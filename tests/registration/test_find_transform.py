@@ -430,7 +430,7 @@ def test_bad_counts(kwargs, exc):
     (np.zeros(50), ValueError),
     (np.zeros((4, 4)), ValueError),
     (np.full((32, 32), "a"), TypeError),
-    ("/nonexistent/file.fits", ValueError),
+    ("/nonexistent/file.fits", FileNotFoundError),
     (Table({"a": [1.0, 2.0, 3.0], "b": [1.0, 2.0, 3.0]}), ValueError),
 ])
 def test_bad_inputs(bad, exc, small_pair):
