@@ -19,7 +19,7 @@ candidate list is exact for a moved prediction as long as the prediction
 moved by less than the gap to the next target: the sources where it is
 not are looked up again (usually none).  The fits of the iterations are
 normal-equation fits of the model's parameter layer (its ``fit_layer``,
-as the distortion stage fits it: `~astroalign_nd.transforms.layers`),
+as the distortion stage fits it: ``astroalign_nd.transforms.layers``),
 accumulated in chunks; the final model is `~astroalign_nd.transforms.fit_transform`'s, of
 the last of these fits for the linear models (the same least-squares
 problem), or fitted by it for the others.
@@ -385,7 +385,7 @@ def _too_few(n, radius, degenerate=False):
 
 
 def _choose_degree(state, conformal, significance):
-    """degree='auto': the model chosen by `fit_nonlinear` on (a subsample of) the pairs."""
+    """degree='auto': the model chosen by ``fit_nonlinear`` on (a subsample of) the pairs."""
     p = state.p
     si, dj = state.si, state.dj
     if len(si) > AUTO_PAIRS:

@@ -5,7 +5,7 @@ A linear match grown into a non-linear one over many more stars.
 Wide-field optics (camera lenses, small refractors, all-sky cameras) leave
 several pixels of residual at the corners under any linear model.
 `extend_match` takes the trusted linear match of `find_match` (found on
-the brightest stars) and extends it, through `fit_nonlinear`, to a
+the brightest stars) and extends it, through `~astroalign_nd.matching.fit_nonlinear`, to a
 projective (homography) or polynomial-distortion model over all detected
 stars:
 
@@ -247,7 +247,7 @@ def extend_match(result, source, target, *, transform_type, degree=3, tolerance=
     source, target : `~astroalign_nd.Reference`
         The two frames (their detections are cached and reused).
     transform_type, degree, tolerance, significance
-        See `fit_nonlinear`.
+        See `~astroalign_nd.matching.fit_nonlinear`.
     n_fit : int, optional
         Detect up to ``2 * n_fit`` stars per image for the fit.
     n_control : (int, int), optional

@@ -281,7 +281,7 @@ class PolynomialTransform(Model):
     # -- fitting -------------------------------------------------------------------------
     @classmethod
     def layer(cls, parity=1, degree=None):
-        """The parameters and design of the degree (default 3): a `PolynomialLayer`."""
+        """The parameters and design of the degree (default 3): a ``PolynomialLayer``."""
         return PolynomialLayer(3 if degree is None else int(degree))
 
     fit_layer = layer

@@ -125,7 +125,7 @@ class ProjectiveTransform(Model):
 
     @classmethod
     def layer(cls, parity=1, degree=None):
-        """The parameters and design of the homography: a `ProjectiveLayer`."""
+        """The parameters and design of the homography: a ``ProjectiveLayer``."""
         return ProjectiveLayer()
 
     fit_layer = layer

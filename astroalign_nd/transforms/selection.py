@@ -305,7 +305,7 @@ def _f_pvalue(chi_small, k_small, chi_big, k_big, n_eq):
 
 class DistortionFit:
     """
-    The outcome of `fit_nonlinear`.
+    The outcome of `~astroalign_nd.matching.fit_nonlinear`.
 
     Attributes
     ----------
