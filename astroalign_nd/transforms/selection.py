@@ -7,21 +7,13 @@ Wide-field optics (camera lenses, small refractors, all-sky cameras) leave
 several pixels of residual at the corners under any linear model.  This
 stage takes the trusted linear match of `~astroalign_nd.matching` (found on
 the brightest stars) and extends it to a projective (homography) or
-polynomial-distortion model over all detected stars:
+polynomial-distortion model over all detected stars.
 
-1. **Grow.** Starting from the linear model, the fit is extended outwards
-   from the matched stars in discs of growing radius: predict every star of
-   the disc with the current model, pair it with the nearest target star
-   within ``tolerance`` (mutual nearest neighbours), refit, clip.  Near the
-   matched stars the linear model is right; each larger disc is predicted
-   by a model fitted on the previous one, so the pairing follows the
-   distortion instead of locking onto chance pairs at the corners.  The
-   degree used while growing is capped by the number of paired stars.
-2. **Refine.** Over the whole frame, the pairing radius shrinks to five
-   times the residual scatter and pairs more than 4 sigma off the model
-   (chi-square of 16, counting the model's own prediction variance) are
-   clipped, as in the linear refinement.  Wrong pairs (30% and more) do not
-   survive: they are far off a model fitted to the majority.
+Steps 1 (**grow** the match outwards from the matched stars) and 2
+(**refine** it over the whole frame) pair stars: they are the matching's,
+described in `~astroalign_nd.matching.grow`.  This module holds steps 3
+and 4:
+
 3. **Choose.** With ``degree='auto'`` the candidate models (the linear one
    of the match, affine, polynomial degrees 2 to 5) are fitted to the same
    pairs with the same weights.  A candidate with more terms replaces the
@@ -42,10 +34,9 @@ polynomial-distortion model over all detected stars:
    parameter covariance gives the predicted 1-sigma error of the mapping on
    a grid over the frame (largest and RMS), reported in the quality dict.
 
-Steps 1 and 2 pair stars: they are the matching's
-(`~astroalign_nd.matching.grow`, whose ``fit_nonlinear`` runs the four);
-this module holds what they fit (`Problem`, the robust fit) and steps 3
-and 4 (`choose_model`).  The fitting is done here on the models' parameter
+``fit_nonlinear`` (in `~astroalign_nd.matching.grow`) runs the four; this
+module holds what they fit (`Problem`, the robust fit) and steps 3 and 4
+(`choose_model`).  The fitting is done here on the models' parameter
 layers (`~astroalign_nd.transforms.layers`; coordinates normalised to the
 half diagonal of the frame, for conditioning); the returned models are
 built by `~astroalign_nd.transforms.fit_transform` on the final pairs, like
