@@ -54,9 +54,8 @@ def warn_if_slow():
     from .exceptions import SlowKernelsWarning, warn
 
     warn("astroalign_nd's compiled loops are not built, so detection, matching and "
-         "resampling run their NumPy versions: the same results, about 3 to 5 times slower "
-         "(register on a 1024x1024 pair: 1.1 s instead of 0.27 s). Install a binary wheel "
-         "(pip install --only-binary astroalign_nd astroalign_nd), or reinstall from source "
+         "resampling run their NumPy versions: the same results, about 1.5 to 3 times "
+         "slower. Install a binary wheel of astroalign_nd, or reinstall it from source "
          "with a C compiler and Cython present. astroalign_nd.HAVE_COMPILED tells which "
          "loops run; this warning is given once per process.", SlowKernelsWarning)
 
