@@ -545,32 +545,54 @@ def _plateau_centroids(sat, bad, x0, y0, fwhm):
 
     n, size, _ = sat.shape
     xs, ys, err = np.array(x0, float), np.array(y0, float), np.full(n, np.nan)
-    for k in np.flatnonzero(sat.sum(axis=(1, 2)) >= _MIN_PLATEAU):
-        lab, _ = ndimage.label(sat[k])
-        ix, iy = (int(np.clip(np.rint(v), 0, size - 1)) for v in (x0[k], y0[k]))
-        reg = lab == lab[iy, ix] if lab[iy, ix] else None
-        if reg is None or reg.sum() < _MIN_PLATEAU or reg[[0, -1], :].any() \
-                or reg[:, [0, -1]].any():
-            continue
-        yy, xx = np.nonzero(reg)
-        cx, cy = xx.mean(), yy.mean()
-        use = np.ones(len(xx), bool)
-        if (ndimage.binary_dilation(reg) & bad[k]).any():
-            cx, cy, use = _mirrored_support(xx, yy, ~bad[k], cx, cy)
-        radius = np.sqrt(len(xx) / np.pi)
-        if use.sum() < _MIN_PLATEAU or np.hypot(cx - x0[k], cy - y0[k]) > 0.5 * (radius + fwhm):
-            continue
-        # Each boundary pixel is in or out by the noise: variance ~1/4 each,
-        # at a distance ~radius, over the plateau's pixel count.
-        edge = reg & ~ndimage.binary_erosion(reg)
-        n_edge = edge[yy[use], xx[use]].sum()
-        e = np.sqrt(n_edge / 8.0) * radius / use.sum()
-        err[k] = np.hypot(e, (1.0 - use.sum() / len(xx)) * radius)
-        # A windowed centroid that agrees with the plateau's within its error
-        # is kept (sharp, clean wings measure the centre better than the
-        # pixel grid of the plateau); one that disagrees stopped on the flat top.
-        if np.hypot(cx - x0[k], cy - y0[k]) > _PLATEAU_K * err[k]:
-            xs[k], ys[k] = cx, cy
+    tiles = np.flatnonzero(sat.sum(axis=(1, 2)) >= _MIN_PLATEAU)
+    if tiles.size == 0:
+        return xs, ys, err
+    # Every tile at once: a 3-D stack whose structure joins no two tiles.
+    cross = np.zeros((3, 3, 3), bool)
+    cross[1] = ndimage.generate_binary_structure(2, 1)
+    lab, n_lab = ndimage.label(sat[tiles], structure=cross)
+    ix, iy = (np.clip(np.rint(v[tiles]), 0, size - 1).astype(int) for v in (x0, y0))
+    own = lab[np.arange(tiles.size), iy, ix]  # the plateau under each windowed centroid
+    count = np.bincount(lab.ravel(), minlength=n_lab + 1)
+    rim = np.zeros(n_lab + 1, bool)
+    rim[np.concatenate([lab[:, [0, -1], :].ravel(), lab[:, :, [0, -1]].ravel()])] = True
+    ok = (own > 0) & (count[own] >= _MIN_PLATEAU) & ~rim[own]
+    if not ok.any():
+        return xs, ys, err
+    tiles, own = tiles[ok], own[ok]
+    reg = lab[ok] == own[:, None, None]
+    which, yy, xx = np.nonzero(reg)
+    n_pix = count[own]
+    # (Sums of integer coordinates are exact: these are the pixels' means.)
+    cx = np.bincount(which, weights=xx, minlength=tiles.size) / n_pix
+    cy = np.bincount(which, weights=yy, minlength=tiles.size) / n_pix
+    edge = reg & ~ndimage.binary_erosion(reg, structure=cross)
+    n_edge = edge.sum(axis=(1, 2)).astype(float)
+    n_use = n_pix.astype(float)
+    # Plateaus next to a masked pixel or the frame's edge: mirrored support.
+    near_bad = (ndimage.binary_dilation(reg, structure=cross) & bad[tiles]).any(axis=(1, 2))
+    for i in np.flatnonzero(near_bad):
+        k = tiles[i]
+        py, px = np.nonzero(reg[i])
+        cx[i], cy[i], use = _mirrored_support(px, py, ~bad[k], cx[i], cy[i])
+        n_use[i] = use.sum()
+        n_edge[i] = edge[i][py[use], px[use]].sum()
+    radius = np.sqrt(n_pix / np.pi)
+    dist = np.hypot(cx - x0[tiles], cy - y0[tiles])
+    keep = (n_use >= _MIN_PLATEAU) & (dist <= 0.5 * (radius + fwhm))
+    # Each boundary pixel is in or out by the noise: variance ~1/4 each,
+    # at a distance ~radius, over the plateau's pixel count.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.sqrt(n_edge / 8.0) * radius / n_use
+        e = np.hypot(e, (1.0 - n_use / n_pix) * radius)
+    tiles, cx, cy, e, dist = tiles[keep], cx[keep], cy[keep], e[keep], dist[keep]
+    err[tiles] = e
+    # A windowed centroid that agrees with the plateau's within its error
+    # is kept (sharp, clean wings measure the centre better than the
+    # pixel grid of the plateau); one that disagrees stopped on the flat top.
+    moved = dist > _PLATEAU_K * e
+    xs[tiles[moved]], ys[tiles[moved]] = cx[moved], cy[moved]
     return xs, ys, err
 
 
