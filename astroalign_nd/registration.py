@@ -24,7 +24,7 @@ from astropy.utils.exceptions import AstropyWarning
 from ._input import parse_input
 from .config import (DEFAULT_NEIGHBORS, DetectionConfig, MatchingConfig, RegistrationConfig,
                      ResampleConfig, split_options)
-from .detection.daofind import _CONFIDENT_NSIGMA, control_sources
+from .detection.daofind import control_sources, keep_confident
 from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads, side_pool, warn_if_slow
 from ._validate import check_points
@@ -278,14 +278,11 @@ def _brightest(table, n_sources, config):
     """
     The stars for ``n_sources`` control points from a detection for as many
     or more: the ``2 * n_sources`` brightest, of the confident ones only when
-    there are ``n_sources`` of them (`~astroalign_nd.detection.daofind.control_sources`'
-    rule, so that the list is the one a detection for ``n_sources`` gives).
+    there are ``n_sources`` of them (`~astroalign_nd.detection.daofind.keep_confident`,
+    `~astroalign_nd.detection.daofind.control_sources`' rule, so that the list is the
+    one a detection for ``n_sources`` gives).
     """
-    if config.nsigma is None and config.finder is None:
-        strong = table[np.asarray(table["snr"]) >= _CONFIDENT_NSIGMA]
-        if len(strong) >= n_sources:
-            table = strong
-    return table[:2 * n_sources]
+    return keep_confident(table, n_sources, config)[:2 * n_sources]
 
 
 def _no_detections_warning():

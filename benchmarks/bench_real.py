@@ -47,8 +47,11 @@ Usage::
 
 import argparse
 import itertools
+import shutil
 import signal
+import subprocess
 import sys
+import tempfile
 import time
 import warnings
 from dataclasses import dataclass
@@ -251,8 +254,64 @@ def run_aafitrans_nd(src, dst):
     return np.asarray(t.params, float), len(ms)
 
 
+FISTAR = shutil.which("fistar")
+GRMATCH = shutil.which("grmatch")
+GRTRANS = shutil.which("grtrans")
+
+
+def run_fitsh(src, dst):
+    """
+    FITSH: ``fistar`` on each frame (its default 'uplink' algorithm and
+    elliptic model, a flux threshold of 5 sky sigmas from the median
+    absolute deviation, brightest first), ``grmatch --match-points`` with an
+    affine (order 1) fit of the pairs within 1 px (``--max-distance 1``: by
+    default a few chance pairs skew its fit by pixels), and ``grtrans`` to
+    read the fit back as a matrix.
+    Runs the two programs as the command line would, files and all.
+    """
+    if not (FISTAR and GRMATCH and GRTRANS):
+        raise RuntimeError("FITSH (fistar, grmatch, grtrans) is not installed")
+    from astropy.io import fits
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        cats = []
+        for name, img in (("src", src), ("dst", dst)):
+            data = np.asarray(img, np.float32)
+            good = data[np.isfinite(data)]
+            sigma = 1.4826 * np.median(np.abs(good - np.median(good)))
+            fits.writeto(tmp / f"{name}.fits", data)
+            cat = tmp / f"{name}.cat"
+            subprocess.run([FISTAR, "-i", str(tmp / f"{name}.fits"), "-o", str(cat),
+                            "-t", f"{max(5.0 * sigma, 1e-6):g}", "-s", "flux",
+                            "-F", "x,y,flux"], check=True, capture_output=True, timeout=600)
+            cats.append(cat)
+        trans = tmp / "trans.txt"
+        run = subprocess.run([GRMATCH, "--match-points", "-r", str(cats[0]), "-i", str(cats[1]),
+                              "--col-ref", "1,2", "--col-inp", "1,2",
+                              "--col-ref-ordering", "-3", "--col-inp-ordering", "-3",
+                              "--order", "1", "--max-distance", "1",
+                              "--output-transformation", str(trans),
+                              "--output", str(tmp / "pairs.txt")],
+                             capture_output=True, text=True, timeout=600)
+        if run.returncode != 0 or not trans.exists() or trans.stat().st_size == 0:
+            raise RuntimeError(f"grmatch found no match: {run.stderr.strip()[-60:]}")
+        n = len(np.loadtxt(tmp / "pairs.txt", ndmin=2))
+        # FITSH puts pixel centres at half-integers; these are 0-based centres.
+        q = np.array([[0.0, 0.0], [1000.0, 0.0], [0.0, 1000.0]])
+        np.savetxt(tmp / "q.txt", q + 0.5, fmt="%.6f")
+        out = subprocess.run([GRTRANS, "--input", str(tmp / "q.txt"), "--col-xy", "1,2",
+                              "--input-transformation", str(trans), "--output", "-"],
+                             capture_output=True, text=True, check=True)
+        p = np.array([[float(v) for v in line.split()[:2]] for line in out.stdout.splitlines()
+                      if line.strip() and not line.startswith("#")]) - 0.5
+    m = np.eye(3)
+    m[:2, :2] = np.column_stack([(p[1] - p[0]) / 1000.0, (p[2] - p[0]) / 1000.0])
+    m[:2, 2] = p[0]
+    return m, n
+
+
 RUNNERS = {"astroalign_nd": run_astroalign_nd, "astroalign": run_astroalign,
-           "aafitrans": run_aafitrans, "aafitrans-nd": run_aafitrans_nd}
+           "aafitrans": run_aafitrans, "aafitrans-nd": run_aafitrans_nd, "fitsh": run_fitsh}
 
 
 class _Timeout(Exception):

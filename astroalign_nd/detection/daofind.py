@@ -901,8 +901,31 @@ def control_sources(image, *, mask, n_sources, n_enough, config):
     threshold = _DEEP_NSIGMA if nsigma is None else nsigma
     table = _detect(image, mask, _check_positive_int(n_sources, "n_sources"), config,
                     threshold)
-    if nsigma is None:
-        strong = table[table["snr"] >= _CONFIDENT_NSIGMA]
+    return keep_confident(table, n_enough, config), threshold
+
+
+def keep_confident(table, n_enough, config):
+    """
+    The sources of a `control_sources` table at the confident threshold
+    (`find_sources`' default ``nsigma``) when there are ``n_enough`` of
+    them; all of them otherwise, or when ``config`` sets the threshold or
+    the finder.
+
+    Registration applies it again to a detection made for more sources,
+    so that each attempt's list is the one a detection for its count gives.
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from astroalign_nd.config import DetectionConfig
+    >>> from astroalign_nd.detection.daofind import keep_confident
+    >>> table = Table({"snr": [40.0, 12.0, 4.0]})
+    >>> config = DetectionConfig()
+    >>> len(keep_confident(table, 2, config)), len(keep_confident(table, 3, config))
+    (2, 3)
+    """
+    if config.nsigma is None and config.finder is None:
+        strong = table[np.asarray(table["snr"]) >= _CONFIDENT_NSIGMA]
         if len(strong) >= n_enough:
-            table = strong
-    return table, threshold
+            return strong
+    return table
