@@ -25,7 +25,8 @@ Methods (same float32 arrays for all):
 * astroalign_nd: ``find_transform(source, target)`` with its defaults;
 * astroalign: ``astroalign.find_transform(source, target)`` with its defaults;
 * aafitrans: ``aafitrans.find_transform`` on astroalign's detections
-  (``astroalign._find_sources``, 5 sigma, as in aafitrans' docs), defaults.
+  (``astroalign._find_sources``, 5 sigma, as in aafitrans' docs), defaults;
+* fitsh: FITSH's ``fistar`` and ``grmatch`` (``run_fitsh``), when installed.
 
 Error of a returned transform: the largest distance, in target pixels,
 between the true and the estimated position over a grid of target pixels
@@ -42,7 +43,7 @@ precision on the other real pairs is measured by loop closure.
 Usage::
 
     python benchmarks/bench_real.py [--data ../shared/data] [--warps 5] [--only NAME]
-        [--methods astroalign_nd astroalign aafitrans] [--timeout 120] [-v]
+        [--methods astroalign_nd astroalign aafitrans fitsh] [--timeout 120] [-v]
 """
 
 import argparse
@@ -63,7 +64,9 @@ from scipy import ndimage
 HERE = Path(__file__).resolve().parent
 DEFAULT_DATA = HERE.parents[1] / "shared" / "data"
 GRID_STEP = 8
-METHODS = ("astroalign_nd", "astroalign", "aafitrans")
+#: FITSH runs where its programs are installed.
+METHODS = ("astroalign_nd", "astroalign", "aafitrans") + (
+    ("fitsh",) if all(map(shutil.which, ("fistar", "grmatch", "grtrans"))) else ())
 
 # (name, rotation deg, scale, mirrored, shift x, shift y): source -> target.
 WARPS = [
@@ -480,6 +483,20 @@ def loop_closures(mats, methods):
     return out
 
 
+def time_ratio(times, method, only=None, peer="astroalign"):
+    """
+    'median (90th percentile)' over cases of ``method``'s time over
+    ``peer``'s on the same case; ``times`` maps (case, method) to seconds,
+    ``only`` (a set of (case, method)) keeps the cases ``method`` refused.
+    """
+    r = [t / times[(case, peer)] for (case, m), t in times.items()
+         if m == method and (case, peer) in times and times[(case, peer)] > 0
+         and (only is None or (case, m) in only)]
+    if not r:
+        return "-"
+    return f"{np.median(r):.2f} ({np.percentile(r, 90):.2f})"
+
+
 def report(rows, mats, methods, args):
     print(f"\nReal frames: {', '.join(methods)} on the same inputs (tol {args.tol:g} px)\n")
     kinds = ("warp", "pair", "cross")
@@ -518,6 +535,12 @@ def report(rows, mats, methods, args):
             print(f"{kind + f' common({len(common)}) px':22s}" + "".join(f"{v:16.3f}" for v in med))
         tmed = [np.median([r[5] for r in sub if r[2] == m]) for m in methods]
         print(f"{kind + ' median time s':22s}" + "".join(f"{v:16.3f}" for v in tmed))
+        if "astroalign" in methods:
+            t = {(r[1], r[2]): r[5] for r in sub}
+            refused = {(r[1], r[2]) for r in sub if r[7] != "ok"}
+            for label, only in (("t / astroalign", False), ("refused t / aa", True)):
+                print(f"{kind + ' ' + label:22s}" + "".join(
+                    f"{time_ratio(t, m, refused if only else None):>16s}" for m in methods))
     loops = loop_closures(mats, methods)
     if any(np.isfinite(v).any() for v in loops.values()):
         print(f"{'loop closure med px':22s}" + "".join(

@@ -24,7 +24,10 @@ outcome is
 * **refused**: an exception (or a time-out of ``--timeout`` seconds).
 
 The report gives, per case and per tool, solved / wrong / refused out of N,
-the median and largest error of the returned transforms and the median time.
+the median and largest error of the returned transforms, the median time,
+and the tool's time over astroalign's on the same pair (median and 90th
+percentile; over all pairs, and over the pairs the tool refused).  FITSH
+(``fitsh``: fistar + grmatch, `bench_real.run_fitsh`) runs when installed.
 Use ``-v`` for one line per run (with the refusal's message).
 
 Usage::
@@ -42,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_real import METHODS, RUNNERS, call, error  # noqa: E402
+from bench_real import METHODS, RUNNERS, call, error, time_ratio  # noqa: E402
 
 from astroalign_nd.simulate import TRUST_CASES, simulate_trust_case  # noqa: E402
 
@@ -61,7 +64,11 @@ def main(argv=None):
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")  # counted by outcome, not by warning
     t_start = time.perf_counter()
-    table = {}
+    table, times, refused = {}, {}, set()
+    warm = simulate_trust_case(args.cases[0], seed=args.first_seed)
+    for method in args.methods:  # imports and first-call costs outside the timing
+        call(method, np.asarray(warm.source, float), np.asarray(warm.target, float),
+             args.timeout)
     for case in args.cases:
         for k in range(args.n):
             seed = args.first_seed + k
@@ -73,8 +80,10 @@ def main(argv=None):
                 row = table.setdefault((case, method), dict(solved=0, wrong=0, refused=0,
                                                             err=[], t=[]))
                 row["t"].append(dt)
+                times[(case, seed), method] = dt
                 if status != "returned":
                     outcome = "refused"
+                    refused.add(((case, seed), method))
                 else:
                     err = error(m, pair.truth_matrix, src.shape, dst.shape)
                     row["err"].append(err)
@@ -88,13 +97,20 @@ def main(argv=None):
           f"solved: error <= {args.wrong:g} px over the overlap, wrong: larger, "
           "refused: an exception or a time-out\n")
     print(f"{'case':15s} {'method':14s} {'solved':>7s} {'wrong':>6s} {'refused':>8s} "
-          f"{'median err':>11s} {'max err':>8s} {'median t':>9s}")
+          f"{'median err':>11s} {'max err':>8s} {'median t':>9s} {'t / aa (p90)':>13s} "
+          f"{'refused t / aa':>15s}")
     for (case, method), row in table.items():
         err = np.array(row["err"])
         med = f"{np.median(err):.3f}" if len(err) else "-"
         mx = f"{err.max():.2f}" if len(err) else "-"
+        t = {k: v for k, v in times.items() if k[0][0] == case}
         print(f"{case:15s} {method:14s} {row['solved']:7d} {row['wrong']:6d} "
-              f"{row['refused']:8d} {med:>11s} {mx:>8s} {np.median(row['t']):8.2f}s")
+              f"{row['refused']:8d} {med:>11s} {mx:>8s} {np.median(row['t']):8.2f}s "
+              f"{time_ratio(t, method):>13s} {time_ratio(t, method, refused):>15s}")
+    if "astroalign" in args.methods:
+        print("\nall cases, time / astroalign's on the same pair, median (90th percentile): "
+              + ", ".join(f"{m} {time_ratio(times, m)}, refused {time_ratio(times, m, refused)}"
+                          for m in args.methods if m != "astroalign"))
     print(f"\ntotal wall time {time.perf_counter() - t_start:.0f} s")
 
 
