@@ -537,7 +537,7 @@ def report(rows, mats, methods, args):
         print(f"{kind + ' median time s':22s}" + "".join(f"{v:16.3f}" for v in tmed))
         if "astroalign" in methods:
             t = {(r[1], r[2]): r[5] for r in sub}
-            refused = {(r[1], r[2]) for r in sub if r[7] != "ok"}
+            refused = {(r[1], r[2]) for r in sub if r[3] != "returned"}
             for label, only in (("t / astroalign", False), ("refused t / aa", True)):
                 print(f"{kind + ' ' + label:22s}" + "".join(
                     f"{time_ratio(t, m, refused if only else None):>16s}" for m in methods))
