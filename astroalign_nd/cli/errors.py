@@ -27,8 +27,8 @@ EXIT_CODES = (
     (EXIT_REFUSED, "registration refused: no trustworthy transform (too few stars, no "
      "match, or a match that does not pass the checks); nothing was written"),
     (130, "interrupted (SIGINT, Ctrl-C); batch and watch write what was done, stack "
-     "writes nothing"),
-    (143, "terminated (SIGTERM); batch and watch write what was done, stack writes nothing"),
+     "writes the partial stack of the frames registered so far"),
+    (143, "terminated (SIGTERM); the same as 130"),
 )
 
 
