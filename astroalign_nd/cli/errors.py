@@ -107,8 +107,9 @@ def cli_words(message):
     'try more sources (--n-sources), or pass --fwhm <their width>.'
     """
     message = _KEYWORD.sub(lambda m: _FLAGS[m.group(1)] + (" " if m.group(2) else ""), message)
-    # The command line has no None (leave the option out) and no overwrite=True.
-    message = re.sub(r"pass overwrite=True \(or --overwrite\)", "pass --overwrite", message)
+    # The command line has no None (leave the option out) and no overwrite=True: a keyword
+    # given with its flag ("skip_existing=True (--skip-existing)") is the flag alone.
+    message = re.sub(r"\b\w+=True \((?:or )?(--[\w-]+)\)", r"\1", message)
     message = re.sub(r",? or None\b", "", message)
     return re.sub(r"(--[\w-]+)  ", r"\1 ", message)
 

@@ -7,8 +7,8 @@ import warnings
 
 from .errors import (_PROG, EXIT_FRAMES_FAILED, EXIT_REFUSED, HelpFormatter, _CLIError, cli_words,
                      exit_codes_text)
-from .options import (_add_sky_options, _check_input, _check_writable, _none,
-                      _registration_kwargs)
+from .options import (_add_sky_options, _check_input, _check_output_dir, _check_writable,
+                      _none, _registration_kwargs)
 
 __all__ = []
 
@@ -77,6 +77,8 @@ def _cmd_stack(args):
     images = [_check_input(p) for p in args.images]
     reference = _check_input(args.reference) if args.reference else None
     _check_writable(args.output, args.overwrite, inputs=images + [reference or images[0]])
+    if args.aligned_dir is not None:
+        _check_output_dir(args.aligned_dir, "--aligned-dir")
     if args.workers < 0:
         raise _CLIError(f"--workers must be 0 or more; got {args.workers}.")
     if not args.memory_limit > 0:

@@ -20,7 +20,7 @@ from ..batch.canvas import canvas_wcs
 from ..batch.core import Interrupted
 from ..exceptions import TransformNotFoundError, warn
 from ..io import write_ccddata, write_output
-from ..io.write import check_not_input, check_output_path
+from ..io.write import check_not_input, check_output_path, make_output_dir, remove_empty_dirs
 from ..io.writers import output_suffixes
 from .combine import (CLIP_METHODS, NORMALIZE_METHODS, STACK_METHODS, CombineOptions,
                       combine_files, frame_stats, frame_weights, normalise)
@@ -358,7 +358,7 @@ class _aligned_folder:
 
     def __enter__(self):
         if self.keep:
-            os.makedirs(self.path, exist_ok=True)
+            self.created = make_output_dir(self.path, "aligned_dir")
             return self.path
         self.tmp = tempfile.TemporaryDirectory(prefix="aastack-", dir=self.temp_dir)
         return self.tmp.name
@@ -366,6 +366,8 @@ class _aligned_folder:
     def __exit__(self, *exc):
         if self.tmp is not None:
             self.tmp.cleanup()
+        else:
+            remove_empty_dirs(self.created)  # nothing registered: no empty folder left
 
 
 def _register(others, ref, folder, canvas, overwrite, workers, progress, hdu, unit, order,
