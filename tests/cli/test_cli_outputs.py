@@ -69,8 +69,7 @@ def test_a_failed_run_leaves_no_folder_it_created(frames, tmp_path):
     assert kept.is_dir()
 
 
-def test_an_aligned_dir_that_cannot_be_made_is_one_clear_line(frames, tmp_path,
-                                                               monkeypatch):
+def test_an_unmakeable_aligned_dir_is_one_clear_line(frames, tmp_path, monkeypatch):
     paths, _ = frames
     args = ["stack", *paths[:2], "-o", tmp_path / "st.fits", "--aligned-dir"]
     code, _, err = run_cli(*args, os.path.join(paths[0], "sub"))
@@ -106,3 +105,35 @@ def test_match_keeps_the_transform_it_found(tmp_path):
     assert fits.getheader(fits_out, 1)["AATTYPE"] == "similarity"
     code, stdout, _ = run_cli("match", src, dst, "-o", tmp_path / "pairs.csv")
     assert code == 0 and "not kept by this format: write .ecsv or .fits" in stdout
+
+
+def test_batch_global_plot_draws_every_frame(frames, tmp_path):
+    paths, _ = frames
+    plots = tmp_path / "plots"
+    code, stdout, err = run_cli("batch", paths[1], "-r", paths[0], "--output-dir",
+                                tmp_path / "out", "--global", "--plot", plots)
+    assert code == 0, err
+    assert sorted(os.listdir(plots)) == ["f1_aligned.png", "night_summary.png"]
+
+
+def test_residuals_of_an_exact_fit_are_not_magnified():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.quiver import QuiverKey
+
+    from astroalign_nd import SimilarityTransform
+    from astroalign_nd.visualization import plot_residuals
+
+    t = SimilarityTransform(rotation=10.0, translation_x=3.0)
+    src = np.random.default_rng(1).uniform(0, 200, (30, 2))
+    dst = np.column_stack(t(*src.T)) + 1e-13  # a frame onto itself: rounding only
+    ax = plot_residuals(t, (src, dst), shape=(200, 200))
+    assert ax.get_title() == "residuals: all below 0.001 px (RMS 0.000 px)"
+    assert not [a for a in ax.get_children() if isinstance(a, QuiverKey)]
+    # One far star among 0.1 px residuals: the key arrow stays inside its panel.
+    dst = np.column_stack(t(*src.T)) + 0.1
+    dst[0] += 30.0
+    ax = plot_residuals(t, (src, dst), shape=(200, 200))
+    (key,) = [a for a in ax.get_children() if isinstance(a, QuiverKey)]
+    assert key.U <= 0.1 * 200  # data px: from 0.75 of the width, well inside
