@@ -486,7 +486,13 @@ cdef inline void _keys_weights(double f, double* w) noexcept nogil:
 
 cdef inline bint _axis_taps(double u, Py_ssize_t n, int order, Py_ssize_t* i0,
                             double* w) noexcept nogil:
-    """First tap index and weights along one axis; False if a used tap is outside."""
+    """
+    First tap index and weights along one axis; False if a used tap is outside.
+
+    Every path sets all four weights: the caller reads them only when both
+    axes return True, but the C compiler cannot see that through the ``and``
+    of the two calls (it warned ``wx[k]`` "may be used uninitialized").
+    """
     cdef double fl
     cdef Py_ssize_t k
     cdef bint ok
@@ -505,6 +511,10 @@ cdef inline bint _axis_taps(double u, Py_ssize_t n, int order, Py_ssize_t* i0,
     # Guard before converting to an integer: far-away positions would overflow.
     if not (u > -3.0 and u < n + 2.0):
         i0[0] = 0
+        w[0] = 0.0
+        w[1] = 0.0
+        w[2] = 0.0
+        w[3] = 0.0
         return False
     if order == 1:
         fl = _floor(u)

@@ -26,6 +26,7 @@ from ._input import parse_input, position_columns
 from ._kernels import num_threads
 from .config import RegistrationConfig
 from .detection import find_sources
+from .io.header import transform_to_header
 from .matching.allpairs import bounds, pair_all
 from .registration import find_match_from_config
 from .transforms.convert import as_matrix
@@ -91,7 +92,11 @@ class CrossMatch:
         star lies this close to the predicted position (``1 - exp(-pi r**2
         density)``, with the target stars' local density).  Its ``meta``
         holds ``TRANSFRM``, ``NPAIRS``, ``RMS``, ``RADIUS``, ``SIGMA``,
-        ``NITER`` and ``CONVERGD`` (FITS keyword names).
+        ``NITER`` and ``CONVERGD`` (FITS keyword names), and the transform's
+        type and parameters as `~astroalign_nd.io.transform_to_header`
+        writes them (``AATTYPE``...): written to a file, the table keeps
+        the transform, which `~astroalign_nd.io.transform_from_header`
+        rebuilds from its ``meta``.
     source_unmatched, target_unmatched : ndarray of int
         The rows of each input with no pair (rows without finite positions
         included).
@@ -539,6 +544,9 @@ def _result(src, dst, fit, match):
     table.meta.update(TRANSFRM=type(fit.transform).__name__, NPAIRS=len(table), RMS=rms,
                       RADIUS=fit.radius, SIGMA=fit.sigma, NITER=fit.n_iterations,
                       CONVERGD=fit.converged)
+    # The transform itself, as a registered frame's header holds it (AAT* keywords):
+    # transform_from_header(table.meta) rebuilds it from the written table.
+    table.meta.update(transform_to_header(fit.transform))
     fit.transform.meta["quality"] = dict(n_matches=len(table), rms=rms,
                                          covariance=np.array(fit.covariance),
                                          radius=fit.radius, sigma=fit.sigma,

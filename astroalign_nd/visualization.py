@@ -328,6 +328,10 @@ def plot_invariants(source_points, target_points=None, *, ax=None, n_neighbors=4
     return ax
 
 
+#: Residuals (px) below which a fit is exact (rounding): drawn without magnification.
+_NO_RESIDUAL = 1e-3
+
+
 def plot_residuals(transform, points, *, ax=None, scale=None, shape=None):
     """
     Draw the residual of each matched star after the fit, as an arrow.
@@ -349,7 +353,8 @@ def plot_residuals(transform, points, *, ax=None, scale=None, shape=None):
         Where to draw; new Axes by default.
     scale : float, optional
         Magnification of the arrows; by default the median arrow is drawn
-        about 5% of the field across.
+        about 5% of the field across (residuals all below 0.001 px, an
+        exact fit such as a frame onto itself, are not magnified).
     shape : (ny, nx), optional
         The target frame's shape, to set the limits of the plot.
 
@@ -387,9 +392,12 @@ def plot_residuals(transform, points, *, ax=None, scale=None, shape=None):
         extent = float(np.ptp(dst, axis=0).max()) or 1.0
     else:
         extent = 1.0
+    typical = float(np.median(size)) if len(size) else 0.0
+    # Below a thousandth of a pixel the residuals are rounding (a frame registered onto
+    # itself): nothing to magnify, and no key arrow scaled from them.
+    exact = scale is None and not typical >= _NO_RESIDUAL
     if scale is None:
-        typical = float(np.median(size)) if len(size) and np.median(size) > 0 else 1.0
-        scale = 0.05 * extent / typical
+        scale = 1.0 if exact else 0.05 * extent / typical
     if not np.isfinite(scale) or scale <= 0:
         raise ValueError(f"scale must be a positive number; got {scale!r}.")
     q = ax.quiver(dst[:, 0], dst[:, 1], resid[:, 0] * scale, resid[:, 1] * scale,
@@ -399,8 +407,13 @@ def plot_residuals(transform, points, *, ax=None, scale=None, shape=None):
     if shape is not None:
         ax.set_xlim(-0.5, shape[1] - 0.5)
         ax.set_ylim(-0.5, shape[0] - 0.5)
+    if exact:
+        _label(ax, f"residuals: all below {_NO_RESIDUAL:g} px (RMS {rms:.3f} px)", " (target)")
+        return ax
     _label(ax, f"residuals x{scale:.3g}: RMS {rms:.3f} px", " (target)")
-    key = max(rms, 1e-3) if np.isfinite(rms) else 1.0
+    # The key: a round length near the typical residual, so its arrow is about as long as
+    # the median arrow (5% of the field) and stays inside the panel.
+    key = float(f"{typical:.1g}") if typical > 0 else 1.0
     ax.quiverkey(q, 0.75, 0.05, scale * key, f"{key:.2g} px", labelpos="E",
                  coordinates="axes")
     return ax

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import time
 from collections.abc import Callable, Iterable
@@ -13,7 +14,7 @@ import numpy as np
 from .._input import batch_frames
 from ..config import RegistrationConfig, ResampleConfig
 from ..exceptions import warn
-from ..io.write import check_output_dir
+from ..io.write import make_output_dir
 from ..registration import Reference, prepare_target
 from .results import BatchResult, FrameResult
 from .frame import (_Config, _Job, _failed, _own_output, _registered_before, _stream_jobs,
@@ -206,8 +207,7 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     protected = [os.fspath(target)] if _is_path(target) else []
     if output_dir is not None:
         output_dir = os.fspath(output_dir)
-        os.makedirs(output_dir, exist_ok=True)
-        check_output_dir(output_dir)
+        make_output_dir(output_dir, "output_dir")
     jobs, outputs = _first_jobs(items, stream, union or solve == "global", output_dir, suffix,
                                 protected)
     apply_options = dict(asdict(resample), unit=unit)
@@ -352,6 +352,12 @@ def _first_jobs(items, stream, union, output_dir, suffix, protected):
     return jobs, outputs
 
 
+#: Why an output could not be written that every later frame would meet too (a full disk,
+#: a read-only or removed folder): the batch stops at the first, with one error.
+_STOPPING_ERRNOS = frozenset((errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES,
+                              errno.EPERM, errno.ENOENT))
+
+
 class _Report:
     """The results by input index; each one to the callback and the progress bar."""
 
@@ -370,7 +376,15 @@ class _Report:
             self.bar.close()
 
     def done(self, i, res):
-        """Frame ``i`` is finished with ``res``."""
+        """Frame ``i`` is finished with ``res``; a full disk stops the batch (`OSError`)."""
+        if res._write_errno in _STOPPING_ERRNOS:
+            n = sum(r.status == "registered" for r in self.results.values())
+            stop = OSError(f"the batch stopped at {res.name}: {res.error.partition(': ')[2]} "
+                           f"The {n} frame{'' if n == 1 else 's'} written before it "
+                           "are complete: run the batch again with skip_existing=True "
+                           "(--skip-existing) to finish.")
+            stop.errno = res._write_errno
+            raise stop
         self.results[i] = res
         if self.callback is not None:
             self.callback(res)

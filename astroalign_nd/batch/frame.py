@@ -182,7 +182,10 @@ def _apply_stage(job, cfg, t0, src_path=None):
         if cfg.batch_id is not None and job.output is not None:
             ccd.meta[_JOB_KEY] = (_job_id(job, cfg), "batch+frame id (for retries)")
     if job.output is not None:
-        writer_for(job.output, cfg.writers).write(ccd, job.output, overwrite=cfg.overwrite)
+        try:
+            writer_for(job.output, cfg.writers).write(ccd, job.output, overwrite=cfg.overwrite)
+        except OSError as exc:  # the batch decides: a full disk stops it (see _Report)
+            return replace(_failed(job, exc, t0, src_path), _write_errno=exc.errno)
         ccd = None  # memory stays flat: nothing of the frame is kept
     return FrameResult(name=job.name, status="registered", transform=job.transform,
                        quality=job.quality, output=job.output, ccd=ccd, source=src_path,

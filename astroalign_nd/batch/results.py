@@ -102,6 +102,7 @@ class FrameResult:
     shape: tuple = field(default=None, repr=False)  # the source frame's (ny, nx)
     points: tuple = field(default=None, repr=False)  # matched (source, reference) positions
     _grid: tuple = field(default=None, repr=False)  # (shape, offset) of a kept output
+    _write_errno: int = field(default=None, repr=False)  # the output could not be written
 
     @property
     def ok(self):

@@ -945,11 +945,31 @@ def solve_jobs(jobs, items, target, ref, options, runners, report, cfg):
             t = sol.transforms[i]
             found[i] = FrameResult(name=job.name, status="registered", transform=t,
                                    quality=dict(t.meta["quality"]), source=src,
-                                   output=job.output, shape=sol.shapes[i], seconds=each)
+                                   output=job.output, shape=sol.shapes[i], seconds=each,
+                                   points=_frame_points(sol, i))
         else:
             found[i] = _kept(job, done, cfg, src, each)
         report.tick()
     return found, sol
+
+
+def _frame_points(sol, i):
+    """
+    Frame ``i``'s matched stars (its pixels) and their partners (reference pixels), as
+    `~astroalign_nd.batch.FrameResult.points` holds them for the figures: from its link
+    with the reference, else from its link of most stars, the partners placed by their
+    frame's solved transform (the residuals drawn are then the joint solution's).
+    """
+    links = [k for k in sol.accepted if i in (k.source, k.target)
+             and sol.transforms[k.target if k.source == i else k.source] is not None]
+    if not links:
+        return None
+    link = max(links, key=lambda k: (sol.reference in (k.source, k.target), k.n_matches))
+    mine, other, j = ((link.source_points, link.target_points, link.target)
+                      if link.source == i else
+                      (link.target_points, link.source_points, link.source))
+    placed = sol.transforms[j](other[:, 0], other[:, 1])
+    return np.asarray(mine, dtype=float), np.column_stack(placed).astype(float)
 
 
 def _kept(job, done, cfg, src, seconds):

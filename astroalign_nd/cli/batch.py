@@ -323,7 +323,7 @@ def _check_plot_dir(args, target, sources):
     from astroalign_nd.batch import plan_outputs
     from astroalign_nd.visualization import check_plot_path
 
-    _check_output_dir(args.plot)
+    _check_output_dir(args.plot, "--plot")
     outputs, _ = plan_outputs(sources, args.output_dir, protected=[target])
     plots = {out: _figure_path(args.plot, out) for out in outputs}
     for path in [*plots.values(), os.path.join(args.plot, _NIGHT_FIGURE)]:

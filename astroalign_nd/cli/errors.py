@@ -27,8 +27,8 @@ EXIT_CODES = (
     (EXIT_REFUSED, "registration refused: no trustworthy transform (too few stars, no "
      "match, or a match that does not pass the checks); nothing was written"),
     (130, "interrupted (SIGINT, Ctrl-C); batch and watch write what was done, stack "
-     "writes nothing"),
-    (143, "terminated (SIGTERM); batch and watch write what was done, stack writes nothing"),
+     "writes the partial stack of the frames registered so far"),
+    (143, "terminated (SIGTERM); the same as 130"),
 )
 
 
@@ -107,8 +107,9 @@ def cli_words(message):
     'try more sources (--n-sources), or pass --fwhm <their width>.'
     """
     message = _KEYWORD.sub(lambda m: _FLAGS[m.group(1)] + (" " if m.group(2) else ""), message)
-    # The command line has no None (leave the option out) and no overwrite=True.
-    message = re.sub(r"pass overwrite=True \(or --overwrite\)", "pass --overwrite", message)
+    # The command line has no None (leave the option out) and no overwrite=True: a keyword
+    # given with its flag ("skip_existing=True (--skip-existing)") is the flag alone.
+    message = re.sub(r"\b\w+=True \((?:or )?(--[\w-]+)\)", r"\1", message)
     message = re.sub(r",? or None\b", "", message)
     return re.sub(r"(--[\w-]+)  ", r"\1 ", message)
 

@@ -10,7 +10,7 @@ import sys
 from .errors import (_PROG, HelpFormatter as _HelpFormatter, _error, _expected_errors, cli_words,
                      exit_code, exit_codes_text)
 from . import batch, demo, match, register, stack, watch
-from .options import _registration_options
+from .options import _empty_folders_removed, _registration_options
 
 __all__ = ['main', 'build_parser']
 
@@ -156,7 +156,7 @@ def main(argv=None):
     old_showwarning = warnings.showwarning
     warnings.showwarning = one_line_warning
     try:
-        with _interrupt_signals():
+        with _interrupt_signals(), _empty_folders_removed():
             return args.func(args)
     except errors as exc:
         return _error(str(exc) or type(exc).__name__, exit_code(exc))

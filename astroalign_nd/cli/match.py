@@ -6,6 +6,7 @@ import sys
 
 from ..config import MatchingConfig, ModelConfig, RegistrationConfig, cli_fields
 from .errors import HelpFormatter, _CLIError, exit_codes_text
+from .options import _describe
 
 __all__ = []
 
@@ -131,7 +132,10 @@ def _cmd_match(args):
     table.meta["SOURCE"], table.meta["TARGET"] = str(args.source), str(args.target)
     write_table(table, args.output, format=fmt, overwrite=args.overwrite)
     q = out.transform.meta["quality"]
+    # ECSV and FITS keep the table's meta (the transform's AAT* keywords); CSV and text do not.
+    kept = ("kept in its AAT* keywords" if fmt in ("ascii.ecsv", "fits") else
+            "not kept by this format: write .ecsv or .fits to keep it")
     print(f"{args.output}: {len(table)} pairs of {len(source)} source and {len(target)} "
           f"target rows; RMS {q['rms']:.4f} px, radius {out.radius:.3f} px, "
-          f"{out.n_iterations} pairings; {type(out.transform).__name__}", file=sys.stdout)
+          f"{out.n_iterations} pairings; {_describe(out.transform)} ({kept})", file=sys.stdout)
     return 0

@@ -5,6 +5,7 @@ the checks of inputs and outputs, and a transform's one-line summary.
 """
 
 import argparse
+import contextlib
 import os
 
 # The configs hold no heavy import: --help stays fast.
@@ -122,16 +123,31 @@ def _check_writable(path, overwrite, inputs=()):
                         "it.") from None
 
 
-def _check_output_dir(path):
-    from astroalign_nd.io.write import check_output_dir
+#: The folders the command created, outermost first: removed at its end if still empty
+#: (a run that failed leaves no empty folder behind).
+_CREATED = []
 
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise _CLIError(f"--output-dir {path!r} is a file, not a folder.")
+
+def _check_output_dir(path, what="--output-dir"):
+    """Create the folder ``path`` if needed (noted in `_CREATED`), and check it is writable."""
+    from astroalign_nd.io.write import make_output_dir
+
     try:
-        os.makedirs(path, exist_ok=True)
+        _CREATED.extend(make_output_dir(path, what))
     except OSError as exc:
-        raise _CLIError(f"cannot create output folder {path!r}: {exc.strerror or exc}.") from None
-    check_output_dir(path)
+        raise _CLIError(str(exc)) from None
+
+
+@contextlib.contextmanager
+def _empty_folders_removed():
+    """Remove, at the end of the command, the folders it created and left empty."""
+    from astroalign_nd.io.write import remove_empty_dirs
+
+    try:
+        yield
+    finally:
+        remove_empty_dirs(_CREATED)
+        _CREATED.clear()
 
 
 def _check_input(path):

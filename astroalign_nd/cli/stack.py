@@ -7,8 +7,8 @@ import warnings
 
 from .errors import (_PROG, EXIT_FRAMES_FAILED, EXIT_REFUSED, HelpFormatter, _CLIError, cli_words,
                      exit_codes_text)
-from .options import (_add_sky_options, _check_input, _check_writable, _none,
-                      _registration_kwargs)
+from .options import (_add_sky_options, _check_input, _check_output_dir, _check_writable,
+                      _none, _registration_kwargs)
 
 __all__ = []
 
@@ -18,7 +18,9 @@ DESCRIPTION = (
     "Register each image onto the reference (-r, default the first image) and combine "
     "them into OUT.fits: sky levels normalised, outliers (cosmic rays, satellite trails) "
     "clipped, weighted by their uncertainty. The frames are assumed calibrated (bias, dark, "
-    "flat). The header lists every frame combined and every frame left out, and why. Exit "
+    "flat). The header lists every frame combined and every frame left out, and why. "
+    "Interrupted (Ctrl-C, SIGTERM), it writes the partial stack of the frames registered "
+    "so far (a HISTORY line says so). Exit "
     "code: 0 success, 1 some frames left out, 2 usage error, 3 no frame could be "
     "registered (or the reference was refused).")
 
@@ -75,6 +77,8 @@ def _cmd_stack(args):
     images = [_check_input(p) for p in args.images]
     reference = _check_input(args.reference) if args.reference else None
     _check_writable(args.output, args.overwrite, inputs=images + [reference or images[0]])
+    if args.aligned_dir is not None:
+        _check_output_dir(args.aligned_dir, "--aligned-dir")
     if args.workers < 0:
         raise _CLIError(f"--workers must be 0 or more; got {args.workers}.")
     if not args.memory_limit > 0:
@@ -100,6 +104,19 @@ def _cmd_stack(args):
     except AstroalignError as exc:
         print(f"{_PROG}: registration refused: {exc}", file=sys.stderr)
         return EXIT_REFUSED
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the frames registered so far
+        partial = getattr(exc, "partial_result", None)
+        if partial is None:
+            print("stopped before any frame but the reference was registered, or while "
+                  "combining: nothing written", flush=True)
+        else:
+            _report(partial, args.output)
+        raise
+    return _report(ccd, args.output)
+
+
+def _report(ccd, output):
+    """Each frame stacked and left out, and the totals, from the stack's header."""
     h = ccd.meta
     for k in range(1, h["NCOMBINE"] + 1):
         if f"IMCMB{k:03d}" in h:
@@ -107,6 +124,10 @@ def _cmd_stack(args):
     for k in range(1, h["NREJECT"] + 1):
         if f"AAREJ{k:03d}" in h:
             print(f"LEFT OUT {cli_words(h[f'AAREJ{k:03d}'])}")
-    print(f"{h['NCOMBINE']} frames combined, {h['NREJECT']} left out; "
-          f"{int(ccd.mask.sum())} px masked (no frame reaches); wrote {args.output}")
+    partial = [line for line in h.get("HISTORY", []) if line.startswith("partial stack")]
+    for line in partial:
+        print(line)
+    print(f"{'partial stack: ' if partial else ''}{h['NCOMBINE']} frames combined, "
+          f"{h['NREJECT']} left out; {int(ccd.mask.sum())} px masked (no frame reaches); "
+          f"wrote {output}", flush=True)
     return EXIT_FRAMES_FAILED if h["NREJECT"] else 0

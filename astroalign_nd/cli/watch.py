@@ -111,10 +111,18 @@ def _cmd_watch(args):
     except AstroalignError as exc:  # the reference itself (no stars...)
         print(f"{_PROG}: registration refused: {exc}", file=sys.stderr)
         return EXIT_REFUSED
-    except KeyboardInterrupt:
-        print(f"stopped; the stack is in {args.stack}", flush=True)
+    except KeyboardInterrupt as exc:
+        live = getattr(exc, "partial_result", None)
+        if live is None:  # stopped while the reference was prepared
+            print("stopped before the first stack was written", flush=True)
+        else:
+            print(f"stopped: {_totals(live)}; the stack is in {args.stack}", flush=True)
         raise
-    n = len(live.used)
-    print(f"{n} frame{'' if n == 1 else 's'} stacked, {len(live.rejected)} failed; wrote "
-          f"{args.stack}")
+    print(f"{_totals(live)}; wrote {args.stack}")
     return EXIT_FRAMES_FAILED if live.rejected else 0
+
+
+def _totals(live):
+    """The frames stacked and failed: as the stack's NCOMBINE and NREJECT count them."""
+    n = len(live.used)
+    return f"{n} frame{'' if n == 1 else 's'} stacked, {len(live.rejected)} failed"

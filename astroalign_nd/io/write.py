@@ -27,7 +27,8 @@ import stat
 import tempfile
 
 __all__ = ["atomic_write", "atomic_open", "write_ccddata", "write_table", "check_output_path",
-           "check_output_dir", "check_not_input", "FITS_EXTENSIONS"]
+           "check_output_dir", "make_output_dir", "remove_empty_dirs", "check_not_input",
+           "FITS_EXTENSIONS"]
 
 #: File name endings taken as FITS by `write_ccddata` and the command line.
 FITS_EXTENSIONS = (".fits", ".fit", ".fts", ".fits.gz", ".fit.gz", ".fts.gz")
@@ -573,7 +574,7 @@ def check_writable_dir(folder):
         fd, probe = tempfile.mkstemp(prefix=f"{_TMP_TAG}probe-", dir=folder)
     except OSError as exc:
         raise PermissionError(f"cannot write to output folder {folder!r}: "
-                              f"{exc.strerror or exc}.") from None
+                              f"{_advice(exc)}.") from None
     os.close(fd)
     os.unlink(probe)
 
@@ -609,3 +610,75 @@ def check_output_dir(folder):
     []
     """
     check_writable_dir(os.fspath(folder))
+
+
+def make_output_dir(folder, what="output folder"):
+    """
+    Create ``folder`` (and its parents) if needed, and check that files can be created in it.
+
+    Parameters
+    ----------
+    folder : str or path-like
+    what : str, optional
+        How the messages name it (``"--aligned-dir"``...).
+
+    Returns
+    -------
+    created : list of str
+        The folders created, the outermost first: a run that writes nothing removes them
+        again (`remove_empty_dirs`).
+
+    Raises
+    ------
+    OSError
+        If it cannot be created or written to: what, where and what to do (not the
+        system's bare ``[Errno 1] Operation not permitted``).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.io.write import make_output_dir, remove_empty_dirs
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     created = make_output_dir(os.path.join(folder, "night", "aligned"))
+    ...     print([os.path.basename(p) for p in created])
+    ...     remove_empty_dirs(created)
+    ...     print(os.listdir(folder))
+    ['night', 'aligned']
+    []
+    """
+    folder = os.fspath(folder)
+    created, level = [], os.path.abspath(folder)
+    while not os.path.lexists(level) and os.path.dirname(level) != level:
+        created.insert(0, level)
+        level = os.path.dirname(level)
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        raise NotADirectoryError(f"{what} {folder!r} is a file, not a folder; give a folder.")
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as exc:
+        clear = type(exc)(f"cannot create {what} {folder!r}: {_advice(exc)}.")
+        clear.errno = exc.errno
+        raise clear from None
+    try:
+        check_writable_dir(folder)
+    except OSError:
+        remove_empty_dirs(created)
+        raise
+    return created
+
+
+def remove_empty_dirs(folders):
+    """Remove those of ``folders`` (outermost first) that are empty, innermost first."""
+    for path in reversed(folders):
+        with contextlib.suppress(OSError):
+            os.rmdir(path)  # only an empty folder: never anything written into it
+
+
+def _advice(exc):
+    """The system's reason for ``exc`` and what to do about it."""
+    code = getattr(exc, "errno", None)
+    if code == errno.ENOTDIR:
+        return "a part of the path is a file, not a folder; give a folder"
+    if code in _WRITE_ADVICE:
+        return f"{_WRITE_ADVICE[code]} ({os.strerror(code)})"
+    return exc.strerror or str(exc)

@@ -17,9 +17,10 @@ from astropy.nddata import CCDData
 from .._input import batch_frames, parse_input
 from ..batch import BatchResult, reference_on_canvas, register_batch
 from ..batch.canvas import canvas_wcs
+from ..batch.core import Interrupted
 from ..exceptions import TransformNotFoundError, warn
 from ..io import write_ccddata, write_output
-from ..io.write import check_not_input, check_output_path
+from ..io.write import check_not_input, check_output_path, make_output_dir, remove_empty_dirs
 from ..io.writers import output_suffixes
 from .combine import (CLIP_METHODS, NORMALIZE_METHODS, STACK_METHODS, CombineOptions,
                       combine_files, frame_stats, frame_weights, normalise)
@@ -140,6 +141,15 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
 
     Raises
     ------
+    KeyboardInterrupt
+        When interrupted (Ctrl-C; the command line raises it for SIGTERM
+        too) while the frames are registered: the frames registered so far
+        are combined (a HISTORY line says the stack is partial and how many
+        frames were not registered yet), written to ``output`` if given,
+        and the stack is the exception's ``partial_result``.  Nothing is
+        stacked if no frame but the reference was registered yet, with
+        ``canvas='union'`` (known only once every frame is registered), or
+        when the combination itself is interrupted.
     ValueError, TypeError
         For bad arguments, before any work.
     FileExistsError
@@ -173,13 +183,21 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     if ref.data is None or ref.data.ndim != 2:
         raise ValueError("the reference must be a 2-D image (stack one colour channel at a "
                          "time).")
+    interrupt = None
     with _aligned_folder(aligned_dir, temp_dir) as folder:
-        result = _register([it for it, _ in others], ref, folder, canvas, overwrite, workers,
-                           progress, hdu, unit, order, options, ref_item[0])
+        try:
+            result = _register([it for it, _ in others], ref, folder, canvas, overwrite,
+                               workers, progress, hdu, unit, order, options, ref_item[0])
+        except KeyboardInterrupt as exc:
+            # Ctrl-C (SIGTERM on the command line): the frames registered so far are stacked.
+            result, interrupt = getattr(exc, "partial_result", None), exc
+            if canvas == "union" or result is None or not result.succeeded:
+                raise  # a union canvas is known only once every frame is registered
         on_canvas = _reference_on_canvas(ref_item[0], result, folder, hdu, unit)
         frames_ = [(_reference_name(ref_item), on_canvas, ref_item[1])]
         frames_ += [(f.name, f.output, k) for f, (_, k) in zip(result.frames, others) if f.ok]
-        rejected = [(f.name, f.error) for f in result.failed]
+        not_done = [f for f in result.failed if _not_done(f)]
+        rejected = [(f.name, f.error) for f in result.failed if not _not_done(f)]
         if others and not result.succeeded:
             raise TransformNotFoundError(
                 "no frame could be registered onto the reference: "
@@ -195,9 +213,21 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         wcs = canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
     ccd = _stacked(value, variance, coverage, ref, wcs, dtype, [frames_[i][0] for i in used],
                    stats, rejected, opts)
+    if interrupt is not None:
+        # One HISTORY card (72 characters): the frames left out are in NREJECT.
+        ccd.meta.add_history(f"partial stack (interrupted): {len(used)} of {len(others) + 1} "
+                             f"frames stacked, {len(not_done)} not registered")
     if output is not None:
         write_output(ccd, output, overwrite=overwrite)
+    if interrupt is not None:
+        interrupt.partial_result = ccd
+        raise interrupt
     return ccd
+
+
+def _not_done(frame):
+    """A frame an interrupted `register_batch` did not reach (not a failure of its own)."""
+    return (frame.error or "").startswith(f"{Interrupted.__name__}: ")
 
 
 def _check_options(method, clip, sigma, sigma_low, sigma_high, maxiters, nlow, nhigh,
@@ -328,7 +358,7 @@ class _aligned_folder:
 
     def __enter__(self):
         if self.keep:
-            os.makedirs(self.path, exist_ok=True)
+            self.created = make_output_dir(self.path, "aligned_dir")
             return self.path
         self.tmp = tempfile.TemporaryDirectory(prefix="aastack-", dir=self.temp_dir)
         return self.tmp.name
@@ -336,6 +366,8 @@ class _aligned_folder:
     def __exit__(self, *exc):
         if self.tmp is not None:
             self.tmp.cleanup()
+        else:
+            remove_empty_dirs(self.created)  # nothing registered: no empty folder left
 
 
 def _register(others, ref, folder, canvas, overwrite, workers, progress, hdu, unit, order,

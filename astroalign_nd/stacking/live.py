@@ -7,8 +7,11 @@ file-system notification library, the same on every platform).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
+import signal
+import threading
 import time
 from typing import Any, Callable
 
@@ -142,11 +145,17 @@ class LiveStack:
         if name is None:
             name = os.path.basename(os.fspath(frame)) if isinstance(
                 frame, (str, os.PathLike)) else f"frame{len(self.used) + len(self.rejected)}"
+        arrays = self._registered(frame)
+        with _interrupts_held():  # a Ctrl-C leaves the frame out or in, never half added
+            self._add_arrays(*arrays, name)
+
+    def _registered(self, frame):
+        """``(data, variance, valid)`` of ``frame`` on the reference's grid."""
         ccd, _ = register_and_match(frame, self._ref, hdu=self.hdu, unit=self.unit,
                                     **self.options)
         data = np.asarray(ccd.data, dtype=np.float64)
         valid = np.isfinite(data) & (True if ccd.mask is None else ~np.asarray(ccd.mask))
-        self._add_arrays(data, _variance(ccd.uncertainty), valid, name)
+        return data, _variance(ccd.uncertainty), valid
 
     def _add_arrays(self, data, var, valid, name):
         st = array_stats(data, var, valid)
@@ -307,6 +316,32 @@ def _variance(uncertainty):
                      f"InverseVariance; got {name}.")
 
 
+@contextlib.contextmanager
+def _interrupts_held():
+    """
+    Hold SIGINT and SIGTERM (and Windows' SIGBREAK) until the block is done, then
+    raise them as their handlers do: what the block changes is changed entirely or not
+    at all.  Only signals with a Python handler are held (a default SIGTERM still ends
+    the process at once: the files are written atomically, the old ones stay).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield  # handlers can only be set, and signals only arrive, in the main thread
+        return
+    caught, old = [], {}
+    for name in ("SIGINT", "SIGTERM", "SIGBREAK"):
+        signum = getattr(signal, name, None)
+        handler = None if signum is None else signal.getsignal(signum)
+        if callable(handler):
+            old[signum] = signal.signal(signum, lambda num, frame: caught.append((num, frame)))
+    try:
+        yield
+    finally:
+        for signum, handler in old.items():
+            signal.signal(signum, handler)
+        if caught:
+            old[caught[0][0]](*caught[0])
+
+
 def write_with_retry(ccd, path, *, overwrite=True, tries=_RETRY_TRIES):
     """
     Write ``ccd`` atomically, retrying while the old file cannot be replaced.
@@ -373,6 +408,7 @@ class _Poller:
         self.folder = folder
         self.ignore = {os.path.realpath(p) for p in ignore}
         self.seen, self.last, self.bad_polls, self.gave_up = set(), {}, {}, {}
+        self.paths = {}  # real path -> the path in the folder
         self.listing_errors = 0
 
     def _names(self):
@@ -406,6 +442,7 @@ class _Poller:
                 continue
             key = (st.st_size, st.st_mtime_ns)
             now[real] = key
+            self.paths[real] = path
             if self.gave_up.get(real, key) != key:
                 del self.gave_up[real]  # it changed: look at it again
             if real in self.gave_up:
@@ -423,6 +460,11 @@ class _Poller:
                     self.gave_up[real] = key
         self.last = now
         return ready, unreadable, own
+
+    def waiting(self):
+        """The files seen but not taken yet: still being written (or not yet stable)."""
+        return [self.paths[real] for real in sorted(self.last)
+                if real not in self.seen and real not in self.gave_up]
 
 
 def _package_output(path):
@@ -513,19 +555,32 @@ def watch_folder(folder: str | os.PathLike, reference: Any, output: str | os.Pat
     live = LiveStack(reference, name=name, **options)
     write_with_retry(live.result(), output, overwrite=overwrite)
     poller = _Poller(folder, [output] + [os.fspath(p) for p in inputs])
+    callback = callback or (lambda path, error: None)
+    todo = []  # the frames taken and not yet added (or failed) and reported
     try:
-        _watch_loop(live, poller, output, interval, max_frames, timeout, callback)
-    except KeyboardInterrupt:
+        _watch_loop(live, poller, output, interval, max_frames, timeout, callback, todo)
+    except KeyboardInterrupt as exc:
+        # Every frame seen is accounted for, in the header and to the callback alike.
+        why = f"not stacked: the watch was stopped ({str(exc) or 'SIGINT'}) before it was"
+        for path, state in [(p, "registered") for p in todo] + [
+                (p, "completely written") for p in poller.waiting()]:
+            live.fail(os.path.basename(path), f"{why} {state}")
+            callback(path, f"{why} {state}")
         write_with_retry(live.result(), output)  # the last frame added is in the file
+        exc.partial_result = live
         raise
     return live
 
 
-def _watch_loop(live, poller, output, interval, max_frames, timeout, callback):
-    """Poll, add and write until ``max_frames`` or ``timeout`` (or an interrupt)."""
+def _watch_loop(live, poller, output, interval, max_frames, timeout, callback, todo):
+    """
+    Poll, add and write until ``max_frames`` or ``timeout`` (or an interrupt); ``todo``
+    holds the frames taken and not yet in the stack (or failed) and reported.
+    """
     n_done, last_new, failed = 0, time.monotonic(), {}
     while max_frames is None or n_done < max_frames:
         ready, unreadable, own = poller.scan()
+        todo.extend(ready)
         left_out = [(p, "not a complete FITS file") for p in unreadable]
         left_out += [(p, "an astroalign_nd output (AAT* keywords: a registered frame or a "
                       "stack), not a raw frame; not stacked again") for p in own]
@@ -534,22 +589,26 @@ def _watch_loop(live, poller, output, interval, max_frames, timeout, callback):
                 live.rejected.remove(failed[path])
             failed[path] = (os.path.basename(path), why)
             live.fail(*failed[path])
-            if callback is not None:
-                callback(path, why)
-        for path in ready:
-            error = None
-            if path in failed:  # given up before, complete now: no longer a failure
-                live.rejected.remove(failed.pop(path))
+            callback(path, why)
+        while todo:
+            path, error = todo[0], None
             try:
-                live.add(path)
+                arrays = live._registered(path)  # interrupted here: not in the stack
             except Exception as exc:  # noqa: BLE001 - a bad frame is listed, not fatal
                 error = f"{type(exc).__name__}: {exc}"
-                live.fail(os.path.basename(path), error)
+            with _interrupts_held():  # the stack and the console change together
+                if path in failed:  # given up before, complete now: no longer a failure
+                    live.rejected.remove(failed.pop(path))
+                if error is None:
+                    live._add_arrays(*arrays, os.path.basename(path))
+                else:
+                    live.fail(os.path.basename(path), error)
+                todo.pop(0)
+                callback(path, error)
             write_with_retry(live.result(), output)
             n_done += 1
-            if callback is not None:
-                callback(path, error)
             if max_frames is not None and n_done >= max_frames:
+                todo.clear()  # the rest are taken again by the next watch (not marked seen)
                 return
         if left_out:
             write_with_retry(live.result(), output)
