@@ -668,7 +668,28 @@ def make_output_dir(folder, what="output folder"):
 
 
 def remove_empty_dirs(folders):
-    """Remove those of ``folders`` (outermost first) that are empty, innermost first."""
+    """
+    Remove those of ``folders`` (outermost first) that are empty, innermost first.
+
+    A folder that holds anything is kept: only ``os.rmdir`` is used.
+
+    Parameters
+    ----------
+    folders : list of str
+        Folders a run created, outermost first (as ``make_output_dir`` made them).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from astroalign_nd.io.write import remove_empty_dirs
+    >>> with tempfile.TemporaryDirectory() as top:
+    ...     outer = os.path.join(top, "out")
+    ...     inner = os.path.join(outer, "plots")
+    ...     os.makedirs(inner)
+    ...     remove_empty_dirs([outer, inner])
+    ...     print(os.path.exists(outer))
+    False
+    """
     for path in reversed(folders):
         with contextlib.suppress(OSError):
             os.rmdir(path)  # only an empty folder: never anything written into it

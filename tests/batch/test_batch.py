@@ -129,14 +129,15 @@ def test_failed_write_keeps_old_output(tmp_path, night, monkeypatch):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(CCDData, "write", broken_write)
-    result = register_batch(paths[:1], ref, output_dir=out, overwrite=True)
-    assert result.frames[0].status == "failed"
-    assert "No space left" in result.frames[0].error
+    # a full disk stops the batch with one error (the next frames would fail the same way)
+    with pytest.raises(OSError, match="the disk is full.*skip_existing") as info:
+        register_batch(paths[:1], ref, output_dir=out, overwrite=True)
+    assert info.value.errno == 28
     assert Path(target).read_bytes() == before  # the old output is intact
     assert sorted(os.listdir(out)) == [os.path.basename(target)]  # no temporary left over
     # without an old output: nothing under the final name
-    result = register_batch(paths[1:2], ref, output_dir=out)
-    assert result.frames[0].status == "failed"
+    with pytest.raises(OSError, match="the disk is full"):
+        register_batch(paths[1:2], ref, output_dir=out)
     assert sorted(os.listdir(out)) == [os.path.basename(target)]
 
 
