@@ -66,3 +66,23 @@ def random_matrix(rng, transform_type, mirrored=False, frame=1000.0):
     centre = np.array([frame / 2, frame / 2])
     m[:2, 2] = centre - lin @ centre + rng.uniform(-150, 150, 2)
     return m
+
+
+def write_sequence(folder, n_frames, seed, shape=(96, 96)):
+    """
+    Write a simulated sequence (50 stars, sky noise 5) as FITS files ``f0.fits``... in ``folder``.
+
+    Returns the paths, the first frame (the reference) first.
+    """
+    from astropy.nddata import CCDData
+
+    from astroalign_nd.io import write_ccddata
+    from astroalign_nd.simulate import simulate_sequence
+
+    seq = simulate_sequence(shape, n_frames=n_frames, n_stars=50, noise_sigma=5.0, seed=seed)
+    paths = []
+    for k, frame in enumerate(seq.frames):
+        path = str(folder / f"f{k}.fits")
+        write_ccddata(CCDData(np.asarray(frame.data), unit="adu"), path)
+        paths.append(path)
+    return paths

@@ -13,22 +13,17 @@ import pytest
 from astropy.io import fits
 from astropy.nddata import CCDData
 from astropy.table import Table
-from _helpers import run_cli
+from _helpers import run_cli, write_sequence
 
 import astroalign_nd.io.write as write_mod
 from astroalign_nd.io import transform_from_header, write_ccddata
-from astroalign_nd.simulate import simulate_catalogs, simulate_sequence
+from astroalign_nd.simulate import simulate_catalogs
 
 
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory):
     folder = tmp_path_factory.mktemp("frames")
-    seq = simulate_sequence((96, 96), n_frames=5, n_stars=50, noise_sigma=5.0, seed=5)
-    paths = []
-    for k, frame in enumerate(seq.frames):
-        path = str(folder / f"f{k}.fits")
-        write_ccddata(CCDData(np.asarray(frame.data), unit="adu"), path)
-        paths.append(path)
+    paths = write_sequence(folder, 5, seed=5)
     blank = str(folder / "blank.fits")
     write_ccddata(CCDData(np.zeros((64, 64), np.float32), unit="adu"), blank)
     return paths, blank

@@ -11,13 +11,10 @@ import time
 import numpy as np
 import pytest
 from astropy.io import fits
-from astropy.nddata import CCDData
-from _helpers import run_cli
+from _helpers import run_cli, write_sequence
 
 import astroalign_nd.stacking.core as stack_core
 from astroalign_nd import stack
-from astroalign_nd.io import write_ccddata
-from astroalign_nd.simulate import simulate_sequence
 
 WORKTREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 POSIX = pytest.mark.skipif(os.name != "posix", reason="signals to a subprocess need POSIX")
@@ -25,14 +22,7 @@ POSIX = pytest.mark.skipif(os.name != "posix", reason="signals to a subprocess n
 
 @pytest.fixture(scope="module")
 def six(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("frames")
-    seq = simulate_sequence((96, 96), n_frames=6, n_stars=50, noise_sigma=5.0, seed=8)
-    paths = []
-    for k, frame in enumerate(seq.frames):
-        path = str(folder / f"f{k}.fits")
-        write_ccddata(CCDData(np.asarray(frame.data), unit="adu"), path)
-        paths.append(path)
-    return paths
+    return write_sequence(tmp_path_factory.mktemp("frames"), 6, seed=8)
 
 
 def _stopped_after(monkeypatch, n):
