@@ -11,9 +11,9 @@ normalises every value and a bad one gives one message naming the option
 and its range, before any work.  The command line's flags and help are
 generated from the same fields (`cli_fields`, `from_cli`).
 
-The configs: `~astroalign_nd.config.DetectionConfig`,
-`~astroalign_nd.config.MatchingConfig`, `~astroalign_nd.config.ModelConfig`,
-`~astroalign_nd.config.ResampleConfig`,
+The configs: `~astroalign_nd.detection.DetectionConfig`,
+`~astroalign_nd.matching.MatchingConfig`, `~astroalign_nd.transforms.ModelConfig`,
+`~astroalign_nd.resample.ResampleConfig`,
 `~astroalign_nd.config.RegistrationConfig` and
 `~astroalign_nd.stacking.StackConfig`.
 
@@ -32,14 +32,26 @@ import numbers
 import numpy as np
 
 __all__ = ["Real", "Int", "Pair", "Bool", "Choice", "AnyCallable", "Unchecked", "option",
-           "check_fields", "convert", "cli_fields", "from_cli", "fields_of"]
+           "check_fields", "convert", "check_values", "fields_of", "cli_fields", "from_cli",
+           "astroalign_advice"]
 
 
 # -- accepted values ---------------------------------------------------------------------------
 
 
 class Real:
-    """A real number in an interval (each bound open or closed)."""
+    """
+    A real number in an interval (each bound open or closed).
+
+    Examples
+    --------
+    >>> from astroalign_nd.options import Real
+    >>> check = Real(0, 1e4, lo_open=True, none=True, unit="pixels")
+    >>> check.describe()
+    'a finite number > 0 and <= 10000 (pixels) or None'
+    >>> check.convert(3)
+    3.0
+    """
 
     def __init__(self, lo=None, hi=None, *, lo_open=False, hi_open=False, none=False,
                  unit="", infinite=False):
@@ -88,7 +100,15 @@ class Real:
 
 
 class Int(Real):
-    """An integer in a closed interval."""
+    """
+    An integer in a closed interval.
+
+    Examples
+    --------
+    >>> from astroalign_nd.options import Int
+    >>> Int(1, None).describe(), Int(1, None).convert(3)
+    ('an integer >= 1', 3)
+    """
 
     def describe(self):
         text = super().describe().replace("a finite number", "an integer")
@@ -107,7 +127,15 @@ class Int(Real):
 
 
 class Pair:
-    """An increasing pair ``(lo, hi)`` of numbers, each checked by ``item``."""
+    """
+    An increasing pair ``(lo, hi)`` of numbers, each checked by ``item``.
+
+    Examples
+    --------
+    >>> from astroalign_nd.options import Pair, Real
+    >>> Pair(Real(0, lo_open=True)).convert([0.5, 2])
+    (0.5, 2.0)
+    """
 
     def __init__(self, item, *, none=True, strict=False):
         self.item, self.none, self.strict = item, none, strict
@@ -134,7 +162,17 @@ class Pair:
 
 
 class Bool:
-    """True or False (numbers are refused)."""
+    """
+    True or False (numbers are refused).
+
+    Examples
+    --------
+    >>> from astroalign_nd.options import Bool, convert
+    >>> convert("allow_mirror", Bool(), 1)
+    Traceback (most recent call last):
+    ...
+    TypeError: allow_mirror must be True or False; got 1.
+    """
 
     def describe(self):
         return "True or False"
@@ -146,7 +184,19 @@ class Bool:
 
 
 class Choice:
-    """One of ``choices`` (None among them: the option can be switched off)."""
+    """
+    One of ``choices`` (None among them: the option can be switched off).
+
+    Its ``choices`` are also the command-line flag's (None spelled ``none``).
+
+    Examples
+    --------
+    >>> from astroalign_nd.options import Choice, convert
+    >>> convert("clip", Choice(("sigma", "minmax", None)), "extrema")
+    Traceback (most recent call last):
+    ...
+    ValueError: clip must be one of 'sigma', 'minmax', None; got 'extrema'.
+    """
 
     def __init__(self, choices):
         self.choices = tuple(choices)
@@ -163,7 +213,15 @@ class Choice:
 
 
 class AnyCallable:
-    """A source finder: any callable (``finder(data, mask=None)``), or None."""
+    """
+    A source finder: any callable (``finder(data, mask=None)``), or None.
+
+    Examples
+    --------
+    >>> from astroalign_nd.options import AnyCallable
+    >>> AnyCallable().convert(None) is None
+    True
+    """
 
     def describe(self):
         return "a source finder (callable as finder(data, mask=None)) or None"
@@ -175,7 +233,15 @@ class AnyCallable:
 
 
 class Unchecked:
-    """Any value: checked where it is used (e.g. a transform type, by the transform registry)."""
+    """
+    Any value: checked where it is used (e.g. a transform type, by the transform registry).
+
+    Examples
+    --------
+    >>> from astroalign_nd.options import Unchecked
+    >>> Unchecked().convert("similarity")
+    'similarity'
+    """
 
     def convert(self, value):
         return value
@@ -211,13 +277,48 @@ def option(default, check, help="", *, auto=False, used_by=None, **cli):
         them, ``cli_default`` (the flag's default when it is not the
         field's; None leaves the option to the library) and ``scale`` (the
         library's value is the flag's times ``scale``, e.g. MB to bytes).
+
+    Examples
+    --------
+    A config of two options, one of them on the command line:
+
+    >>> import dataclasses
+    >>> from astroalign_nd.options import Int, Real, check_fields, cli_fields, option
+    >>> @dataclasses.dataclass(frozen=True)
+    ... class DemoConfig:
+    ...     width: float = option(2.0, Real(0, lo_open=True), "width (default: {default})",
+    ...                           flag="--width", type=float)
+    ...     rounds: int = option(3, Int(1, 10))
+    ...     def __post_init__(self):
+    ...         check_fields(self)
+    >>> DemoConfig(width=3).width
+    3.0
+    >>> DemoConfig(rounds=0)
+    Traceback (most recent call last):
+    ...
+    ValueError: rounds must be an integer >= 1 and <= 10; got 0.
+    >>> [(name, flag, kw["help"]) for name, flag, kw in cli_fields(DemoConfig)]
+    [('width', '--width', 'width (default: 2)')]
     """
     return dataclasses.field(default=default, metadata={
         "check": check, "help": help, "auto": auto, "used_by": used_by, "cli": cli})
 
 
 def check_fields(config):
-    """Check and normalise every field of ``config`` (a frozen dataclass), in place."""
+    """
+    Check and normalise every field of ``config`` (a frozen dataclass), in place.
+
+    A config's ``__post_init__`` calls it (see `option`'s example).
+
+    Examples
+    --------
+    >>> from astroalign_nd.detection import DetectionConfig
+    >>> from astroalign_nd.options import check_fields
+    >>> cfg = DetectionConfig(fwhm=3)
+    >>> check_fields(cfg)  # what construction did: the values, normalised
+    >>> cfg.fwhm, cfg.roundness_range
+    (3.0, (-1.0, 1.0))
+    """
     for f in dataclasses.fields(config):
         check = f.metadata.get("check")
         if check is not None and not (f.metadata["auto"] and getattr(config, f.name) is None):
@@ -251,7 +352,16 @@ def convert(name, check, value):
 
 
 def fields_of(config_class, user=None):
-    """The fields of ``config_class`` that ``user`` takes (all of them for None)."""
+    """
+    The fields of ``config_class`` that ``user`` takes (all of them for None).
+
+    Examples
+    --------
+    >>> from astroalign_nd.options import fields_of
+    >>> from astroalign_nd.stacking import StackConfig
+    >>> [f.name for f in fields_of(StackConfig, "live")][:3]
+    ['clip', 'sigma', 'sigma_low']
+    """
     return tuple(f for f in dataclasses.fields(config_class)
                  if user is None or f.metadata.get("used_by") is None
                  or user in f.metadata["used_by"])
@@ -269,7 +379,7 @@ def cli_fields(config_class, user=None):
 
     Examples
     --------
-    >>> from astroalign_nd.config import DetectionConfig
+    >>> from astroalign_nd.detection import DetectionConfig
     >>> from astroalign_nd.options import cli_fields
     >>> name, flag, kwargs = cli_fields(DetectionConfig)[0]
     >>> name, flag, kwargs["type"], kwargs["default"]
@@ -313,6 +423,64 @@ def from_cli(config_class, name, value):
         return tuple(value)
     scale = f.metadata["cli"].get("scale")
     return value if scale is None or value is None else value * scale
+
+
+def check_values(config_class, values):
+    """
+    ``values`` with each of ``config_class``'s options checked and normalised
+    by its field (other names are left to the caller).
+
+    For a function that takes a stage's options as keywords without building
+    its config (`~astroalign_nd.matching.match_points`).
+
+    Examples
+    --------
+    >>> from astroalign_nd.matching import MatchingConfig
+    >>> from astroalign_nd.options import check_values
+    >>> check_values(MatchingConfig, {"n_neighbors": 6, "seed": 1})
+    {'n_neighbors': 6, 'seed': 1}
+    >>> check_values(MatchingConfig, {"n_neighbors": 1})
+    Traceback (most recent call last):
+    ...
+    ValueError: n_neighbors must be an integer >= 2 and <= 16; got 1.
+    """
+    checks = {f.name: f.metadata["check"] for f in dataclasses.fields(config_class)}
+    return {k: v if checks.get(k) is None else convert(k, checks[k], v)
+            for k, v in values.items()}
+
+
+#: astroalign's keywords -> what to use here (see docs/migration.rst).
+_ASTROALIGN_ADVICE = {
+    "max_control_points": "pass n_sources=<number of brightest stars used as control points> "
+                          "(the search escalates up to max_sources)",
+    "detection_sigma": "pass nsigma=<detection threshold in noise units> (adaptive if not "
+                       "given)",
+    "min_area": "pass nothing (no equivalent: detection rejects hot pixels and cosmic rays by "
+                "their shape), or fwhm=<the stars' width in pixels> if it is misjudged",
+    "propagate_mask": "pass nothing: the returned CCDData's mask always holds the source's "
+                      "mask (resampled) and the pixels outside the source",
+}
+
+
+def astroalign_advice(unknown):
+    """
+    What to pass instead of the astroalign keywords among ``unknown`` ('' if none).
+
+    Examples
+    --------
+    >>> from astroalign_nd.options import astroalign_advice
+    >>> astroalign_advice({"detection_sigma"}).startswith(
+    ...     " Instead of astroalign's detection_sigma, pass nsigma=")
+    True
+    >>> astroalign_advice({"fwhmm"})
+    ''
+    """
+    advice = "".join(f" Instead of astroalign's {k}, {_ASTROALIGN_ADVICE[k]}."
+                     for k in sorted(unknown) if k in _ASTROALIGN_ADVICE)
+    if advice:
+        advice += (" Or keep astroalign's API and return values with "
+                   "'from astroalign_nd import compat as aa'.")
+    return advice
 
 
 def _shown(value):

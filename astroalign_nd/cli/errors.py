@@ -6,10 +6,13 @@ import re
 import sys
 import textwrap
 
-from ..config import (DetectionConfig, MatchingConfig, ModelConfig, RegistrationConfig,
-                      ResampleConfig)
+from ..config import RegistrationConfig
+from ..detection import DetectionConfig
+from ..matching import MatchingConfig
 from ..options import cli_fields
+from ..resample import ResampleConfig
 from ..stacking.options import StackConfig
+from ..transforms import ModelConfig
 
 __all__ = []
 
@@ -81,17 +84,20 @@ def _flags():
     for config in (ModelConfig, ResampleConfig, RegistrationConfig, DetectionConfig,
                    MatchingConfig, StackConfig):
         for name, flag, kwargs in cli_fields(config):
-            if kwargs.get("action") == "store_false":  # --no-mirror: not the keyword's name
-                continue
-            if "_" in name or name in _PLAIN_KEYWORDS:
+            if kwargs.get("action") != "store_false":  # --no-mirror: not the keyword's name
                 flags[name] = flag
     return flags
 
 
-_FLAGS = _flags()
+_OPTION_FLAGS = _flags()
+#: The keywords named anywhere: those that are not also common words ("order", "sigma").
+_FLAGS = {k: v for k, v in _OPTION_FLAGS.items() if "_" in k or k in _PLAIN_KEYWORDS}
 #: A keyword as a word (not inside another name or option), with ``=value`` if given.
 _KEYWORD = re.compile(r"(?<![\w\-.'\"])(" + "|".join(sorted(_FLAGS, key=len, reverse=True))
                       + r")\b(=)?")
+#: Any option's keyword where a check names it ("sigma must be ...").
+_CHECKED = re.compile(r"(?<![\w\-.'\"])("
+                      + "|".join(sorted(_OPTION_FLAGS, key=len, reverse=True)) + r") must be ")
 
 
 def cli_words(message):
@@ -107,11 +113,15 @@ def cli_words(message):
     >>> from astroalign_nd.cli.errors import cli_words
     >>> cli_words("try more sources (n_sources), or pass fwhm=<their width>.")
     'try more sources (--n-sources), or pass --fwhm <their width>.'
+    >>> cli_words("method must be one of 'average', 'median', 'sum'; got 'mean'.")
+    "--combine must be one of 'average', 'median', 'sum'; got 'mean'."
     """
+    message = _CHECKED.sub(lambda m: _OPTION_FLAGS[m.group(1)] + " must be ", message)
     message = _KEYWORD.sub(lambda m: _FLAGS[m.group(1)] + (" " if m.group(2) else ""), message)
     # The command line has no None (leave the option out) and no overwrite=True.
     message = re.sub(r"pass overwrite=True \(or --overwrite\)", "pass --overwrite", message)
     message = re.sub(r",? or None\b", "", message)
+    message = re.sub(r"\bNone\b", "none", message)  # a choice switched off: --clip none
     return re.sub(r"(--[\w-]+)  ", r"\1 ", message)
 
 # -- entry point -----------------------------------------------------------------------------

@@ -8,9 +8,12 @@ import argparse
 import os
 
 # The configs hold no heavy import: --help stays fast.
-from ..config import (DetectionConfig, MatchingConfig, ModelConfig, RegistrationConfig,
-                      ResampleConfig)
+from ..config import RegistrationConfig
+from ..detection import DetectionConfig
+from ..matching import MatchingConfig
 from ..options import cli_fields, from_cli
+from ..resample import ResampleConfig
+from ..transforms import ModelConfig
 from .errors import _CLIError
 
 __all__ = []

@@ -17,9 +17,11 @@ from astropy.io import fits
 from astropy.nddata import CCDData
 
 from .._input import parse_input
-from ..config import RegistrationConfig, ResampleConfig
+from ..config import RegistrationConfig
+from ..resample import ResampleConfig
 from ..io import FITSWriter, write_output
 from ..io.write import FITS_EXTENSIONS, check_not_input, check_output_path
+from ..options import Int, Real, convert
 from ..registration import prepare_target, register_and_match
 from .combine import array_stats, frame_variance, normalise, reject
 from .header import stack_ccddata
@@ -487,11 +489,9 @@ def watch_folder(folder: str | os.PathLike, reference: Any, output: str | os.Pat
     (['f0.fits (reference)', 'f1.fits', 'f2.fits'], [])
     """
     folder, output = os.fspath(folder), os.fspath(output)
-    interval = _check_seconds(interval, "interval", allow_zero=False)
-    timeout = None if timeout is None else _check_seconds(timeout, "timeout")
-    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(
-            max_frames, int) or max_frames < 1):
-        raise ValueError(f"max_frames must be a positive integer; got {max_frames!r}.")
+    interval = convert("interval", Real(0, lo_open=True, unit="seconds"), interval)
+    timeout = convert("timeout", Real(0, none=True, unit="seconds"), timeout)
+    max_frames = convert("max_frames", Int(1, None, none=True), max_frames)
     if not os.path.isdir(folder):
         raise NotADirectoryError(f"folder {folder!r} does not exist or is not a folder.")
     inputs = [reference] if isinstance(reference, (str, os.PathLike)) else []
@@ -547,14 +547,3 @@ def _watch_loop(live, poller, output, interval, max_frames, timeout, callback):
         elif timeout is not None and time.monotonic() - last_new >= timeout:
             return
         time.sleep(interval)
-
-
-def _check_seconds(value, name, allow_zero=True):
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a number of seconds; got {value!r}.") from None
-    if not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        raise ValueError(f"{name} must be a finite number of seconds "
-                         f"{'>= 0' if allow_zero else '> 0'}; got {value!r}.")
-    return v
