@@ -49,7 +49,7 @@ _LAZY = {
     "PolynomialTransform": "transforms",
     "transform_to_header": "io",
     "transform_from_header": "io",
-    "conf": "_config",
+    "conf": "_settings",
     # True when the optional compiled kernels are built (False: their NumPy versions run).
     "HAVE_COMPILED": "_kernels",
 }

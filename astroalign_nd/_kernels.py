@@ -18,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ._config import _ENV_NUM_THREADS, NUM_THREADS_ENV, conf
+from ._settings import _ENV_NUM_THREADS, NUM_THREADS_ENV, conf
 
 try:
     from . import _ckernels

@@ -3,9 +3,9 @@
 Checks of inputs shared by the stages: star positions and counts.
 
 A leaf module: it imports no other module of the package, so that every
-stage can use it.  The options' accepted ranges live in
-`astroalign_nd.config`, as the metadata of its dataclasses' fields (with
-``OPTIONS``, ``check_option`` and ``check_options``).
+stage can use it.  The options' accepted ranges are the fields of each
+stage's config, in the package's one checking system
+(``astroalign_nd.options``).
 """
 
 import numbers

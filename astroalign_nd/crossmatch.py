@@ -28,11 +28,15 @@ from .config import RegistrationConfig
 from .detection import find_sources
 from .io.header import transform_to_header
 from .matching.allpairs import bounds, pair_all
+from .options import Real, convert
 from .registration import find_match_from_config
 from .transforms.convert import as_matrix
 from .transforms.registry import transform_type_of
 
 __all__ = ["cross_match", "CrossMatch", "read_catalog"]
+
+#: `cross_match`'s radii: pixels > 0, or None (chosen from the match).
+_RADIUS = Real(0, lo_open=True, none=True, unit="pixels")
 
 #: Brightest stars of each side handed to a search for a distortion model:
 #: the stars it is grown on (`~astroalign_nd.matching.extend_match`).  A
@@ -365,16 +369,6 @@ def _check_transform(transform):
     return transform
 
 
-def _check_positive(value, name, allow_none=True):
-    if value is None and allow_none:
-        return None
-    if isinstance(value, (bool, np.bool_)) or not np.isscalar(value) or not np.isreal(value):
-        raise TypeError(f"{name} must be a positive number of pixels; got {value!r}.")
-    if not np.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} must be a positive number of pixels; got {value!r}.")
-    return float(value)
-
-
 def _local_density(dst, predicted):
     """Target stars per square pixel around each predicted position (a grid count)."""
     lo, hi = bounds(dst)
@@ -510,8 +504,8 @@ def cross_match(source: Any, target: Any, *, transform: Any = None,
     config = RegistrationConfig.from_keywords(transform_type=transform_type, degree=degree,
                                               n_sources=n_sources, max_sources=max_sources,
                                               **options)
-    max_radius = _check_positive(max_radius, "max_radius")
-    radius = _check_positive(radius, "radius")
+    max_radius = convert("max_radius", _RADIUS, max_radius)
+    radius = convert("radius", _RADIUS, radius)
     if isinstance(max_iterations, (bool, np.bool_)) or not isinstance(
             max_iterations, (int, np.integer)) or max_iterations < 1:
         raise ValueError(f"max_iterations must be a positive integer; got {max_iterations!r}.")

@@ -22,8 +22,10 @@ from astropy import log
 from astropy.utils.exceptions import AstropyWarning
 
 from ._input import parse_input
-from .config import (DEFAULT_NEIGHBORS, DetectionConfig, MatchingConfig, RegistrationConfig,
-                     ResampleConfig, split_options)
+from .config import RegistrationConfig, split_options
+from .detection.options import DetectionConfig
+from .matching.options import DEFAULT_NEIGHBORS, MatchingConfig
+from .resample.options import ResampleConfig
 from .detection.daofind import control_sources, keep_confident
 from .exceptions import TooFewSourcesError, TransformNotFoundError
 from ._kernels import num_threads, side_pool, warn_if_slow
@@ -82,7 +84,7 @@ class Reference:
     ----------
     detect_options : dict
         The detection options given, checked.
-    config : `~astroalign_nd.config.DetectionConfig`
+    config : `~astroalign_nd.detection.DetectionConfig`
         Every detection option (the defaults for those not given).
     fwhm : float or None
         The stars' FWHM (pixels) that detection used, once it has run; None

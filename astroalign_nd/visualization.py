@@ -34,7 +34,7 @@ import os
 import numpy as np
 
 from ._input import parse_input
-from .config import ResampleConfig
+from .resample.options import ResampleConfig
 from .io.write import atomic_open, check_not_input, check_output_path
 from .matching.asterisms import build_asterisms
 from .registration import find_transform

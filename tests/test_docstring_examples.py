@@ -20,7 +20,8 @@ import pytest
 #: A subpackage (one stage of the method) counts as one: its modules' examples together.
 MODULES = [
     "detection", "matching", "transforms", "resample",
-    "registration", "crossmatch", "config", "batch", "stacking", "simulate", "exceptions",
+    "registration", "crossmatch", "config", "options", "batch", "stacking", "simulate",
+    "exceptions",
     "io.header",
     "io.write",
     "visualization", "compat",

@@ -20,7 +20,7 @@ def _valid_margin(resample):
     (see `~astroalign_nd.resample.resample`): a frame's pixels count from
     ``margin`` to ``n - 1 - margin``; -0.5 for nearest-neighbour, 0 for
     bilinear, 0.5 for biquadratic and 1 for bicubic interpolation (and for
-    ``method='exact'``, -0.5), from the `~astroalign_nd.config.ResampleConfig` ``resample``.
+    ``method='exact'``, -0.5), from the `~astroalign_nd.resample.ResampleConfig` ``resample``.
     """
     if resample.method == "exact":
         return -0.5

@@ -12,7 +12,8 @@ from dataclasses import asdict, replace
 from typing import Any
 import numpy as np
 from .._input import batch_frames
-from ..config import RegistrationConfig, ResampleConfig
+from ..config import RegistrationConfig
+from ..resample import ResampleConfig
 from ..exceptions import warn
 from ..io.write import make_output_dir
 from ..registration import Reference, prepare_target

@@ -16,7 +16,7 @@ import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-from .._config import conf
+from .._settings import conf
 from .._kernels import threads_chosen
 from .frame import _failed, _run, _stat_key
 

@@ -34,6 +34,7 @@ from .._input import batch_frames
 from ..config import RegistrationConfig
 from ..exceptions import AstroalignError, warn
 from ..matching.pairing import mutual_matches
+from ..options import Int, Real, convert
 from ..registration import Reference
 from ..transforms.convert import as_matrix, from_matrix
 from ..transforms.layers import layer_of
@@ -338,15 +339,10 @@ def _check_arguments(transform_type, all_pairs, n_hubs, min_overlap, link_tolera
         raise ValueError(f"transform_type must be one of {solvable} for a "
                          f"joint solution; got {transform_type!r} (a distortion model is "
                          "fitted pair by pair: use register_batch without solve='global').")
-    for name, value, lo in (("all_pairs", all_pairs, 2), ("n_hubs", n_hubs, 1)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
-            raise ValueError(f"{name} must be an integer >= {lo}; got {value!r}.")
-    for name, value, hi in (("min_overlap", min_overlap, 1.0),
-                            ("link_tolerance", link_tolerance, np.inf)):
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) \
-                or not 0 <= value <= hi:
-            raise ValueError(f"{name} must be a number from 0 to {hi}; got {value!r}.")
-    return transform_type, (int(all_pairs), int(n_hubs), float(min_overlap))
+    convert("link_tolerance", Real(0, infinite=True), link_tolerance)
+    return transform_type, (convert("all_pairs", Int(2, None), all_pairs),
+                            convert("n_hubs", Int(1, None), n_hubs),
+                            convert("min_overlap", Real(0, 1), min_overlap))
 
 
 def _reference_index(reference, items):
@@ -373,12 +369,11 @@ def _reference_index(reference, items):
 def _check_workers(workers, client):
     if workers is None:
         return None
-    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 0:
-        raise ValueError(f"workers must be a non-negative integer; got {workers!r}.")
+    workers = convert("workers", Int(0, None), workers)
     if client is not None and workers > 1:
         raise ValueError("give either client (dask.distributed) or workers (local processes), "
                          "not both.")
-    return int(workers)
+    return workers
 
 
 def detect_frame(frame, name, config, read, n_stars):

@@ -6,8 +6,13 @@ import re
 import sys
 import textwrap
 
-from ..config import (DetectionConfig, MatchingConfig, ModelConfig, RegistrationConfig,
-                      ResampleConfig, cli_fields)
+from ..config import RegistrationConfig
+from ..detection import DetectionConfig
+from ..matching import MatchingConfig
+from ..options import cli_fields
+from ..resample import ResampleConfig
+from ..stacking.options import StackConfig
+from ..transforms import ModelConfig
 
 __all__ = []
 
@@ -77,19 +82,22 @@ def _flags():
     """The library's keyword -> the command line's option, for every option it offers."""
     flags = {"hdu": "--hdu"}
     for config in (ModelConfig, ResampleConfig, RegistrationConfig, DetectionConfig,
-                   MatchingConfig):
+                   MatchingConfig, StackConfig):
         for name, flag, kwargs in cli_fields(config):
-            if kwargs.get("action") == "store_false":  # --no-mirror: not the keyword's name
-                continue
-            if "_" in name or name in _PLAIN_KEYWORDS:
+            if kwargs.get("action") != "store_false":  # --no-mirror: not the keyword's name
                 flags[name] = flag
     return flags
 
 
-_FLAGS = _flags()
+_OPTION_FLAGS = _flags()
+#: The keywords named anywhere: those that are not also common words ("order", "sigma").
+_FLAGS = {k: v for k, v in _OPTION_FLAGS.items() if "_" in k or k in _PLAIN_KEYWORDS}
 #: A keyword as a word (not inside another name or option), with ``=value`` if given.
 _KEYWORD = re.compile(r"(?<![\w\-.'\"])(" + "|".join(sorted(_FLAGS, key=len, reverse=True))
                       + r")\b(=)?")
+#: Any option's keyword where a check names it ("sigma must be ...").
+_CHECKED = re.compile(r"(?<![\w\-.'\"])("
+                      + "|".join(sorted(_OPTION_FLAGS, key=len, reverse=True)) + r") must be ")
 
 
 def cli_words(message):
@@ -105,12 +113,16 @@ def cli_words(message):
     >>> from astroalign_nd.cli.errors import cli_words
     >>> cli_words("try more sources (n_sources), or pass fwhm=<their width>.")
     'try more sources (--n-sources), or pass --fwhm <their width>.'
+    >>> cli_words("method must be one of 'average', 'median', 'sum'; got 'mean'.")
+    "--combine must be one of 'average', 'median', 'sum'; got 'mean'."
     """
+    message = _CHECKED.sub(lambda m: _OPTION_FLAGS[m.group(1)] + " must be ", message)
     message = _KEYWORD.sub(lambda m: _FLAGS[m.group(1)] + (" " if m.group(2) else ""), message)
     # The command line has no None (leave the option out) and no overwrite=True: a keyword
     # given with its flag ("skip_existing=True (--skip-existing)") is the flag alone.
     message = re.sub(r"\b\w+=True \((?:or )?(--[\w-]+)\)", r"\1", message)
     message = re.sub(r",? or None\b", "", message)
+    message = re.sub(r"\bNone\b", "none", message)  # a choice switched off: --clip none
     return re.sub(r"(--[\w-]+)  ", r"\1 ", message)
 
 # -- entry point -----------------------------------------------------------------------------

@@ -4,7 +4,10 @@
 import os
 import sys
 
-from ..config import MatchingConfig, ModelConfig, RegistrationConfig, cli_fields
+from ..config import RegistrationConfig
+from ..matching import MatchingConfig
+from ..options import cli_fields
+from ..transforms import ModelConfig
 from .errors import HelpFormatter, _CLIError, exit_codes_text
 from .options import _describe
 

@@ -43,13 +43,25 @@ threshold).  ``find_sources(image, finder=...)`` runs any of them, and so
 do `~astroalign_nd.registration.find_transform`, ``register``,
 ``Reference`` and ``register_batch`` (``finder=``).  A new detector is one
 module: a subclass that implements `SourceFinderBase.find_stars`.
+
+Names are imported on first use (``astroalign_nd._lazy``): reading the
+options class (`DetectionConfig`) does not import the stage.
 """
 
-from .base import SourceFinderBase
-from .daofind import DAOSourceFinder, find_sources
-from .segmentation import SegmentationFinder
-from .background import estimate_noise
-from .fwhm import estimate_fwhm
+from .._lazy import attach
 
-__all__ = ['find_sources', 'estimate_noise', 'estimate_fwhm', 'SourceFinderBase',
-           'DAOSourceFinder', 'SegmentationFinder']
+# name -> submodule that defines it
+_LAZY = {
+    "find_sources": "daofind",
+    "estimate_noise": "background",
+    "estimate_fwhm": "fwhm",
+    "SourceFinderBase": "base",
+    "DAOSourceFinder": "daofind",
+    "SegmentationFinder": "segmentation",
+    "DetectionConfig": "options",
+}
+
+__all__ = list(_LAZY)
+
+__getattr__, __dir__ = attach(__name__, _LAZY)
+del attach

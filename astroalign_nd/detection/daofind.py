@@ -11,12 +11,13 @@ from .._kernels import adaptive_fwhm as _adaptive_fwhm
 from .._kernels import lost_window_fraction as _lost_window_fraction
 from .._kernels import mirrored_windowed_centroid as _mirrored_windowed_centroid
 from .._kernels import windowed_centroid as _windowed_centroid
+from ..options import Int, convert
 from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
 from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
 from .background import (_bin_mean, _correlated_noise_factor, _local_background,
                          estimate_noise)
 from .lines import line_background
-from ..config import DetectionConfig
+from .options import DetectionConfig
 from .base import SourceFinderBase, _standard_table
 
 __all__ = ['find_sources', 'DAOSourceFinder', 'control_sources']
@@ -115,7 +116,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     >>> len(find_sources(pair.source, n_sources=30, finder=SegmentationFinder(nsigma=3.0)))
     30
     """
-    n_sources = _check_positive_int(n_sources, "n_sources")
+    n_sources = convert("n_sources", Int(1, None), n_sources)
     # The options' one check: their config field (`astroalign_nd.config`).
     config = DetectionConfig(fwhm=fwhm, nsigma=nsigma, sharpness_range=sharpness_range,
                              roundness_range=roundness_range, peak_max=peak_max,
@@ -722,14 +723,6 @@ def _empty_table(fwhm, noise, b):
     return t
 
 
-def _check_positive_int(value, name):
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be a positive integer; got {value!r}.")
-    if value < 1:
-        raise ValueError(f"{name} must be a positive integer; got {value}.")
-    return int(value)
-
-
 # -- other finders -----------------------------------------------------------------------------
 
 #: `find_sources`' options of the DAOStarFinder pipeline (not ``finder``'s).
@@ -869,7 +862,7 @@ def control_sources(image, *, mask, n_sources, n_enough, config):
     n_enough : int
         Sources above the confident threshold that make the deep ones
         unnecessary.
-    config : `~astroalign_nd.config.DetectionConfig`
+    config : `~astroalign_nd.detection.DetectionConfig`
         The detection options, already checked.
 
     Returns
@@ -881,7 +874,7 @@ def control_sources(image, *, mask, n_sources, n_enough, config):
 
     Examples
     --------
-    >>> from astroalign_nd.config import DetectionConfig
+    >>> from astroalign_nd.detection import DetectionConfig
     >>> from astroalign_nd.detection.daofind import control_sources
     >>> from astroalign_nd.simulate import simulate_pair
     >>> pair = simulate_pair((256, 256), n_stars=100, seed=1)
@@ -893,13 +886,13 @@ def control_sources(image, *, mask, n_sources, n_enough, config):
     nsigma = config.nsigma
     if config.finder is not None:
         # One pass of the finder, at its own threshold (the DAO thresholds do not apply).
-        table = _detect(image, mask, _check_positive_int(n_sources, "n_sources"), config,
+        table = _detect(image, mask, convert("n_sources", Int(1, None), n_sources), config,
                         _CONFIDENT_NSIGMA if nsigma is None else nsigma)
         if "position_error" not in table.colnames:  # the final fit weighs every star alike
             table["position_error"] = np.full(len(table), _UNKNOWN_POSITION_ERROR)
         return table, float(table.meta.get("nsigma", getattr(config.finder, "nsigma", np.nan)))
     threshold = _DEEP_NSIGMA if nsigma is None else nsigma
-    table = _detect(image, mask, _check_positive_int(n_sources, "n_sources"), config,
+    table = _detect(image, mask, convert("n_sources", Int(1, None), n_sources), config,
                     threshold)
     return keep_confident(table, n_enough, config), threshold
 

@@ -21,27 +21,34 @@
 For wide fields, `extend_match` grows the linear match into a distortion
 model over many more stars (``grow``); ``allpairs`` pairs every star of two
 catalogs under a model (the engine of `~astroalign_nd.cross_match`).
+
+Names are imported on first use (``astroalign_nd._lazy``): reading the
+options class (`MatchingConfig`) does not import the stage.
 """
 
-from .result import MatchResult
-from .search import match_points, search_tolerance
-from .geometry import bounding_frame, chance_pairs_log10, overlap_counts
-from .triangles import match_triangles, hypothesis_matrices
-from .asterisms import Asterisms, build_asterisms, check_triangle_budget
-from .grow import extend_match, fit_nonlinear
+from .._lazy import attach
 
-__all__ = [
-    'MatchResult',
-    'match_points',
-    'search_tolerance',
-    'bounding_frame',
-    'overlap_counts',
-    'chance_pairs_log10',
-    'match_triangles',
-    'hypothesis_matrices',
-    'Asterisms',
-    'build_asterisms',
-    'check_triangle_budget',
-    'fit_nonlinear',
-    'extend_match',
-]
+# name -> submodule that defines it
+_LAZY = {
+    "MatchResult": "result",
+    "match_points": "search",
+    "search_tolerance": "search",
+    "bounding_frame": "geometry",
+    "overlap_counts": "geometry",
+    "chance_pairs_log10": "geometry",
+    "match_triangles": "triangles",
+    "hypothesis_matrices": "triangles",
+    "Asterisms": "asterisms",
+    "build_asterisms": "asterisms",
+    "check_triangle_budget": "asterisms",
+    "fit_nonlinear": "grow",
+    "extend_match": "grow",
+    "MatchingConfig": "options",
+    "DEFAULT_TOLERANCE": "options",
+    "DEFAULT_NEIGHBORS": "options",
+}
+
+__all__ = list(_LAZY)
+
+__getattr__, __dir__ = attach(__name__, _LAZY)
+del attach

@@ -19,7 +19,8 @@ from math import comb
 import numpy as np
 from scipy.spatial import cKDTree
 from .._validate import MAX_TRIANGLES, check_points
-from ..config import check_option
+from ..options import check_values
+from .options import MatchingConfig
 
 __all__ = ['Asterisms', 'build_asterisms', 'check_triangle_budget']
 
@@ -149,7 +150,7 @@ def build_asterisms(points, *, n_neighbors=4, min_side=1.0):
     0
     """
     pts = check_points(points, "star")
-    n_neighbors = check_option("n_neighbors", n_neighbors)
+    n_neighbors = check_values(MatchingConfig, {"n_neighbors": n_neighbors})["n_neighbors"]
     n = len(pts)
     empty = Asterisms(pts, np.empty((0, 3), int), np.empty((0, 2)), np.empty(0), np.empty(0))
     if n < 3:

@@ -7,8 +7,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from .._kernels import PointGrid, count_inliers
 from .._validate import check_points
-from ..config import OPTIONS, check_options
-from ..config import DEFAULT_TOLERANCE
+from ..options import check_values
+from .options import DEFAULT_TOLERANCE, MatchingConfig
 from .asterisms import build_asterisms
 from ..exceptions import PoorFitWarning, TooFewSourcesError, TransformNotFoundError, warn
 from ..transforms.layers import layer_of
@@ -147,7 +147,7 @@ def search_tolerance(fwhm=None):
     """
     The search's matching radius (pixels) for stars ``fwhm`` pixels wide.
 
-    `match_points`' default (`~astroalign_nd.config.DEFAULT_TOLERANCE`),
+    `match_points`' default (`~astroalign_nd.matching.DEFAULT_TOLERANCE`),
     or half the FWHM where that is wider (defocus, digitised plates: wide
     stars have wide position errors).  A registration uses it when no
     ``tolerance`` is given.
@@ -280,7 +280,7 @@ def _prepare(src_pts, dst_pts, settings, n_control, prior_trials):
     dst_pts = check_points(dst_pts, "target")
     cls = transform_class(settings["transform_type"])
     transform_type = transform_type_of(cls).name
-    opts = check_options({k: v for k, v in settings.items() if k in OPTIONS})
+    opts = check_values(MatchingConfig, settings)
     for name, pts in (("source", src_pts), ("target", dst_pts)):
         if len(pts) < 3:
             raise TooFewSourcesError(

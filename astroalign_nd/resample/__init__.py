@@ -102,11 +102,26 @@ spreads each star over ``s**2`` more pixels, each holding ``1 / s**2`` of
 the counts.  The variance is multiplied by ``1 / det(A)**2``.  Through a
 coordinate map the factor is the local ``|det|`` of the map's Jacobian
 (central differences between neighbouring target pixels), pixel by pixel.
+
+Names are imported on first use (``astroalign_nd._lazy``): reading the
+options class (`ResampleConfig`) does not import the stage.
 """
 
-from .interpolation import ORDERS
-from .core import resample, working_dtype
-from .exact import resample_exact
-from .nddata import apply_transform
+from .._lazy import attach
 
-__all__ = ['ORDERS', 'resample', 'resample_exact', 'apply_transform', 'working_dtype']
+# name -> submodule that defines it
+_LAZY = {
+    "ORDERS": "options",
+    "METHODS": "options",
+    "order_index": "options",
+    "ResampleConfig": "options",
+    "resample": "core",
+    "resample_exact": "exact",
+    "apply_transform": "nddata",
+    "working_dtype": "core",
+}
+
+__all__ = list(_LAZY)
+
+__getattr__, __dir__ = attach(__name__, _LAZY)
+del attach

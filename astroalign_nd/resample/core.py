@@ -5,7 +5,8 @@ from dataclasses import dataclass
 import numpy as np
 from .._kernels import compiled_kernels, run_split
 from .coordinate_map import _CoordinateMap, _inverse_coefficients, _parse_matrix, _resample_map
-from .interpolation import _parse_order, _resample_numpy
+from .interpolation import _resample_numpy
+from .options import order_index
 
 __all__ = ['resample', 'working_dtype']
 
@@ -435,7 +436,7 @@ def resample(data, matrix, shape_out, *, order="bilinear", variance=None, mask=N
     >>> bad[1]
     array([ True, False, False, False])
     """
-    order = _parse_order(order)
+    order = order_index(order)
     m = _parse_matrix(matrix, shape_in=np.shape(data)[:2])
     cmap = m if isinstance(m, _CoordinateMap) else None
     if _variance_kind not in _VARIANCE_KINDS or _output_kind not in _VARIANCE_KINDS:

@@ -3,10 +3,8 @@
 
 import numpy as np
 
-# The orders' table and their check live with the configuration.
-from ..config import ORDERS, order_index
-
-__all__ = ['ORDERS']
+# The orders' table and their check are resample.options' (ORDERS, order_index).
+__all__ = []
 
 # Output pixels per block of the NumPy path: its dozen temporaries then stay
 # in the CPU's cache (a block of 2**14 pixels runs twice as fast as one of 2**18).
@@ -180,8 +178,3 @@ def _resample_numpy(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask,
         v = m[3] * xo + (m[4] * yo + m[5])
         _interp_numpy(data, var, has_var, u, v, fill, sd, sv, out[sl],
                       out_var[sl] if has_var else None, out_mask[sl], order, finite)
-
-# -- input checking --------------------------------------------------------------
-
-
-_parse_order = order_index

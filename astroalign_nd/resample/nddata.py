@@ -35,11 +35,11 @@ from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUnce
                             VarianceUncertainty)
 from .._input import parse_input
 from ..exceptions import AstroalignWarning, warn
-from ..config import ResampleConfig, astroalign_advice, check_method, order_index
+from ..options import astroalign_advice
 from ..io.header import (add_history, add_provenance, check_quality, fits_text, header_from_meta,
                          header_without_wcs)
 from .coordinate_map import _MAP_BAND_PIXELS, _CoordinateMap, _parse_matrix
-from .interpolation import ORDERS
+from .options import ORDERS, ResampleConfig, order_index
 from .core import resample, working_dtype
 from .exact import resample_exact
 from ..transforms.linear import LinearTransform2D
@@ -264,13 +264,12 @@ _ACCEPTED = (", ".join(f.name for f in fields(ResampleConfig))
 
 
 def _check_options(unexpected, order, method):
-    """`apply_transform`'s keywords: none unknown, a known order and method."""
+    """`apply_transform`'s keywords: none unknown, a known order and method (`ResampleConfig`)."""
     if unexpected:
         raise TypeError(
             f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
             f"accepts {_ACCEPTED}.{astroalign_advice(unexpected)}")
-    order_index(order)
-    check_method(method)
+    ResampleConfig(order=order, method=method)
 
 
 def _target_grid(target, hdu):

@@ -63,6 +63,7 @@ _LAZY = {
     'TransformType': 'registry',
     'HeaderHooks': 'registry',
     'TRANSFORM_REGISTRY': 'registry',
+    'ModelConfig': 'options',
     'TRANSFORM_TYPES': 'registry',
     'LINEAR_TYPES': 'registry',
     'NONLINEAR_TYPES': 'registry',

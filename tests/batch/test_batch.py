@@ -571,7 +571,7 @@ def test_add_keyword_false_in_a_batch(tmp_path, night):
 def test_valid_margin_follows_the_resampler_order_names():
     """One check (the resampling config's): names or integers, as apply_transform accepts them."""
     from astroalign_nd.batch.canvas import _valid_margin
-    from astroalign_nd.config import ResampleConfig
+    from astroalign_nd.resample import ResampleConfig
 
     assert [_valid_margin(ResampleConfig(order=o))
             for o in ("nearest-neighbor", 1, "biquadratic", 3)] == [-0.5, 0.0, 0.5, 1.0]

@@ -11,7 +11,7 @@ from astropy.config import ConfigNamespace
 
 import astroalign_nd
 from astroalign_nd import _kernels, conf, find_transform
-from astroalign_nd._config import Conf
+from astroalign_nd._settings import Conf
 from astroalign_nd.batch import runners
 from astroalign_nd.batch.runners import _init_worker
 from astroalign_nd.simulate import simulate_pair

@@ -7,12 +7,16 @@ import inspect
 import numpy as np
 import pytest
 
-from astroalign_nd import config, find_match, find_sources, find_transform, register
+from astroalign_nd import find_match, find_sources, find_transform, register
 from astroalign_nd.batch import register_batch
 from astroalign_nd.cli.options import _FIELDS, _registration_options
-from astroalign_nd.config import (DetectionConfig, MatchingConfig, ModelConfig,
-                                  RegistrationConfig, ResampleConfig)
+from astroalign_nd.config import RegistrationConfig
+from astroalign_nd.detection import DetectionConfig
+from astroalign_nd.matching import DEFAULT_NEIGHBORS, DEFAULT_TOLERANCE, MatchingConfig
 from astroalign_nd.matching import match_points
+from astroalign_nd.options import cli_fields
+from astroalign_nd.resample import ResampleConfig
+from astroalign_nd.transforms import ModelConfig
 
 
 def _defaults(func):
@@ -54,7 +58,7 @@ def test_detection_and_matching_defaults_are_the_configs():
             assert det[name] == default, name
     assert det["nsigma"] == 5.0
     mat = _defaults(match_points)
-    auto = {"tolerance": config.DEFAULT_TOLERANCE, "n_neighbors": config.DEFAULT_NEIGHBORS}
+    auto = {"tolerance": DEFAULT_TOLERANCE, "n_neighbors": DEFAULT_NEIGHBORS}
     for name, default in _field_defaults(MatchingConfig).items():
         assert mat[name] == auto.get(name, default), name
     assert _defaults(match_points)["transform_type"] == ModelConfig().transform_type
@@ -102,7 +106,7 @@ def test_the_search_leaves_the_config_unchanged(monkeypatch):
 
     monkeypatch.setattr(registration, "_attempt", spy)
     registration.find_match_from_config(pair.source, pair.target, cfg)
-    assert seen and all(t is not None and t >= config.DEFAULT_TOLERANCE for t in seen)
+    assert seen and all(t is not None and t >= DEFAULT_TOLERANCE for t in seen)
     assert cfg == RegistrationConfig()
 
 
@@ -111,7 +115,7 @@ def test_cli_options_come_from_the_configs():
     actions = {a.dest: a for a in parser._actions}
     for cls in (ModelConfig, ResampleConfig, RegistrationConfig, DetectionConfig,
                 MatchingConfig):
-        for name, flag, kwargs in config.cli_fields(cls):
+        for name, flag, kwargs in cli_fields(cls):
             assert name in _FIELDS and flag in actions[name].option_strings
             assert actions[name].help == kwargs["help"]
     # The defaults that the help text shows are the configs' ones.

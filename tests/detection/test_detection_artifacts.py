@@ -7,7 +7,7 @@ import pytest
 from astropy.nddata import CCDData
 
 import astroalign_nd as aand
-from astroalign_nd.config import DetectionConfig
+from astroalign_nd.detection import DetectionConfig
 from astroalign_nd.detection import find_sources
 from astroalign_nd.detection.daofind import control_sources
 from astroalign_nd.simulate import (add_edge_band, add_satellite_trail, simulate_field,

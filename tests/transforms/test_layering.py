@@ -14,7 +14,7 @@ from astroalign_nd.transforms import TRANSFORM_REGISTRY
 PACKAGE = pathlib.Path(astroalign_nd.__file__).parent
 
 #: What the transforms may import from the rest of the package: its leaves.
-FOUNDATION = {"exceptions", "_validate", "_kernels", "_ckernels"}
+FOUNDATION = {"exceptions", "_validate", "_kernels", "_ckernels", "options"}
 
 
 def _imports(path):
@@ -49,6 +49,12 @@ def test_transforms_import_no_other_stage():
             if parts[1] != "transforms" and parts[1] not in FOUNDATION:
                 bad.append(f"transforms/{path.name}:{line} imports {name}")
     assert not bad, "the transforms must not build on another stage:\n" + "\n".join(bad)
+
+
+def test_the_options_machinery_is_a_leaf():
+    """Every stage checks its options with ``astroalign_nd.options``: it imports none of them."""
+    assert [name for _, name in _imports(PACKAGE / "options.py")
+            if name.startswith("astroalign_nd")] == []
 
 
 def _type_name_lists(path, names):

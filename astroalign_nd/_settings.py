@@ -1,7 +1,10 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """
-The package's settings: `Conf`, as ``astroalign_nd.conf`` (an astropy
-`~astropy.config.ConfigNamespace`, as ccdproc and photutils have).
+The package's runtime settings: `Conf`, as ``astroalign_nd.conf`` (an
+astropy `~astropy.config.ConfigNamespace`, as ccdproc and photutils have):
+how the package runs (threads, compiled code), the same for every call.
+The options of each call (detection, matching, stacking...) are the
+stages' configs instead (``astroalign_nd.config``).
 
 Set them for the session (``astroalign_nd.conf.num_threads = 1``), for a
 block (``with astroalign_nd.conf.set_temp("num_threads", 1): ...``), or in
