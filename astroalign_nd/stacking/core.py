@@ -210,27 +210,42 @@ def _drizzled(paths, sources, stats, result, ref, opts, folder, dtype, names, re
         acc.add(data * st.scale - st.offset, pm, w, var * st.scale ** 2)
         del frame, data, var, pm, w, bad
     del flags
-    planes = acc.planes()
-    empty, spread = coverage_report(planes, coverage, n, scale, pixfrac=pixfrac)
-    settings = _settings(opts, n)
+    ccd = drizzle_ccddata(acc.planes(), coverage, opts, _settings(opts, n), meta=ref.meta,
+                          wcs=ref.wcs, offset=result.canvas_offset, names=names, stats=stats,
+                          rejected=rejected, unit=ref.unit or "adu", dtype=dtype,
+                          how="outliers rejected on the reference grid and blotted back")
+    return ccd, ccd.weight
+
+
+def drizzle_ccddata(planes, coverage, opts, settings, *, meta, wcs, offset, names, stats,
+                    rejected, unit, dtype, how):
+    """
+    A drizzle's planes as the stack's CCDData (`stack_ccddata`): the coverage
+    report (warned, and in the header), the drizzle's settings, the WCS scaled
+    to the output grid, HISTORY naming every frame; drizzle's weight map as
+    its ``weight`` attribute (written as the ``WEIGHT`` extension).
+    """
+    scale, pixfrac, kernel = opts.drizzle, opts.pixfrac, opts.kernel
+    empty, spread = coverage_report(planes, coverage, len(names), scale, pixfrac=pixfrac)
+    settings = dict(settings)
     settings.update({"AADRIZ": (scale, "drizzle: output pixels per reference pixel"),
                      "AADZPFR": (pixfrac, "drizzle: pixfrac"),
                      "AADZKERN": (kernel, "drizzle: kernel"),
                      "AADZEMPT": (round(empty, 6), "drizzle: empty fraction inside frames"),
                      "AADZUNIF": (round(spread, 4) if np.isfinite(spread) else -1.0,
                                   "drizzle: weight std/mean, all frames")})
-    wcs = scaled_wcs(ref.wcs, scale, planes.value.shape, result.canvas_offset)
-    ccd = stack_ccddata(planes.value, planes.variance, planes.count, meta=ref.meta, names=names,
-                        stats=stats, rejected=rejected, settings=settings, wcs=wcs,
-                        unit=ref.unit or "adu", dtype=dtype)
+    ccd = stack_ccddata(planes.value, planes.variance, planes.count, meta=meta, names=names,
+                        stats=stats, rejected=rejected, settings=settings,
+                        wcs=scaled_wcs(wcs, scale, planes.value.shape, offset), unit=unit,
+                        dtype=dtype)
     ccd.meta.add_history(f"astroalign_nd stack: drizzled at scale {scale:g}, pixfrac "
-                         f"{pixfrac:g}, kernel {kernel}, outliers rejected on the reference "
-                         "grid and blotted back")
+                         f"{pixfrac:g}, kernel {kernel}, {how}")
     for name in names:
         ccd.meta.add_history(f"drizzled {name}")
     if ccd.mask.all():
         warn("no frame reaches any pixel of the stack.")
-    return ccd, planes.weight
+    ccd.weight = planes.weight
+    return ccd
 
 
 def _is_path(obj):

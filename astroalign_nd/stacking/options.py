@@ -151,7 +151,10 @@ class StackConfig:
         noise, per pixel from masks, NaN and ``saturation``).  The output
         holds counts per output pixel (flux conserved: a flat sky of ``b``
         becomes ``b / drizzle**2``), with the planes `~astroalign_nd.stack`
-        describes.  Only with ``method='average'``.
+        describes.  Only with ``method='average'``.  A live stack drizzles
+        each frame as it arrives, its outliers against the running stack
+        weighing nothing (a pixel's first ``n_start`` values are clipped
+        only after they were drizzled: outliers among them stay).
     pixfrac : float, optional
         With ``drizzle``: the linear fraction of an input pixel its value is
         dropped onto, in (0, 1] (default 0.7; toward 1 with few frames or
@@ -226,18 +229,17 @@ class StackConfig:
     drizzle: float | None = option(
         None, Real(0, lo_open=True, none=True),
         "drizzle onto a grid SCALE times finer (e.g. 2) instead of interpolating",
-        used_by=("stack",), flag="--drizzle", type=float, metavar="SCALE")
+        flag="--drizzle", type=float, metavar="SCALE")
     pixfrac: float = option(
         0.7, Real(0, 1, lo_open=True),
         "with --drizzle: the linear fraction of a pixel dropped (default: %(default)s)",
-        used_by=("stack",), flag="--pixfrac", type=float)
+        flag="--pixfrac", type=float)
     kernel: str = option(
         "square", Choice(DRIZZLE_KERNELS),
-        "with --drizzle: the drizzle kernel (default: %(default)s)", used_by=("stack",),
-        flag="--kernel")
+        "with --drizzle: the drizzle kernel (default: %(default)s)", flag="--kernel")
     saturation: float | None = option(
         None, Real(none=True), "with --drizzle: input values at or above weigh nothing",
-        used_by=("stack",), flag="--saturation", type=float)
+        flag="--saturation", type=float)
 
     def __post_init__(self):
         check_fields(self)

@@ -142,3 +142,19 @@ def test_pixel_map_of_a_polynomial_and_sip_scaled_wcs():
     a = np.array(w.pixel_to_world_values(X, Y))
     b = np.array(fine.pixel_to_world_values(2 * (X + 5 + 0.5) - 0.5, 2 * (Y - 7 + 0.5) - 0.5))
     assert np.abs(a - b).max() * 3600 < 1e-6
+
+
+def test_live_stack_drizzles_each_frame_as_it_arrives(sequence):
+    from astroalign_nd.stacking import LiveStack
+
+    seq, (x, y, flux), truth, _ = sequence
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        live = LiveStack(seq.frames[0], drizzle=S, pixfrac=0.7, gain=1.0, read_noise=5.0)
+        for k, f in enumerate(seq.frames[1:8], start=1):
+            live.add(f, name=f"frame{k}")
+        d = live.result()
+    _, free = _stars(x, y, flux, truth.shape)
+    assert d.shape == truth.shape and d.flags.max() == 8 and d.meta["AADRIZ"] == 2
+    assert 0.9 < np.std(((d.data - truth) / d.uncertainty.array)[free]) < 1.1
+    assert d.weight.shape == truth.shape
