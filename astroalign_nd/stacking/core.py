@@ -102,7 +102,7 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         see `~astroalign_nd.stacking.drizzle.coverage_report`) and HISTORY
         naming every frame drizzled.  Written to ``output``, the count is
         the ``FLAGS`` extension and drizzle's weight map the ``WEIGHT``
-        extension.
+        extension (in memory: the CCDData's ``weight`` attribute).
 
     Raises
     ------
