@@ -11,7 +11,8 @@ from typing import Any
 
 import astropy.units as u
 import numpy as np
-from astropy.nddata import CCDData
+from astropy.io import fits
+from astropy.nddata import CCDData, VarianceUncertainty
 
 from .._input import batch_frames, parse_input
 from ..batch import BatchResult, reference_on_canvas, register_batch
@@ -21,7 +22,9 @@ from ..exceptions import TransformNotFoundError, warn
 from ..io import write_ccddata, write_output
 from ..io.write import check_not_input, check_output_path, make_output_dir, remove_empty_dirs
 from ..io.writers import output_suffixes
-from .combine import combine_files, frame_stats, frame_weights, normalise
+from .combine import combine_files, frame_stats, frame_variance, frame_weights, normalise
+from .drizzle import (DrizzleAccumulator, blot_mask, coverage_report, output_shape, pixel_map,
+                      scaled_wcs, weight_map)
 from .header import stack_ccddata
 from .options import StackConfig
 
@@ -90,7 +93,17 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         reference's header with ``NCOMBINE``, ``IMCMBnnn`` (every frame
         combined, with its sky offset ``AASKYnnn``, scale ``AASCLnnn``,
         weight ``AAWGTnnn`` and rejected pixels ``AANRJnnn``) and
-        ``AAREJnnn`` (every frame left out, and why).
+        ``AAREJnnn`` (every frame left out, and why).  With ``drizzle``:
+        on the finer grid, its WCS the reference's scaled to it (SIP too);
+        the uncertainty through drizzle's squared-weight path; ``mask``
+        True where no input reached; ``flags`` the number of frames reaching
+        each pixel; the header's ``AADRIZ``, ``AADZPFR``, ``AADZKERN`` (scale,
+        pixfrac, kernel), ``AADZEMPT`` and ``AADZUNIF`` (the fraction of
+        empty pixels inside the frames and the weight's relative spread,
+        see `~astroalign_nd.stacking.drizzle.coverage_report`) and HISTORY
+        naming every frame drizzled.  Written to ``output``, the count is
+        the ``FLAGS`` extension and drizzle's weight map the ``WEIGHT``
+        extension (in memory: the CCDData's ``weight`` attribute).
 
     Raises
     ------
@@ -150,6 +163,10 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         frames_ += [(f.name, f.output, k) for f, (_, k) in zip(result.frames, others) if f.ok]
         not_done = [f for f in result.failed if _not_done(f)]
         rejected = [(f.name, f.error) for f in result.failed if not _not_done(f)]
+        x0, y0 = result.canvas_offset
+        # What a drizzle reads again: each frame as given, and its transform onto the canvas.
+        sources = [(ref_item[0], np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1.0]]))]
+        sources += [(it[0], f.transform) for f, (it, _) in zip(result.frames, others) if f.ok]
         if others and not result.succeeded:
             raise TransformNotFoundError(
                 "no frame could be registered onto the reference: "
@@ -158,21 +175,101 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         for name, why in rejected:  # never silently: the header alone is easy to miss
             warn(f"{name} was left out of the stack: {why}")
         opts = _feasible_clip(opts, len(used))
-        value, variance, coverage = combine_files(
-            [frames_[i][1] for i in used], stats, result.canvas_shape, opts, gain=opts.gain,
-            read_noise=opts.read_noise, memory_limit=opts.memory_limit)
-        wcs = canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
-    ccd = _stacked(value, variance, coverage, ref, wcs, dtype, [frames_[i][0] for i in used],
-                   stats, rejected, opts)
+        paths = [frames_[i][1] for i in used]
+        if opts.drizzle is not None:
+            ccd, weight = _drizzled(paths, [sources[i] for i in used], stats, result, ref, opts,
+                                    folder, dtype, [frames_[i][0] for i in used], rejected,
+                                    hdu=hdu, unit=unit)
+        else:
+            value, variance, coverage = combine_files(
+                paths, stats, result.canvas_shape, opts, gain=opts.gain,
+                read_noise=opts.read_noise, memory_limit=opts.memory_limit)
+            wcs = canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
+    if opts.drizzle is None:
+        ccd = _stacked(value, variance, coverage, ref, wcs, dtype,
+                       [frames_[i][0] for i in used], stats, rejected, opts)
     if interrupt is not None:
         # One HISTORY card (72 characters): the frames left out are in NREJECT.
         ccd.meta.add_history(f"partial stack (interrupted): {len(used)} of {len(others) + 1} "
                              f"frames stacked, {len(not_done)} not registered")
-    if output is not None:
+    if output is not None and opts.drizzle is None:
         write_output(ccd, output, overwrite=overwrite)
+    elif output is not None:
+        write_ccddata(ccd, output, overwrite=overwrite, hdu_flags="FLAGS",
+                      extra_hdus=[fits.ImageHDU(weight, name="WEIGHT")])
     if interrupt is not None:
         interrupt.partial_result = ccd
         raise interrupt
+    return ccd
+
+
+def _drizzled(paths, sources, stats, result, ref, opts, folder, dtype, names, rejected, *, hdu,
+              unit):
+    """
+    The frames drizzled one at a time, after the stack's rejection on the canvas
+    (each frame's rejected pixels carried back onto it, and weighing nothing there).
+    Returns the stack's CCDData and drizzle's weight map.
+    """
+    scale, pixfrac, kernel = opts.drizzle, opts.pixfrac, opts.kernel
+    gain, read_noise = opts.gain, opts.read_noise
+    n, shape = len(paths), tuple(result.canvas_shape)
+    # The rejection maps on disk: one frame's at a time in memory, whatever the number of frames.
+    flags = np.lib.format.open_memmap(os.path.join(folder, ".rejected.npy"), mode="w+",
+                                      dtype=np.bool_, shape=(n,) + shape)
+    _, _, coverage = combine_files(paths, stats, shape, opts, gain=gain, read_noise=read_noise,
+                                   memory_limit=opts.memory_limit, rejected=flags)
+    acc = DrizzleAccumulator(output_shape(shape, scale), scale, pixfrac, kernel)
+    for k, ((item, transform), st) in enumerate(zip(sources, stats)):
+        frame = parse_input(item, "frame", hdu=hdu, unit=unit)
+        data = np.asarray(frame.data, dtype=np.float64)
+        var = None if frame.uncertainty is None else np.asarray(
+            frame.uncertainty.represent_as(VarianceUncertainty).array, dtype=np.float64)
+        var = frame_variance(data, var, st, gain, read_noise)
+        pm = pixel_map(transform, data.shape)
+        bad = blot_mask(flags[k], pm)
+        w = weight_map(data, frame.mask, var, weight=st.weight,
+                       saturation=opts.saturation)
+        st.n_rejected = int((bad & (w > 0)).sum())  # the frame's own pixels
+        w[bad] = 0.0
+        pm = scale * (pm + 0.5) - 0.5  # onto the finer grid (drizzle.pixel_map's Grids)
+        acc.add(data * st.scale - st.offset, pm, w, var * st.scale ** 2)
+        del frame, data, var, pm, w, bad
+    del flags
+    ccd = drizzle_ccddata(acc.planes(), coverage, opts, _settings(opts, n), meta=ref.meta,
+                          wcs=ref.wcs, offset=result.canvas_offset, names=names, stats=stats,
+                          rejected=rejected, unit=ref.unit or "adu", dtype=dtype,
+                          how="outliers rejected on the reference grid and blotted back")
+    return ccd, ccd.weight
+
+
+def drizzle_ccddata(planes, coverage, opts, settings, *, meta, wcs, offset, names, stats,
+                    rejected, unit, dtype, how):
+    """
+    A drizzle's planes as the stack's CCDData (`stack_ccddata`): the coverage
+    report (warned, and in the header), the drizzle's settings, the WCS scaled
+    to the output grid, HISTORY naming every frame; drizzle's weight map as
+    its ``weight`` attribute (written as the ``WEIGHT`` extension).
+    """
+    scale, pixfrac, kernel = opts.drizzle, opts.pixfrac, opts.kernel
+    empty, spread = coverage_report(planes, coverage, len(names), scale, pixfrac=pixfrac)
+    settings = dict(settings)
+    settings.update({"AADRIZ": (scale, "drizzle: output pixels per reference pixel"),
+                     "AADZPFR": (pixfrac, "drizzle: pixfrac"),
+                     "AADZKERN": (kernel, "drizzle: kernel"),
+                     "AADZEMPT": (round(empty, 6), "drizzle: empty fraction inside frames"),
+                     "AADZUNIF": (round(spread, 4) if np.isfinite(spread) else -1.0,
+                                  "drizzle: weight std/mean, all frames")})
+    ccd = stack_ccddata(planes.value, planes.variance, planes.count, meta=meta, names=names,
+                        stats=stats, rejected=rejected, settings=settings,
+                        wcs=scaled_wcs(wcs, scale, planes.value.shape, offset), unit=unit,
+                        dtype=dtype)
+    ccd.meta.add_history(f"astroalign_nd stack: drizzled at scale {scale:g}, pixfrac "
+                         f"{pixfrac:g}, kernel {kernel}, {how}")
+    for name in names:
+        ccd.meta.add_history(f"drizzled {name}")
+    if ccd.mask.all():
+        warn("no frame reaches any pixel of the stack.")
+    ccd.weight = planes.weight
     return ccd
 
 

@@ -27,6 +27,8 @@ from ..io.write import FITS_EXTENSIONS, check_not_input, check_output_path
 from ..options import Int, Real, convert
 from ..registration import prepare_target, register_and_match
 from .combine import array_stats, frame_variance, normalise, reject
+from .core import drizzle_ccddata
+from .drizzle import DrizzleAccumulator, blot_mask, output_shape, pixel_map, weight_map
 from .header import stack_ccddata
 from .options import StackConfig
 
@@ -111,9 +113,13 @@ class LiveStack:
         self.unit_out = parsed.unit or "adu"
         self.used, self.rejected, self._stats = [], [], []
         self._acc, self._ref_sky = _Running(self.shape, self.opts.n_start), None
+        self._driz = None if self.opts.drizzle is None else DrizzleAccumulator(
+            output_shape(self.shape, self.opts.drizzle), self.opts.drizzle, self.opts.pixfrac,
+            self.opts.kernel)
         valid = np.isfinite(parsed.data) & (True if parsed.mask is None else ~parsed.mask)
         var = _variance(parsed.uncertainty)
-        self._add_arrays(np.asarray(parsed.data, dtype=np.float64), var, valid, name)
+        data = np.asarray(parsed.data, dtype=np.float64)
+        self._add_arrays(data, var, valid, (parsed, None), name)
 
     def add(self, frame: Any, name: str | None = None) -> None:
         """
@@ -140,14 +146,19 @@ class LiveStack:
             self._add_arrays(*arrays, name)
 
     def _registered(self, frame):
-        """``(data, variance, valid)`` of ``frame`` on the reference's grid."""
-        ccd, _ = register_and_match(frame, self._ref, hdu=self.hdu, unit=self.unit,
-                                    **self.options)
+        """
+        ``(data, variance, valid, raw)`` of ``frame`` on the reference's grid;
+        ``raw`` is the frame as given and its transform when drizzling, else None.
+        """
+        ccd, match = register_and_match(frame, self._ref, hdu=self.hdu, unit=self.unit,
+                                        **self.options)
         data = np.asarray(ccd.data, dtype=np.float64)
         valid = np.isfinite(data) & (True if ccd.mask is None else ~np.asarray(ccd.mask))
-        return data, _variance(ccd.uncertainty), valid
+        raw = None if self._driz is None else (
+            parse_input(frame, "frame", hdu=self.hdu, unit=self.unit), match.transform)
+        return data, _variance(ccd.uncertainty), valid, raw
 
-    def _add_arrays(self, data, var, valid, name):
+    def _add_arrays(self, data, var, valid, raw, name):
         st = array_stats(data, var, valid)
         self._ref_sky = st.sky if self._ref_sky is None else self._ref_sky
         normalise(st, self._ref_sky, self.opts.normalize)
@@ -159,7 +170,26 @@ class LiveStack:
             1.0 / max(float(np.median(var[valid])), 1e-300)
         self._stats.append(st)
         self.used.append(name)
-        self._acc.add(x, var, valid, len(self._stats) - 1, self._stats, self.opts)
+        rejected = self._acc.add(x, var, valid, len(self._stats) - 1, self._stats, self.opts)
+        if self._driz is not None:
+            self._drizzle(raw, st, rejected)
+
+    def _drizzle(self, raw, st, rejected):
+        """
+        Drizzle a frame as it arrives, its pixels rejected against the running stack
+        (blotted back onto it) weighing nothing.  The values held at a pixel until
+        ``n_start`` frames reach it are clipped later, after those frames were
+        drizzled: there, the first frames' outliers stay.
+        """
+        parsed, transform = raw
+        data = np.asarray(parsed.data, dtype=np.float64)
+        var = frame_variance(data, _variance(parsed.uncertainty), st, self.opts.gain,
+                             self.opts.read_noise)
+        pm = pixel_map(transform, data.shape)
+        w = weight_map(data, parsed.mask, var, weight=st.weight, saturation=self.opts.saturation)
+        w[blot_mask(rejected, pm)] = 0.0
+        s = self.opts.drizzle
+        self._driz.add(data * st.scale - st.offset, s * (pm + 0.5) - 0.5, w, var * st.scale ** 2)
 
     def fail(self, name: str, reason: str) -> None:
         """Record a frame that could not be added (listed in the header)."""
@@ -176,6 +206,16 @@ class LiveStack:
             reaching each pixel).
         """
         value, variance, coverage = self._acc.value(self._stats, self.opts)
+        if self._driz is not None:
+            settings = {"AASTKMTH": ("live average", "astroalign_nd live stack"),
+                        "AASTKCLP": (self.opts.clip or "none", "rejection vs the running stack"),
+                        "AASTKNRM": (self.opts.normalize or "none", "sky normalisation")}
+            return drizzle_ccddata(self._driz.planes(), coverage, self.opts, settings,
+                                   meta=self.meta, wcs=self.wcs, offset=(0, 0), names=self.used,
+                                   stats=self._stats, rejected=self.rejected,
+                                   unit=self.unit_out, dtype=np.float32,
+                                   how="each frame as it arrived, its outliers against the "
+                                   "running stack blotted back")
         reach = coverage > 0
         value, variance = np.where(reach, value, np.nan), np.where(reach, variance, np.nan)
         settings = {"AASTKMTH": ("live average", "astroalign_nd live stack"),
@@ -219,11 +259,15 @@ class _Running:
         self.n[where] = n_new
 
     def add(self, x, var, valid, k, stats, opts):
-        """Frame ``k``'s values: clipped against the stack where it has started, else held."""
+        """
+        Frame ``k``'s values: clipped against the stack where it has started, else held.
+        Returns its values rejected now (True), on the reference's grid.
+        """
         st = stats[k]
         self.coverage += valid.astype(np.int16)
         run = valid & self.started
         xs, vs = x[run], var[run]
+        rejected = np.zeros(valid.shape, dtype=bool)
         if opts.clip == "sigma":
             with np.errstate(invalid="ignore", divide="ignore"):
                 spread = np.fmax(np.sqrt(self.m2[run] / np.maximum(self.n[run] - 1, 1)),
@@ -232,10 +276,12 @@ class _Running:
                 far = (xs - mean > opts.sigma_high * spread) | (mean - xs > opts.sigma_low
                                                                 * spread)
             st.n_rejected += int(far.sum())
+            rejected[run] = far
             run[run] = ~far
             xs, vs = x[run], var[run]
         self.take(run, xs, vs, st.weight)
         self._hold(x, var, valid & ~self.started, k, stats, opts)
+        return rejected
 
     def _hold(self, x, var, hold, k, stats, opts):
         """Hold frame ``k``'s values at ``hold``; clip and add the pixels that have enough."""

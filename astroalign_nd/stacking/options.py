@@ -35,6 +35,7 @@ import dataclasses
 import numpy as np
 
 from ..options import Choice, Int, Real, check_fields, convert, fields_of, option
+from .drizzle import DRIZZLE_KERNELS
 
 __all__ = ["StackConfig", "FrameWeights", "STACK_METHODS", "CLIP_METHODS",
            "NORMALIZE_METHODS", "WEIGHT_METHODS", "DEFAULT_MEMORY_LIMIT"]
@@ -136,6 +137,33 @@ class StackConfig:
         A live stack's values held at each pixel and clipped together
         (about their median) before the running clipping starts there
         (default 5, at least 3).
+    drizzle : float, optional
+        Drizzle the frames onto a grid ``drizzle`` times finer than the
+        reference's (or the canvas's), e.g. 2, instead of interpolating
+        them: each frame's own pixels, shrunk by ``pixfrac``, are dropped
+        at their true positions through the frame's transform (any type,
+        polynomial distortion included) by the `drizzle` package, one frame
+        at a time, which recovers resolution from the dithers between
+        undersampled frames.  The rejection is the stack's (the clipped
+        combination on the reference's grid finds the outliers; they are
+        carried back onto each frame and weigh nothing there); the weights
+        and sky normalisation are the stack's (per frame from the sky
+        noise, per pixel from masks, NaN and ``saturation``).  The output
+        holds counts per output pixel (flux conserved: a flat sky of ``b``
+        becomes ``b / drizzle**2``), with the planes `~astroalign_nd.stack`
+        describes.  Only with ``method='average'``.  A live stack drizzles
+        each frame as it arrives, its outliers against the running stack
+        weighing nothing (a pixel's first ``n_start`` values are clipped
+        only after they were drizzled: outliers among them stay).
+    pixfrac : float, optional
+        With ``drizzle``: the linear fraction of an input pixel its value is
+        dropped onto, in (0, 1] (default 0.7; toward 1 with few frames or
+        little dither, or the output gets holes).
+    kernel : str, optional
+        With ``drizzle``: the drizzle kernel, one of
+        `~astroalign_nd.stacking.drizzle.DRIZZLE_KERNELS` (default 'square').
+    saturation : float, optional
+        With ``drizzle``: input values at or above this weigh nothing.
 
     Raises
     ------
@@ -198,9 +226,26 @@ class StackConfig:
         "the stack's grid: the reference's (default) or the union of frames",
         used_by=("stack",), flag="--canvas")
     n_start: int = option(5, Int(3, None), used_by=("live",))
+    drizzle: float | None = option(
+        None, Real(0, lo_open=True, none=True),
+        "drizzle onto a grid SCALE times finer (e.g. 2) instead of interpolating",
+        flag="--drizzle", type=float, metavar="SCALE")
+    pixfrac: float = option(
+        0.7, Real(0, 1, lo_open=True),
+        "with --drizzle: the linear fraction of a pixel dropped (default: %(default)s)",
+        flag="--pixfrac", type=float)
+    kernel: str = option(
+        "square", Choice(DRIZZLE_KERNELS),
+        "with --drizzle: the drizzle kernel (default: %(default)s)", flag="--kernel")
+    saturation: float | None = option(
+        None, Real(none=True), "with --drizzle: input values at or above weigh nothing",
+        flag="--saturation", type=float)
 
     def __post_init__(self):
         check_fields(self)
+        if self.drizzle is not None and self.method != "average":
+            raise ValueError(f"drizzle gives a weighted average; method={self.method!r} cannot "
+                             "be drizzled: use method='average' (the default), or no drizzle.")
         for side in ("sigma_low", "sigma_high"):
             if getattr(self, side) is None:
                 object.__setattr__(self, side, self.sigma)
