@@ -19,10 +19,12 @@ from ..batch import BatchResult, reference_on_canvas, register_batch
 from ..batch.canvas import canvas_wcs
 from ..exceptions import TransformNotFoundError, warn
 from ..io import write_ccddata, write_output
+from ..io.bayer import bayer_pattern
 from ..io.write import check_not_input, check_output_path
 from ..io.writers import output_suffixes
 from .combine import (CLIP_METHODS, NORMALIZE_METHODS, STACK_METHODS, CombineOptions,
                       combine_files, frame_stats, frame_weights, normalise)
+from .colour import DEMOSAIC_METHODS, _demosaicing, colour_ccddata, register_bayer
 from .header import stack_ccddata
 
 __all__ = ["stack"]
@@ -41,6 +43,7 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
           aligned_dir: str | os.PathLike | None = None, temp_dir: str | None = None,
           workers: int | None = None, progress: bool = False, hdu: int | str | None = None,
           unit: Any = None, order: str | int = "bilinear", dtype: Any = np.float32,
+          bayer: str | None = None, demosaic: str = "Menon2007",
           **options: Any) -> CCDData:
     """
     Register frames onto a reference and combine them into one deep image.
@@ -125,11 +128,28 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         Of the output's data and uncertainty (default float32).  An integer
         type gets the values rounded, and clipped to its range with a
         warning that counts the pixels outside it (never wrapped around).
+    bayer : {'auto', 'RGGB', 'BGGR', 'GRBG', 'GBRG'} or None, optional
+        The frames are raw colour frames from a one-shot-colour camera
+        (default None: grey or already colour).  'auto' reads each frame's
+        pattern from its header (``BAYERPAT``, with ``XBAYROFF``,
+        ``YBAYROFF`` and ``ROWORDER``, see `astroalign_nd.io.bayer`); a
+        pattern names the colours of every frame's first 2x2 cell
+        (``data[0:2, 0:2]``, row by row) and overrides the headers.  Each
+        frame is registered on its grey version (2x2 cells summed), then
+        demosaiced, and each colour is stacked with the frame's one
+        transform: the stack is an RGB cube (see Returns).  Needs
+        ``colour-demosaicing`` (the ``[colour]`` extra); ``canvas`` must be
+        'reference'.
+    demosaic : {'Menon2007', 'Malvar2004', 'bilinear'}, optional
+        ``colour-demosaicing``'s algorithm for ``bayer`` frames (default
+        'Menon2007').
 
     Returns
     -------
     stacked : `~astropy.nddata.CCDData`
-        The combined image; ``uncertainty`` a `~astropy.nddata.StdDevUncertainty`
+        The combined image (with ``bayer``, an RGB cube ``(3, ny, nx)``:
+        red, green and blue planes, each with its uncertainty, mask and
+        coverage; `astroalign_nd.stacking.colour`); ``uncertainty`` a `~astropy.nddata.StdDevUncertainty`
         combined from the frames'; ``mask`` True only where no frame
         reaches (a pixel masked in some frames is combined from the others);
         ``flags`` the number of frames reaching each pixel; ``meta`` the
@@ -169,10 +189,26 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     others = _once(others, ref_item)
     weights = _check_weights(weights, n_frames)
     _check_outputs(output, overwrite, items, ref_item)
+    if bayer is not None:
+        ccd = _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit,
+                           aligned_dir, temp_dir, hdu, unit, order, dtype, options,
+                           bayer=_check_bayer(bayer, demosaic, canvas), method=demosaic)
+    else:
+        ccd = _stack_grey(ref_item, others, opts, weights, gain, read_noise, memory_limit,
+                          aligned_dir, temp_dir, canvas, overwrite, workers, progress, hdu,
+                          unit, order, dtype, options)
+    if output is not None:
+        write_output(ccd, output, overwrite=overwrite)
+    return ccd
+
+
+def _stack_grey(ref_item, others, opts, weights, gain, read_noise, memory_limit, aligned_dir,
+                temp_dir, canvas, overwrite, workers, progress, hdu, unit, order, dtype, options):
+    """Grey (or colour) frames registered by `register_batch` and combined."""
     ref = parse_input(ref_item[0], "reference", hdu=hdu, unit=unit)
     if ref.data is None or ref.data.ndim != 2:
         raise ValueError("the reference must be a 2-D image (stack one colour channel at a "
-                         "time).")
+                         "time, or raw colour frames with bayer='auto').")
     with _aligned_folder(aligned_dir, temp_dir) as folder:
         result = _register([it for it, _ in others], ref, folder, canvas, overwrite, workers,
                            progress, hdu, unit, order, options, ref_item[0])
@@ -180,24 +216,75 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         frames_ = [(_reference_name(ref_item), on_canvas, ref_item[1])]
         frames_ += [(f.name, f.output, k) for f, (_, k) in zip(result.frames, others) if f.ok]
         rejected = [(f.name, f.error) for f in result.failed]
-        if others and not result.succeeded:
-            raise TransformNotFoundError(
-                "no frame could be registered onto the reference: "
-                + "; ".join(f"{n}: {e}" for n, e in rejected))
-        used, stats = _measure(frames_, rejected, opts, weights, gain, read_noise,
-                               memory_limit)
+        _check_registered(others, result.succeeded, rejected)
+        value, variance, coverage, names, stats, opts = _combine(
+            frames_, rejected, opts, weights, gain, read_noise, memory_limit,
+            result.canvas_shape)
+        wcs = canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
+    return _stacked(value, variance, coverage, ref, wcs, dtype, names, stats, rejected, opts)
+
+
+def _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit, aligned_dir,
+                 temp_dir, hdu, unit, order, dtype, options, *, bayer, method):
+    """Raw colour frames registered on their grey versions, demosaiced, combined per colour."""
+    with _aligned_folder(aligned_dir, temp_dir) as folder:
+        channels, rejected, ref, pattern = register_bayer(
+            ref_item, others, folder, bayer=bayer, method=method, hdu=hdu, unit=unit,
+            order=order, options=options)
+        _check_registered(others, len(channels[0]) - 1, rejected)
+        combined, all_rejected = [], list(rejected)
+        for frames_ in channels:
+            lost = list(rejected)
+            value, variance, coverage, names, stats, copts = _combine(
+                frames_, lost, opts, weights, gain, read_noise, memory_limit, ref.data.shape,
+                warn_rejected=not combined)
+            all_rejected += [r for r in lost if r not in all_rejected]
+            combined.append((value, variance, coverage, names, stats))
+    settings = _settings(copts, len(names))
+    settings["AABAYER"] = (pattern, "Bayer pattern of the reference's first cell")
+    settings["AADEMOS"] = (method, "demosaicing (colour-demosaicing)")
+    return colour_ccddata(combined, meta=ref.meta, wcs=ref.wcs, unit=ref.unit or "adu",
+                          dtype=dtype, rejected=all_rejected, settings=settings)
+
+
+def _check_bayer(bayer, demosaic, canvas):
+    """``bayer`` and ``demosaic`` checked before any work."""
+    if bayer != "auto":
+        bayer = bayer_pattern(pattern=bayer)
+    _demosaicing()  # the extra's ImportError before any work
+    if demosaic not in DEMOSAIC_METHODS:
+        raise ValueError(f"demosaic must be one of {', '.join(map(repr, DEMOSAIC_METHODS))}; "
+                         f"got {demosaic!r}.")
+    if canvas != "reference":
+        raise ValueError("bayer frames are stacked on the reference's grid: pass "
+                         "canvas='reference' (the default).")
+    return bayer
+
+
+def _check_registered(others, n_registered, rejected):
+    """Refuse a stack of the reference alone when there were other frames."""
+    if others and not n_registered:
+        raise TransformNotFoundError(
+            "no frame could be registered onto the reference: "
+            + "; ".join(f"{n}: {e}" for n, e in rejected))
+
+
+def _combine(frames_, rejected, opts, weights, gain, read_noise, memory_limit, shape, *,
+             warn_rejected=True):
+    """
+    Registered frames ``(name, path, index)`` measured and combined: the value,
+    variance and coverage, the names and stats of the frames used, and the options
+    as applied.  Frames that cannot be measured join ``rejected``.
+    """
+    used, stats = _measure(frames_, rejected, opts, weights, gain, read_noise, memory_limit)
+    if warn_rejected:
         for name, why in rejected:  # never silently: the header alone is easy to miss
             warn(f"{name} was left out of the stack: {why}")
-        opts = _feasible_clip(opts, len(used))
-        value, variance, coverage = combine_files(
-            [frames_[i][1] for i in used], stats, result.canvas_shape, opts, gain=gain,
-            read_noise=read_noise, memory_limit=memory_limit)
-        wcs = canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
-    ccd = _stacked(value, variance, coverage, ref, wcs, dtype, [frames_[i][0] for i in used],
-                   stats, rejected, opts)
-    if output is not None:
-        write_output(ccd, output, overwrite=overwrite)
-    return ccd
+    opts = _feasible_clip(opts, len(used))
+    value, variance, coverage = combine_files(
+        [frames_[i][1] for i in used], stats, shape, opts, gain=gain, read_noise=read_noise,
+        memory_limit=memory_limit)
+    return value, variance, coverage, [frames_[i][0] for i in used], stats, opts
 
 
 def _check_options(method, clip, sigma, sigma_low, sigma_high, maxiters, nlow, nhigh,

@@ -1,0 +1,279 @@
+# Licensed under a 3-clause BSD style license - see LICENSE.rst
+"""
+Colour (Bayer) frames, stacked straight from the camera.
+
+Each raw frame is registered on its grey version (each 2x2 Bayer cell
+summed, `~astroalign_nd.io.bayer.superpixel`), and the transform found is
+expressed in raw pixels (`~astroalign_nd.io.bayer.superpixel_to_raw`), so
+a colour frame registers like a grey one and all its colours share one
+transform.  Then each frame is demosaiced (``colour-demosaicing``, the
+``[colour]`` extra) and each colour is registered and combined as
+`~astroalign_nd.stack` combines grey frames (sky normalisation, rejection,
+weights, the combined uncertainty, within ``memory_limit``).
+
+The stack is an RGB `~astropy.nddata.CCDData` cube ``(3, ny, nx)``
+(red, green, blue planes) with an uncertainty, mask and coverage per
+plane, which `~astropy.nddata.CCDData.read`, ccdproc and FITS viewers read
+as a three-plane colour image.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+from astropy.nddata import CCDData, StdDevUncertainty
+from scipy import ndimage
+
+from .._input import parse_input
+from ..exceptions import AstroalignError
+from ..io import write_ccddata
+from ..io.bayer import bayer_pattern, superpixel, superpixel_to_raw
+from ..registration import Reference, find_transform
+from ..resample import apply_transform
+from .header import stack_ccddata, stack_header
+
+__all__ = ["demosaic", "DEMOSAIC_METHODS", "register_bayer", "colour_ccddata"]
+
+#: The demosaicing methods of ``colour-demosaicing`` offered, best first.
+DEMOSAIC_METHODS = ("Menon2007", "Malvar2004", "bilinear")
+#: A raw colour frame's keywords that no longer describe the stack (it is not a mosaic).
+_BAYER_KEYS = ("BAYERPAT", "XBAYROFF", "YBAYROFF", "ROWORDER")
+
+
+def _demosaicing():
+    try:
+        import colour_demosaicing
+    except ImportError:
+        raise ImportError("demosaicing colour (Bayer) frames needs colour-demosaicing: pip "
+                          "install \"astroalign_nd[colour]\" (or pip install "
+                          "colour-demosaicing).") from None
+    return colour_demosaicing
+
+
+def demosaic(data, pattern, method="Menon2007", mask=None):
+    """
+    Demosaic a raw colour frame with ``colour-demosaicing``.
+
+    Parameters
+    ----------
+    data : 2-D array
+        The raw frame.
+    pattern : str
+        The pattern of its first 2x2 cell
+        (`~astroalign_nd.io.bayer.bayer_pattern`).
+    method : {'Menon2007', 'Malvar2004', 'bilinear'}, optional
+        ``colour-demosaicing``'s algorithm (default 'Menon2007', DDFAPD).
+    mask : 2-D bool array, optional
+        Bad raw pixels (NaN ones are added).  They are filled from their
+        colour's neighbours before demosaicing, and every output pixel
+        within one pixel of one is masked (each is interpolated from its
+        neighbours).
+
+    Returns
+    -------
+    rgb : (ny, nx, 3) float32 ndarray
+        Red, green and blue.
+    mask : (ny, nx) bool ndarray
+
+    Raises
+    ------
+    ImportError
+        Without ``colour-demosaicing`` (the ``[colour]`` extra).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.stacking.colour import demosaic
+    >>> raw = np.tile([[2.0, 4.0], [1.0, 2.0]], (4, 4))  # GRBG: R 4, G 2, B 1
+    >>> rgb, _ = demosaic(raw, "GRBG", method="bilinear")
+    >>> rgb[3, 3].tolist()
+    [4.0, 2.0, 1.0]
+    """
+    if method not in DEMOSAIC_METHODS:
+        raise ValueError(f"demosaic must be one of {', '.join(map(repr, DEMOSAIC_METHODS))}; "
+                         f"got {method!r}.")
+    cd = _demosaicing()
+    raw = np.array(data, dtype=np.float64)
+    bad = ~np.isfinite(raw) if mask is None else (np.asarray(mask, bool) | ~np.isfinite(raw))
+    if bad.any():
+        raw = _fill_bad(raw, bad)
+    fn = {"Menon2007": cd.demosaicing_CFA_Bayer_Menon2007,
+          "Malvar2004": cd.demosaicing_CFA_Bayer_Malvar2004,
+          "bilinear": cd.demosaicing_CFA_Bayer_bilinear}[method]
+    rgb = np.asarray(fn(raw, pattern), dtype=np.float32)
+    return rgb, ndimage.binary_dilation(bad, np.ones((3, 3), bool)) if bad.any() else bad
+
+
+def _fill_bad(raw, bad):
+    """Bad pixels set to the median of the good ones of their colour (two pixels away)."""
+    out = raw.copy()
+    for dy in (0, 1):
+        for dx in (0, 1):
+            plane, b = out[dy::2, dx::2], bad[dy::2, dx::2]
+            if b.all():
+                plane[...] = 0.0
+                continue
+            good = np.where(b, np.nan, plane)
+            filled = ndimage.generic_filter(good, np.nanmedian, size=3, mode="nearest") \
+                if b.sum() < 1e4 else np.full_like(plane, np.nanmedian(good))
+            plane[b] = np.where(np.isfinite(filled[b]), filled[b], np.nanmedian(good))
+    return out
+
+
+def _raw_frame(item, bayer, hdu, unit, name):
+    """A frame read as a raw colour frame: its ParsedInput and the pattern of its first cell."""
+    p = parse_input(item, name, hdu=hdu, unit=unit)
+    if p.data is None or p.data.ndim != 2:
+        shape = None if p.data is None else p.data.shape
+        raise ValueError(f"{name} is not a raw colour frame: a Bayer frame is a 2-D image "
+                         f"(got {'a catalog' if shape is None else f'shape {shape}'}); "
+                         "leave bayer=None for frames that are already in colour or grey.")
+    given = None if bayer == "auto" else bayer
+    return p, bayer_pattern(p.meta, given, shape=p.data.shape)
+
+
+def _grey(p):
+    grey, mask = superpixel(p.data, p.mask)
+    return CCDData(grey, unit=p.unit or "adu", mask=mask)
+
+
+def _registered_planes(p, pattern, transform, shape, method, order, folder, stem):
+    """
+    A frame demosaiced, its planes resampled onto the reference grid with its one
+    transform and written to ``folder``: the three paths.
+    """
+    rgb, bad = demosaic(p.data, pattern, method, p.mask)
+    frame = CCDData(rgb, unit=p.unit or "adu",
+                    mask=np.repeat(bad[..., None], 3, axis=2) if bad.any() else None)
+    if transform is not None:
+        frame = apply_transform(transform, frame, shape, order=order, add_keyword=False)
+    paths = []
+    for c in range(3):
+        path = os.path.join(folder, f"{stem}_{'RGB'[c]}.fits")
+        mask = None if frame.mask is None else frame.mask[..., c]
+        write_ccddata(CCDData(frame.data[..., c], unit=frame.unit, mask=mask), path,
+                      overwrite=True)
+        paths.append(path)
+    return paths
+
+
+def _find_raw_transforms(others, ref, bayer, hdu, unit, options):
+    """
+    Each frame's transform onto the reference, found on grey versions, in raw pixels.
+
+    Yields ``(index, label, ParsedInput, pattern, transform, error)`` one frame at a
+    time (its ParsedInput, pattern and transform None when it failed, and the error
+    then says why).
+    """
+    target = Reference(_grey(ref))
+    for (item, label), k in others:
+        try:
+            p, pattern = _raw_frame(item, bayer, hdu, unit, label or f"frame{k}")
+            t, _ = find_transform(_grey(p), target, **options)
+        except (AstroalignError, ValueError, OSError) as exc:
+            yield k, label, None, None, None, f"{type(exc).__name__}: {exc}"
+            continue
+        yield k, label, p, pattern, superpixel_to_raw(t), None
+
+
+def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order, options):
+    """
+    Raw colour frames registered on their grey versions, demosaiced, and their
+    colours resampled onto the reference's grid with each frame's one transform.
+
+    One frame at a time: each is read, registered, demosaiced and written as three
+    files (red, green, blue) in ``folder``.
+
+    Parameters
+    ----------
+    ref_item : (frame, index, label)
+        The reference, as `~astroalign_nd.stack` splits it from the frames.
+    others : list of ((frame, label), index)
+        The other frames.
+    folder : str
+    bayer : str
+        'auto' (each frame's ``BAYERPAT``...) or the pattern of every frame's
+        first 2x2 cell.
+    method : str
+        The demosaicing method (`DEMOSAIC_METHODS`).
+    hdu, unit, order
+        As in `~astroalign_nd.stack`.
+    options : dict
+        Registration options (``transform_type``, detection and matching).
+
+    Returns
+    -------
+    channels : list of 3 lists of (name, path, index)
+        For each colour, the reference's plane first, then every frame
+        registered.
+    rejected : list of (name, reason)
+        The frames left out, and why.
+    reference : `~astroalign_nd._input.ParsedInput`
+        The reference as read.
+    pattern : str
+        The reference's pattern.
+    """
+    ref_name = ref_item[2] or "reference"
+    ref, pattern = _raw_frame(ref_item[0], bayer, hdu, unit, ref_name)
+    shape = ref.data.shape
+    planes = _registered_planes(ref, pattern, None, shape, method, order, folder, "reference")
+    channels = [[(f"{os.path.basename(ref_name)} (reference)", path, ref_item[1])]
+                for path in planes]
+    rejected = []
+    found = _find_raw_transforms(others, ref, bayer, hdu, unit, options)
+    for k, label, p, pat, transform, error in found:
+        name = os.path.basename(label) if label else f"frame{k}"
+        if error is not None:
+            rejected.append((name, error))
+            continue
+        planes = _registered_planes(p, pat, transform, shape, method, order, folder,
+                                    f"frame{k:05d}")
+        for c, path in enumerate(planes):
+            channels[c].append((name, path, k))
+    return channels, rejected, ref, pattern
+
+
+def colour_ccddata(channels, *, meta, wcs, unit, dtype, rejected, settings):
+    """
+    The RGB stack as a CCDData cube ``(3, ny, nx)``.
+
+    Parameters
+    ----------
+    channels : list of 3 tuples
+        For red, green and blue: ``(value, variance, coverage, names, stats)``
+        as `~astroalign_nd.stack` combines one colour.
+    meta : dict-like
+        The reference's header (its Bayer keywords are dropped: the stack is
+        not a mosaic).
+    wcs : `~astropy.wcs.WCS` or None
+    unit, dtype
+        The stack's unit and data type.
+    rejected : list of (name, reason)
+    settings : dict
+        ``{keyword: (value, comment)}`` of the stack's settings.
+
+    Returns
+    -------
+    cube : `~astropy.nddata.CCDData`
+        ``data``, ``uncertainty`` (`~astropy.nddata.StdDevUncertainty`),
+        ``mask`` and ``flags`` (the frames reaching each pixel) of shape
+        ``(3, ny, nx)``; ``meta`` lists the frames of the green plane, and
+        HISTORY each plane's.
+    """
+    meta = {k: v for k, v in dict(meta).items() if k not in _BAYER_KEYS}
+    planes = [stack_ccddata(value, variance, coverage, meta={}, names=names, stats=stats,
+                            rejected=[], settings={}, wcs=None, unit=unit, dtype=dtype)
+              for value, variance, coverage, names, stats in channels]
+    header = stack_header(meta, [{"name": n} for n in channels[1][3]], rejected, settings)
+    header["AACHANS"] = ("R,G,B", "colour of each plane of the cube")
+    for colour, (_, _, _, names, stats) in zip("RGB", channels):
+        for name, st in zip(names, stats):
+            header.add_history(f"{colour}: {name} sky offset {st.offset:.6g} scale "
+                               f"{st.scale:.6g} weight {st.weight:.6g} rejected "
+                               f"{st.n_rejected} px")
+    return CCDData(np.stack([pl.data for pl in planes]), unit=unit,
+                   mask=np.stack([pl.mask for pl in planes]),
+                   uncertainty=StdDevUncertainty(np.stack([pl.uncertainty.array
+                                                           for pl in planes])),
+                   flags=np.stack([pl.flags for pl in planes]), wcs=wcs, meta=header)
