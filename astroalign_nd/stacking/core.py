@@ -149,8 +149,8 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     stacked : `~astropy.nddata.CCDData`
         The combined image (with ``bayer``, an RGB cube ``(3, ny, nx)``:
         red, green and blue planes, each with its uncertainty, mask and
-        coverage; `astroalign_nd.stacking.colour`); ``uncertainty`` a `~astropy.nddata.StdDevUncertainty`
-        combined from the frames'; ``mask`` True only where no frame
+        coverage; `astroalign_nd.stacking.colour`); ``uncertainty`` a
+        `~astropy.nddata.StdDevUncertainty` combined from the frames'; ``mask`` True only where no frame
         reaches (a pixel masked in some frames is combined from the others);
         ``flags`` the number of frames reaching each pixel; ``meta`` the
         reference's header with ``NCOMBINE``, ``IMCMBnnn`` (every frame
