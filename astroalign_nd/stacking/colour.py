@@ -19,6 +19,7 @@ as a three-plane colour image.
 
 from __future__ import annotations
 
+import itertools
 import os
 
 import numpy as np
@@ -28,12 +29,15 @@ from scipy import ndimage
 from .._input import parse_input
 from ..exceptions import AstroalignError
 from ..io import write_ccddata
-from ..io.bayer import bayer_pattern, superpixel, superpixel_to_raw
+from ..io.bayer import bayer_channels, bayer_pattern, superpixel, superpixel_to_raw
 from ..registration import Reference, find_transform
 from ..resample import apply_transform
+from .combine import array_stats, frame_variance, frame_weights, normalise
+from .drizzle import DrizzleAccumulator, output_shape, pixel_map, weight_map
 from .header import stack_ccddata, stack_header
 
-__all__ = ["demosaic", "DEMOSAIC_METHODS", "register_bayer", "colour_ccddata"]
+__all__ = ["demosaic", "DEMOSAIC_METHODS", "register_bayer", "drizzle_bayer",
+           "colour_ccddata"]
 
 #: The demosaicing methods of ``colour-demosaicing`` offered, best first.
 DEMOSAIC_METHODS = ("Menon2007", "Malvar2004", "bilinear")
@@ -231,6 +235,99 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
                                     f"frame{k:05d}")
         for c, path in enumerate(planes):
             channels[c].append((name, path, k))
+    return channels, rejected, ref, pattern
+
+
+def _colour_stats(data, valid, channels, gain, read_noise, normalize, ref_stats, weight):
+    """
+    Each colour's sky, noise, normalisation and weight on one raw frame (``ref_stats``
+    None for the reference, whose skies the others are brought to).
+    """
+    out = []
+    for c in range(3):
+        st = array_stats(data, None, valid & (channels == c))
+        normalise(st, st.sky if ref_stats is None else ref_stats[c].sky, normalize)
+        if weight is None:
+            frame_weights([st], "variance", gain, read_noise)
+        else:
+            st.weight = float(weight)
+        out.append(st)
+    return out
+
+
+def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize, weights,
+                  gain, read_noise, hdu, unit, options):
+    """
+    Bayer drizzle: each colour's raw pixels dropped at their true positions.
+
+    Each frame is registered on its grey version (as `register_bayer` does),
+    its colours' skies brought to the reference's (``normalize``), and each
+    colour drizzled (`~astroalign_nd.stacking.drizzle.DrizzleAccumulator`)
+    with the frame's one pixel map and a weight map that is zero on the
+    other colours' pixels: no demosaicing, no interpolation.  One frame at a
+    time.
+
+    Parameters
+    ----------
+    ref_item, others, bayer, hdu, unit, options
+        As in `register_bayer`.
+    scale, pixfrac, kernel
+        Drizzle's output scale, drop size and kernel.
+    normalize : {'offset', 'scale', None}
+        As in `~astroalign_nd.stack`, per colour.
+    weights : 'variance', None or (n_frames,) ndarray
+        As in `~astroalign_nd.stack` (per frame; 'variance' per colour).
+    gain, read_noise : float or None
+        The frames' variance model (else each colour's measured sky noise).
+
+    Returns
+    -------
+    channels : list of 3 tuples
+        ``(value, variance, coverage, names, stats)`` for red, green, blue,
+        as `colour_ccddata` takes them (counts per output pixel).
+    rejected : list of (name, reason)
+    reference : `~astroalign_nd._input.ParsedInput`
+    pattern : str
+    """
+    ref_name = ref_item[2] or "reference"
+    ref, pattern = _raw_frame(ref_item[0], bayer, hdu, unit, ref_name)
+    shape = ref.data.shape
+    out_shape = output_shape(shape, scale)
+    accs = [DrizzleAccumulator(out_shape, scale, pixfrac, kernel) for _ in range(3)]
+    names, stats, rejected, ref_stats = [], [[], [], []], [], None
+    frames = [(0, ref_item[2], ref, pattern, None, None)]
+    found = _find_raw_transforms(others, ref, bayer, hdu, unit, options)
+    for k, label, p, pat, transform, error in itertools.chain(frames, found):
+        k = ref_item[1] if transform is None and error is None else k
+        name = os.path.basename(label) if label else f"frame{k}"
+        if error is not None:
+            rejected.append((name, error))
+            continue
+        data = np.asarray(p.data, dtype=np.float64)
+        channels = bayer_channels(data.shape, pat)
+        valid = weight_map(data, p.mask) > 0
+        w = None if isinstance(weights, str) or weights is None else weights[k]
+        try:
+            st = _colour_stats(data, valid, channels, gain, read_noise, normalize, ref_stats,
+                               1.0 if weights is None else w)
+        except ValueError as exc:
+            if ref_stats is None:
+                raise ValueError(f"the reference cannot be stacked: {exc}") from None
+            rejected.append((name, f"ValueError: {exc}"))
+            continue
+        ref_stats = st if ref_stats is None else ref_stats
+        pm = pixel_map(transform, data.shape, scale)
+        for c in range(3):
+            sel = valid & (channels == c)
+            var = frame_variance(data, None, st[c], gain, read_noise) * st[c].scale ** 2
+            accs[c].add(data * st[c].scale - st[c].offset, pm,
+                        np.where(sel, np.float32(st[c].weight), np.float32(0.0)), var)
+            stats[c].append(st[c])
+        names.append(name if transform is not None else f"{name} (reference)")
+    channels = []
+    for acc, st in zip(accs, stats):
+        pl = acc.planes()
+        channels.append((pl.value, pl.variance, pl.count, names, st))
     return channels, rejected, ref, pattern
 
 

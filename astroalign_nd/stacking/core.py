@@ -24,7 +24,9 @@ from ..io.write import check_not_input, check_output_path
 from ..io.writers import output_suffixes
 from .combine import (CLIP_METHODS, NORMALIZE_METHODS, STACK_METHODS, CombineOptions,
                       combine_files, frame_stats, frame_weights, normalise)
-from .colour import DEMOSAIC_METHODS, _demosaicing, colour_ccddata, register_bayer
+from .colour import (DEMOSAIC_METHODS, _demosaicing, colour_ccddata, drizzle_bayer,
+                     register_bayer)
+from .drizzle import check_drizzle_options
 from .header import stack_ccddata
 
 __all__ = ["stack"]
@@ -44,6 +46,7 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
           workers: int | None = None, progress: bool = False, hdu: int | str | None = None,
           unit: Any = None, order: str | int = "bilinear", dtype: Any = np.float32,
           bayer: str | None = None, demosaic: str = "Menon2007",
+          drizzle: float | None = None, pixfrac: float = 1.0, kernel: str = "square",
           **options: Any) -> CCDData:
     """
     Register frames onto a reference and combine them into one deep image.
@@ -143,6 +146,16 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     demosaic : {'Menon2007', 'Malvar2004', 'bilinear'}, optional
         ``colour-demosaicing``'s algorithm for ``bayer`` frames (default
         'Menon2007').
+    drizzle : float, optional
+        With ``bayer``: Bayer drizzle at this output scale (output pixels
+        per reference pixel, e.g. 2) instead of demosaicing: each colour's
+        raw pixels are dropped at their true positions by the ``drizzle``
+        package, with a weight that is zero on the other colours' pixels
+        (`astroalign_nd.stacking.colour.drizzle_bayer`).  The output is in
+        counts per output pixel (flux conserving); no rejection is made.
+    pixfrac, kernel : optional
+        Drizzle's drop size (the linear fraction of an input pixel, default
+        1) and kernel (default 'square').
 
     Returns
     -------
@@ -150,8 +163,9 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         The combined image (with ``bayer``, an RGB cube ``(3, ny, nx)``:
         red, green and blue planes, each with its uncertainty, mask and
         coverage; `astroalign_nd.stacking.colour`); ``uncertainty`` a
-        `~astropy.nddata.StdDevUncertainty` combined from the frames'; ``mask`` True only where no frame
-        reaches (a pixel masked in some frames is combined from the others);
+        `~astropy.nddata.StdDevUncertainty` combined from the frames';
+        ``mask`` True only where no frame reaches (a pixel masked in some
+        frames is combined from the others);
         ``flags`` the number of frames reaching each pixel; ``meta`` the
         reference's header with ``NCOMBINE``, ``IMCMBnnn`` (every frame
         combined, with its sky offset ``AASKYnnn``, scale ``AASCLnnn``,
@@ -189,7 +203,16 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     others = _once(others, ref_item)
     weights = _check_weights(weights, n_frames)
     _check_outputs(output, overwrite, items, ref_item)
-    if bayer is not None:
+    if drizzle is not None and bayer is None:
+        raise ValueError("drizzle= needs bayer= in this version (Bayer drizzle of raw colour "
+                         "frames); stack grey frames without drizzle.")
+    if drizzle is not None:
+        scale, pixfrac, kernel = check_drizzle_options(drizzle, pixfrac, kernel)
+        ccd = _drizzle_bayer(ref_item, others, opts, weights, gain, read_noise, hdu, unit,
+                             dtype, options, bayer=_check_bayer(bayer, demosaic, canvas),
+                             drizzle=(scale, pixfrac, kernel))
+    elif bayer is not None:
+        _demosaicing()  # the [colour] extra's ImportError before any work
         ccd = _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit,
                            aligned_dir, temp_dir, hdu, unit, order, dtype, options,
                            bayer=_check_bayer(bayer, demosaic, canvas), method=demosaic)
@@ -247,11 +270,34 @@ def _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit
                           dtype=dtype, rejected=all_rejected, settings=settings)
 
 
+def _drizzle_bayer(ref_item, others, opts, weights, gain, read_noise, hdu, unit, dtype,
+                   options, *, bayer, drizzle):
+    """Raw colour frames registered on their grey versions and Bayer-drizzled."""
+    scale, pixfrac, kernel = drizzle
+    channels, rejected, ref, pattern = drizzle_bayer(
+        ref_item, others, bayer=bayer, scale=scale, pixfrac=pixfrac, kernel=kernel,
+        normalize=opts.normalize, weights=weights, gain=gain, read_noise=read_noise, hdu=hdu,
+        unit=unit, options=options)
+    _check_registered(others, len(channels[0][3]) - 1, rejected)
+    for name, why in rejected:
+        warn(f"{name} was left out of the stack: {why}")
+    settings = {"AASTKMTH": ("drizzle", "astroalign_nd stack: combination"),
+                "AASTKNRM": (opts.normalize or "none", "sky normalisation"),
+                "AADRZSCL": (scale, "drizzle: output pixels per input pixel"),
+                "AADRZPIX": (pixfrac, "drizzle: pixfrac"),
+                "AADRZKER": (kernel, "drizzle: kernel"),
+                "AABAYER": (pattern, "Bayer pattern of the reference's first cell")}
+    if ref.wcs is not None:
+        warn("the reference's WCS is not carried onto the drizzled grid in this version; "
+             "the stack has no WCS.")
+    return colour_ccddata(channels, meta=ref.meta, wcs=None, unit=ref.unit or "adu",
+                          dtype=dtype, rejected=rejected, settings=settings)
+
+
 def _check_bayer(bayer, demosaic, canvas):
     """``bayer`` and ``demosaic`` checked before any work."""
     if bayer != "auto":
         bayer = bayer_pattern(pattern=bayer)
-    _demosaicing()  # the extra's ImportError before any work
     if demosaic not in DEMOSAIC_METHODS:
         raise ValueError(f"demosaic must be one of {', '.join(map(repr, DEMOSAIC_METHODS))}; "
                          f"got {demosaic!r}.")
