@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import warnings
 
 import numpy as np
 from astropy.nddata import CCDData, StdDevUncertainty
@@ -36,7 +37,8 @@ from .combine import array_stats, frame_variance, frame_weights, normalise
 from .drizzle import DrizzleAccumulator, output_shape, pixel_map, weight_map
 from .header import stack_ccddata, stack_header
 
-__all__ = ["demosaic", "DEMOSAIC_METHODS", "register_bayer", "drizzle_bayer",
+__all__ = ["find_bayer_transform", "demosaic", "DEMOSAIC_METHODS", "register_bayer",
+           "drizzle_bayer",
            "colour_ccddata"]
 
 #: The demosaicing methods of ``colour-demosaicing`` offered, best first.
@@ -47,7 +49,9 @@ _BAYER_KEYS = ("BAYERPAT", "XBAYROFF", "YBAYROFF", "ROWORDER")
 
 def _demosaicing():
     try:
-        import colour_demosaicing
+        with warnings.catch_warnings():  # its own imports of deprecated scipy namespaces
+            warnings.simplefilter("ignore", DeprecationWarning)
+            import colour_demosaicing
     except ImportError:
         raise ImportError("demosaicing colour (Bayer) frames needs colour-demosaicing: pip "
                           "install \"astroalign_nd[colour]\" (or pip install "
@@ -160,6 +164,52 @@ def _registered_planes(p, pattern, transform, shape, method, order, folder, stem
                       overwrite=True)
         paths.append(path)
     return paths
+
+
+def find_bayer_transform(source, target, *, bayer="auto", hdu=None, unit=None, **options):
+    """
+    The transform of a raw colour frame onto another, in raw pixels.
+
+    Both frames are registered on their grey versions (2x2 cells summed,
+    `~astroalign_nd.io.bayer.superpixel`), as grey frames are, and the
+    transform found is expressed in the raw frames' pixel coordinates
+    (`~astroalign_nd.io.bayer.superpixel_to_raw`): one transform for all
+    the colours of the frame.
+
+    Parameters
+    ----------
+    source, target : path, array-like or `~astropy.nddata.NDData`
+        Raw colour frames (2-D).
+    bayer : str, optional
+        'auto' (each frame's ``BAYERPAT``; default) or the pattern of the
+        frames' first 2x2 cell; only checked here (the grey versions do not
+        depend on it).
+    hdu, unit
+        As in `~astroalign_nd.find_transform`.
+    **options
+        `~astroalign_nd.find_transform`'s options (``transform_type``...).
+
+    Returns
+    -------
+    transform : `~astroalign_nd.transforms.LinearTransform2D` or model
+        Source raw pixels -> target raw pixels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.simulate import bayer_mosaic, dither_transforms, simulate_views
+    >>> from astroalign_nd.stacking.colour import find_bayer_transform
+    >>> views = simulate_views(dither_transforms(2, max_shift=5, shape=(160, 160), seed=1),
+    ...                        (160, 160), n_stars=80, fwhm=2.5, seed=2)
+    >>> raw = [bayer_mosaic(f, "GRBG") for f in views.frames]
+    >>> t = find_bayer_transform(raw[1], raw[0])
+    >>> bool(np.abs(t.matrix - views.truth(1, 0).matrix).max() < 0.3)
+    True
+    """
+    src, _ = _raw_frame(source, bayer, hdu, unit, "source")
+    dst, _ = _raw_frame(target, bayer, hdu, unit, "target")
+    t, _ = find_transform(_grey(src), _grey(dst), **options)
+    return superpixel_to_raw(t)
 
 
 def _find_raw_transforms(others, ref, bayer, hdu, unit, options):
