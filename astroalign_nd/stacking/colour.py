@@ -2,11 +2,10 @@
 """
 Colour (Bayer) frames, stacked straight from the camera.
 
-Each raw frame is registered on its grey version (each 2x2 Bayer cell
-summed, `~astroalign_nd.io.bayer.superpixel`), and the transform found is
-expressed in raw pixels (`~astroalign_nd.io.bayer.superpixel_to_raw`), so
-a colour frame registers like a grey one and all its colours share one
-transform.  Then each frame is demosaiced (``colour-demosaicing``, the
+Each raw frame is registered on its grey version (each colour scaled to
+green's response to starlight, `~astroalign_nd.io.bayer.balanced_grey`),
+so a colour frame registers like a grey one, in raw pixels, and all its
+colours share one transform.  Then each frame is demosaiced (``colour-demosaicing``, the
 ``[colour]`` extra) and each colour is registered and combined as
 `~astroalign_nd.stack` combines grey frames (sky normalisation, rejection,
 weights, the combined uncertainty, within ``memory_limit``).
@@ -30,14 +29,16 @@ from scipy import ndimage
 from .._input import parse_input
 from ..exceptions import AstroalignError
 from ..io import write_ccddata
-from ..io.bayer import bayer_channels, bayer_pattern, superpixel, superpixel_to_raw
+from ..io.bayer import (balanced_grey, bayer_channels, bayer_pattern, superpixel,
+                        superpixel_to_raw)
 from ..registration import Reference, find_transform
 from ..resample import apply_transform
 from .combine import array_stats, frame_variance, frame_weights, normalise
 from .drizzle import DrizzleAccumulator, output_shape, pixel_map, weight_map
 from .header import stack_ccddata, stack_header
 
-__all__ = ["find_bayer_transform", "demosaic", "DEMOSAIC_METHODS", "register_bayer",
+__all__ = ["find_bayer_transform", "GREY_VERSIONS", "demosaic", "DEMOSAIC_METHODS",
+           "register_bayer",
            "drizzle_bayer",
            "colour_ccddata"]
 
@@ -141,9 +142,17 @@ def _raw_frame(item, bayer, hdu, unit, name):
     return p, bayer_pattern(p.meta, given, shape=p.data.shape)
 
 
-def _grey(p):
-    grey, mask = superpixel(p.data, p.mask)
-    return CCDData(grey, unit=p.unit or "adu", mask=mask)
+#: The grey versions of a raw frame that it can be registered on.
+GREY_VERSIONS = ("balanced", "superpixel")
+
+
+def _grey(p, pattern, grey="balanced"):
+    """A raw frame's grey version, as a CCDData (and the transform's conversion to raw)."""
+    if grey == "superpixel":
+        data, mask = superpixel(p.data, p.mask)
+        return CCDData(data, unit=p.unit or "adu", mask=mask), superpixel_to_raw
+    return (CCDData(balanced_grey(p.data, pattern, p.mask), unit=p.unit or "adu",
+                    mask=p.mask), lambda t: t)
 
 
 def _registered_planes(p, pattern, transform, shape, method, order, folder, stem):
@@ -166,15 +175,13 @@ def _registered_planes(p, pattern, transform, shape, method, order, folder, stem
     return paths
 
 
-def find_bayer_transform(source, target, *, bayer="auto", hdu=None, unit=None, **options):
+def find_bayer_transform(source, target, *, bayer="auto", grey="balanced", hdu=None, unit=None,
+                         **options):
     """
     The transform of a raw colour frame onto another, in raw pixels.
 
-    Both frames are registered on their grey versions (2x2 cells summed,
-    `~astroalign_nd.io.bayer.superpixel`), as grey frames are, and the
-    transform found is expressed in the raw frames' pixel coordinates
-    (`~astroalign_nd.io.bayer.superpixel_to_raw`): one transform for all
-    the colours of the frame.
+    Both frames are registered on their grey versions, as grey frames are:
+    one transform for all the colours of the frame.
 
     Parameters
     ----------
@@ -182,8 +189,16 @@ def find_bayer_transform(source, target, *, bayer="auto", hdu=None, unit=None, *
         Raw colour frames (2-D).
     bayer : str, optional
         'auto' (each frame's ``BAYERPAT``; default) or the pattern of the
-        frames' first 2x2 cell; only checked here (the grey versions do not
-        depend on it).
+        frames' first 2x2 cell.
+    grey : {'balanced', 'superpixel'}, optional
+        The grey version: 'balanced' (default) each colour scaled to green's
+        response at full resolution (`~astroalign_nd.io.bayer.balanced_grey`);
+        'superpixel' each 2x2 cell summed (`~astroalign_nd.io.bayer.superpixel`,
+        a quarter of the pixels), the transform then converted to raw pixels
+        (`~astroalign_nd.io.bayer.superpixel_to_raw`).  On undersampled
+        stars (2.2 raw px) the balanced version is about ten times as
+        precise (0.01 against 0.1 to 0.6 px on simulated frames): the
+        superpixels halve a sampling that is already too coarse.
     hdu, unit
         As in `~astroalign_nd.find_transform`.
     **options
@@ -206,13 +221,18 @@ def find_bayer_transform(source, target, *, bayer="auto", hdu=None, unit=None, *
     >>> bool(np.abs(t.matrix - views.truth(1, 0).matrix).max() < 0.3)
     True
     """
-    src, _ = _raw_frame(source, bayer, hdu, unit, "source")
-    dst, _ = _raw_frame(target, bayer, hdu, unit, "target")
-    t, _ = find_transform(_grey(src), _grey(dst), **options)
-    return superpixel_to_raw(t)
+    if grey not in GREY_VERSIONS:
+        raise ValueError(f"grey must be one of {', '.join(map(repr, GREY_VERSIONS))}; got "
+                         f"{grey!r}.")
+    src, src_pattern = _raw_frame(source, bayer, hdu, unit, "source")
+    dst, dst_pattern = _raw_frame(target, bayer, hdu, unit, "target")
+    (src_grey, to_raw), (dst_grey, _) = _grey(src, src_pattern, grey), _grey(dst, dst_pattern,
+                                                                             grey)
+    t, _ = find_transform(src_grey, dst_grey, **options)
+    return to_raw(t)
 
 
-def _find_raw_transforms(others, ref, bayer, hdu, unit, options):
+def _find_raw_transforms(others, ref, ref_pattern, bayer, hdu, unit, options):
     """
     Each frame's transform onto the reference, found on grey versions, in raw pixels.
 
@@ -220,15 +240,15 @@ def _find_raw_transforms(others, ref, bayer, hdu, unit, options):
     time (its ParsedInput, pattern and transform None when it failed, and the error
     then says why).
     """
-    target = Reference(_grey(ref))
+    target = Reference(_grey(ref, ref_pattern)[0])
     for (item, label), k in others:
         try:
             p, pattern = _raw_frame(item, bayer, hdu, unit, label or f"frame{k}")
-            t, _ = find_transform(_grey(p), target, **options)
+            t, _ = find_transform(_grey(p, pattern)[0], target, **options)
         except (AstroalignError, ValueError, OSError) as exc:
             yield k, label, None, None, None, f"{type(exc).__name__}: {exc}"
             continue
-        yield k, label, p, pattern, superpixel_to_raw(t), None
+        yield k, label, p, pattern, t, None
 
 
 def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order, options):
@@ -275,7 +295,7 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
     channels = [[(f"{os.path.basename(ref_name)} (reference)", path, ref_item[1])]
                 for path in planes]
     rejected = []
-    found = _find_raw_transforms(others, ref, bayer, hdu, unit, options)
+    found = _find_raw_transforms(others, ref, pattern, bayer, hdu, unit, options)
     for k, label, p, pat, transform, error in found:
         name = os.path.basename(label) if label else f"frame{k}"
         if error is not None:
@@ -346,7 +366,7 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
     accs = [DrizzleAccumulator(out_shape, scale, pixfrac, kernel) for _ in range(3)]
     names, stats, rejected, ref_stats = [], [[], [], []], [], None
     frames = [(0, ref_item[2], ref, pattern, None, None)]
-    found = _find_raw_transforms(others, ref, bayer, hdu, unit, options)
+    found = _find_raw_transforms(others, ref, pattern, bayer, hdu, unit, options)
     for k, label, p, pat, transform, error in itertools.chain(frames, found):
         k = ref_item[1] if transform is None and error is None else k
         name = os.path.basename(label) if label else f"frame{k}"
