@@ -45,7 +45,30 @@ def add_parser(sub, reg_opts):
     p.add_argument("--no-progress", dest="progress", action="store_false",
                    help="never show a progress bar")
     _add_combine_options(p)
+    _add_colour_options(p)
     return p
+
+
+def _add_colour_options(p):
+    g = p.add_argument_group(
+        "colour (Bayer) frames",
+        "raw frames of a one-shot-colour camera: registered on a grey version, then "
+        "demosaiced and stacked per colour, or Bayer-drizzled (--drizzle); OUT is an RGB "
+        "cube (3 planes)")
+    g.add_argument("--bayer", metavar="PATTERN", type=str.upper, default=None,
+                   choices=("AUTO", "RGGB", "BGGR", "GRBG", "GBRG"),
+                   help="the frames' Bayer pattern (the colours of the first 2x2 cell), or "
+                        "auto: each frame's BAYERPAT (XBAYROFF, YBAYROFF, ROWORDER)")
+    g.add_argument("--demosaic", choices=("Menon2007", "Malvar2004", "bilinear"),
+                   default="Menon2007", help="colour-demosaicing's method (default: "
+                                             "%(default)s)")
+    g.add_argument("--drizzle", type=float, default=None, metavar="SCALE",
+                   help="Bayer drizzle at SCALE output pixels per input pixel (e.g. 2) "
+                        "instead of demosaicing")
+    g.add_argument("--pixfrac", type=float, default=1.0,
+                   help="drizzle's drop size, a fraction of a pixel (default: %(default)s)")
+    g.add_argument("--kernel", default="square",
+                   help="drizzle's kernel (default: %(default)s)")
 
 
 def _add_combine_options(p):
@@ -96,6 +119,9 @@ def _cmd_stack(args):
                         memory_limit=args.memory_limit * 1e6, output=args.output,
                         overwrite=args.overwrite, aligned_dir=args.aligned_dir,
                         workers=args.workers or None, unit=args.unit, progress=progress,
+                        bayer=None if args.bayer is None else args.bayer.replace(
+                            "AUTO", "auto"), demosaic=args.demosaic, drizzle=args.drizzle,
+                        pixfrac=args.pixfrac, kernel=args.kernel,
                         **_registration_kwargs(args))
     except AstroalignError as exc:
         print(f"{_PROG}: registration refused: {exc}", file=sys.stderr)

@@ -155,7 +155,7 @@ def _grey(p, pattern, grey="balanced"):
                     mask=p.mask), lambda t: t)
 
 
-def _registered_planes(p, pattern, transform, shape, method, order, folder, stem):
+def _registered_planes(p, pattern, transform, shape, method, order, folder, stem, resampling):
     """
     A frame demosaiced, its planes resampled onto the reference grid with its one
     transform and written to ``folder``: the three paths.
@@ -164,7 +164,8 @@ def _registered_planes(p, pattern, transform, shape, method, order, folder, stem
     frame = CCDData(rgb, unit=p.unit or "adu",
                     mask=np.repeat(bad[..., None], 3, axis=2) if bad.any() else None)
     if transform is not None:
-        frame = apply_transform(transform, frame, shape, order=order, add_keyword=False)
+        frame = apply_transform(transform, frame, shape, order=order, add_keyword=False,
+                                **resampling)
     paths = []
     for c in range(3):
         path = os.path.join(folder, f"{stem}_{'RGB'[c]}.fits")
@@ -251,7 +252,8 @@ def _find_raw_transforms(others, ref, ref_pattern, bayer, hdu, unit, options):
         yield k, label, p, pattern, t, None
 
 
-def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order, options):
+def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order, options,
+                   resampling=None):
     """
     Raw colour frames registered on their grey versions, demosaiced, and their
     colours resampled onto the reference's grid with each frame's one transform.
@@ -275,6 +277,8 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
         As in `~astroalign_nd.stack`.
     options : dict
         Registration options (``transform_type``, detection and matching).
+    resampling : dict, optional
+        `~astroalign_nd.apply_transform`'s ``conserve_flux`` and ``fill_value``.
 
     Returns
     -------
@@ -291,7 +295,9 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
     ref_name = ref_item[2] or "reference"
     ref, pattern = _raw_frame(ref_item[0], bayer, hdu, unit, ref_name)
     shape = ref.data.shape
-    planes = _registered_planes(ref, pattern, None, shape, method, order, folder, "reference")
+    resampling = resampling or {}
+    planes = _registered_planes(ref, pattern, None, shape, method, order, folder, "reference",
+                                resampling)
     channels = [[(f"{os.path.basename(ref_name)} (reference)", path, ref_item[1])]
                 for path in planes]
     rejected = []
@@ -302,7 +308,7 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
             rejected.append((name, error))
             continue
         planes = _registered_planes(p, pat, transform, shape, method, order, folder,
-                                    f"frame{k:05d}")
+                                    f"frame{k:05d}", resampling)
         for c, path in enumerate(planes):
             channels[c].append((name, path, k))
     return channels, rejected, ref, pattern

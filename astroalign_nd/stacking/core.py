@@ -206,20 +206,23 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     if drizzle is not None and bayer is None:
         raise ValueError("drizzle= needs bayer= in this version (Bayer drizzle of raw colour "
                          "frames); stack grey frames without drizzle.")
+    # Resampling's options (the command line passes them): the demosaiced planes' only.
+    resampling = {k: options.pop(k) for k in ("conserve_flux", "fill_value") if k in options}
     if drizzle is not None:
         scale, pixfrac, kernel = check_drizzle_options(drizzle, pixfrac, kernel)
         ccd = _drizzle_bayer(ref_item, others, opts, weights, gain, read_noise, hdu, unit,
                              dtype, options, bayer=_check_bayer(bayer, demosaic, canvas),
                              drizzle=(scale, pixfrac, kernel))
     elif bayer is not None:
+        bayer = _check_bayer(bayer, demosaic, canvas)
         _demosaicing()  # the [colour] extra's ImportError before any work
         ccd = _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit,
-                           aligned_dir, temp_dir, hdu, unit, order, dtype, options,
-                           bayer=_check_bayer(bayer, demosaic, canvas), method=demosaic)
+                           aligned_dir, temp_dir, hdu, unit, order, dtype, options, resampling,
+                           bayer=bayer, method=demosaic)
     else:
         ccd = _stack_grey(ref_item, others, opts, weights, gain, read_noise, memory_limit,
                           aligned_dir, temp_dir, canvas, overwrite, workers, progress, hdu,
-                          unit, order, dtype, options)
+                          unit, order, dtype, {**options, **resampling})
     if output is not None:
         write_output(ccd, output, overwrite=overwrite)
     return ccd
@@ -248,12 +251,12 @@ def _stack_grey(ref_item, others, opts, weights, gain, read_noise, memory_limit,
 
 
 def _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit, aligned_dir,
-                 temp_dir, hdu, unit, order, dtype, options, *, bayer, method):
+                 temp_dir, hdu, unit, order, dtype, options, resampling, *, bayer, method):
     """Raw colour frames registered on their grey versions, demosaiced, combined per colour."""
     with _aligned_folder(aligned_dir, temp_dir) as folder:
         channels, rejected, ref, pattern = register_bayer(
             ref_item, others, folder, bayer=bayer, method=method, hdu=hdu, unit=unit,
-            order=order, options=options)
+            order=order, options=options, resampling=resampling)
         _check_registered(others, len(channels[0]) - 1, rejected)
         combined, all_rejected = [], list(rejected)
         for frames_ in channels:

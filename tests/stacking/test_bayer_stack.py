@@ -9,7 +9,9 @@ import pytest
 from astropy.nddata import CCDData
 from photutils.centroids import centroid_com
 
+from _helpers import run_cli
 from astroalign_nd import stack
+from astroalign_nd.io import write_ccddata
 from astroalign_nd.simulate import bayer_mosaic, dither_transforms, simulate_views
 from astroalign_nd.stacking.colour import find_bayer_transform
 
@@ -119,3 +121,19 @@ def test_bayer_options_are_checked(raws):
         stack([CCDData(r.data, unit="adu") for r in raws[:2]], bayer="auto", drizzle=2)
     with pytest.raises(ValueError, match="pixfrac"):
         stack(raws[:2], bayer="auto", drizzle=2, pixfrac=1.5)
+
+
+def test_command_line_bayer_drizzle(raws, tmp_path):
+    """``astroalign-nd stack --bayer GRBG --drizzle 2``: an RGB cube at twice the size."""
+    paths = []
+    for k, raw in enumerate(raws[:3]):
+        paths.append(tmp_path / f"raw{k}.fits")
+        write_ccddata(raw, paths[-1])
+    out = tmp_path / "rgb.fits"
+    code, stdout, _ = run_cli("stack", *paths, "-o", out, "--bayer", "GRBG", "--drizzle", 2,
+                              "--pixfrac", 1.0)
+    assert code == 0 and "3 frames combined" in stdout
+    cube = CCDData.read(out)
+    assert cube.shape == (3, 2 * SHAPE[0], 2 * SHAPE[1]) and cube.meta["AABAYER"] == "GRBG"
+    code, _, stderr = run_cli("stack", *paths, "-o", tmp_path / "x.fits", "--bayer", "CYMG")
+    assert code == 2 and "invalid choice: 'CYMG'" in stderr
