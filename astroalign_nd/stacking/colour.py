@@ -287,7 +287,7 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
         registered.
     rejected : list of (name, reason)
         The frames left out, and why.
-    reference : `~astroalign_nd._input.ParsedInput`
+    reference : ``ParsedInput``
         The reference as read.
     pattern : str
         The reference's pattern.
@@ -338,7 +338,7 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
 
     Each frame is registered on its grey version (as `register_bayer` does),
     its colours' skies brought to the reference's (``normalize``), and each
-    colour drizzled (`~astroalign_nd.stacking.drizzle.DrizzleAccumulator`)
+    colour drizzled (``astroalign_nd.stacking.drizzle``)
     with the frame's one pixel map and a weight map that is zero on the
     other colours' pixels: no demosaicing, no interpolation.  One frame at a
     time.
@@ -362,7 +362,7 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
         ``(value, variance, coverage, names, stats)`` for red, green, blue,
         as `colour_ccddata` takes them (counts per output pixel).
     rejected : list of (name, reason)
-    reference : `~astroalign_nd._input.ParsedInput`
+    reference : ``ParsedInput``
     pattern : str
     """
     ref_name = ref_item[2] or "reference"
