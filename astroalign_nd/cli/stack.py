@@ -65,8 +65,9 @@ def _add_colour_options(p):
     g.add_argument("--drizzle", type=float, default=None, metavar="SCALE",
                    help="Bayer drizzle at SCALE output pixels per input pixel (e.g. 2) "
                         "instead of demosaicing")
-    g.add_argument("--pixfrac", type=float, default=1.0,
-                   help="drizzle's drop size, a fraction of a pixel (default: %(default)s)")
+    g.add_argument("--pixfrac", type=float, default=0.7,
+                   help="drizzle's drop size, a fraction of a pixel (default: %(default)s; "
+                        "toward 1 for Bayer frames or few frames)")
     g.add_argument("--kernel", default="square",
                    help="drizzle's kernel (default: %(default)s)")
 

@@ -343,7 +343,7 @@ def atomic_open(path, overwrite=False):
         private.close()
 
 
-def write_ccddata(ccd, path, *, overwrite=False, **kwargs):
+def write_ccddata(ccd, path, *, overwrite=False, extra_hdus=(), **kwargs):
     """
     Write a `~astropy.nddata.CCDData` to a FITS file, atomically.
 
@@ -358,6 +358,8 @@ def write_ccddata(ccd, path, *, overwrite=False, **kwargs):
         Output FITS file (``.fits``, ``.fit``, ``.fts``, optionally ``.gz``).
     overwrite : bool, optional
         Replace an existing file (default False: `FileExistsError`).
+    extra_hdus : sequence of `~astropy.io.fits.ImageHDU`, optional
+        Written after the CCDData's own extensions (a drizzle's ``WEIGHT``).
     **kwargs
         Passed to `~astropy.nddata.CCDData.write` (e.g. ``hdu_mask``).
 
@@ -384,14 +386,23 @@ def write_ccddata(ccd, path, *, overwrite=False, **kwargs):
     ((4, 5), Unit("adu"), dtype('>f4'))
     """
     path = os.fspath(path)
+    if extra_hdus:
+        hdul = ccd.to_hdu(**kwargs)
+        hdul.extend(extra_hdus)
+
+        def write(fh):
+            hdul.writeto(fh)
+    else:
+        def write(fh):
+            ccd.write(fh, format="fits", **kwargs)
     with atomic_open(path, overwrite=overwrite) as f:
         if path.lower().endswith(".gz"):
             # astropy compresses by the file name's ending; a file object needs the wrapper.
             name = os.path.basename(path)[:-3]
             with gzip.GzipFile(filename=name, mode="wb", fileobj=f) as gz:
-                ccd.write(gz, format="fits", **kwargs)
+                write(gz)
         else:
-            ccd.write(f, format="fits", **kwargs)
+            write(f)
 
 
 def write_table(table, path, *, format, overwrite=False):

@@ -332,7 +332,7 @@ def _colour_stats(data, valid, channels, gain, read_noise, normalize, ref_stats,
 
 
 def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize, weights,
-                  gain, read_noise, hdu, unit, options):
+                  gain, read_noise, hdu, unit, options, saturation=None):
     """
     Bayer drizzle: each colour's raw pixels dropped at their true positions.
 
@@ -355,6 +355,8 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
         As in `~astroalign_nd.stack` (per frame; 'variance' per colour).
     gain, read_noise : float or None
         The frames' variance model (else each colour's measured sky noise).
+    saturation : float, optional
+        Raw values at or above weigh nothing.
 
     Returns
     -------
@@ -381,7 +383,7 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
             continue
         data = np.asarray(p.data, dtype=np.float64)
         channels = bayer_channels(data.shape, pat)
-        valid = weight_map(data, p.mask) > 0
+        valid = weight_map(data, p.mask, saturation=saturation) > 0
         w = None if isinstance(weights, str) or weights is None else weights[k]
         try:
             st = _colour_stats(data, valid, channels, gain, read_noise, normalize, ref_stats,

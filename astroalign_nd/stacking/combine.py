@@ -444,7 +444,7 @@ def _strip(paths, stats, r0, r1, gain, read_noise):
 
 
 def combine_files(paths, stats, shape, opts, *, gain=None, read_noise=None,
-                  memory_limit=512e6):
+                  memory_limit=512e6, rejected=None):
     """
     Combine registered frames on one grid, a strip of rows at a time.
 
@@ -461,6 +461,9 @@ def combine_files(paths, stats, shape, opts, *, gain=None, read_noise=None,
         For frames without an uncertainty (see `~astroalign_nd.stack`).
     memory_limit : float, optional
         Bytes of working memory (default 512 MB).
+    rejected : (n, ny, nx) writable array, optional
+        Receives each frame's rejected pixels (True or 1), e.g. a memory
+        map on disk: what a drizzle blots back onto the frames.
 
     Returns
     -------
@@ -479,8 +482,11 @@ def combine_files(paths, stats, shape, opts, *, gain=None, read_noise=None,
         r1 = min(ny, r0 + rows)
         x, var, valid = _strip(paths, stats, r0, r1, gain, read_noise)
         keep = reject(x, var, valid, opts)
-        for st, rejected in zip(stats, (valid & ~keep).sum(axis=(1, 2))):
-            st.n_rejected += int(rejected)
+        out = valid & ~keep
+        for st, n in zip(stats, out.sum(axis=(1, 2))):
+            st.n_rejected += int(n)
+        if rejected is not None:
+            rejected[:, r0:r1] = out
         v, e = combine(x, var, keep, weights, opts, len(paths))
         reach = valid.any(axis=0)
         value[r0:r1] = np.where(reach, v, np.nan)

@@ -12,7 +12,8 @@ from typing import Any
 
 import astropy.units as u
 import numpy as np
-from astropy.nddata import CCDData
+from astropy.io import fits
+from astropy.nddata import CCDData, VarianceUncertainty
 
 from .._input import batch_frames, parse_input
 from ..batch import BatchResult, reference_on_canvas, register_batch
@@ -23,10 +24,11 @@ from ..io.bayer import bayer_pattern
 from ..io.write import check_not_input, check_output_path
 from ..io.writers import output_suffixes
 from .combine import (CLIP_METHODS, NORMALIZE_METHODS, STACK_METHODS, CombineOptions,
-                      combine_files, frame_stats, frame_weights, normalise)
+                      combine_files, frame_stats, frame_variance, frame_weights, normalise)
 from .colour import (DEMOSAIC_METHODS, _demosaicing, colour_ccddata, drizzle_bayer,
                      register_bayer)
-from .drizzle import check_drizzle_options
+from .drizzle import (DrizzleAccumulator, blot_mask, check_drizzle_options, coverage_report,
+                      output_shape, pixel_map, scaled_wcs, weight_map)
 from .header import stack_ccddata
 
 __all__ = ["stack"]
@@ -46,8 +48,8 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
           workers: int | None = None, progress: bool = False, hdu: int | str | None = None,
           unit: Any = None, order: str | int = "bilinear", dtype: Any = np.float32,
           bayer: str | None = None, demosaic: str = "Menon2007",
-          drizzle: float | None = None, pixfrac: float = 1.0, kernel: str = "square",
-          **options: Any) -> CCDData:
+          drizzle: float | None = None, pixfrac: float = 0.7, kernel: str = "square",
+          saturation: float | None = None, **options: Any) -> CCDData:
     """
     Register frames onto a reference and combine them into one deep image.
 
@@ -138,39 +140,66 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         ``YBAYROFF`` and ``ROWORDER``, see `astroalign_nd.io.bayer`); a
         pattern names the colours of every frame's first 2x2 cell
         (``data[0:2, 0:2]``, row by row) and overrides the headers.  Each
-        frame is registered on its grey version (2x2 cells summed), then
-        demosaiced, and each colour is stacked with the frame's one
-        transform: the stack is an RGB cube (see Returns).  Needs
-        ``colour-demosaicing`` (the ``[colour]`` extra); ``canvas`` must be
-        'reference'.
+        frame is registered on its grey version (each colour scaled to
+        green's response), then demosaiced and each colour stacked with the
+        frame's one transform, or with ``drizzle`` Bayer-drizzled (each
+        colour's raw pixels dropped at their true positions, no rejection:
+        `astroalign_nd.stacking.colour.drizzle_bayer`; ``pixfrac`` toward 1,
+        each colour having a quarter or half of the pixels).  The stack is
+        an RGB cube (see Returns).  Demosaicing needs ``colour-demosaicing``
+        (the ``[colour]`` extra); ``canvas`` must be 'reference'.
     demosaic : {'Menon2007', 'Malvar2004', 'bilinear'}, optional
         ``colour-demosaicing``'s algorithm for ``bayer`` frames (default
         'Menon2007').
     drizzle : float, optional
-        With ``bayer``: Bayer drizzle at this output scale (output pixels
-        per reference pixel, e.g. 2) instead of demosaicing: each colour's
-        raw pixels are dropped at their true positions by the ``drizzle``
-        package, with a weight that is zero on the other colours' pixels
-        (`astroalign_nd.stacking.colour.drizzle_bayer`).  The output is in
-        counts per output pixel (flux conserving); no rejection is made.
-    pixfrac, kernel : optional
-        Drizzle's drop size (the linear fraction of an input pixel, default
-        1) and kernel (default 'square').
+        Drizzle the frames onto a grid ``drizzle`` times finer than the
+        reference's (or the canvas's), e.g. 2, instead of interpolating
+        them: each frame's own pixels, shrunk by ``pixfrac``, are dropped
+        at their true positions through the frame's transform (any type,
+        polynomial distortion included) by the `drizzle` package, one frame
+        at a time, which recovers resolution from the dithers between
+        undersampled frames.  The rejection is the stack's (the clipped
+        combination on the reference's grid finds the outliers; they are
+        carried back onto each frame and weigh nothing there); the weights
+        and sky normalisation are the stack's (per frame from the sky
+        noise, per pixel from masks, NaN and ``saturation``).  The output
+        holds counts per output pixel (flux conserved: a flat sky of ``b``
+        becomes ``b / drizzle**2``); see Returns for its planes.  Only with
+        ``method='average'``.
+    pixfrac : float, optional
+        With ``drizzle``: the linear fraction of an input pixel its value is
+        dropped onto, in (0, 1] (default 0.7; toward 1 with few frames or
+        little dither, or the output gets holes).
+    kernel : str, optional
+        With ``drizzle``: the drizzle kernel, one of
+        `~astroalign_nd.stacking.drizzle.DRIZZLE_KERNELS` (default 'square').
+    saturation : float, optional
+        With ``drizzle``: input values at or above this weigh nothing.
 
     Returns
     -------
     stacked : `~astropy.nddata.CCDData`
-        The combined image (with ``bayer``, an RGB cube ``(3, ny, nx)``:
-        red, green and blue planes, each with its uncertainty, mask and
-        coverage; `astroalign_nd.stacking.colour`); ``uncertainty`` a
-        `~astropy.nddata.StdDevUncertainty` combined from the frames';
-        ``mask`` True only where no frame reaches (a pixel masked in some
-        frames is combined from the others);
+        With ``bayer``, an RGB cube ``(3, ny, nx)``: red, green and blue
+        planes, each with its uncertainty, mask and coverage
+        (`astroalign_nd.stacking.colour`).  Otherwise:
+        The combined image; ``uncertainty`` a `~astropy.nddata.StdDevUncertainty`
+        combined from the frames'; ``mask`` True only where no frame
+        reaches (a pixel masked in some frames is combined from the others);
         ``flags`` the number of frames reaching each pixel; ``meta`` the
         reference's header with ``NCOMBINE``, ``IMCMBnnn`` (every frame
         combined, with its sky offset ``AASKYnnn``, scale ``AASCLnnn``,
         weight ``AAWGTnnn`` and rejected pixels ``AANRJnnn``) and
-        ``AAREJnnn`` (every frame left out, and why).
+        ``AAREJnnn`` (every frame left out, and why).  With ``drizzle``:
+        on the finer grid, its WCS the reference's scaled to it (SIP too);
+        the uncertainty through drizzle's squared-weight path; ``mask``
+        True where no input reached; ``flags`` the number of frames reaching
+        each pixel; the header's ``AADRIZ``, ``AADZPFR``, ``AADZKERN`` (scale,
+        pixfrac, kernel), ``AADZEMPT`` and ``AADZUNIF`` (the fraction of
+        empty pixels inside the frames and the weight's relative spread,
+        see `~astroalign_nd.stacking.drizzle.coverage_report`) and HISTORY
+        naming every frame drizzled.  Written to ``output``, the count is
+        the ``FLAGS`` extension and drizzle's weight map the ``WEIGHT``
+        extension.
 
     Raises
     ------
@@ -193,6 +222,8 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     """
     opts = _check_options(method, clip, sigma, sigma_low, sigma_high, maxiters, nlow, nhigh,
                           normalize, canvas, memory_limit, gain, read_noise)
+    driz = None if drizzle is None else _check_drizzle(drizzle, pixfrac, kernel, method,
+                                                       saturation)
     dtype = _check_dtype(dtype)
     items, hdu = batch_frames(frames, hdu)
     if isinstance(items, Iterator):
@@ -203,34 +234,13 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     others = _once(others, ref_item)
     weights = _check_weights(weights, n_frames)
     _check_outputs(output, overwrite, items, ref_item)
-    if drizzle is not None and bayer is None:
-        raise ValueError("drizzle= needs bayer= in this version (Bayer drizzle of raw colour "
-                         "frames); stack grey frames without drizzle.")
-    # Resampling's options (the command line passes them): the demosaiced planes' only.
-    resampling = {k: options.pop(k) for k in ("conserve_flux", "fill_value") if k in options}
-    if drizzle is not None:
-        scale, pixfrac, kernel = check_drizzle_options(drizzle, pixfrac, kernel)
-        ccd = _drizzle_bayer(ref_item, others, opts, weights, gain, read_noise, hdu, unit,
-                             dtype, options, bayer=_check_bayer(bayer, demosaic, canvas),
-                             drizzle=(scale, pixfrac, kernel))
-    elif bayer is not None:
-        bayer = _check_bayer(bayer, demosaic, canvas)
-        _demosaicing()  # the [colour] extra's ImportError before any work
-        ccd = _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit,
-                           aligned_dir, temp_dir, hdu, unit, order, dtype, options, resampling,
-                           bayer=bayer, method=demosaic)
-    else:
-        ccd = _stack_grey(ref_item, others, opts, weights, gain, read_noise, memory_limit,
-                          aligned_dir, temp_dir, canvas, overwrite, workers, progress, hdu,
-                          unit, order, dtype, {**options, **resampling})
-    if output is not None:
-        write_output(ccd, output, overwrite=overwrite)
-    return ccd
-
-
-def _stack_grey(ref_item, others, opts, weights, gain, read_noise, memory_limit, aligned_dir,
-                temp_dir, canvas, overwrite, workers, progress, hdu, unit, order, dtype, options):
-    """Grey (or colour) frames registered by `register_batch` and combined."""
+    if bayer is not None:
+        ccd = _stack_colour(ref_item, others, opts, driz, weights, gain, read_noise,
+                            memory_limit, aligned_dir, temp_dir, canvas, hdu, unit, order,
+                            dtype, options, bayer=bayer, demosaic=demosaic)
+        if output is not None:
+            write_output(ccd, output, overwrite=overwrite)
+        return ccd
     ref = parse_input(ref_item[0], "reference", hdu=hdu, unit=unit)
     if ref.data is None or ref.data.ndim != 2:
         raise ValueError("the reference must be a 2-D image (stack one colour channel at a "
@@ -241,13 +251,120 @@ def _stack_grey(ref_item, others, opts, weights, gain, read_noise, memory_limit,
         on_canvas = _reference_on_canvas(ref_item[0], result, folder, hdu, unit)
         frames_ = [(_reference_name(ref_item), on_canvas, ref_item[1])]
         frames_ += [(f.name, f.output, k) for f, (_, k) in zip(result.frames, others) if f.ok]
+        x0, y0 = result.canvas_offset
+        # What a drizzle reads again: each frame as given, and its transform onto the canvas.
+        sources = [(ref_item[0], np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1.0]]))]
+        sources += [(it[0], f.transform) for f, (it, _) in zip(result.frames, others) if f.ok]
         rejected = [(f.name, f.error) for f in result.failed]
-        _check_registered(others, result.succeeded, rejected)
-        value, variance, coverage, names, stats, opts = _combine(
-            frames_, rejected, opts, weights, gain, read_noise, memory_limit,
-            result.canvas_shape)
-        wcs = canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
-    return _stacked(value, variance, coverage, ref, wcs, dtype, names, stats, rejected, opts)
+        if others and not result.succeeded:
+            raise TransformNotFoundError(
+                "no frame could be registered onto the reference: "
+                + "; ".join(f"{n}: {e}" for n, e in rejected))
+        used, stats = _measure(frames_, rejected, opts, weights, gain, read_noise,
+                               memory_limit)
+        for name, why in rejected:  # never silently: the header alone is easy to miss
+            warn(f"{name} was left out of the stack: {why}")
+        opts = _feasible_clip(opts, len(used))
+        paths = [frames_[i][1] for i in used]
+        if driz is not None:
+            ccd, weight = _drizzled(paths, [sources[i] for i in used], stats, result, ref, opts,
+                                    driz, folder, dtype, [frames_[i][0] for i in used],
+                                    rejected, gain=gain, read_noise=read_noise,
+                                    memory_limit=memory_limit, hdu=hdu, unit=unit)
+        else:
+            value, variance, coverage = combine_files(
+                paths, stats, result.canvas_shape, opts, gain=gain, read_noise=read_noise,
+                memory_limit=memory_limit)
+            wcs = canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
+    if driz is None:
+        ccd = _stacked(value, variance, coverage, ref, wcs, dtype,
+                       [frames_[i][0] for i in used], stats, rejected, opts)
+        if output is not None:
+            write_output(ccd, output, overwrite=overwrite)
+    elif output is not None:
+        write_ccddata(ccd, output, overwrite=overwrite, hdu_flags="FLAGS",
+                      extra_hdus=[fits.ImageHDU(weight, name="WEIGHT")])
+    return ccd
+
+
+def _check_drizzle(scale, pixfrac, kernel, method, saturation):
+    """Drizzle's options (`check_drizzle_options`), and what a drizzle cannot do."""
+    driz = check_drizzle_options(scale, pixfrac, kernel)
+    if method != "average":
+        raise ValueError(f"drizzle gives a weighted average; method={method!r} cannot be "
+                         "drizzled: use method='average' (the default), or no drizzle.")
+    if saturation is not None:
+        _positive(saturation, "saturation", zero=True)
+    return driz + (saturation,)
+
+
+def _drizzled(paths, sources, stats, result, ref, opts, driz, folder, dtype, names, rejected,
+              *, gain, read_noise, memory_limit, hdu, unit):
+    """
+    The frames drizzled one at a time, after the stack's rejection on the canvas
+    (each frame's rejected pixels carried back onto it, and weighing nothing there).
+    Returns the stack's CCDData and drizzle's weight map.
+    """
+    scale, pixfrac, kernel, saturation = driz
+    n, shape = len(paths), tuple(result.canvas_shape)
+    # The rejection maps on disk: one frame's at a time in memory, whatever the number of frames.
+    flags = np.lib.format.open_memmap(os.path.join(folder, ".rejected.npy"), mode="w+",
+                                      dtype=np.bool_, shape=(n,) + shape)
+    _, _, coverage = combine_files(paths, stats, shape, opts, gain=gain, read_noise=read_noise,
+                                   memory_limit=memory_limit, rejected=flags)
+    acc = DrizzleAccumulator(output_shape(shape, scale), scale, pixfrac, kernel)
+    for k, ((item, transform), st) in enumerate(zip(sources, stats)):
+        frame = parse_input(item, "frame", hdu=hdu, unit=unit)
+        data = np.asarray(frame.data, dtype=np.float64)
+        var = None if frame.uncertainty is None else np.asarray(
+            frame.uncertainty.represent_as(VarianceUncertainty).array, dtype=np.float64)
+        var = frame_variance(data, var, st, gain, read_noise)
+        pm = pixel_map(transform, data.shape)
+        bad = blot_mask(flags[k], pm)
+        w = weight_map(data, frame.mask, var, weight=st.weight, saturation=saturation)
+        st.n_rejected = int((bad & (w > 0)).sum())  # the frame's own pixels
+        w[bad] = 0.0
+        pm = scale * (pm + 0.5) - 0.5  # onto the finer grid (drizzle.pixel_map's Grids)
+        acc.add(data * st.scale - st.offset, pm, w, var * st.scale ** 2)
+        del frame, data, var, pm, w, bad
+    del flags
+    planes = acc.planes()
+    empty, spread = coverage_report(planes, coverage, n, scale, pixfrac=pixfrac)
+    settings = _settings(opts, n)
+    settings.update({"AADRIZ": (scale, "drizzle: output pixels per reference pixel"),
+                     "AADZPFR": (pixfrac, "drizzle: pixfrac"),
+                     "AADZKERN": (kernel, "drizzle: kernel"),
+                     "AADZEMPT": (round(empty, 6), "drizzle: empty fraction inside frames"),
+                     "AADZUNIF": (round(spread, 4) if np.isfinite(spread) else -1.0,
+                                  "drizzle: weight std/mean, all frames")})
+    wcs = scaled_wcs(ref.wcs, scale, planes.value.shape, result.canvas_offset)
+    ccd = stack_ccddata(planes.value, planes.variance, planes.count, meta=ref.meta, names=names,
+                        stats=stats, rejected=rejected, settings=settings, wcs=wcs,
+                        unit=ref.unit or "adu", dtype=dtype)
+    ccd.meta.add_history(f"astroalign_nd stack: drizzled at scale {scale:g}, pixfrac "
+                         f"{pixfrac:g}, kernel {kernel}, outliers rejected on the reference "
+                         "grid and blotted back")
+    for name in names:
+        ccd.meta.add_history(f"drizzled {name}")
+    if ccd.mask.all():
+        warn("no frame reaches any pixel of the stack.")
+    return ccd, planes.weight
+
+
+def _stack_colour(ref_item, others, opts, driz, weights, gain, read_noise, memory_limit,
+                  aligned_dir, temp_dir, canvas, hdu, unit, order, dtype, options, *, bayer,
+                  demosaic):
+    """Raw colour frames: demosaiced and combined per colour, or Bayer-drizzled."""
+    bayer = _check_bayer(bayer, demosaic, canvas)
+    # Resampling's options (the command line passes them): the demosaiced planes' only.
+    resampling = {k: options.pop(k) for k in ("conserve_flux", "fill_value") if k in options}
+    if driz is not None:
+        return _drizzle_bayer(ref_item, others, opts, weights, gain, read_noise, hdu, unit,
+                              dtype, options, bayer=bayer, drizzle=driz)
+    _demosaicing()  # the [colour] extra's ImportError before any work
+    return _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit,
+                        aligned_dir, temp_dir, hdu, unit, order, dtype, options, resampling,
+                        bayer=bayer, method=demosaic)
 
 
 def _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit, aligned_dir,
@@ -276,24 +393,22 @@ def _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit
 def _drizzle_bayer(ref_item, others, opts, weights, gain, read_noise, hdu, unit, dtype,
                    options, *, bayer, drizzle):
     """Raw colour frames registered on their grey versions and Bayer-drizzled."""
-    scale, pixfrac, kernel = drizzle
+    scale, pixfrac, kernel, saturation = drizzle
     channels, rejected, ref, pattern = drizzle_bayer(
         ref_item, others, bayer=bayer, scale=scale, pixfrac=pixfrac, kernel=kernel,
         normalize=opts.normalize, weights=weights, gain=gain, read_noise=read_noise, hdu=hdu,
-        unit=unit, options=options)
+        unit=unit, options=options, saturation=saturation)
     _check_registered(others, len(channels[0][3]) - 1, rejected)
     for name, why in rejected:
         warn(f"{name} was left out of the stack: {why}")
     settings = {"AASTKMTH": ("drizzle", "astroalign_nd stack: combination"),
                 "AASTKNRM": (opts.normalize or "none", "sky normalisation"),
-                "AADRZSCL": (scale, "drizzle: output pixels per input pixel"),
-                "AADRZPIX": (pixfrac, "drizzle: pixfrac"),
-                "AADRZKER": (kernel, "drizzle: kernel"),
+                "AADRIZ": (scale, "drizzle: output pixels per reference pixel"),
+                "AADZPFR": (pixfrac, "drizzle: pixfrac"),
+                "AADZKERN": (kernel, "drizzle: kernel"),
                 "AABAYER": (pattern, "Bayer pattern of the reference's first cell")}
-    if ref.wcs is not None:
-        warn("the reference's WCS is not carried onto the drizzled grid in this version; "
-             "the stack has no WCS.")
-    return colour_ccddata(channels, meta=ref.meta, wcs=None, unit=ref.unit or "adu",
+    wcs = scaled_wcs(ref.wcs, scale, channels[0][0].shape)
+    return colour_ccddata(channels, meta=ref.meta, wcs=wcs, unit=ref.unit or "adu",
                           dtype=dtype, rejected=rejected, settings=settings)
 
 

@@ -34,17 +34,23 @@ squared.
 from __future__ import annotations
 
 import numbers
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from astropy.modeling import Model
+from astropy.wcs import Sip
 from drizzle.resample import SUPPORTED_DRIZZLE_KERNELS, Drizzle, blot_image
 
+from ..batch.canvas import canvas_wcs
+from ..exceptions import warn
 from ..transforms import ProjectiveTransform
 from ..transforms.convert import as_matrix
 
 __all__ = ["DRIZZLE_KERNELS", "check_drizzle_options", "output_shape", "pixel_map",
-           "pixel_area", "weight_map", "blot_mask", "DrizzleAccumulator", "DrizzlePlanes"]
+           "pixel_area", "weight_map", "blot_mask", "scaled_wcs", "DrizzleAccumulator",
+           "DrizzlePlanes", "on_output_grid", "coverage_report", "MAX_EMPTY_FRACTION",
+           "MAX_WEIGHT_SPREAD"]
 
 #: The drizzle kernels, as the `drizzle` package names them.
 DRIZZLE_KERNELS = tuple(SUPPORTED_DRIZZLE_KERNELS)
@@ -427,3 +433,136 @@ class DrizzleAccumulator:
         variance = np.where(empty, np.nan, self._driz.out_img2[0])
         return DrizzlePlanes(value=value.astype(np.float64), variance=variance.astype(np.float64),
                              weight=wht, count=self._count.copy())
+
+
+def scaled_wcs(wcs, scale, shape, offset=(0, 0)):
+    """
+    The reference's WCS on the drizzle's output grid (SIP distortion too).
+
+    The grid is first shifted to the canvas (``offset``), then cut into
+    ``scale`` finer pixels with astropy's WCS slicing (its reference pixel,
+    pixel scale and distortion tables); the SIP polynomials, which slicing
+    leaves in the reference's pixels, are rescaled to the finer pixels
+    (``A_p_q`` times ``scale ** (1 - p - q)``, and their inverse alike).
+
+    Parameters
+    ----------
+    wcs : `~astropy.wcs.WCS` or None
+        The reference's celestial WCS.
+    scale : float
+        Output pixels per reference pixel.
+    shape : (ny, nx)
+        The output's shape (the WCS's ``pixel_shape``).
+    offset : (x0, y0), optional
+        Reference pixel coordinates of the canvas's pixel ``(0, 0)``.
+
+    Returns
+    -------
+    wcs : `~astropy.wcs.WCS` or None
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy.wcs import WCS
+    >>> from astroalign_nd.stacking.drizzle import scaled_wcs
+    >>> w = WCS(naxis=2)
+    >>> w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+    >>> w.wcs.cd = [[-1e-3, 0.0], [0.0, 1e-3]]
+    >>> w.wcs.crpix = [50.0, 40.0]
+    >>> fine = scaled_wcs(w, 2.0, (160, 200))
+    >>> # reference pixel (10, 20) is output pixel (2 * 10.5 - 0.5, 2 * 20.5 - 0.5)
+    >>> np.allclose(w.pixel_to_world_values(10, 20), fine.pixel_to_world_values(20.5, 40.5))
+    True
+    """
+    if wcs is None:
+        return None
+    w = canvas_wcs(wcs, offset, [max(1, int(round(n / float(scale)))) for n in shape])
+    if w.wcs.has_cd():  # slicing scales CDELT: the linear part as PC and CDELT
+        cd = w.wcs.cd.copy()
+        del w.wcs.cd
+        w.wcs.pc, w.wcs.cdelt = cd, [1.0] * len(cd)
+    step = 1.0 / float(scale)
+    view = [slice(None)] * (w.naxis - 2) + [slice(0, None, step)] * 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # NAXIS not updated for a non-integer step: set below
+        out = w.slice(tuple(view))
+    if out.sip is not None:
+        def rescaled(c):
+            if c is None:
+                return None
+            p, q = np.indices(c.shape)
+            return c * float(scale) ** (1.0 - p - q)
+        out.sip = Sip(rescaled(out.sip.a), rescaled(out.sip.b), rescaled(out.sip.ap),
+                      rescaled(out.sip.bp), out.wcs.crpix[:2])
+    out.pixel_shape = (int(shape[1]), int(shape[0]))
+    return out
+
+
+#: Above these, `coverage_report` warns: the fraction of empty output pixels among those
+#: the frames reach, and the relative spread of the weight where every frame reaches.
+MAX_EMPTY_FRACTION, MAX_WEIGHT_SPREAD = 0.001, 0.3
+
+
+def on_output_grid(plane, scale, shape):
+    """
+    A plane of the reference's (canvas's) grid seen on the output grid: each
+    output pixel takes the value of the reference pixel its centre lies in.
+    """
+    s = float(scale)
+    rows = np.clip(np.floor((np.arange(shape[0]) + 0.5) / s).astype(int), 0,
+                   plane.shape[0] - 1)
+    cols = np.clip(np.floor((np.arange(shape[1]) + 0.5) / s).astype(int), 0,
+                   plane.shape[1] - 1)
+    return plane[np.ix_(rows, cols)]
+
+
+def coverage_report(planes, coverage, n_frames, scale, *, pixfrac=None, warn_user=True):
+    """
+    How well the frames fill the output: the fraction of empty output pixels
+    and the uniformity of the weight, with a warning that says what to change.
+
+    Parameters
+    ----------
+    planes : `DrizzlePlanes`
+    coverage : 2-D int ndarray
+        The number of frames reaching each pixel of the reference's (canvas's)
+        grid (a stack's ``flags``): where the frames are.
+    n_frames : int
+        The frames drizzled.
+    scale : float
+    pixfrac : float, optional
+        Named in the warning.
+    warn_user : bool, optional
+        Warn (`~astroalign_nd.exceptions.AstroalignWarning`) when the output
+        has holes (more than `MAX_EMPTY_FRACTION` of the pixels the frames
+        reach) or a grid pattern (the weight's relative spread where every
+        frame reaches above `MAX_WEIGHT_SPREAD`).
+
+    Returns
+    -------
+    empty_fraction : float
+        Output pixels no input reached, among those inside the frames.
+    weight_spread : float
+        Standard deviation over mean of the output weight where every frame
+        reaches (NaN if there is no such pixel): 0 is perfectly uniform.
+    """
+    shape = planes.weight.shape
+    inside = on_output_grid(np.asarray(coverage) > 0, scale, shape)
+    n_inside = int(inside.sum())
+    empty = float((inside & (planes.count == 0)).sum() / n_inside) if n_inside else 0.0
+    interior = on_output_grid(np.asarray(coverage) >= n_frames, scale, shape)
+    w = planes.weight[interior]
+    spread = float(np.std(w) / np.mean(w)) if w.size and np.mean(w) > 0 else float("nan")
+    if warn_user and (empty > MAX_EMPTY_FRACTION or spread > MAX_WEIGHT_SPREAD):
+        what = []
+        if empty > MAX_EMPTY_FRACTION:
+            what.append(f"{100 * empty:.2g}% of the output pixels inside the frames got no "
+                        "data (holes, masked)")
+        if spread > MAX_WEIGHT_SPREAD:
+            what.append(f"the output weight varies by {100 * spread:.0f}% from pixel to pixel "
+                        "(a grid pattern)")
+        pf = "" if pixfrac is None else f" (now {pixfrac:g})"
+        warn(f"drizzle at scale {scale:g} from {n_frames} frames: {' and '.join(what)}; raise "
+             f"pixfrac toward 1{pf}, use a smaller scale, or stack more frames with more "
+             "dither between them.")
+    return empty, spread
