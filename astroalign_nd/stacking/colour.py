@@ -49,6 +49,7 @@ _BAYER_KEYS = ("BAYERPAT", "XBAYROFF", "YBAYROFF", "ROWORDER")
 
 
 def _demosaicing():
+    printing = np.get_printoptions()
     try:
         with warnings.catch_warnings():  # its own imports of deprecated scipy namespaces
             warnings.simplefilter("ignore", DeprecationWarning)
@@ -57,6 +58,9 @@ def _demosaicing():
         raise ImportError("demosaicing colour (Bayer) frames needs colour-demosaicing: pip "
                           "install \"astroalign_nd[colour]\" (or pip install "
                           "colour-demosaicing).") from None
+    finally:
+        # Importing it (colour-science) sets numpy's printing to its 1.13 style for everyone.
+        np.set_printoptions(**printing)
     return colour_demosaicing
 
 
