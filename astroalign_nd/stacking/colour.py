@@ -36,14 +36,13 @@ from ..resample import apply_transform
 from .combine import array_stats, frame_variance, frame_weights, normalise
 from .drizzle import DrizzleAccumulator, output_shape, pixel_map, weight_map
 from .header import stack_ccddata, stack_header
+from .options import DEMOSAIC_METHODS
 
-__all__ = ["find_bayer_transform", "GREY_VERSIONS", "demosaic", "DEMOSAIC_METHODS",
+__all__ = ["find_bayer_transform", "GREY_VERSIONS", "demosaic",
            "register_bayer",
            "drizzle_bayer",
            "colour_ccddata"]
 
-#: The demosaicing methods of ``colour-demosaicing`` offered, best first.
-DEMOSAIC_METHODS = ("Menon2007", "Malvar2004", "bilinear")
 #: A raw colour frame's keywords that no longer describe the stack (it is not a mosaic).
 _BAYER_KEYS = ("BAYERPAT", "XBAYROFF", "YBAYROFF", "ROWORDER")
 

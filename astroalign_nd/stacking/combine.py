@@ -20,17 +20,9 @@ import numpy as np
 from astropy.io import fits
 from astropy.stats import sigma_clipped_stats
 
-__all__ = ["CombineOptions", "FrameStats", "frame_stats", "array_stats", "read_rows",
+__all__ = ["FrameStats", "frame_stats", "array_stats", "read_rows",
            "combine_files", "normalise", "frame_weights", "reject", "combine", "frame_variance",
-           "rows_per_strip", "robust_sigma", "STACK_METHODS", "CLIP_METHODS",
-           "NORMALIZE_METHODS", "MIN_MAD_VALUES"]
-
-#: The combinations: weighted mean, median, and the sum (the mean times the number of frames).
-STACK_METHODS = ("average", "median", "sum")
-#: The rejections: none, sigma clipping about the median, min/max (extrema) clipping.
-CLIP_METHODS = (None, "sigma", "minmax")
-#: The sky normalisations: none, an offset (sky added), a scale (transparency).
-NORMALIZE_METHODS = (None, "offset", "scale")
+           "rows_per_strip", "robust_sigma", "MIN_MAD_VALUES"]
 
 #: Bytes of working memory per frame and per pixel of a strip (the values, their
 #: variance and validity, and the temporaries of the median and the clipping).
@@ -42,34 +34,6 @@ _MAD_TO_SIGMA = 1.482602218505602
 MIN_MAD_VALUES = 6
 #: Variance of the median of n Gaussian values, relative to that of their mean (large n).
 _MEDIAN_EFFICIENCY = math.pi / 2.0
-
-
-@dataclass(frozen=True)
-class CombineOptions:
-    """
-    How frames are combined (see `~astroalign_nd.stack`).
-
-    Attributes
-    ----------
-    method : {'average', 'median', 'sum'}
-    clip : {None, 'sigma', 'minmax'}
-    sigma_low, sigma_high : float
-        Sigma clipping's limits, in units of the spread about the median.
-    maxiters : int
-        Sigma clipping's rounds at most.
-    nlow, nhigh : int
-        Min/max clipping: the lowest and highest values dropped at each pixel.
-    normalize : {None, 'offset', 'scale'}
-    """
-
-    method: str = "average"
-    clip: str | None = "sigma"
-    sigma_low: float = 3.0
-    sigma_high: float = 3.0
-    maxiters: int = 3
-    nlow: int = 1
-    nhigh: int = 1
-    normalize: str | None = "offset"
 
 
 @dataclass
@@ -353,7 +317,7 @@ def reject(x, var, valid, opts):
     x, var : (n, ny, nx) ndarray
         The frames' normalised values and their variance.
     valid : (n, ny, nx) bool ndarray
-    opts : `CombineOptions`
+    opts : `~astroalign_nd.stacking.StackConfig`
 
     Returns
     -------
@@ -380,7 +344,7 @@ def combine(x, var, keep, weights, opts, n_total):
     keep : (n, ny, nx) bool ndarray
     weights : (n,) ndarray
         Per frame.
-    opts : `CombineOptions`
+    opts : `~astroalign_nd.stacking.StackConfig`
         Its ``method``.
     n_total : int
         The number of frames of the stack (the factor of ``'sum'``).
@@ -456,7 +420,7 @@ def combine_files(paths, stats, shape, opts, *, gain=None, read_noise=None,
         Their normalisation (``offset``, ``scale``) and ``weight``; their
         ``n_rejected`` is filled in.
     shape : (ny, nx)
-    opts : `CombineOptions`
+    opts : `~astroalign_nd.stacking.StackConfig`
     gain, read_noise : float, optional
         For frames without an uncertainty (see `~astroalign_nd.stack`).
     memory_limit : float, optional

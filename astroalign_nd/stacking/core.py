@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import dataclasses
-import numbers
 import os
 import tempfile
 from collections.abc import Iterator
@@ -23,33 +22,21 @@ from ..io import write_ccddata, write_output
 from ..io.bayer import bayer_pattern
 from ..io.write import check_not_input, check_output_path
 from ..io.writers import output_suffixes
-from .combine import (CLIP_METHODS, NORMALIZE_METHODS, STACK_METHODS, CombineOptions,
-                      combine_files, frame_stats, frame_variance, frame_weights, normalise)
-from .colour import (DEMOSAIC_METHODS, _demosaicing, colour_ccddata, drizzle_bayer,
-                     register_bayer)
-from .drizzle import (DrizzleAccumulator, blot_mask, check_drizzle_options, coverage_report,
-                      output_shape, pixel_map, scaled_wcs, weight_map)
+from .combine import combine_files, frame_stats, frame_variance, frame_weights, normalise
+from .drizzle import (DrizzleAccumulator, blot_mask, coverage_report, output_shape, pixel_map,
+                      scaled_wcs, weight_map)
+from .colour import _demosaicing, colour_ccddata, drizzle_bayer, register_bayer
 from .header import stack_ccddata
+from .options import StackConfig
 
 __all__ = ["stack"]
 
-#: Default working memory of the combination, bytes.
-DEFAULT_MEMORY_LIMIT = 512e6
 
-
-def stack(frames: Any, reference: Any = None, *, method: str = "average",
-          clip: str | None = "sigma", sigma: float = 3.0, sigma_low: float | None = None,
-          sigma_high: float | None = None, maxiters: int = 3, nlow: int = 1, nhigh: int = 1,
-          normalize: str | None = "offset", weights: Any = "variance",
-          gain: float | None = None, read_noise: float | None = None,
-          canvas: str = "reference", memory_limit: float = DEFAULT_MEMORY_LIMIT,
-          output: str | os.PathLike | None = None, overwrite: bool = False,
-          aligned_dir: str | os.PathLike | None = None, temp_dir: str | None = None,
-          workers: int | None = None, progress: bool = False, hdu: int | str | None = None,
-          unit: Any = None, order: str | int = "bilinear", dtype: Any = np.float32,
-          bayer: str | None = None, demosaic: str = "Menon2007",
-          drizzle: float | None = None, pixfrac: float = 0.7, kernel: str = "square",
-          saturation: float | None = None, **options: Any) -> CCDData:
+def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | None = None,
+          overwrite: bool = False, aligned_dir: str | os.PathLike | None = None,
+          temp_dir: str | None = None, workers: int | None = None, progress: bool = False,
+          hdu: int | str | None = None, unit: Any = None, order: str | int = "bilinear",
+          dtype: Any = np.float32, **options: Any) -> CCDData:
     """
     Register frames onto a reference and combine them into one deep image.
 
@@ -74,49 +61,6 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         The frame whose grid the stack is on (default: the first frame).
         It is in the stack: given both here and among ``frames`` (the same
         object or the same file) it is used once, unregistered.
-    method : {'average', 'median', 'sum'}, optional
-        'average' (default): the weighted mean.  'median': the median (its
-        uncertainty is ``sqrt(pi / 2)`` times the mean's).  'sum': the mean
-        times the number of frames, so that a pixel some frames miss is
-        not darker.
-    clip : {'sigma', 'minmax', None}, optional
-        Rejection before combining.  'sigma' (default): values more than
-        ``sigma_low``/``sigma_high`` spreads below/above the pixel's median
-        are dropped, for up to ``maxiters`` rounds; the spread is the
-        values' MAD standard deviation, but never less than the frames'
-        median uncertainty at that pixel.  'minmax': the ``nlow`` lowest
-        and ``nhigh`` highest values of each pixel are dropped (ccdproc's
-        ``clip_extrema``).  A pixel whose values would all go keeps them.
-    sigma, sigma_low, sigma_high : float, optional
-        Sigma clipping's limits (``sigma`` for both by default, 3).
-    maxiters : int, optional
-        Sigma clipping's rounds at most (default 3).
-    nlow, nhigh : int, optional
-        Min/max clipping's counts (default 1 and 1).
-    normalize : {'offset', 'scale', None}, optional
-        Bring each frame's sky (its sigma-clipped median) to the
-        reference's before the rejection, so that a night's changing sky
-        does not decide which frames are clipped: 'offset' (default)
-        subtracts the difference (moonlight, twilight: sky added), 'scale'
-        multiplies by the ratio (thin cloud: transparency; needs positive
-        sky levels), None leaves the frames as they are.
-    weights : 'variance', None or sequence of float, optional
-        'variance' (default): each frame weighs the inverse of its median
-        pixel variance (per frame, not per pixel: per-pixel weights from a
-        Poisson variance would favour the pixels that came out low).
-        None: equal weights.  A sequence: one weight per frame, the
-        reference's first when it is not one of ``frames``.
-    gain, read_noise : float, optional
-        For frames without an uncertainty: their variance is
-        ``max(value, 0) / gain + (read_noise / gain) ** 2`` (``gain`` in
-        electrons per count, ``read_noise`` in electrons, as ccdproc's
-        ``create_deviation``).  Without ``gain``, such a frame's variance
-        is its measured sky noise squared.  Frames with an uncertainty
-        use their own, propagated through the registration.
-    canvas : {'reference', 'union'}, optional
-        The stack's grid, as in `~astroalign_nd.register_batch`.
-    memory_limit : float, optional
-        Bytes of working memory for the combination (default 512 MB).
     output : str or path, optional
         Also write the stack to this FITS file (atomically).
     overwrite : bool, optional
@@ -126,62 +70,23 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         folder, removed at the end).
     temp_dir : str, optional
         Where the temporary folder goes (default: the system's).
-    workers, progress, hdu, unit, order, **options
-        As in `~astroalign_nd.register_batch` (``transform_type``,
-        detection and matching options...).
+    workers, progress, hdu, unit, order
+        As in `~astroalign_nd.register_batch`.
     dtype : numpy dtype, optional
         Of the output's data and uncertainty (default float32).  An integer
         type gets the values rounded, and clipped to its range with a
         warning that counts the pixels outside it (never wrapped around).
-    bayer : {'auto', 'RGGB', 'BGGR', 'GRBG', 'GBRG'} or None, optional
-        The frames are raw colour frames from a one-shot-colour camera
-        (default None: grey or already colour).  'auto' reads each frame's
-        pattern from its header (``BAYERPAT``, with ``XBAYROFF``,
-        ``YBAYROFF`` and ``ROWORDER``, see `astroalign_nd.io.bayer`); a
-        pattern names the colours of every frame's first 2x2 cell
-        (``data[0:2, 0:2]``, row by row) and overrides the headers.  Each
-        frame is registered on its grey version (each colour scaled to
-        green's response), then demosaiced and each colour stacked with the
-        frame's one transform, or with ``drizzle`` Bayer-drizzled (each
-        colour's raw pixels dropped at their true positions, no rejection:
-        `astroalign_nd.stacking.colour.drizzle_bayer`; ``pixfrac`` toward 1,
-        each colour having a quarter or half of the pixels).  The stack is
-        an RGB cube (see Returns).  Demosaicing needs ``colour-demosaicing``
-        (the ``[colour]`` extra); ``canvas`` must be 'reference'.
-    demosaic : {'Menon2007', 'Malvar2004', 'bilinear'}, optional
-        ``colour-demosaicing``'s algorithm for ``bayer`` frames (default
-        'Menon2007').
-    drizzle : float, optional
-        Drizzle the frames onto a grid ``drizzle`` times finer than the
-        reference's (or the canvas's), e.g. 2, instead of interpolating
-        them: each frame's own pixels, shrunk by ``pixfrac``, are dropped
-        at their true positions through the frame's transform (any type,
-        polynomial distortion included) by the `drizzle` package, one frame
-        at a time, which recovers resolution from the dithers between
-        undersampled frames.  The rejection is the stack's (the clipped
-        combination on the reference's grid finds the outliers; they are
-        carried back onto each frame and weigh nothing there); the weights
-        and sky normalisation are the stack's (per frame from the sky
-        noise, per pixel from masks, NaN and ``saturation``).  The output
-        holds counts per output pixel (flux conserved: a flat sky of ``b``
-        becomes ``b / drizzle**2``); see Returns for its planes.  Only with
-        ``method='average'``.
-    pixfrac : float, optional
-        With ``drizzle``: the linear fraction of an input pixel its value is
-        dropped onto, in (0, 1] (default 0.7; toward 1 with few frames or
-        little dither, or the output gets holes).
-    kernel : str, optional
-        With ``drizzle``: the drizzle kernel, one of
-        `~astroalign_nd.stacking.drizzle.DRIZZLE_KERNELS` (default 'square').
-    saturation : float, optional
-        With ``drizzle``: input values at or above this weigh nothing.
+    **options
+        The stacking options, the fields of
+        `~astroalign_nd.stacking.StackConfig` (how the frames are combined:
+        ``method``, the rejection ``clip``, sky ``normalize``, ``weights``,
+        ``gain`` and ``read_noise``, the ``canvas``, ``memory_limit``... each
+        documented there), and `~astroalign_nd.register_batch`'s options
+        (``transform_type``, detection and matching options...).
 
     Returns
     -------
     stacked : `~astropy.nddata.CCDData`
-        With ``bayer``, an RGB cube ``(3, ny, nx)``: red, green and blue
-        planes, each with its uncertainty, mask and coverage
-        (`astroalign_nd.stacking.colour`).  Otherwise:
         The combined image; ``uncertainty`` a `~astropy.nddata.StdDevUncertainty`
         combined from the frames'; ``mask`` True only where no frame
         reaches (a pixel masked in some frames is combined from the others);
@@ -220,10 +125,7 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     >>> stacked.meta["NCOMBINE"], stacked.shape, int(stacked.mask.sum())
     (4, (128, 128), 0)
     """
-    opts = _check_options(method, clip, sigma, sigma_low, sigma_high, maxiters, nlow, nhigh,
-                          normalize, canvas, memory_limit, gain, read_noise)
-    driz = None if drizzle is None else _check_drizzle(drizzle, pixfrac, kernel, method,
-                                                       saturation)
+    opts, options = StackConfig.from_keywords("stack", options)
     dtype = _check_dtype(dtype)
     items, hdu = batch_frames(frames, hdu)
     if isinstance(items, Iterator):
@@ -232,12 +134,11 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     items = [(f, f"frame{k}" if label is None else label) for k, (f, label) in enumerate(items)]
     ref_item, others, n_frames = _split_reference(items, reference)
     others = _once(others, ref_item)
-    weights = _check_weights(weights, n_frames)
+    weights = _per_frame(opts.weights, n_frames)
     _check_outputs(output, overwrite, items, ref_item)
-    if bayer is not None:
-        ccd = _stack_colour(ref_item, others, opts, driz, weights, gain, read_noise,
-                            memory_limit, aligned_dir, temp_dir, canvas, hdu, unit, order,
-                            dtype, options, bayer=bayer, demosaic=demosaic)
+    if opts.bayer is not None:
+        ccd = _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit,
+                            order, dtype, options)
         if output is not None:
             write_output(ccd, output, overwrite=overwrite)
         return ccd
@@ -246,8 +147,8 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         raise ValueError("the reference must be a 2-D image (stack one colour channel at a "
                          "time, or raw colour frames with bayer='auto').")
     with _aligned_folder(aligned_dir, temp_dir) as folder:
-        result = _register([it for it, _ in others], ref, folder, canvas, overwrite, workers,
-                           progress, hdu, unit, order, options, ref_item[0])
+        result = _register([it for it, _ in others], ref, folder, opts.canvas, overwrite,
+                           workers, progress, hdu, unit, order, options, ref_item[0])
         on_canvas = _reference_on_canvas(ref_item[0], result, folder, hdu, unit)
         frames_ = [(_reference_name(ref_item), on_canvas, ref_item[1])]
         frames_ += [(f.name, f.output, k) for f, (_, k) in zip(result.frames, others) if f.ok]
@@ -260,23 +161,21 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
             raise TransformNotFoundError(
                 "no frame could be registered onto the reference: "
                 + "; ".join(f"{n}: {e}" for n, e in rejected))
-        used, stats = _measure(frames_, rejected, opts, weights, gain, read_noise,
-                               memory_limit)
+        used, stats = _measure(frames_, rejected, opts, weights)
         for name, why in rejected:  # never silently: the header alone is easy to miss
             warn(f"{name} was left out of the stack: {why}")
         opts = _feasible_clip(opts, len(used))
         paths = [frames_[i][1] for i in used]
-        if driz is not None:
+        if opts.drizzle is not None:
             ccd, weight = _drizzled(paths, [sources[i] for i in used], stats, result, ref, opts,
-                                    driz, folder, dtype, [frames_[i][0] for i in used],
-                                    rejected, gain=gain, read_noise=read_noise,
-                                    memory_limit=memory_limit, hdu=hdu, unit=unit)
+                                    folder, dtype, [frames_[i][0] for i in used], rejected,
+                                    hdu=hdu, unit=unit)
         else:
             value, variance, coverage = combine_files(
-                paths, stats, result.canvas_shape, opts, gain=gain, read_noise=read_noise,
-                memory_limit=memory_limit)
+                paths, stats, result.canvas_shape, opts, gain=opts.gain,
+                read_noise=opts.read_noise, memory_limit=opts.memory_limit)
             wcs = canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
-    if driz is None:
+    if opts.drizzle is None:
         ccd = _stacked(value, variance, coverage, ref, wcs, dtype,
                        [frames_[i][0] for i in used], stats, rejected, opts)
         if output is not None:
@@ -287,31 +186,21 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     return ccd
 
 
-def _check_drizzle(scale, pixfrac, kernel, method, saturation):
-    """Drizzle's options (`check_drizzle_options`), and what a drizzle cannot do."""
-    driz = check_drizzle_options(scale, pixfrac, kernel)
-    if method != "average":
-        raise ValueError(f"drizzle gives a weighted average; method={method!r} cannot be "
-                         "drizzled: use method='average' (the default), or no drizzle.")
-    if saturation is not None:
-        _positive(saturation, "saturation", zero=True)
-    return driz + (saturation,)
-
-
-def _drizzled(paths, sources, stats, result, ref, opts, driz, folder, dtype, names, rejected,
-              *, gain, read_noise, memory_limit, hdu, unit):
+def _drizzled(paths, sources, stats, result, ref, opts, folder, dtype, names, rejected, *, hdu,
+              unit):
     """
     The frames drizzled one at a time, after the stack's rejection on the canvas
     (each frame's rejected pixels carried back onto it, and weighing nothing there).
     Returns the stack's CCDData and drizzle's weight map.
     """
-    scale, pixfrac, kernel, saturation = driz
+    scale, pixfrac, kernel = opts.drizzle, opts.pixfrac, opts.kernel
+    gain, read_noise = opts.gain, opts.read_noise
     n, shape = len(paths), tuple(result.canvas_shape)
     # The rejection maps on disk: one frame's at a time in memory, whatever the number of frames.
     flags = np.lib.format.open_memmap(os.path.join(folder, ".rejected.npy"), mode="w+",
                                       dtype=np.bool_, shape=(n,) + shape)
     _, _, coverage = combine_files(paths, stats, shape, opts, gain=gain, read_noise=read_noise,
-                                   memory_limit=memory_limit, rejected=flags)
+                                   memory_limit=opts.memory_limit, rejected=flags)
     acc = DrizzleAccumulator(output_shape(shape, scale), scale, pixfrac, kernel)
     for k, ((item, transform), st) in enumerate(zip(sources, stats)):
         frame = parse_input(item, "frame", hdu=hdu, unit=unit)
@@ -321,7 +210,8 @@ def _drizzled(paths, sources, stats, result, ref, opts, driz, folder, dtype, nam
         var = frame_variance(data, var, st, gain, read_noise)
         pm = pixel_map(transform, data.shape)
         bad = blot_mask(flags[k], pm)
-        w = weight_map(data, frame.mask, var, weight=st.weight, saturation=saturation)
+        w = weight_map(data, frame.mask, var, weight=st.weight,
+                       saturation=opts.saturation)
         st.n_rejected = int((bad & (w > 0)).sum())  # the frame's own pixels
         w[bad] = 0.0
         pm = scale * (pm + 0.5) - 0.5  # onto the finer grid (drizzle.pixel_map's Grids)
@@ -351,78 +241,70 @@ def _drizzled(paths, sources, stats, result, ref, opts, driz, folder, dtype, nam
     return ccd, planes.weight
 
 
-def _stack_colour(ref_item, others, opts, driz, weights, gain, read_noise, memory_limit,
-                  aligned_dir, temp_dir, canvas, hdu, unit, order, dtype, options, *, bayer,
-                  demosaic):
+def _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit, order,
+                  dtype, options):
     """Raw colour frames: demosaiced and combined per colour, or Bayer-drizzled."""
-    bayer = _check_bayer(bayer, demosaic, canvas)
+    bayer = opts.bayer if opts.bayer == "auto" else bayer_pattern(pattern=opts.bayer)
+    if opts.canvas != "reference":
+        raise ValueError("bayer frames are stacked on the reference's grid: pass "
+                         "canvas='reference' (the default).")
     # Resampling's options (the command line passes them): the demosaiced planes' only.
     resampling = {k: options.pop(k) for k in ("conserve_flux", "fill_value") if k in options}
-    if driz is not None:
-        return _drizzle_bayer(ref_item, others, opts, weights, gain, read_noise, hdu, unit,
-                              dtype, options, bayer=bayer, drizzle=driz)
+    if opts.drizzle is not None:
+        return _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options,
+                              bayer=bayer)
     _demosaicing()  # the [colour] extra's ImportError before any work
-    return _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit,
-                        aligned_dir, temp_dir, hdu, unit, order, dtype, options, resampling,
-                        bayer=bayer, method=demosaic)
+    return _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit,
+                        order, dtype, options, resampling, bayer=bayer)
 
 
-def _stack_bayer(ref_item, others, opts, weights, gain, read_noise, memory_limit, aligned_dir,
-                 temp_dir, hdu, unit, order, dtype, options, resampling, *, bayer, method):
+def _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit, order,
+                 dtype, options, resampling, *, bayer):
     """Raw colour frames registered on their grey versions, demosaiced, combined per colour."""
     with _aligned_folder(aligned_dir, temp_dir) as folder:
         channels, rejected, ref, pattern = register_bayer(
-            ref_item, others, folder, bayer=bayer, method=method, hdu=hdu, unit=unit,
+            ref_item, others, folder, bayer=bayer, method=opts.demosaic, hdu=hdu, unit=unit,
             order=order, options=options, resampling=resampling)
         _check_registered(others, len(channels[0]) - 1, rejected)
         combined, all_rejected = [], list(rejected)
         for frames_ in channels:
             lost = list(rejected)
-            value, variance, coverage, names, stats, copts = _combine(
-                frames_, lost, opts, weights, gain, read_noise, memory_limit, ref.data.shape,
-                warn_rejected=not combined)
+            used, stats = _measure(frames_, lost, opts, weights)
+            if not combined:
+                for name, why in lost:  # never silently: the header alone is easy to miss
+                    warn(f"{name} was left out of the stack: {why}")
+            copts = _feasible_clip(opts, len(used))
+            value, variance, coverage = combine_files(
+                [frames_[i][1] for i in used], stats, ref.data.shape, copts, gain=opts.gain,
+                read_noise=opts.read_noise, memory_limit=opts.memory_limit)
             all_rejected += [r for r in lost if r not in all_rejected]
-            combined.append((value, variance, coverage, names, stats))
-    settings = _settings(copts, len(names))
+            combined.append((value, variance, coverage, [frames_[i][0] for i in used], stats))
+    settings = _settings(copts, len(used))
     settings["AABAYER"] = (pattern, "Bayer pattern of the reference's first cell")
-    settings["AADEMOS"] = (method, "demosaicing (colour-demosaicing)")
+    settings["AADEMOS"] = (opts.demosaic, "demosaicing (colour-demosaicing)")
     return colour_ccddata(combined, meta=ref.meta, wcs=ref.wcs, unit=ref.unit or "adu",
                           dtype=dtype, rejected=all_rejected, settings=settings)
 
 
-def _drizzle_bayer(ref_item, others, opts, weights, gain, read_noise, hdu, unit, dtype,
-                   options, *, bayer, drizzle):
+def _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options, *, bayer):
     """Raw colour frames registered on their grey versions and Bayer-drizzled."""
-    scale, pixfrac, kernel, saturation = drizzle
     channels, rejected, ref, pattern = drizzle_bayer(
-        ref_item, others, bayer=bayer, scale=scale, pixfrac=pixfrac, kernel=kernel,
-        normalize=opts.normalize, weights=weights, gain=gain, read_noise=read_noise, hdu=hdu,
-        unit=unit, options=options, saturation=saturation)
+        ref_item, others, bayer=bayer, scale=opts.drizzle, pixfrac=opts.pixfrac,
+        kernel=opts.kernel, normalize=opts.normalize, weights=weights, gain=opts.gain,
+        read_noise=opts.read_noise, hdu=hdu, unit=unit, options=options,
+        saturation=opts.saturation)
     _check_registered(others, len(channels[0][3]) - 1, rejected)
     for name, why in rejected:
         warn(f"{name} was left out of the stack: {why}")
     settings = {"AASTKMTH": ("drizzle", "astroalign_nd stack: combination"),
                 "AASTKNRM": (opts.normalize or "none", "sky normalisation"),
-                "AADRIZ": (scale, "drizzle: output pixels per reference pixel"),
-                "AADZPFR": (pixfrac, "drizzle: pixfrac"),
-                "AADZKERN": (kernel, "drizzle: kernel"),
+                "AADRIZ": (opts.drizzle, "drizzle: output pixels per reference pixel"),
+                "AADZPFR": (opts.pixfrac, "drizzle: pixfrac"),
+                "AADZKERN": (opts.kernel, "drizzle: kernel"),
                 "AABAYER": (pattern, "Bayer pattern of the reference's first cell")}
-    wcs = scaled_wcs(ref.wcs, scale, channels[0][0].shape)
+    wcs = scaled_wcs(ref.wcs, opts.drizzle, channels[0][0].shape)
     return colour_ccddata(channels, meta=ref.meta, wcs=wcs, unit=ref.unit or "adu",
                           dtype=dtype, rejected=rejected, settings=settings)
-
-
-def _check_bayer(bayer, demosaic, canvas):
-    """``bayer`` and ``demosaic`` checked before any work."""
-    if bayer != "auto":
-        bayer = bayer_pattern(pattern=bayer)
-    if demosaic not in DEMOSAIC_METHODS:
-        raise ValueError(f"demosaic must be one of {', '.join(map(repr, DEMOSAIC_METHODS))}; "
-                         f"got {demosaic!r}.")
-    if canvas != "reference":
-        raise ValueError("bayer frames are stacked on the reference's grid: pass "
-                         "canvas='reference' (the default).")
-    return bayer
 
 
 def _check_registered(others, n_registered, rejected):
@@ -431,58 +313,6 @@ def _check_registered(others, n_registered, rejected):
         raise TransformNotFoundError(
             "no frame could be registered onto the reference: "
             + "; ".join(f"{n}: {e}" for n, e in rejected))
-
-
-def _combine(frames_, rejected, opts, weights, gain, read_noise, memory_limit, shape, *,
-             warn_rejected=True):
-    """
-    Registered frames ``(name, path, index)`` measured and combined: the value,
-    variance and coverage, the names and stats of the frames used, and the options
-    as applied.  Frames that cannot be measured join ``rejected``.
-    """
-    used, stats = _measure(frames_, rejected, opts, weights, gain, read_noise, memory_limit)
-    if warn_rejected:
-        for name, why in rejected:  # never silently: the header alone is easy to miss
-            warn(f"{name} was left out of the stack: {why}")
-    opts = _feasible_clip(opts, len(used))
-    value, variance, coverage = combine_files(
-        [frames_[i][1] for i in used], stats, shape, opts, gain=gain, read_noise=read_noise,
-        memory_limit=memory_limit)
-    return value, variance, coverage, [frames_[i][0] for i in used], stats, opts
-
-
-def _check_options(method, clip, sigma, sigma_low, sigma_high, maxiters, nlow, nhigh,
-                   normalize, canvas, memory_limit, gain, read_noise):
-    """The combination's options, refused with a clear message before any work."""
-    for name, value, allowed in (("method", method, STACK_METHODS), ("clip", clip, CLIP_METHODS),
-                                 ("normalize", normalize, NORMALIZE_METHODS),
-                                 ("canvas", canvas, ("reference", "union"))):
-        if value not in allowed:
-            raise ValueError(f"{name} must be one of {', '.join(map(repr, allowed))}; got "
-                             f"{value!r}.")
-    low = _positive(sigma if sigma_low is None else sigma_low, "sigma_low")
-    high = _positive(sigma if sigma_high is None else sigma_high, "sigma_high")
-    for name, value, least in (("maxiters", maxiters, 1), ("nlow", nlow, 0),
-                               ("nhigh", nhigh, 0)):
-        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
-            raise ValueError(f"{name} must be an integer >= {least}; got {value!r}.")
-    _positive(memory_limit, "memory_limit")
-    if gain is not None:
-        _positive(gain, "gain")
-    if read_noise is not None:
-        _positive(read_noise, "read_noise", zero=True)
-    return CombineOptions(method=method, clip=clip, sigma_low=low, sigma_high=high,
-                          maxiters=int(maxiters), nlow=int(nlow), nhigh=int(nhigh),
-                          normalize=normalize)
-
-
-def _positive(value, name, zero=False):
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a number; got {type(value).__name__}.")
-    if not np.isfinite(value) or value < 0 or (value == 0 and not zero):
-        what = ">= 0" if zero else "> 0"
-        raise ValueError(f"{name} must be finite and {what}; got {value!r}.")
-    return float(value)
 
 
 def _is_path(obj):
@@ -539,23 +369,15 @@ def _once(others, ref_item):
     return kept
 
 
-def _check_weights(weights, n_frames):
-    """``weights`` as 'variance', None or an array of one per frame (refused otherwise)."""
-    if weights is None or (isinstance(weights, str) and weights == "variance"):
+def _per_frame(weights, n_frames):
+    """``weights`` as `StackConfig` holds them; a sequence as an array of one per frame."""
+    if weights is None or isinstance(weights, str):
         return weights
-    if isinstance(weights, str):
-        raise ValueError(f"weights must be 'variance', None or one number per frame; got "
-                         f"{weights!r}.")
-    try:
-        w = np.asarray(weights, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise TypeError(f"weights must be 'variance', None or a sequence of numbers; got "
-                        f"{type(weights).__name__}.") from None
-    if w.size != n_frames or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+    if len(weights) != n_frames:
         raise ValueError(f"weights must be one finite number >= 0 per frame ({n_frames}, the "
                          f"reference's first when it is not one of the frames), not all 0; "
-                         f"got {weights!r}.")
-    return w
+                         f"got {list(weights)!r}.")
+    return np.asarray(weights)
 
 
 def _check_outputs(output, overwrite, items, ref_item):
@@ -615,7 +437,7 @@ def _reference_name(item):
     return f"{name} (reference)"
 
 
-def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit):
+def _measure(frames, rejected, opts, weights):
     """
     Each frame's statistics, normalisation and weight; a frame that cannot
     be measured joins ``rejected``.  Returns the indices used and their stats.
@@ -624,7 +446,7 @@ def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit):
     ref_sky = ref_unit = None
     for i, (name, path, _) in enumerate(frames):
         try:
-            st = frame_stats(path, memory_limit)
+            st = frame_stats(path, opts.memory_limit)
             ref_unit = st.unit if i == 0 else ref_unit
             factor = _unit_factor(st, ref_unit)
             ref_sky = st.sky if ref_sky is None else ref_sky
@@ -640,7 +462,7 @@ def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit):
         stats.append(st)
     if weights is not None and not isinstance(weights, str):
         weights = weights[[frames[i][2] for i in used]]
-    frame_weights(stats, weights, gain, read_noise)
+    frame_weights(stats, weights, opts.gain, opts.read_noise)
     return used, stats
 
 

@@ -111,7 +111,7 @@ def test_bayer_stack_has_no_colour_offset(views, raws, how, tmp_path):
 
 
 def test_bayer_options_are_checked(raws):
-    with pytest.raises(ValueError, match="unknown Bayer pattern 'RGBG'"):
+    with pytest.raises(ValueError, match="bayer must be one of 'auto', 'RGGB'.*got 'RGBG'"):
         stack(raws[:2], bayer="RGBG")
     with pytest.raises(ValueError, match="canvas='reference'"):
         stack(raws[:2], bayer="auto", canvas="union")
