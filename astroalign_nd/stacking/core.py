@@ -137,11 +137,8 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
     weights = _per_frame(opts.weights, n_frames)
     _check_outputs(output, overwrite, items, ref_item)
     if opts.bayer is not None:
-        ccd = _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit,
-                            order, dtype, options)
-        if output is not None:
-            write_output(ccd, output, overwrite=overwrite)
-        return ccd
+        return _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit,
+                             order, dtype, options, output=output, overwrite=overwrite)
     ref = parse_input(ref_item[0], "reference", hdu=hdu, unit=unit)
     if ref.data is None or ref.data.ndim != 2:
         raise ValueError("the reference must be a 2-D image (stack one colour channel at a "
@@ -242,8 +239,8 @@ def _drizzled(paths, sources, stats, result, ref, opts, folder, dtype, names, re
 
 
 def _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit, order,
-                  dtype, options):
-    """Raw colour frames: demosaiced and combined per colour, or Bayer-drizzled."""
+                  dtype, options, *, output, overwrite):
+    """Raw colour frames: demosaiced and combined per colour, or Bayer-drizzled (and written)."""
     bayer = opts.bayer if opts.bayer == "auto" else bayer_pattern(pattern=opts.bayer)
     if opts.canvas != "reference":
         raise ValueError("bayer frames are stacked on the reference's grid: pass "
@@ -251,11 +248,15 @@ def _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, u
     # Resampling's options (the command line passes them): the demosaiced planes' only.
     resampling = {k: options.pop(k) for k in ("conserve_flux", "fill_value") if k in options}
     if opts.drizzle is not None:
-        return _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options,
-                              bayer=bayer)
-    _demosaicing()  # the [colour] extra's ImportError before any work
-    return _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit,
-                        order, dtype, options, resampling, bayer=bayer)
+        ccd = _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options,
+                             bayer=bayer)
+    else:
+        _demosaicing()  # the [colour] extra's ImportError before any work
+        ccd = _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit,
+                           order, dtype, options, resampling, bayer=bayer)
+    if output is not None:
+        write_output(ccd, output, overwrite=overwrite)
+    return ccd
 
 
 def _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit, order,
