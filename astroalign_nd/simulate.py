@@ -53,6 +53,7 @@ __all__ = [
     "simulate_sparse_pair",
     "to_8bit",
     "bayer_bin",
+    "bayer_mosaic",
     "resampled_copy",
     "simulate_trust_case",
     "TRUST_CASES",
@@ -1822,6 +1823,59 @@ def bayer_bin(pair, *, gains=(0.55, 1.0, 1.0, 0.75)):
                          source_stars=stars(pair.source_stars),
                          target_stars=stars(pair.target_stars),
                          transients=stars(pair.transients), meta=meta, mapping=mapping)
+
+
+def bayer_mosaic(image, pattern="GRBG", *, gains=(0.55, 1.0, 0.75)):
+    """
+    A raw colour frame, as a one-shot-colour camera writes it.
+
+    Each pixel keeps the colour its filter passes: a grey ``image`` is
+    multiplied by that colour's gain, or a colour ``image`` ``(3, ny, nx)``
+    (red, green, blue planes, e.g. with the stars shifted per colour as
+    atmospheric dispersion shifts them) gives each pixel its colour's plane.
+
+    Parameters
+    ----------
+    image : 2-D array or (3, ny, nx) array
+        A grey frame (e.g. from `simulate_image` or `simulate_views`), or
+        red, green and blue planes.
+    pattern : {'RGGB', 'BGGR', 'GRBG', 'GBRG'}, optional
+        The colours of the first 2x2 cell, row by row (default 'GRBG', the
+        Seestar's).
+    gains : 3 floats, optional
+        The red, green and blue response (applied to a grey ``image`` only).
+
+    Returns
+    -------
+    raw : `~astropy.nddata.CCDData`
+        The mosaic (float32, ``adu``), with ``BAYERPAT`` in its header.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astroalign_nd.simulate import bayer_mosaic
+    >>> raw = bayer_mosaic(np.full((4, 4), 100.0), "GRBG")
+    >>> raw.data[:2, :2].tolist(), raw.meta["BAYERPAT"]
+    ([[100.0, 55.0], [75.0, 100.0]], 'GRBG')
+    """
+    from astropy.nddata import CCDData
+
+    from .io.bayer import bayer_channels
+
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim == 3 and img.shape[0] == 3:
+        planes = img
+    elif img.ndim == 2:
+        g = np.asarray(gains, dtype=float).ravel()
+        if g.size != 3 or not np.all(np.isfinite(g) & (g > 0)):
+            raise ValueError(f"gains must be 3 positive numbers (R, G, B); got {gains!r}.")
+        planes = g[:, None, None] * img
+    else:
+        raise ValueError(f"image must be a 2-D frame or (3, ny, nx) colour planes; got shape "
+                         f"{img.shape}.")
+    channel = bayer_channels(planes.shape[1:], pattern)
+    raw = np.take_along_axis(planes, channel[None].astype(np.intp), axis=0)[0]
+    return CCDData(raw.astype(np.float32), unit="adu", meta={"BAYERPAT": pattern.upper()})
 
 
 def resampled_copy(image, *, rotation=2.0, translation=(35.0, -12.0), order=3, noise=0.02,

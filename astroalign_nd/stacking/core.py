@@ -20,11 +20,13 @@ from ..batch.canvas import canvas_wcs
 from ..batch.core import Interrupted
 from ..exceptions import TransformNotFoundError, warn
 from ..io import write_ccddata, write_output
+from ..io.bayer import bayer_pattern
 from ..io.write import check_not_input, check_output_path, make_output_dir, remove_empty_dirs
 from ..io.writers import output_suffixes
 from .combine import combine_files, frame_stats, frame_variance, frame_weights, normalise
 from .drizzle import (DrizzleAccumulator, blot_mask, coverage_report, output_shape, pixel_map,
                       scaled_wcs, weight_map)
+from .colour import _demosaicing, colour_ccddata, drizzle_bayer, register_bayer
 from .header import stack_ccddata
 from .options import StackConfig
 
@@ -144,10 +146,13 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
     others = _once(others, ref_item)
     weights = _per_frame(opts.weights, n_frames)
     _check_outputs(output, overwrite, items, ref_item)
+    if opts.bayer is not None:
+        return _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit,
+                             order, dtype, options, output=output, overwrite=overwrite)
     ref = parse_input(ref_item[0], "reference", hdu=hdu, unit=unit)
     if ref.data is None or ref.data.ndim != 2:
         raise ValueError("the reference must be a 2-D image (stack one colour channel at a "
-                         "time).")
+                         "time, or raw colour frames with bayer='auto').")
     interrupt = None
     with _aligned_folder(aligned_dir, temp_dir) as folder:
         try:
@@ -276,6 +281,84 @@ def drizzle_ccddata(planes, coverage, opts, settings, *, meta, wcs, offset, name
 def _not_done(frame):
     """A frame an interrupted `register_batch` did not reach (not a failure of its own)."""
     return (frame.error or "").startswith(f"{Interrupted.__name__}: ")
+
+
+def _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit, order,
+                  dtype, options, *, output, overwrite):
+    """Raw colour frames: demosaiced and combined per colour, or Bayer-drizzled (and written)."""
+    bayer = opts.bayer if opts.bayer == "auto" else bayer_pattern(pattern=opts.bayer)
+    if opts.canvas != "reference":
+        raise ValueError("bayer frames are stacked on the reference's grid: pass "
+                         "canvas='reference' (the default).")
+    # Resampling's options (the command line passes them): the demosaiced planes' only.
+    resampling = {k: options.pop(k) for k in ("conserve_flux", "fill_value") if k in options}
+    if opts.drizzle is not None:
+        ccd = _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options,
+                             bayer=bayer)
+    else:
+        _demosaicing()  # the [colour] extra's ImportError before any work
+        ccd = _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit,
+                           order, dtype, options, resampling, bayer=bayer)
+    if output is not None:
+        write_output(ccd, output, overwrite=overwrite)
+    return ccd
+
+
+def _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit, order,
+                 dtype, options, resampling, *, bayer):
+    """Raw colour frames registered on their grey versions, demosaiced, combined per colour."""
+    with _aligned_folder(aligned_dir, temp_dir) as folder:
+        channels, rejected, ref, pattern = register_bayer(
+            ref_item, others, folder, bayer=bayer, method=opts.demosaic, hdu=hdu, unit=unit,
+            order=order, options=options, resampling=resampling)
+        _check_registered(others, len(channels[0]) - 1, rejected)
+        combined, all_rejected = [], list(rejected)
+        for frames_ in channels:
+            lost = list(rejected)
+            used, stats = _measure(frames_, lost, opts, weights)
+            if not combined:
+                for name, why in lost:  # never silently: the header alone is easy to miss
+                    warn(f"{name} was left out of the stack: {why}")
+            copts = _feasible_clip(opts, len(used))
+            value, variance, coverage = combine_files(
+                [frames_[i][1] for i in used], stats, ref.data.shape, copts, gain=opts.gain,
+                read_noise=opts.read_noise, memory_limit=opts.memory_limit)
+            all_rejected += [r for r in lost if r not in all_rejected]
+            combined.append((value, variance, coverage, [frames_[i][0] for i in used], stats))
+    settings = _settings(copts, len(used))
+    settings["AABAYER"] = (pattern, "Bayer pattern of the reference's first cell")
+    settings["AADEMOS"] = (opts.demosaic, "demosaicing (colour-demosaicing)")
+    return colour_ccddata(combined, meta=ref.meta, wcs=ref.wcs, unit=ref.unit or "adu",
+                          dtype=dtype, rejected=all_rejected, settings=settings)
+
+
+def _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options, *, bayer):
+    """Raw colour frames registered on their grey versions and Bayer-drizzled."""
+    channels, rejected, ref, pattern = drizzle_bayer(
+        ref_item, others, bayer=bayer, scale=opts.drizzle, pixfrac=opts.pixfrac,
+        kernel=opts.kernel, normalize=opts.normalize, weights=weights, gain=opts.gain,
+        read_noise=opts.read_noise, hdu=hdu, unit=unit, options=options,
+        saturation=opts.saturation)
+    _check_registered(others, len(channels[0][3]) - 1, rejected)
+    for name, why in rejected:
+        warn(f"{name} was left out of the stack: {why}")
+    settings = {"AASTKMTH": ("drizzle", "astroalign_nd stack: combination"),
+                "AASTKNRM": (opts.normalize or "none", "sky normalisation"),
+                "AADRIZ": (opts.drizzle, "drizzle: output pixels per reference pixel"),
+                "AADZPFR": (opts.pixfrac, "drizzle: pixfrac"),
+                "AADZKERN": (opts.kernel, "drizzle: kernel"),
+                "AABAYER": (pattern, "Bayer pattern of the reference's first cell")}
+    wcs = scaled_wcs(ref.wcs, opts.drizzle, channels[0][0].shape)
+    return colour_ccddata(channels, meta=ref.meta, wcs=wcs, unit=ref.unit or "adu",
+                          dtype=dtype, rejected=rejected, settings=settings)
+
+
+def _check_registered(others, n_registered, rejected):
+    """Refuse a stack of the reference alone when there were other frames."""
+    if others and not n_registered:
+        raise TransformNotFoundError(
+            "no frame could be registered onto the reference: "
+            + "; ".join(f"{n}: {e}" for n, e in rejected))
 
 
 def _is_path(obj):

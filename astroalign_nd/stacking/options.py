@@ -35,10 +35,11 @@ import dataclasses
 import numpy as np
 
 from ..options import Choice, Int, Real, check_fields, convert, fields_of, option
+from ..io.bayer import BAYER_PATTERNS
 from .drizzle import DRIZZLE_KERNELS
 
 __all__ = ["StackConfig", "FrameWeights", "STACK_METHODS", "CLIP_METHODS",
-           "NORMALIZE_METHODS", "WEIGHT_METHODS", "DEFAULT_MEMORY_LIMIT"]
+           "NORMALIZE_METHODS", "WEIGHT_METHODS", "DEMOSAIC_METHODS", "DEFAULT_MEMORY_LIMIT"]
 
 #: The combinations: weighted mean, median, and the sum (the mean times the number of frames).
 STACK_METHODS = ("average", "median", "sum")
@@ -48,6 +49,8 @@ CLIP_METHODS = ("sigma", "minmax", None)
 NORMALIZE_METHODS = ("offset", "scale", None)
 #: The frame weights by name: the inverse median variance, equal weights.
 WEIGHT_METHODS = ("variance", None)
+#: The demosaicing methods of ``colour-demosaicing`` offered for raw colour frames.
+DEMOSAIC_METHODS = ("Menon2007", "Malvar2004", "bilinear")
 #: Default working memory of the combination, bytes.
 DEFAULT_MEMORY_LIMIT = 512e6
 
@@ -164,6 +167,29 @@ class StackConfig:
         `~astroalign_nd.stacking.drizzle.DRIZZLE_KERNELS` (default 'square').
     saturation : float, optional
         With ``drizzle``: input values at or above this weigh nothing.
+    bayer : {'auto', 'RGGB', 'BGGR', 'GRBG', 'GBRG'} or None, optional
+        Raw colour frames of a one-shot-colour camera (default None: grey
+        or already colour).  'auto' reads each frame's pattern from its
+        header (``BAYERPAT``, ``XBAYROFF``, ``YBAYROFF``, ``ROWORDER``: see
+        `astroalign_nd.io.bayer`); a pattern names the colours of every
+        frame's first 2x2 cell (``data[0:2, 0:2]``, row by row) and
+        overrides the headers.  Each frame is registered on its grey
+        version (each colour scaled to green's response), then demosaiced
+        and each colour stacked with the frame's one transform, or with
+        ``drizzle`` Bayer-drizzled (each colour's raw pixels dropped at
+        their true positions, no rejection;
+        `astroalign_nd.stacking.colour.drizzle_bayer`; ``pixfrac`` toward 1,
+        each colour having a quarter or half of the pixels).  The stack is
+        an RGB cube ``(3, ny, nx)``, each plane with its uncertainty, mask
+        and coverage (`astroalign_nd.stacking.colour`).  Demosaicing needs
+        ``colour-demosaicing`` (the ``[colour]`` extra); ``canvas`` must be
+        'reference'.
+    demosaic : {'Menon2007', 'Malvar2004', 'bilinear'}, optional
+        With ``bayer``: ``colour-demosaicing``'s method (default
+        'Menon2007').  Menon2007 and Malvar2004 build red and blue from
+        green's detail (their stars take green's width and position: a
+        real colour offset such as atmospheric dispersion disappears);
+        'bilinear' keeps each colour's own.
 
     Raises
     ------
@@ -240,6 +266,16 @@ class StackConfig:
     saturation: float | None = option(
         None, Real(none=True), "with --drizzle: input values at or above weigh nothing",
         flag="--saturation", type=float)
+    bayer: str | None = option(
+        None, Choice(("auto",) + BAYER_PATTERNS + tuple(p.lower() for p in BAYER_PATTERNS)
+                     + (None,)),
+        "raw colour frames: their Bayer pattern (the colours of the first 2x2 cell), or auto "
+        "(each frame's BAYERPAT); OUT is an RGB cube", used_by=("stack",), flag="--bayer",
+        metavar="PATTERN")
+    demosaic: str = option(
+        "Menon2007", Choice(DEMOSAIC_METHODS),
+        "with --bayer: colour-demosaicing's method (default: %(default)s)", used_by=("stack",),
+        flag="--demosaic")
 
     def __post_init__(self):
         check_fields(self)
