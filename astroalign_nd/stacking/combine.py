@@ -29,8 +29,9 @@ __all__ = ["CombineOptions", "FrameStats", "frame_stats", "array_stats", "read_r
 STACK_METHODS = ("average", "median", "sum")
 #: The rejections: none, sigma clipping about the median, min/max (extrema) clipping.
 CLIP_METHODS = (None, "sigma", "minmax")
-#: The sky normalisations: none, an offset (sky added), a scale (transparency).
-NORMALIZE_METHODS = (None, "offset", "scale")
+#: The sky normalisations: none, an offset (sky added), a scale (sky ratio), the stars'
+#: flux ratio (transparency measured on matched stars) and the sky offset.
+NORMALIZE_METHODS = (None, "offset", "scale", "stars")
 
 #: Bytes of working memory per frame and per pixel of a strip (the values, their
 #: variance and validity, and the temporaries of the median and the clipping).
@@ -59,7 +60,13 @@ class CombineOptions:
         Sigma clipping's rounds at most.
     nlow, nhigh : int
         Min/max clipping: the lowest and highest values dropped at each pixel.
-    normalize : {None, 'offset', 'scale'}
+    normalize : {None, 'offset', 'scale', 'stars'}
+    star_tolerance : float
+        Sigma clipping's allowance for the stars' own signal: a value is
+        rejected only beyond ``sigma`` spreads plus ``star_tolerance`` times
+        the pixel's median above the sky, so that the cores of stars in the
+        sharpest frames (far above the others' at the same pixel) stay; the
+        PSF differences of the night set it (0: plain sigma clipping).
     """
 
     method: str = "average"
@@ -70,6 +77,7 @@ class CombineOptions:
     nlow: int = 1
     nhigh: int = 1
     normalize: str | None = "offset"
+    star_tolerance: float = 0.0
 
 
 @dataclass
@@ -97,6 +105,15 @@ class FrameStats:
         Its unit (``BUNIT``), if its file says.
     converted : str or None
         How it was brought into the reference's unit, if it was.
+    var_factor : float
+        Its variance on the stack's grid is its propagated (or sky) variance
+        times this: the variance of the frame as taken over that of the
+        resampled frame, whose interpolation smoothed (and correlated) its
+        noise (see `frame_variance`).
+    transparency : float or None
+        The stars' flux relative to the reference's (``normalize='stars'``).
+    quality : dict or None
+        Its measures (FWHM, elongation, transparency, sky noise) for the header.
     """
 
     sky: float
@@ -109,6 +126,9 @@ class FrameStats:
     n_rejected: int = field(default=0)
     unit: str | None = None
     converted: str | None = None
+    var_factor: float = 1.0
+    transparency: float | None = None
+    quality: dict | None = None
 
 
 def robust_sigma(values):
@@ -317,15 +337,24 @@ def _sigma_clip(x, var, valid, opts):
     outlier, is as large as the outlier's distance).
     """
     keep = valid.copy()
-    floor = np.sqrt(_nanmedian(np.where(keep, var, np.nan)))
+    # Each value's own uncertainty (its frame as taken: see `frame_variance`), so that an
+    # unresampled frame is not held to the smoothed frames' tighter scatter.
+    floor = np.sqrt(var)
     for _ in range(opts.maxiters):
         vals = np.where(keep, x, np.nan)
         med = _nanmedian(vals)
         mad = _MAD_TO_SIGMA * _nanmedian(np.abs(vals - med))
         spread = np.where(keep.sum(axis=0) >= MIN_MAD_VALUES, np.fmax(mad, floor), floor)
+        allow = 0.0
+        if opts.star_tolerance > 0:
+            # The stars' own signal: each row's sky is the median of its pixels' medians.
+            with np.errstate(invalid="ignore"):
+                sky = np.nanmedian(med, axis=-1, keepdims=True) if np.isfinite(med).any() \
+                    else 0.0
+                allow = opts.star_tolerance * np.abs(np.nan_to_num(med - sky))
         with np.errstate(invalid="ignore"):
-            bad = keep & ((x - med > opts.sigma_high * spread)
-                          | (med - x > opts.sigma_low * spread))
+            bad = keep & ((x - med > opts.sigma_high * spread + allow)
+                          | (med - x > opts.sigma_low * spread + allow))
         if not bad.any():
             break
         keep &= ~bad
@@ -424,7 +453,7 @@ def frame_variance(data, var, stats, gain, read_noise):
     variance : ndarray
     """
     if var is not None:
-        return var
+        return var * stats.var_factor if stats.var_factor != 1.0 else var
     if gain is not None:
         rn = 0.0 if read_noise is None else read_noise
         return np.maximum(data, 0.0) / gain + (rn / gain) ** 2
@@ -497,7 +526,10 @@ def normalise(st, reference_sky, normalize):
     ----------
     st : `FrameStats`
     reference_sky : float
-    normalize : {None, 'offset', 'scale'}
+    normalize : {None, 'offset', 'scale', 'stars'}
+        'stars': scaled by the inverse of its ``transparency`` (its stars'
+        flux relative to the reference's), then its sky brought to the
+        reference's.
 
     Raises
     ------
@@ -513,6 +545,14 @@ def normalise(st, reference_sky, normalize):
                              f"{st.sky:.4g} and the reference's {reference_sky:.4g} "
                              "(sky-subtracted frames?). Use normalize='offset'.")
         st.offset, st.scale = 0.0, reference_sky / st.sky
+    elif normalize == "stars":
+        t = st.transparency
+        if t is None or not (np.isfinite(t) and t > 0):
+            raise ValueError("normalize='stars' needs the frame's transparency from its "
+                             "matched stars, which could not be measured; use "
+                             "normalize='offset' or 'scale'.")
+        st.scale = 1.0 / t
+        st.offset = st.sky * st.scale - reference_sky
     else:
         st.offset, st.scale = 0.0, 1.0
 

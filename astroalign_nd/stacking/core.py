@@ -24,6 +24,7 @@ from ..io.writers import output_suffixes
 from .combine import (CLIP_METHODS, NORMALIZE_METHODS, STACK_METHODS, CombineOptions,
                       combine_files, frame_stats, frame_weights, normalise)
 from .header import stack_ccddata
+from .quality import finish_table, measure_frames
 
 __all__ = ["stack"]
 
@@ -41,16 +42,27 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
           aligned_dir: str | os.PathLike | None = None, temp_dir: str | None = None,
           workers: int | None = None, progress: bool = False, hdu: int | str | None = None,
           unit: Any = None, order: str | int = "bilinear", dtype: Any = np.float32,
-          **options: Any) -> CCDData:
+          select: Any = None, max_fwhm: float | None = None,
+          max_elongation: float | None = None, min_transparency: float | None = None,
+          min_stars: int | None = None, **options: Any) -> CCDData:
     """
     Register frames onto a reference and combine them into one deep image.
 
     Each frame is registered as `~astroalign_nd.register_batch` registers
-    it (onto the reference's grid, or onto the union canvas), its sky level
-    is brought to the reference's, values far from the other frames' are
+    it (onto the reference's grid, or onto the union canvas) and measured as
+    it was taken (`~astroalign_nd.frame_quality`: its sky noise, stars' FWHM
+    and elongation, transparency), the frames ``select`` and the limits
+    leave out are set aside with the reason, each frame's sky level is
+    brought to the reference's, values far from the other frames' are
     rejected pixel by pixel (cosmic rays, satellite and aircraft trails,
-    hot pixels), and the rest are combined with their weights, a strip of
-    rows at a time within ``memory_limit``.  The frames are assumed
+    hot pixels; not the cores of the sharpest frames' stars), and the rest
+    are combined with their weights, a strip of rows at a time within
+    ``memory_limit``.  Each frame's noise, weight and rejection limits are
+    those of the frame as taken: interpolation smooths a frame's pixel
+    noise (and correlates it), so a resampled frame's variance is its own
+    times the ratio of its noise as taken to its smoothed noise, and the
+    stack's uncertainty is that of sums over a few pixels and more (an
+    aperture), not of one smoothed pixel.  The frames are assumed
     calibrated (bias, dark and flat already applied, e.g. with ccdproc):
     the stack does not calibrate them.
 
@@ -75,8 +87,11 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         Rejection before combining.  'sigma' (default): values more than
         ``sigma_low``/``sigma_high`` spreads below/above the pixel's median
         are dropped, for up to ``maxiters`` rounds; the spread is the
-        values' MAD standard deviation, but never less than the frames'
-        median uncertainty at that pixel.  'minmax': the ``nlow`` lowest
+        values' MAD standard deviation, but never less than each value's
+        own uncertainty, and the limits also allow the stars' own signal
+        times the night's PSF differences (a frame of seeing twice the
+        sharpest's has star cores four times fainter), so that only
+        outliers go.  'minmax': the ``nlow`` lowest
         and ``nhigh`` highest values of each pixel are dropped (ccdproc's
         ``clip_extrema``).  A pixel whose values would all go keeps them.
     sigma, sigma_low, sigma_high : float, optional
@@ -85,19 +100,40 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         Sigma clipping's rounds at most (default 3).
     nlow, nhigh : int, optional
         Min/max clipping's counts (default 1 and 1).
-    normalize : {'offset', 'scale', None}, optional
+    normalize : {'offset', 'scale', 'stars', None}, optional
         Bring each frame's sky (its sigma-clipped median) to the
         reference's before the rejection, so that a night's changing sky
         does not decide which frames are clipped: 'offset' (default)
         subtracts the difference (moonlight, twilight: sky added), 'scale'
-        multiplies by the ratio (thin cloud: transparency; needs positive
-        sky levels), None leaves the frames as they are.
-    weights : 'variance', None or sequence of float, optional
+        multiplies by the ratio (needs positive sky levels), 'stars'
+        divides by the transparency measured on the matched stars (thin
+        cloud; not the sky ratio, which clouds and moonlight break) and
+        subtracts the sky offset, None leaves the frames as they are.
+    weights : 'variance', 'auto', None or sequence of float, optional
         'variance' (default): each frame weighs the inverse of its median
-        pixel variance (per frame, not per pixel: per-pixel weights from a
-        Poisson variance would favour the pixels that came out low).
-        None: equal weights.  A sequence: one weight per frame, the
-        reference's first when it is not one of ``frames``.
+        pixel variance as taken (per frame, not per pixel: per-pixel
+        weights from a Poisson variance would favour the pixels that came
+        out low).  'auto': the weights that maximise faint point sources'
+        signal-to-noise, ``T**2 / (sigma**2 * A)`` from each frame's
+        transparency ``T``, sky noise ``sigma`` and PSF noise-equivalent
+        area ``A`` (see the stacking docs for the derivation).  None: equal
+        weights.  A sequence: one weight per frame, the reference's first
+        when it is not one of ``frames``.
+    select : None, 'auto' or float, optional
+        Frames left out before combining (`~astroalign_nd.stacking.quality.select_frames`):
+        None (default) only by the explicit limits; 'auto' also the trailed
+        frames and the outliers of the night (robust z-scores of FWHM,
+        transparency and sky noise); a fraction in (0, 1] keeps that
+        fraction, the highest ``weights='auto'`` weights first.  Every frame
+        left out is in the header (``AAREJnnn``), the log and a warning,
+        with the reason; leaving fewer than 3 frames is a
+        `~astroalign_nd.stacking.quality.SelectionError` (a ValueError)
+        naming the limit to relax.  The reference is never left out.
+    max_fwhm, max_elongation, min_transparency : float, optional
+        Leave out frames whose stars are wider (pixels), more elongated
+        (major over minor axis), or dimmer (relative to the reference's).
+    min_stars : int, optional
+        Leave out frames with fewer sources detected.
     gain, read_noise : float, optional
         For frames without an uncertainty: their variance is
         ``max(value, 0) / gain + (read_noise / gain) ** 2`` (``gain`` in
@@ -135,8 +171,11 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         ``flags`` the number of frames reaching each pixel; ``meta`` the
         reference's header with ``NCOMBINE``, ``IMCMBnnn`` (every frame
         combined, with its sky offset ``AASKYnnn``, scale ``AASCLnnn``,
-        weight ``AAWGTnnn`` and rejected pixels ``AANRJnnn``) and
-        ``AAREJnnn`` (every frame left out, and why).
+        weight ``AAWGTnnn``, rejected pixels ``AANRJnnn`` and its measures:
+        FWHM ``AAFWHnnn``, elongation ``AAELGnnn``, transparency
+        ``AATRNnnn``, sky noise ``AANOInnn``), ``AAREJnnn`` (every frame
+        left out, and why) and a HISTORY line of how many were used of how
+        many.
 
     Raises
     ------
@@ -168,6 +207,7 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     ref_item, others, n_frames = _split_reference(items, reference)
     others = _once(others, ref_item)
     weights = _check_weights(weights, n_frames)
+    limits = _check_selection(select, max_fwhm, max_elongation, min_transparency, min_stars)
     _check_outputs(output, overwrite, items, ref_item)
     ref = parse_input(ref_item[0], "reference", hdu=hdu, unit=unit)
     if ref.data is None or ref.data.ndim != 2:
@@ -184,17 +224,20 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
             raise TransformNotFoundError(
                 "no frame could be registered onto the reference: "
                 + "; ".join(f"{n}: {e}" for n, e in rejected))
+        frames_, measured = _quality(frames_, ref_item, others, result, rejected, hdu, unit,
+                                     limits, weights)
         used, stats = _measure(frames_, rejected, opts, weights, gain, read_noise,
-                               memory_limit)
+                               memory_limit, measured)
         for name, why in rejected:  # never silently: the header alone is easy to miss
             warn(f"{name} was left out of the stack: {why}")
-        opts = _feasible_clip(opts, len(used))
+        opts = _feasible_clip(_star_clip(opts, stats), len(used))
         value, variance, coverage = combine_files(
             [frames_[i][1] for i in used], stats, result.canvas_shape, opts, gain=gain,
             read_noise=read_noise, memory_limit=memory_limit)
         wcs = canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
     ccd = _stacked(value, variance, coverage, ref, wcs, dtype, [frames_[i][0] for i in used],
                    stats, rejected, opts)
+    ccd.meta.add_history(f"astroalign_nd stack: {len(used)} of {n_frames} frames used")
     if output is not None:
         write_output(ccd, output, overwrite=overwrite)
     return ccd
@@ -289,12 +332,12 @@ def _once(others, ref_item):
 
 
 def _check_weights(weights, n_frames):
-    """``weights`` as 'variance', None or an array of one per frame (refused otherwise)."""
-    if weights is None or (isinstance(weights, str) and weights == "variance"):
+    """``weights`` as 'variance', 'auto', None or one per frame (refused otherwise)."""
+    if weights is None or (isinstance(weights, str) and weights in ("variance", "auto")):
         return weights
     if isinstance(weights, str):
-        raise ValueError(f"weights must be 'variance', None or one number per frame; got "
-                         f"{weights!r}.")
+        raise ValueError(f"weights must be 'variance', 'auto', None or one number per frame; "
+                         f"got {weights!r}.")
     try:
         w = np.asarray(weights, dtype=float).ravel()
     except (TypeError, ValueError):
@@ -305,6 +348,24 @@ def _check_weights(weights, n_frames):
                          f"reference's first when it is not one of the frames), not all 0; "
                          f"got {weights!r}.")
     return w
+
+
+def _check_selection(select, max_fwhm, max_elongation, min_transparency, min_stars):
+    """The selection's options as a dict (refused with what to pass)."""
+    if not (select is None or (isinstance(select, str) and select == "auto")):
+        if isinstance(select, (str, bool)) or not isinstance(select, numbers.Real) or not (
+                0 < select <= 1):
+            raise ValueError(f"select must be None, 'auto' or a fraction of the frames to "
+                             f"keep in (0, 1]; got {select!r}.")
+    for name, value in (("max_fwhm", max_fwhm), ("max_elongation", max_elongation),
+                        ("min_transparency", min_transparency)):
+        if value is not None:
+            _positive(value, name)
+    if min_stars is not None and (isinstance(min_stars, bool) or not isinstance(
+            min_stars, numbers.Integral) or min_stars < 0):
+        raise ValueError(f"min_stars must be an integer >= 0; got {min_stars!r}.")
+    return dict(select=select, max_fwhm=max_fwhm, max_elongation=max_elongation,
+                min_transparency=min_transparency, min_stars=min_stars)
 
 
 def _check_outputs(output, overwrite, items, ref_item):
@@ -364,16 +425,18 @@ def _reference_name(item):
     return f"{name} (reference)"
 
 
-def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit):
+def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit, measured):
     """
     Each frame's statistics, normalisation and weight; a frame that cannot
     be measured joins ``rejected``.  Returns the indices used and their stats.
+    ``measured``: each frame's quality row and measures as taken (or None).
     """
     used, stats = [], []
     ref_sky = ref_unit = None
     for i, (name, path, _) in enumerate(frames):
         try:
             st = frame_stats(path, memory_limit)
+            _as_taken(st, *measured[i])
             ref_unit = st.unit if i == 0 else ref_unit
             factor = _unit_factor(st, ref_unit)
             ref_sky = st.sky if ref_sky is None else ref_sky
@@ -387,10 +450,75 @@ def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit):
             continue
         used.append(i)
         stats.append(st)
-    if weights is not None and not isinstance(weights, str):
+    if isinstance(weights, str) and weights == "auto":
+        w = np.array([st.quality["weight"] if st.quality else np.nan for st in stats])
+        weights = np.where(np.isfinite(w), w, np.nanmedian(w) if np.isfinite(w).any() else 1)
+    elif weights is not None and not isinstance(weights, str):
         weights = weights[[frames[i][2] for i in used]]
     frame_weights(stats, weights, gain, read_noise)
     return used, stats
+
+
+def _as_taken(st, row, m):
+    """
+    A registered frame's stats with its noise as taken (before resampling smoothed it):
+    the sky noise, and the factor of its propagated variance; its transparency and
+    measures for ``normalize='stars'`` and the header.
+    """
+    if m is None:
+        return
+    if st.median_variance is not None and m.median_variance and st.median_variance > 0:
+        st.var_factor = max(m.median_variance / st.median_variance, 1.0)
+        st.median_variance = m.median_variance
+    elif st.noise > 0 and m.sky_noise > 0:
+        st.noise = m.sky_noise
+    st.transparency = row["transparency"]
+    st.quality = {k: row[k] for k in ("fwhm", "elongation", "transparency", "sky_noise",
+                                      "weight")}
+
+
+def _quality(frames, ref_item, others, result, rejected, hdu, unit, limits, weights):
+    """
+    Every registered frame measured as taken (`~astroalign_nd.frame_quality`'s rows), the
+    selection applied: the frames left out join ``rejected`` with the reason.  Returns
+    the frames kept and their ``(row, measures)``.
+    """
+    ok = [(f, it) for f, (it, _) in zip(result.frames, others) if f.ok]
+    select = limits.pop("select")
+    try:
+        rows, measures = measure_frames(
+            (frames[0][0], ref_item[0]),
+            [(f.name, it[0], f.points, f.quality) for f, it in ok], hdu=hdu, unit=unit)
+    except (ValueError, TypeError) as exc:
+        if weights == "auto" or select is not None or any(
+                v is not None for v in limits.values()):
+            raise ValueError(f"the reference cannot be measured ({exc}): weights='auto', "
+                             "select and the limits need its stars; use weights='variance' "
+                             "and no selection.") from None
+        return frames, [(None, None)] * len(frames)
+    rows = list(finish_table(rows, select, limits))
+    kept, measured = [], []
+    for frame, row, m in zip(frames, rows, measures):
+        if row["used"] or m is None:  # (one not measured is combined as before)
+            kept.append(frame)
+            measured.append((row, m))
+        else:
+            rejected.append((frame[0], row["reason"]))
+    return kept, measured
+
+
+def _star_clip(opts, stats):
+    """
+    The clipping's allowance for the stars' own signal: the largest ratio of a frame's
+    peak to the median frame's, minus 1 (peaks scale as the inverse FWHM squared), plus
+    0.3 for registration and normalisation errors.
+    """
+    fwhm = np.array([st.quality["fwhm"] for st in stats if st.quality], float)
+    fwhm = fwhm[np.isfinite(fwhm) & (fwhm > 0)]
+    if opts.clip != "sigma" or fwhm.size < 2:
+        return opts
+    ratio = (np.median(fwhm) / fwhm) ** 2
+    return dataclasses.replace(opts, star_tolerance=float(np.max(np.abs(ratio - 1.0)) + 0.3))
 
 
 def _feasible_clip(opts, n_used):

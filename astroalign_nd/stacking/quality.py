@@ -76,6 +76,8 @@ class FrameMeasures:
         The detected sources (pixels, brightest first) and their peak values.
     saturation : float
         The frame's largest value (stars reaching it are not photometered).
+    median_variance : float or None
+        The median of its own variance (None without an uncertainty).
     """
 
     sky: float
@@ -89,6 +91,7 @@ class FrameMeasures:
     y: np.ndarray
     peak: np.ndarray
     saturation: float
+    median_variance: float | None = None
 
 
 def _cutouts(data, x, y, half):
@@ -200,7 +203,7 @@ def star_shapes(data, x, y, *, fwhm_guess=3.0, half=None, n_iter=8):
     return np.where(ok, fwhm, np.nan), np.where(ok, elong, np.nan)
 
 
-def measure_frame(data, mask=None, *, n_sources=300, **detect_options):
+def measure_frame(data, mask=None, *, variance=None, n_sources=300, **detect_options):
     """
     A frame's sky, noise, star count and star shapes, as it was taken.
 
@@ -209,6 +212,8 @@ def measure_frame(data, mask=None, *, n_sources=300, **detect_options):
     data : 2-D array-like
         The frame before any resampling.
     mask : 2-D bool array-like, optional
+    variance : 2-D ndarray, optional
+        Its own variance (its ``median_variance`` is the median).
     n_sources : int, optional
         Most sources detected (the star count saturates there).
     **detect_options
@@ -221,7 +226,6 @@ def measure_frame(data, mask=None, *, n_sources=300, **detect_options):
     from astropy.stats import sigma_clipped_stats
 
     from ..detection import find_sources
-    from ..detection.background import estimate_noise
 
     data = np.asarray(data, dtype=np.float64)
     mask = None if mask is None else np.asarray(mask, dtype=bool)
@@ -234,7 +238,7 @@ def measure_frame(data, mask=None, *, n_sources=300, **detect_options):
         warnings.simplefilter("ignore")
         _, sky, _ = sigma_clipped_stats(values[::step], sigma=3.0, maxiters=10)
         table = find_sources(data, mask=~valid, n_sources=n_sources, **detect_options)
-    noise = float(estimate_noise(np.where(valid, data, np.nan), ~valid))
+    noise = _difference_noise(data, valid)
     x, y = np.asarray(table["x"], float), np.asarray(table["y"], float)
     peak = np.asarray(table["peak"], float)
     saturation = float(np.max(values))
@@ -251,9 +255,101 @@ def measure_frame(data, mask=None, *, n_sources=300, **detect_options):
     else:
         fwhm, spread, elong = fwhm_det, float("nan"), float("nan")
     area = 4.0 * math.pi * (fwhm / _GAUSS_FWHM) ** 2
+    med_var = None
+    if variance is not None:
+        v = np.asarray(variance, dtype=np.float64)[valid]
+        v = v[np.isfinite(v)]
+        med_var = float(np.median(v)) if v.size else None
     return FrameMeasures(sky=float(sky), sky_noise=noise, fwhm=fwhm, fwhm_spread=spread,
                          elongation=elong, area=area, n_stars=len(x), x=x, y=y, peak=peak,
-                         saturation=saturation)
+                         saturation=saturation, median_variance=med_var)
+
+
+def _difference_noise(data, valid):
+    """
+    The per-pixel noise from differences of horizontally adjacent pixels (which
+    cancel the sky and its gradients): their sigma-clipped standard deviation over
+    sqrt(2).  A standard deviation, not a MAD: the MAD of integer counts with a noise
+    of one or two counts is quantised.
+    """
+    from astropy.stats import sigma_clipped_stats
+
+    d = data[:, 1:] - data[:, :-1]
+    ok = valid[:, 1:] & valid[:, :-1]
+    d = d[ok]
+    if d.size == 0:
+        return float("nan")
+    d = d[::max(1, d.size // 200_000)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, _, std = sigma_clipped_stats(d, sigma=3.0, maxiters=10)
+    return float(std / math.sqrt(2.0))
+
+
+def _variance_of(parsed):
+    """A parsed frame's variance (None without an uncertainty)."""
+    unc = parsed.uncertainty
+    if unc is None:
+        return None
+    a = np.asarray(unc.array, dtype=np.float64)
+    name = type(unc).__name__
+    if name == "StdDevUncertainty":
+        return a * a
+    if name == "InverseVariance":
+        with np.errstate(divide="ignore"):
+            return np.where(a > 0, 1.0 / np.where(a > 0, a, 1.0), np.inf)
+    return a
+
+
+def measure_parsed(parsed):
+    """`measure_frame` of a parsed input (its data, mask and uncertainty)."""
+    return measure_frame(np.asarray(parsed.data, dtype=np.float64), parsed.mask,
+                         variance=_variance_of(parsed))
+
+
+def measure_frames(reference, others, *, hdu=None, unit=None):
+    """
+    The quality rows of a stack's frames, from what its registration found.
+
+    Parameters
+    ----------
+    reference : (name, frame)
+        The reference as given (before any resampling).
+    others : list of (name, frame, points, quality)
+        Each registered frame as given, its matched ``(frame, reference)``
+        positions and its registration's quality dict (``rms``,
+        ``log10_false_alarm``).
+    hdu, unit : optional
+        As in `~astroalign_nd.register`.
+
+    Returns
+    -------
+    rows : list of dict
+        One per frame, the reference first (see `quality_row`); a frame
+        that cannot be measured has its error as ``reason``.
+    measures : list of `FrameMeasures` or None
+    """
+    from .._input import parse_input
+
+    ref = parse_input(reference[1], "reference", hdu=hdu, unit=unit)
+    ref_data = np.asarray(ref.data, dtype=np.float64)
+    ref_m = measure_parsed(ref)
+    rows = [quality_row(reference[0], ref_m, ref_m, 1.0, ref_m.n_stars,
+                        time=frame_time(ref.meta))]
+    measures = [ref_m]
+    for name, frame, points, quality in others:
+        try:
+            p = parse_input(frame, "source", hdu=hdu, unit=unit)
+            m = measure_parsed(p)
+            t, n = transparency(np.asarray(p.data, dtype=np.float64), ref_data, points[0],
+                                points[1], m, ref_m)
+        except (ValueError, TypeError) as exc:
+            rows.append(dict(name=name, used=False, reason=f"{type(exc).__name__}: {exc}"))
+            measures.append(None)
+            continue
+        rows.append(quality_row(name, m, ref_m, t, n, quality, time=frame_time(p.meta)))
+        measures.append(m)
+    return rows, measures
 
 
 def _sky_map(data, box, mask=None):
@@ -634,7 +730,7 @@ def frame_quality(frames: Any, reference: Any = None, *, select: Any = None,
     match_opts = {k: v for k, v in options.items()}
     ref = parse_input(ref_item[0], "reference", hdu=hdu, unit=unit)
     ref_data = np.asarray(ref.data, dtype=np.float64)
-    ref_m = measure_frame(ref_data, ref.mask)
+    ref_m = measure_parsed(ref)
     target = Reference(ref_item[0], hdu=hdu, unit=unit)
     rows = [quality_row(ref_item[1], ref_m, ref_m, 1.0, ref_m.n_stars,
                         time=frame_time(ref.meta))]
@@ -642,7 +738,7 @@ def frame_quality(frames: Any, reference: Any = None, *, select: Any = None,
         try:
             p = parse_input(frame, "source", hdu=hdu, unit=unit)
             data = np.asarray(p.data, dtype=np.float64)
-            m = measure_frame(data, p.mask)
+            m = measure_parsed(p)
             result = find_match(frame, target, hdu=hdu, **match_opts)
             t, n = transparency(data, ref_data, result.source_points, result.target_points,
                                 m, ref_m)
