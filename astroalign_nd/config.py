@@ -11,8 +11,8 @@ accepted values and its help text: constructing a config checks every
 value (``__post_init__``) and normalises it (``float``/``int``/``tuple``), so
 that a bad value gives one message naming the option and its range before
 any work is done.  The command line's options and help are generated from
-the same fields (`cli_fields`).  `OPTIONS` is a view of the checks, by
-option name.
+the same fields (``astroalign_nd.options.cli_fields``).  `OPTIONS` is a view of the
+checks, by option name.
 
 `~astroalign_nd.find_transform`, `~astroalign_nd.register`,
 `~astroalign_nd.register_batch`, `~astroalign_nd.Reference` and
@@ -23,10 +23,12 @@ Runtime settings (threads, compiled code) are ``astroalign_nd.conf``'s.
 """
 
 import dataclasses
-import math
 import numbers
 
 import numpy as np
+
+from .options import (AnyCallable, Bool, Int, Pair, Real, Unchecked, check_fields, convert,
+                      option)
 
 # The transform registry is imported where a model option is checked, not here: every
 # stage reads this module (detection too), and the transforms are a later stage.
@@ -69,7 +71,7 @@ def check_method(method):
 
 
 __all__ = ["DetectionConfig", "MatchingConfig", "ModelConfig", "ResampleConfig",
-           "RegistrationConfig", "OPTIONS", "check_option", "cli_fields", "split_options",
+           "RegistrationConfig", "OPTIONS", "check_option", "split_options",
            "astroalign_advice", "DEFAULT_TOLERANCE", "DEFAULT_NEIGHBORS"]
 
 #: `~astroalign_nd.matching.match_points`' matching radius (pixels); a
@@ -81,164 +83,7 @@ DEFAULT_TOLERANCE = 3.0
 DEFAULT_NEIGHBORS = 4
 
 
-# -- accepted values ---------------------------------------------------------------------------
-
-
-class _Real:
-    """A real number in an interval (each bound open or closed)."""
-
-    def __init__(self, lo=None, hi=None, *, lo_open=False, hi_open=False, none=False,
-                 unit="", infinite=False):
-        self.lo, self.hi, self.lo_open, self.hi_open = lo, hi, lo_open, hi_open
-        self.none, self.unit, self.infinite = none, unit, infinite
-
-    def describe(self):
-        parts = []
-        if self.lo is not None:
-            parts.append(f"{'>' if self.lo_open else '>='} {self.lo:g}")
-        if self.hi is not None:
-            parts.append(f"{'<' if self.hi_open else '<='} {self.hi:g}")
-        text = ("a number" if self.infinite else "a finite number") + (
-            " " + " and ".join(parts) if parts else "")
-        if self.unit:
-            text += f" ({self.unit})"
-        return text + (" or None" if self.none else "")
-
-    def _in_range(self, v):
-        if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo):
-            return False
-        if self.hi is not None and (v >= self.hi if self.hi_open else v > self.hi):
-            return False
-        return True
-
-    #: The accepted type (bools are refused).
-    _kind = numbers.Real
-
-    def _is_none(self, value):
-        """True for an accepted None; TypeError for another None or a value of another type."""
-        if value is None:
-            if self.none:
-                return True
-            raise TypeError
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, self._kind):
-            raise TypeError
-        return False
-
-    def convert(self, value):
-        if self._is_none(value):
-            return None
-        v = float(value)
-        if math.isnan(v) or (math.isinf(v) and not self.infinite) or not self._in_range(v):
-            raise ValueError
-        return v
-
-
-class _Int(_Real):
-    """An integer in a closed interval."""
-
-    def describe(self):
-        text = super().describe().replace("a finite number", "an integer")
-        text = text.replace("a number", "an integer")
-        return text
-
-    _kind = numbers.Integral
-
-    def convert(self, value):
-        if self._is_none(value):
-            return None
-        v = int(value)
-        if not self._in_range(v):
-            raise ValueError
-        return v
-
-
-class _Pair:
-    """An increasing pair ``(lo, hi)`` of numbers, each checked by ``item``."""
-
-    def __init__(self, item, *, none=True, strict=False):
-        self.item, self.none, self.strict = item, none, strict
-
-    def describe(self):
-        order = "lo < hi" if self.strict else "lo <= hi"
-        return (f"a pair (lo, hi) with {order}, each {self.item.describe()}"
-                + (", or None" if self.none else ""))
-
-    def convert(self, value):
-        if value is None:
-            if self.none:
-                return None
-            raise TypeError
-        if isinstance(value, (str, bytes)) or not np.iterable(value):
-            raise TypeError
-        items = list(value)
-        if len(items) != 2:
-            raise ValueError
-        lo, hi = (self.item.convert(v) for v in items)
-        if lo > hi or (self.strict and lo == hi):
-            raise ValueError
-        return (lo, hi)
-
-
-class _Bool:
-    def describe(self):
-        return "True or False"
-
-    def convert(self, value):
-        if isinstance(value, (bool, np.bool_)):
-            return bool(value)
-        raise TypeError
-
-
-class _Callable:
-    """A source finder: any callable (``finder(data, mask=None)``), or None."""
-
-    def describe(self):
-        return "a source finder (callable as finder(data, mask=None)) or None"
-
-    def convert(self, value):
-        if value is None or callable(value):
-            return value
-        raise TypeError
-
-
-class _Any:
-    """Any value: checked where it is used (e.g. a transform type, by the transform registry)."""
-
-    def convert(self, value):
-        return value
-
-
-# -- fields ------------------------------------------------------------------------------------
-
-
-def _option(default, check, help="", *, auto=False, **cli):
-    """
-    A config field: its default, its accepted values (``check``), its help
-    text (``{default}`` in it is replaced by the default; a callable gives it
-    when asked) and, when ``cli``
-    holds a ``flag``, how the command line spells it (``metavar``, ``type``,
-    ``nargs``, ``action``, ``cli_default``).  ``auto``: None is accepted too,
-    and means that the registration chooses (``check`` itself refuses None,
-    as `~astroalign_nd.matching.match_points` does).
-    """
-    return dataclasses.field(default=default, metadata={"check": check, "help": help,
-                                                        "auto": auto, "cli": cli})
-
-
-def _checked(config):
-    """Check and normalise every field of ``config`` (a frozen dataclass), in place."""
-    for f in dataclasses.fields(config):
-        check = f.metadata.get("check")
-        if check is not None and not (f.metadata["auto"] and getattr(config, f.name) is None):
-            object.__setattr__(config, f.name, _convert(f.name, check,
-                                                        getattr(config, f.name)))
-
-
-def _convert(name, check, value):
-    try:
-        return check.convert(value)
-    except (TypeError, ValueError) as exc:
-        raise type(exc)(f"{name} must be {check.describe()}; got {value!r}.") from None
+# -- the stages' options ----------------------------------------------------------------------
 
 
 @dataclasses.dataclass(frozen=True)
@@ -284,37 +129,37 @@ class DetectionConfig:
     ValueError: fwhm must be a finite number > 0 and <= 10000 (pixels) or None; got -1.
     """
 
-    fwhm: float | None = _option(
-        None, _Real(0, 1e4, lo_open=True, none=True, unit="pixels"),
+    fwhm: float | None = option(
+        None, Real(0, 1e4, lo_open=True, none=True, unit="pixels"),
         "stellar FWHM in pixels (give it when the estimate fails, e.g. on nebulosity)",
         flag="--fwhm", type=float, metavar="PX")
-    nsigma: float | None = _option(
-        None, _Real(0, 1e6, lo_open=True, none=True),
+    nsigma: float | None = option(
+        None, Real(0, 1e6, lo_open=True, none=True),
         "detection threshold in background standard deviations",
         flag="--nsigma", type=float, metavar="K")
-    peak_max: float | None = _option(
-        None, _Real(none=True),
+    peak_max: float | None = option(
+        None, Real(none=True),
         "ignore sources whose peak exceeds this value (saturated stars)",
         flag="--peak-max", type=float, metavar="ADU")
     # Sharpness has no lower limit by default (saturated stars): -inf is allowed.
-    sharpness_range: tuple | None = _option(
-        (-np.inf, 1.0), _Pair(_Real(infinite=True), none=True),
+    sharpness_range: tuple | None = option(
+        (-np.inf, 1.0), Pair(Real(infinite=True), none=True),
         "accepted DAOFIND sharpness range",
         flag="--sharpness-range", type=float, nargs=2, metavar=("LO", "HI"), cli_default=None)
-    roundness_range: tuple | None = _option(
-        (-1.0, 1.0), _Pair(_Real(infinite=True), none=True),
+    roundness_range: tuple | None = option(
+        (-1.0, 1.0), Pair(Real(infinite=True), none=True),
         "accepted DAOFIND roundness range",
         flag="--roundness-range", type=float, nargs=2, metavar=("LO", "HI"), cli_default=None)
-    bin_factor: int | None = _option(
-        None, _Int(1, 1024, none=True),
+    bin_factor: int | None = option(
+        None, Int(1, 1024, none=True),
         "detect on the image binned BxB (for large, oversampled frames)",
         flag="--bin-factor", type=int, metavar="B")
-    refine_centroids: bool = _option(True, _Bool(), "refine the centroids")
+    refine_centroids: bool = option(True, Bool(), "refine the centroids")
     # Another detector instead of the DAOStarFinder pipeline (the API's; no command-line flag).
-    finder: object = _option(None, _Callable(), "another source finder")
+    finder: object = option(None, AnyCallable(), "another source finder")
 
     def __post_init__(self):
-        _checked(self)
+        check_fields(self)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -357,27 +202,27 @@ class MatchingConfig:
     ['accept_matches', 'allow_mirror', 'batch_size']
     """
 
-    tolerance: float | None = _option(
-        None, _Real(0, 1e6, lo_open=True, unit="pixels"), auto=True,
+    tolerance: float | None = option(
+        None, Real(0, 1e6, lo_open=True, unit="pixels"), auto=True,
         help="largest distance (px) for a star to count as matched",
         flag="--tolerance", type=float, metavar="PX")
-    min_tolerance: float = _option(0.5, _Real(0, 1e6, lo_open=True, unit="pixels"))
-    invariant_radius: float = _option(0.1, _Real(0, 10, lo_open=True))
-    n_neighbors: int | None = _option(None, _Int(2, 16), auto=True)
-    scale_range: tuple | None = _option(None, _Pair(_Real(0, lo_open=True)))
-    max_false_alarm: float = _option(
-        1e-6, _Real(0, 1, lo_open=True),
+    min_tolerance: float = option(0.5, Real(0, 1e6, lo_open=True, unit="pixels"))
+    invariant_radius: float = option(0.1, Real(0, 10, lo_open=True))
+    n_neighbors: int | None = option(None, Int(2, 16), auto=True)
+    scale_range: tuple | None = option(None, Pair(Real(0, lo_open=True)))
+    max_false_alarm: float = option(
+        1e-6, Real(0, 1, lo_open=True),
         "largest false-alarm probability accepted (default: {default})",
         flag="--max-false-alarm", type=float, metavar="P", cli_default=None)
-    allow_mirror: bool = _option(
-        True, _Bool(), "do not consider mirrored (flipped) solutions",
+    allow_mirror: bool = option(
+        True, Bool(), "do not consider mirrored (flipped) solutions",
         flag="--no-mirror", action="store_false", cli_default=None)
-    accept_matches: int = _option(10, _Int(3, None))
-    batch_size: int = _option(512, _Int(1, 1_000_000))
-    max_hypotheses: int = _option(20_000, _Int(1, 10_000_000))
+    accept_matches: int = option(10, Int(3, None))
+    batch_size: int = option(512, Int(1, 1_000_000))
+    max_hypotheses: int = option(20_000, Int(1, 10_000_000))
 
     def __post_init__(self):
-        _checked(self)
+        check_fields(self)
 
     def match_kwargs(self):
         """
@@ -426,11 +271,11 @@ class ModelConfig:
     3
     """
 
-    transform_type: object = _option(
-        "similarity", _Any(), lambda: _transform_type_help(),
+    transform_type: object = option(
+        "similarity", Unchecked(), lambda: _transform_type_help(),
         flag="--transform-type", metavar="TYPE")
-    degree: object = _option(
-        None, _Any(),
+    degree: object = option(
+        None, Unchecked(),
         "degree of the polynomial distortion model, 2 to 5, or 'auto' to let an F-test "
         "choose (linear when the images need no distortion); only with --transform-type "
         "polynomial (default: 3)",
@@ -471,24 +316,24 @@ class ResampleConfig:
 'bicubic'] or an integer 0-3; got 'cubic'.
     """
 
-    order: object = _option(
+    order: object = option(
         "bilinear", None,
         "interpolation used to resample the source: nearest-neighbor, bilinear, "
         "biquadratic or bicubic (default: %(default)s)",
         flag="--order")
-    conserve_flux: bool = _option(
+    conserve_flux: bool = option(
         False, None,
         "scale the resampled values by the pixel-area change so that total flux is kept",
         flag="--conserve-flux", action="store_true")
-    fill_value: float = _option(
+    fill_value: float = option(
         np.nan, None,
         "value written to output pixels that have no data (outside the source's footprint, "
         "or masked); the mask marks them whatever the value. Give 0 to stack the frames "
         "with tools that do not read the mask (default: {default})",
         flag="--fill-value", type=float, metavar="VALUE", cli_default=None)
-    method: str = _option("interpolate", None)
-    parallel: bool = _option(True, None)
-    add_keyword: bool = _option(True, None)
+    method: str = option("interpolate", None)
+    parallel: bool = option(True, None)
+    add_keyword: bool = option(True, None)
 
     def __post_init__(self):
         # Not a field (apply_transform takes the fields as keywords): derived from order.
@@ -529,12 +374,12 @@ class RegistrationConfig:
     TypeError: unexpected keyword argument(s) ['fwhmm']; ...
     """
 
-    n_sources: int = _option(
-        50, _Int(3, 1_000_000),
+    n_sources: int = option(
+        50, Int(3, 1_000_000),
         "number of brightest sources used to build triangles (default: %(default)s)",
         flag="--n-sources", type=int, metavar="N")
-    max_sources: int = _option(
-        200, _Int(3, 1_000_000),
+    max_sources: int = option(
+        200, Int(3, 1_000_000),
         "if no trustworthy match is found, control points are doubled up to N "
         "(default: {default})",
         flag="--max-sources", type=int, metavar="N", cli_default=None)
@@ -543,7 +388,7 @@ class RegistrationConfig:
     model: ModelConfig = dataclasses.field(default_factory=ModelConfig)
 
     def __post_init__(self):
-        _checked(self)
+        check_fields(self)
         object.__setattr__(self, "max_sources", max(self.max_sources, self.n_sources))
 
     @classmethod
@@ -645,7 +490,7 @@ def _checks():
     for cls in (MatchingConfig, DetectionConfig, RegistrationConfig):
         for f in dataclasses.fields(cls):
             check = f.metadata.get("check")
-            if check is not None and not isinstance(check, _Any):
+            if check is not None and not isinstance(check, Unchecked):
                 table[f.name] = check
     return table
 
@@ -673,46 +518,7 @@ def check_option(name, value):
     ...
     ValueError: tolerance must be a finite number > 0 and <= 1e+06 (pixels); got 0.
     """
-    return _convert(name, OPTIONS[name], value)
-
-
-def cli_fields(config_class):
-    """
-    The fields of ``config_class`` that the command line offers, in order:
-    ``(name, flag, argparse keywords)``.
-
-    The argparse keywords hold the type, metavar, action, the default (None
-    for options left to the library when not given) and the help, whose
-    ``{default}`` is the field's default.
-
-    Examples
-    --------
-    >>> from astroalign_nd.config import DetectionConfig, cli_fields
-    >>> name, flag, kwargs = cli_fields(DetectionConfig)[0]
-    >>> name, flag, kwargs["type"], kwargs["default"]
-    ('fwhm', '--fwhm', <class 'float'>, None)
-    """
-    found = []
-    for f in dataclasses.fields(config_class):
-        cli = dict(f.metadata.get("cli", {}))
-        if "flag" not in cli:
-            continue
-        flag = cli.pop("flag")
-        kwargs = dict(default=cli.pop("cli_default", f.default), **cli)
-        if cli.get("action") == "store_false":
-            kwargs["dest"] = f.name
-        text = f.metadata["help"]
-        text = text() if callable(text) else text
-        kwargs["help"] = text.replace("{default}", _shown(f.default))
-        found.append((f.name, flag, kwargs))
-    return found
-
-
-def _shown(value):
-    """A default as help text shows it (``1e-6``, not ``1e-06``)."""
-    if isinstance(value, float):
-        return f"{value:g}".replace("e-0", "e-").replace("e+0", "e+")
-    return str(value)
+    return convert(name, OPTIONS[name], value)
 
 
 def check_options(options):

@@ -7,7 +7,9 @@ import sys
 import textwrap
 
 from ..config import (DetectionConfig, MatchingConfig, ModelConfig, RegistrationConfig,
-                      ResampleConfig, cli_fields)
+                      ResampleConfig)
+from ..options import cli_fields
+from ..stacking.options import StackConfig
 
 __all__ = []
 
@@ -77,7 +79,7 @@ def _flags():
     """The library's keyword -> the command line's option, for every option it offers."""
     flags = {"hdu": "--hdu"}
     for config in (ModelConfig, ResampleConfig, RegistrationConfig, DetectionConfig,
-                   MatchingConfig):
+                   MatchingConfig, StackConfig):
         for name, flag, kwargs in cli_fields(config):
             if kwargs.get("action") == "store_false":  # --no-mirror: not the keyword's name
                 continue

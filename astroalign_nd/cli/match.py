@@ -4,7 +4,8 @@
 import os
 import sys
 
-from ..config import MatchingConfig, ModelConfig, RegistrationConfig, cli_fields
+from ..config import MatchingConfig, ModelConfig, RegistrationConfig
+from ..options import cli_fields
 from .errors import HelpFormatter, _CLIError, exit_codes_text
 
 __all__ = []

@@ -9,7 +9,8 @@ import os
 
 # The configs hold no heavy import: --help stays fast.
 from ..config import (DetectionConfig, MatchingConfig, ModelConfig, RegistrationConfig,
-                      ResampleConfig, cli_fields)
+                      ResampleConfig)
+from ..options import cli_fields, from_cli
 from .errors import _CLIError
 
 __all__ = []
@@ -60,10 +61,29 @@ def _add_matching_options(mat):
     _add_fields(mat, MatchingConfig)
 
 
-def _add_fields(group, config):
-    """The command-line options of ``config``'s fields: flags, types, defaults and help."""
-    for _, flag, kwargs in cli_fields(config):
+def _add_fields(group, config, user=None):
+    """
+    The command-line options of ``config``'s fields (those ``user`` takes): flags, types,
+    defaults and help.
+    """
+    for _, flag, kwargs in cli_fields(config, user):
         group.add_argument(flag, **kwargs)
+
+
+def _add_stack_options(parser, user):
+    """The stacking options that ``user`` ('stack' or 'live') takes, as one group of flags."""
+    from ..stacking import StackConfig
+
+    _add_fields(parser.add_argument_group("combination options", "as in astroalign_nd.stack"),
+                StackConfig, user)
+
+
+def _stack_kwargs(args, user):
+    """The stacking options given on the command line, as the library's keywords."""
+    from ..stacking import StackConfig
+
+    return {name: from_cli(StackConfig, name, getattr(args, name))
+            for name, _, _ in cli_fields(StackConfig, user)}
 
 
 #: The config fields the command line offers, by name (the keywords of `register`).
@@ -88,20 +108,6 @@ def _hdu(value):
         return None
     return int(value) if value.lstrip("-").isdigit() else value
 
-
-def _add_sky_options(g):
-    """The sky and noise options of ``stack`` and ``watch``."""
-    g.add_argument("--normalize", choices=("offset", "scale", "none"), default="offset",
-                   help="bring each frame's sky to the reference's (default: %(default)s)")
-    g.add_argument("--gain", type=float, default=None,
-                   help="electrons per count, for frames without an uncertainty")
-    g.add_argument("--read-noise", type=float, default=None,
-                   help="read noise in electrons, with --gain")
-
-
-def _none(value):
-    """A choice of 'none' as None (the library's spelling)."""
-    return None if value == "none" else value
 
 # -- input and output checks -----------------------------------------------------------------
 

@@ -7,8 +7,8 @@ import warnings
 
 from .errors import (_PROG, EXIT_FRAMES_FAILED, EXIT_REFUSED, HelpFormatter, _CLIError, cli_words,
                      exit_codes_text)
-from .options import (_add_sky_options, _check_input, _check_writable, _none,
-                      _registration_kwargs)
+from .options import (_add_stack_options, _check_input, _check_writable, _registration_kwargs,
+                      _stack_kwargs)
 
 __all__ = []
 
@@ -34,8 +34,6 @@ def add_parser(sub, reg_opts):
                    help="the image whose grid the stack is on (default: the first image)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.fits", help="the stack")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
-    p.add_argument("--canvas", choices=("reference", "union"), default="reference",
-                   help="the stack's grid: the reference's (default) or the union of frames")
     p.add_argument("--aligned-dir", metavar="DIR", default=None,
                    help="keep the registered frames in DIR (default: a temporary folder)")
     p.add_argument("--workers", type=int, default=0, metavar="N",
@@ -44,28 +42,8 @@ def add_parser(sub, reg_opts):
                    help="show a progress bar (default: when standard error is a terminal)")
     p.add_argument("--no-progress", dest="progress", action="store_false",
                    help="never show a progress bar")
-    _add_combine_options(p)
+    _add_stack_options(p, "stack")
     return p
-
-
-def _add_combine_options(p):
-    g = p.add_argument_group("combination options", "as in astroalign_nd.stack")
-    g.add_argument("--combine", choices=("average", "median", "sum"), default="average",
-                   help="how the frames are combined (default: %(default)s)")
-    g.add_argument("--clip", choices=("sigma", "minmax", "none"), default="sigma",
-                   help="rejection before combining (default: %(default)s)")
-    g.add_argument("--sigma", type=float, default=3.0,
-                   help="sigma clipping's limit, both sides (default: %(default)s)")
-    g.add_argument("--sigma-low", type=float, default=None, help="its low limit")
-    g.add_argument("--sigma-high", type=float, default=None, help="its high limit")
-    g.add_argument("--maxiters", type=int, default=3, help="sigma clipping rounds at most")
-    g.add_argument("--nlow", type=int, default=1, help="minmax: lowest values dropped")
-    g.add_argument("--nhigh", type=int, default=1, help="minmax: highest values dropped")
-    _add_sky_options(g)
-    g.add_argument("--weights", choices=("variance", "none"), default="variance",
-                   help="frame weights: inverse median variance (default), or equal")
-    g.add_argument("--memory-limit", type=float, default=512.0, metavar="MB",
-                   help="working memory of the combination, MB (default: %(default)s)")
 
 
 def _cmd_stack(args):
@@ -88,14 +66,9 @@ def _cmd_stack(args):
         with warnings.catch_warnings():
             # Each frame left out is printed below, from the header ("LEFT OUT ...").
             warnings.filterwarnings("ignore", message=".* was left out of the stack: ")
-            ccd = stack(images, reference, method=args.combine, clip=_none(args.clip),
-                        sigma=args.sigma, sigma_low=args.sigma_low, sigma_high=args.sigma_high,
-                        maxiters=args.maxiters, nlow=args.nlow, nhigh=args.nhigh,
-                        normalize=_none(args.normalize), weights=_none(args.weights),
-                        gain=args.gain, read_noise=args.read_noise, canvas=args.canvas,
-                        memory_limit=args.memory_limit * 1e6, output=args.output,
-                        overwrite=args.overwrite, aligned_dir=args.aligned_dir,
-                        workers=args.workers or None, unit=args.unit, progress=progress,
+            ccd = stack(images, reference, output=args.output, overwrite=args.overwrite,
+                        aligned_dir=args.aligned_dir, workers=args.workers or None,
+                        unit=args.unit, progress=progress, **_stack_kwargs(args, "stack"),
                         **_registration_kwargs(args))
     except AstroalignError as exc:
         print(f"{_PROG}: registration refused: {exc}", file=sys.stderr)

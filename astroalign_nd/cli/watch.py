@@ -7,7 +7,8 @@ import sys
 
 from .errors import (_PROG, EXIT_FRAMES_FAILED, EXIT_REFUSED, HelpFormatter, _CLIError, cli_words,
                      exit_codes_text)
-from .options import _add_sky_options, _check_input, _check_writable, _none, _registration_kwargs
+from .options import (_add_stack_options, _check_input, _check_writable, _registration_kwargs,
+                      _stack_kwargs)
 
 __all__ = []
 
@@ -37,10 +38,10 @@ def add_parser(sub, reg_opts):
     w.add_argument("--max-frames", type=int, default=None, help="stop after N new frames")
     w.add_argument("--timeout", type=float, default=None,
                    help="stop after this many seconds without a new frame")
-    w.add_argument("--sigma", type=float, default=3.0,
-                   help="clipping against the running stack, in sigma (default: %(default)s)")
-    w.add_argument("--no-clip", action="store_true", help="no clipping")
-    _add_sky_options(w)
+    _add_stack_options(w, "live")
+    # The stack command's --clip none, as watch has always spelled it.
+    w.add_argument("--no-clip", dest="clip", action="store_const", const="none",
+                   help="no clipping against the running stack (--clip none)")
     return w
 
 
@@ -105,9 +106,7 @@ def _cmd_watch(args):
             live = watch_folder(
                 args.folder, reference, args.stack, interval=args.interval,
                 max_frames=args.max_frames, timeout=args.timeout, overwrite=args.overwrite,
-                callback=report, sigma=None if args.no_clip else args.sigma,
-                normalize=_none(args.normalize), gain=args.gain, read_noise=args.read_noise,
-                unit=args.unit, **kwargs)
+                callback=report, unit=args.unit, **_stack_kwargs(args, "live"), **kwargs)
     except AstroalignError as exc:  # the reference itself (no stars...)
         print(f"{_PROG}: registration refused: {exc}", file=sys.stderr)
         return EXIT_REFUSED

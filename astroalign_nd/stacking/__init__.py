@@ -7,12 +7,22 @@ Stacking: register frames onto a reference and combine them.
 clipping, weights, the combined uncertainty, a strip of rows at a time
 within a memory limit).  `LiveStack` adds frames one at a time to a
 running stack with clipping against it, and `watch_folder` feeds it the
-frames that appear in a folder (``astroalign-nd watch``).  The frames are
-assumed calibrated: stacking does not subtract bias or dark nor divide by
-a flat (do that first, e.g. with ccdproc).
+frames that appear in a folder (``astroalign-nd watch``).  `StackConfig`
+holds the options of both, each checked once (and the commands' flags).
+The frames are assumed calibrated: stacking does not subtract bias or
+dark nor divide by a flat (do that first, e.g. with ccdproc).
+
+The names are imported on first use (``astroalign_nd._lazy``): the command
+line builds its flags from `StackConfig` without importing the stages.
 """
 
-from .core import stack
-from .live import LiveStack, watch_folder
+from .._lazy import attach
 
-__all__ = ["stack", "LiveStack", "watch_folder"]
+# name -> submodule that defines it
+_LAZY = {"stack": "core", "LiveStack": "live", "watch_folder": "live",
+         "StackConfig": "options"}
+
+__all__ = list(_LAZY)
+
+__getattr__, __dir__ = attach(__name__, _LAZY)
+del attach

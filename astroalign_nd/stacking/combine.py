@@ -20,18 +20,9 @@ import numpy as np
 from astropy.io import fits
 from astropy.stats import sigma_clipped_stats
 
-__all__ = ["CombineOptions", "FrameStats", "frame_stats", "array_stats", "read_rows",
+__all__ = ["FrameStats", "frame_stats", "array_stats", "read_rows",
            "combine_files", "normalise", "frame_weights", "reject", "combine", "frame_variance",
-           "rows_per_strip", "robust_sigma", "STACK_METHODS", "CLIP_METHODS",
-           "NORMALIZE_METHODS", "MIN_MAD_VALUES"]
-
-#: The combinations: weighted mean, median, and the sum (the mean times the number of frames).
-STACK_METHODS = ("average", "median", "sum")
-#: The rejections: none, sigma clipping about the median, min/max (extrema) clipping.
-CLIP_METHODS = (None, "sigma", "minmax")
-#: The sky normalisations: none, an offset (sky added), a scale (sky ratio), the stars'
-#: flux ratio (transparency measured on matched stars) and the sky offset.
-NORMALIZE_METHODS = (None, "offset", "scale", "stars")
+           "rows_per_strip", "robust_sigma", "MIN_MAD_VALUES"]
 
 #: Bytes of working memory per frame and per pixel of a strip (the values, their
 #: variance and validity, and the temporaries of the median and the clipping).
@@ -43,41 +34,6 @@ _MAD_TO_SIGMA = 1.482602218505602
 MIN_MAD_VALUES = 6
 #: Variance of the median of n Gaussian values, relative to that of their mean (large n).
 _MEDIAN_EFFICIENCY = math.pi / 2.0
-
-
-@dataclass(frozen=True)
-class CombineOptions:
-    """
-    How frames are combined (see `~astroalign_nd.stack`).
-
-    Attributes
-    ----------
-    method : {'average', 'median', 'sum'}
-    clip : {None, 'sigma', 'minmax'}
-    sigma_low, sigma_high : float
-        Sigma clipping's limits, in units of the spread about the median.
-    maxiters : int
-        Sigma clipping's rounds at most.
-    nlow, nhigh : int
-        Min/max clipping: the lowest and highest values dropped at each pixel.
-    normalize : {None, 'offset', 'scale', 'stars'}
-    star_tolerance : float
-        Sigma clipping's allowance for the stars' own signal: a value is
-        rejected only beyond ``sigma`` spreads plus ``star_tolerance`` times
-        the pixel's median above the sky, so that the cores of stars in the
-        sharpest frames (far above the others' at the same pixel) stay; the
-        PSF differences of the night set it (0: plain sigma clipping).
-    """
-
-    method: str = "average"
-    clip: str | None = "sigma"
-    sigma_low: float = 3.0
-    sigma_high: float = 3.0
-    maxiters: int = 3
-    nlow: int = 1
-    nhigh: int = 1
-    normalize: str | None = "offset"
-    star_tolerance: float = 0.0
 
 
 @dataclass
@@ -332,7 +288,7 @@ def _sigma_clip(x, var, valid, opts):
     """
     Reject values beyond ``sigma_low``/``sigma_high`` times the spread about the
     median, iteratively.  The spread is the MAD's sigma, but never less than
-    the frames' median uncertainty; with fewer than `MIN_MAD_VALUES` values
+    each value's own uncertainty; with fewer than `MIN_MAD_VALUES` values
     it is that uncertainty alone (the MAD of a few values, one of them an
     outlier, is as large as the outlier's distance).
     """
@@ -340,18 +296,18 @@ def _sigma_clip(x, var, valid, opts):
     # Each value's own uncertainty (its frame as taken: see `frame_variance`), so that an
     # unresampled frame is not held to the smoothed frames' tighter scatter.
     floor = np.sqrt(var)
+    tolerance = opts.star_tolerance or 0.0
     for _ in range(opts.maxiters):
         vals = np.where(keep, x, np.nan)
         med = _nanmedian(vals)
         mad = _MAD_TO_SIGMA * _nanmedian(np.abs(vals - med))
         spread = np.where(keep.sum(axis=0) >= MIN_MAD_VALUES, np.fmax(mad, floor), floor)
         allow = 0.0
-        if opts.star_tolerance > 0:
-            # The stars' own signal: each row's sky is the median of its pixels' medians.
+        if tolerance > 0 and np.isfinite(med).any():
+            # The stars' own signal above the sky (each row's: the median of its medians).
             with np.errstate(invalid="ignore"):
-                sky = np.nanmedian(med, axis=-1, keepdims=True) if np.isfinite(med).any() \
-                    else 0.0
-                allow = opts.star_tolerance * np.abs(np.nan_to_num(med - sky))
+                sky = np.nanmedian(med, axis=-1, keepdims=True)
+                allow = tolerance * np.abs(np.nan_to_num(med - sky))
         with np.errstate(invalid="ignore"):
             bad = keep & ((x - med > opts.sigma_high * spread + allow)
                           | (med - x > opts.sigma_low * spread + allow))
@@ -382,7 +338,7 @@ def reject(x, var, valid, opts):
     x, var : (n, ny, nx) ndarray
         The frames' normalised values and their variance.
     valid : (n, ny, nx) bool ndarray
-    opts : `CombineOptions`
+    opts : `~astroalign_nd.stacking.StackConfig`
 
     Returns
     -------
@@ -409,7 +365,7 @@ def combine(x, var, keep, weights, opts, n_total):
     keep : (n, ny, nx) bool ndarray
     weights : (n,) ndarray
         Per frame.
-    opts : `CombineOptions`
+    opts : `~astroalign_nd.stacking.StackConfig`
         Its ``method``.
     n_total : int
         The number of frames of the stack (the factor of ``'sum'``).
@@ -485,7 +441,7 @@ def combine_files(paths, stats, shape, opts, *, gain=None, read_noise=None,
         Their normalisation (``offset``, ``scale``) and ``weight``; their
         ``n_rejected`` is filled in.
     shape : (ny, nx)
-    opts : `CombineOptions`
+    opts : `~astroalign_nd.stacking.StackConfig`
     gain, read_noise : float, optional
         For frames without an uncertainty (see `~astroalign_nd.stack`).
     memory_limit : float, optional
@@ -553,7 +509,6 @@ def normalise(st, reference_sky, normalize):
                              "normalize='offset' or 'scale'.")
         st.scale = 1.0 / t
         st.offset = st.sky * st.scale - reference_sky
-    else:
         st.offset, st.scale = 0.0, 1.0
 
 

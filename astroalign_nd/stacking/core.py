@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import dataclasses
-import numbers
 import os
 import tempfile
 from collections.abc import Iterator
@@ -21,30 +20,19 @@ from ..exceptions import TransformNotFoundError, warn
 from ..io import write_ccddata, write_output
 from ..io.write import check_not_input, check_output_path
 from ..io.writers import output_suffixes
-from .combine import (CLIP_METHODS, NORMALIZE_METHODS, STACK_METHODS, CombineOptions,
-                      combine_files, frame_stats, frame_weights, normalise)
+from .combine import combine_files, frame_stats, frame_weights, normalise
 from .header import stack_ccddata
 from .quality import finish_table, measure_frames
+from .options import StackConfig
 
 __all__ = ["stack"]
 
-#: Default working memory of the combination, bytes.
-DEFAULT_MEMORY_LIMIT = 512e6
 
-
-def stack(frames: Any, reference: Any = None, *, method: str = "average",
-          clip: str | None = "sigma", sigma: float = 3.0, sigma_low: float | None = None,
-          sigma_high: float | None = None, maxiters: int = 3, nlow: int = 1, nhigh: int = 1,
-          normalize: str | None = "offset", weights: Any = "variance",
-          gain: float | None = None, read_noise: float | None = None,
-          canvas: str = "reference", memory_limit: float = DEFAULT_MEMORY_LIMIT,
-          output: str | os.PathLike | None = None, overwrite: bool = False,
-          aligned_dir: str | os.PathLike | None = None, temp_dir: str | None = None,
-          workers: int | None = None, progress: bool = False, hdu: int | str | None = None,
-          unit: Any = None, order: str | int = "bilinear", dtype: Any = np.float32,
-          select: Any = None, max_fwhm: float | None = None,
-          max_elongation: float | None = None, min_transparency: float | None = None,
-          min_stars: int | None = None, **options: Any) -> CCDData:
+def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | None = None,
+          overwrite: bool = False, aligned_dir: str | os.PathLike | None = None,
+          temp_dir: str | None = None, workers: int | None = None, progress: bool = False,
+          hdu: int | str | None = None, unit: Any = None, order: str | int = "bilinear",
+          dtype: Any = np.float32, **options: Any) -> CCDData:
     """
     Register frames onto a reference and combine them into one deep image.
 
@@ -59,10 +47,10 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     are combined with their weights, a strip of rows at a time within
     ``memory_limit``.  Each frame's noise, weight and rejection limits are
     those of the frame as taken: interpolation smooths a frame's pixel
-    noise (and correlates it), so a resampled frame's variance is its own
-    times the ratio of its noise as taken to its smoothed noise, and the
-    stack's uncertainty is that of sums over a few pixels and more (an
-    aperture), not of one smoothed pixel.  The frames are assumed
+    noise (and correlates it), so a resampled frame's variance is its
+    propagated variance times the ratio of its variance as taken to it,
+    and the stack's uncertainty is that of sums over a few pixels and more
+    (an aperture), not of one smoothed pixel.  The frames are assumed
     calibrated (bias, dark and flat already applied, e.g. with ccdproc):
     the stack does not calibrate them.
 
@@ -78,73 +66,6 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         The frame whose grid the stack is on (default: the first frame).
         It is in the stack: given both here and among ``frames`` (the same
         object or the same file) it is used once, unregistered.
-    method : {'average', 'median', 'sum'}, optional
-        'average' (default): the weighted mean.  'median': the median (its
-        uncertainty is ``sqrt(pi / 2)`` times the mean's).  'sum': the mean
-        times the number of frames, so that a pixel some frames miss is
-        not darker.
-    clip : {'sigma', 'minmax', None}, optional
-        Rejection before combining.  'sigma' (default): values more than
-        ``sigma_low``/``sigma_high`` spreads below/above the pixel's median
-        are dropped, for up to ``maxiters`` rounds; the spread is the
-        values' MAD standard deviation, but never less than each value's
-        own uncertainty, and the limits also allow the stars' own signal
-        times the night's PSF differences (a frame of seeing twice the
-        sharpest's has star cores four times fainter), so that only
-        outliers go.  'minmax': the ``nlow`` lowest
-        and ``nhigh`` highest values of each pixel are dropped (ccdproc's
-        ``clip_extrema``).  A pixel whose values would all go keeps them.
-    sigma, sigma_low, sigma_high : float, optional
-        Sigma clipping's limits (``sigma`` for both by default, 3).
-    maxiters : int, optional
-        Sigma clipping's rounds at most (default 3).
-    nlow, nhigh : int, optional
-        Min/max clipping's counts (default 1 and 1).
-    normalize : {'offset', 'scale', 'stars', None}, optional
-        Bring each frame's sky (its sigma-clipped median) to the
-        reference's before the rejection, so that a night's changing sky
-        does not decide which frames are clipped: 'offset' (default)
-        subtracts the difference (moonlight, twilight: sky added), 'scale'
-        multiplies by the ratio (needs positive sky levels), 'stars'
-        divides by the transparency measured on the matched stars (thin
-        cloud; not the sky ratio, which clouds and moonlight break) and
-        subtracts the sky offset, None leaves the frames as they are.
-    weights : 'variance', 'auto', None or sequence of float, optional
-        'variance' (default): each frame weighs the inverse of its median
-        pixel variance as taken (per frame, not per pixel: per-pixel
-        weights from a Poisson variance would favour the pixels that came
-        out low).  'auto': the weights that maximise faint point sources'
-        signal-to-noise, ``T**2 / (sigma**2 * A)`` from each frame's
-        transparency ``T``, sky noise ``sigma`` and PSF noise-equivalent
-        area ``A`` (see the stacking docs for the derivation).  None: equal
-        weights.  A sequence: one weight per frame, the reference's first
-        when it is not one of ``frames``.
-    select : None, 'auto' or float, optional
-        Frames left out before combining (`~astroalign_nd.stacking.quality.select_frames`):
-        None (default) only by the explicit limits; 'auto' also the trailed
-        frames and the outliers of the night (robust z-scores of FWHM,
-        transparency and sky noise); a fraction in (0, 1] keeps that
-        fraction, the highest ``weights='auto'`` weights first.  Every frame
-        left out is in the header (``AAREJnnn``), the log and a warning,
-        with the reason; leaving fewer than 3 frames is a
-        `~astroalign_nd.stacking.quality.SelectionError` (a ValueError)
-        naming the limit to relax.  The reference is never left out.
-    max_fwhm, max_elongation, min_transparency : float, optional
-        Leave out frames whose stars are wider (pixels), more elongated
-        (major over minor axis), or dimmer (relative to the reference's).
-    min_stars : int, optional
-        Leave out frames with fewer sources detected.
-    gain, read_noise : float, optional
-        For frames without an uncertainty: their variance is
-        ``max(value, 0) / gain + (read_noise / gain) ** 2`` (``gain`` in
-        electrons per count, ``read_noise`` in electrons, as ccdproc's
-        ``create_deviation``).  Without ``gain``, such a frame's variance
-        is its measured sky noise squared.  Frames with an uncertainty
-        use their own, propagated through the registration.
-    canvas : {'reference', 'union'}, optional
-        The stack's grid, as in `~astroalign_nd.register_batch`.
-    memory_limit : float, optional
-        Bytes of working memory for the combination (default 512 MB).
     output : str or path, optional
         Also write the stack to this FITS file (atomically).
     overwrite : bool, optional
@@ -154,13 +75,20 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
         folder, removed at the end).
     temp_dir : str, optional
         Where the temporary folder goes (default: the system's).
-    workers, progress, hdu, unit, order, **options
-        As in `~astroalign_nd.register_batch` (``transform_type``,
-        detection and matching options...).
+    workers, progress, hdu, unit, order
+        As in `~astroalign_nd.register_batch`.
     dtype : numpy dtype, optional
         Of the output's data and uncertainty (default float32).  An integer
         type gets the values rounded, and clipped to its range with a
         warning that counts the pixels outside it (never wrapped around).
+    **options
+        The stacking options, the fields of
+        `~astroalign_nd.stacking.StackConfig` (how the frames are combined:
+        ``method``, the rejection ``clip``, sky ``normalize``, ``weights``,
+        ``gain`` and ``read_noise``, the ``canvas``, ``memory_limit``, the
+        frame selection ``select``, ``max_fwhm``, ``max_elongation``,
+        ``min_transparency``, ``min_stars``... each documented there), and `~astroalign_nd.register_batch`'s options
+        (``transform_type``, detection and matching options...).
 
     Returns
     -------
@@ -196,8 +124,7 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     >>> stacked.meta["NCOMBINE"], stacked.shape, int(stacked.mask.sum())
     (4, (128, 128), 0)
     """
-    opts = _check_options(method, clip, sigma, sigma_low, sigma_high, maxiters, nlow, nhigh,
-                          normalize, canvas, memory_limit, gain, read_noise)
+    opts, options = StackConfig.from_keywords("stack", options)
     dtype = _check_dtype(dtype)
     items, hdu = batch_frames(frames, hdu)
     if isinstance(items, Iterator):
@@ -206,16 +133,15 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     items = [(f, f"frame{k}" if label is None else label) for k, (f, label) in enumerate(items)]
     ref_item, others, n_frames = _split_reference(items, reference)
     others = _once(others, ref_item)
-    weights = _check_weights(weights, n_frames)
-    limits = _check_selection(select, max_fwhm, max_elongation, min_transparency, min_stars)
+    weights = _per_frame(opts.weights, n_frames)
     _check_outputs(output, overwrite, items, ref_item)
     ref = parse_input(ref_item[0], "reference", hdu=hdu, unit=unit)
     if ref.data is None or ref.data.ndim != 2:
         raise ValueError("the reference must be a 2-D image (stack one colour channel at a "
                          "time).")
     with _aligned_folder(aligned_dir, temp_dir) as folder:
-        result = _register([it for it, _ in others], ref, folder, canvas, overwrite, workers,
-                           progress, hdu, unit, order, options, ref_item[0])
+        result = _register([it for it, _ in others], ref, folder, opts.canvas, overwrite,
+                           workers, progress, hdu, unit, order, options, ref_item[0])
         on_canvas = _reference_on_canvas(ref_item[0], result, folder, hdu, unit)
         frames_ = [(_reference_name(ref_item), on_canvas, ref_item[1])]
         frames_ += [(f.name, f.output, k) for f, (_, k) in zip(result.frames, others) if f.ok]
@@ -225,15 +151,14 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
                 "no frame could be registered onto the reference: "
                 + "; ".join(f"{n}: {e}" for n, e in rejected))
         frames_, measured = _quality(frames_, ref_item, others, result, rejected, hdu, unit,
-                                     limits, weights)
-        used, stats = _measure(frames_, rejected, opts, weights, gain, read_noise,
-                               memory_limit, measured)
+                                     opts)
+        used, stats = _measure(frames_, rejected, opts, weights, measured)
         for name, why in rejected:  # never silently: the header alone is easy to miss
             warn(f"{name} was left out of the stack: {why}")
         opts = _feasible_clip(_star_clip(opts, stats), len(used))
         value, variance, coverage = combine_files(
-            [frames_[i][1] for i in used], stats, result.canvas_shape, opts, gain=gain,
-            read_noise=read_noise, memory_limit=memory_limit)
+            [frames_[i][1] for i in used], stats, result.canvas_shape, opts, gain=opts.gain,
+            read_noise=opts.read_noise, memory_limit=opts.memory_limit)
         wcs = canvas_wcs(ref.wcs, result.canvas_offset, result.canvas_shape)
     ccd = _stacked(value, variance, coverage, ref, wcs, dtype, [frames_[i][0] for i in used],
                    stats, rejected, opts)
@@ -241,40 +166,6 @@ def stack(frames: Any, reference: Any = None, *, method: str = "average",
     if output is not None:
         write_output(ccd, output, overwrite=overwrite)
     return ccd
-
-
-def _check_options(method, clip, sigma, sigma_low, sigma_high, maxiters, nlow, nhigh,
-                   normalize, canvas, memory_limit, gain, read_noise):
-    """The combination's options, refused with a clear message before any work."""
-    for name, value, allowed in (("method", method, STACK_METHODS), ("clip", clip, CLIP_METHODS),
-                                 ("normalize", normalize, NORMALIZE_METHODS),
-                                 ("canvas", canvas, ("reference", "union"))):
-        if value not in allowed:
-            raise ValueError(f"{name} must be one of {', '.join(map(repr, allowed))}; got "
-                             f"{value!r}.")
-    low = _positive(sigma if sigma_low is None else sigma_low, "sigma_low")
-    high = _positive(sigma if sigma_high is None else sigma_high, "sigma_high")
-    for name, value, least in (("maxiters", maxiters, 1), ("nlow", nlow, 0),
-                               ("nhigh", nhigh, 0)):
-        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
-            raise ValueError(f"{name} must be an integer >= {least}; got {value!r}.")
-    _positive(memory_limit, "memory_limit")
-    if gain is not None:
-        _positive(gain, "gain")
-    if read_noise is not None:
-        _positive(read_noise, "read_noise", zero=True)
-    return CombineOptions(method=method, clip=clip, sigma_low=low, sigma_high=high,
-                          maxiters=int(maxiters), nlow=int(nlow), nhigh=int(nhigh),
-                          normalize=normalize)
-
-
-def _positive(value, name, zero=False):
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a number; got {type(value).__name__}.")
-    if not np.isfinite(value) or value < 0 or (value == 0 and not zero):
-        what = ">= 0" if zero else "> 0"
-        raise ValueError(f"{name} must be finite and {what}; got {value!r}.")
-    return float(value)
 
 
 def _is_path(obj):
@@ -331,41 +222,15 @@ def _once(others, ref_item):
     return kept
 
 
-def _check_weights(weights, n_frames):
-    """``weights`` as 'variance', 'auto', None or one per frame (refused otherwise)."""
-    if weights is None or (isinstance(weights, str) and weights in ("variance", "auto")):
+def _per_frame(weights, n_frames):
+    """``weights`` as `StackConfig` holds them; a sequence as an array of one per frame."""
+    if weights is None or isinstance(weights, str):
         return weights
-    if isinstance(weights, str):
-        raise ValueError(f"weights must be 'variance', 'auto', None or one number per frame; "
-                         f"got {weights!r}.")
-    try:
-        w = np.asarray(weights, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise TypeError(f"weights must be 'variance', None or a sequence of numbers; got "
-                        f"{type(weights).__name__}.") from None
-    if w.size != n_frames or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+    if len(weights) != n_frames:
         raise ValueError(f"weights must be one finite number >= 0 per frame ({n_frames}, the "
                          f"reference's first when it is not one of the frames), not all 0; "
-                         f"got {weights!r}.")
-    return w
-
-
-def _check_selection(select, max_fwhm, max_elongation, min_transparency, min_stars):
-    """The selection's options as a dict (refused with what to pass)."""
-    if not (select is None or (isinstance(select, str) and select == "auto")):
-        if isinstance(select, (str, bool)) or not isinstance(select, numbers.Real) or not (
-                0 < select <= 1):
-            raise ValueError(f"select must be None, 'auto' or a fraction of the frames to "
-                             f"keep in (0, 1]; got {select!r}.")
-    for name, value in (("max_fwhm", max_fwhm), ("max_elongation", max_elongation),
-                        ("min_transparency", min_transparency)):
-        if value is not None:
-            _positive(value, name)
-    if min_stars is not None and (isinstance(min_stars, bool) or not isinstance(
-            min_stars, numbers.Integral) or min_stars < 0):
-        raise ValueError(f"min_stars must be an integer >= 0; got {min_stars!r}.")
-    return dict(select=select, max_fwhm=max_fwhm, max_elongation=max_elongation,
-                min_transparency=min_transparency, min_stars=min_stars)
+                         f"got {list(weights)!r}.")
+    return np.asarray(weights)
 
 
 def _check_outputs(output, overwrite, items, ref_item):
@@ -425,7 +290,7 @@ def _reference_name(item):
     return f"{name} (reference)"
 
 
-def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit, measured):
+def _measure(frames, rejected, opts, weights, measured):
     """
     Each frame's statistics, normalisation and weight; a frame that cannot
     be measured joins ``rejected``.  Returns the indices used and their stats.
@@ -435,7 +300,7 @@ def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit, me
     ref_sky = ref_unit = None
     for i, (name, path, _) in enumerate(frames):
         try:
-            st = frame_stats(path, memory_limit)
+            st = frame_stats(path, opts.memory_limit)
             _as_taken(st, *measured[i])
             ref_unit = st.unit if i == 0 else ref_unit
             factor = _unit_factor(st, ref_unit)
@@ -455,14 +320,14 @@ def _measure(frames, rejected, opts, weights, gain, read_noise, memory_limit, me
         weights = np.where(np.isfinite(w), w, np.nanmedian(w) if np.isfinite(w).any() else 1)
     elif weights is not None and not isinstance(weights, str):
         weights = weights[[frames[i][2] for i in used]]
-    frame_weights(stats, weights, gain, read_noise)
+    frame_weights(stats, weights, opts.gain, opts.read_noise)
     return used, stats
 
 
 def _as_taken(st, row, m):
     """
     A registered frame's stats with its noise as taken (before resampling smoothed it):
-    the sky noise, and the factor of its propagated variance; its transparency and
+    its sky noise, or the factor of its propagated variance; its transparency and
     measures for ``normalize='stars'`` and the header.
     """
     if m is None:
@@ -470,33 +335,34 @@ def _as_taken(st, row, m):
     if st.median_variance is not None and m.median_variance and st.median_variance > 0:
         st.var_factor = max(m.median_variance / st.median_variance, 1.0)
         st.median_variance = m.median_variance
-    elif st.noise > 0 and m.sky_noise > 0:
+    elif m.sky_noise > 0:
         st.noise = m.sky_noise
     st.transparency = row["transparency"]
     st.quality = {k: row[k] for k in ("fwhm", "elongation", "transparency", "sky_noise",
                                       "weight")}
 
 
-def _quality(frames, ref_item, others, result, rejected, hdu, unit, limits, weights):
+def _quality(frames, ref_item, others, result, rejected, hdu, unit, opts):
     """
     Every registered frame measured as taken (`~astroalign_nd.frame_quality`'s rows), the
     selection applied: the frames left out join ``rejected`` with the reason.  Returns
     the frames kept and their ``(row, measures)``.
     """
     ok = [(f, it) for f, (it, _) in zip(result.frames, others) if f.ok]
-    select = limits.pop("select")
+    limits = dict(max_fwhm=opts.max_fwhm, max_elongation=opts.max_elongation,
+                  min_transparency=opts.min_transparency, min_stars=opts.min_stars)
     try:
         rows, measures = measure_frames(
             (frames[0][0], ref_item[0]),
             [(f.name, it[0], f.points, f.quality) for f, it in ok], hdu=hdu, unit=unit)
     except (ValueError, TypeError) as exc:
-        if weights == "auto" or select is not None or any(
-                v is not None for v in limits.values()):
+        if opts.weights == "auto" or opts.normalize == "stars" or opts.select is not None \
+                or any(v is not None for v in limits.values()):
             raise ValueError(f"the reference cannot be measured ({exc}): weights='auto', "
-                             "select and the limits need its stars; use weights='variance' "
-                             "and no selection.") from None
+                             "normalize='stars', select and the limits need its stars; use "
+                             "weights='variance' and no selection.") from None
         return frames, [(None, None)] * len(frames)
-    rows = list(finish_table(rows, select, limits))
+    rows = list(finish_table(rows, opts.select, limits))
     kept, measured = [], []
     for frame, row, m in zip(frames, rows, measures):
         if row["used"] or m is None:  # (one not measured is combined as before)
@@ -509,13 +375,14 @@ def _quality(frames, ref_item, others, result, rejected, hdu, unit, limits, weig
 
 def _star_clip(opts, stats):
     """
-    The clipping's allowance for the stars' own signal: the largest ratio of a frame's
-    peak to the median frame's, minus 1 (peaks scale as the inverse FWHM squared), plus
-    0.3 for registration and normalisation errors.
+    The clipping's allowance for the stars' own signal (``star_tolerance``), unless
+    given: the largest ratio of a frame's star peak to the median frame's (peaks scale
+    as the inverse FWHM squared), minus 1, plus 0.3 for registration and normalisation
+    errors.
     """
     fwhm = np.array([st.quality["fwhm"] for st in stats if st.quality], float)
     fwhm = fwhm[np.isfinite(fwhm) & (fwhm > 0)]
-    if opts.clip != "sigma" or fwhm.size < 2:
+    if opts.clip != "sigma" or opts.star_tolerance is not None or fwhm.size < 2:
         return opts
     ratio = (np.median(fwhm) / fwhm) ** 2
     return dataclasses.replace(opts, star_tolerance=float(np.max(np.abs(ratio - 1.0)) + 0.3))

@@ -21,9 +21,9 @@ from ..config import RegistrationConfig, ResampleConfig
 from ..io import FITSWriter, write_output
 from ..io.write import FITS_EXTENSIONS, check_not_input, check_output_path
 from ..registration import prepare_target, register_and_match
-from .core import _check_options
 from .combine import array_stats, frame_variance, normalise, reject
 from .header import stack_ccddata
+from .options import StackConfig
 
 __all__ = ["LiveStack", "watch_folder", "write_with_retry"]
 
@@ -42,8 +42,8 @@ class LiveStack:
     running weighted mean.  Clipping against the running stack: each pixel's
     first ``n_start`` values are held and clipped together about their
     median (as `~astroalign_nd.stack` clips); after them, a pixel of a new frame
-    more than ``sigma`` times the spread from the running mean is rejected
-    (the spread is the running standard deviation of the values kept at
+    more than ``sigma_low``/``sigma_high`` times the spread from the
+    running mean is rejected (the spread is the running standard deviation of the values kept at
     that pixel, but never less than the frame's own uncertainty), so that
     a satellite trail or cosmic ray in one frame does not stay, wherever
     it falls.  Memory: about ``60 + 12 * n_start`` bytes per pixel of the
@@ -54,22 +54,21 @@ class LiveStack:
     reference
         The reference frame (anything `~astroalign_nd.register` takes):
         the stack's grid and its first frame.
-    sigma : float, optional
-        The clipping limit (default 3); None for no clipping.
-    n_start : int, optional
-        Each pixel's values held and clipped together (about their median)
-        before the running clipping starts there (default 5, at least 3;
-        the stack clips the values held as soon as there are three, but
-        five tell a trail and a cosmic ray in two of the first frames from
-        the sky).
-    normalize : {'offset', 'scale', None}, optional
-        As in `~astroalign_nd.stack`.
-    weights : {'variance', None}, optional
-        As in `~astroalign_nd.stack` (per frame, from its median variance).
-    gain, read_noise : float, optional
-        As in `~astroalign_nd.stack`, for frames without an uncertainty.
-    hdu, unit, order, **options
+    hdu, unit, order
         As in `~astroalign_nd.register`.
+    name : str, optional
+        The reference's name in the header.
+    **options
+        The stacking options of a live stack, the fields of
+        `~astroalign_nd.stacking.StackConfig` it takes: ``clip`` ('sigma',
+        the default, or None), ``sigma`` (3; ``sigma_low``, ``sigma_high``),
+        ``maxiters``, ``n_start`` (each pixel's values held and clipped
+        together, about their median, before the running clipping starts
+        there: default 5, at least 3; the stack clips the values held as
+        soon as there are three, but five tell a trail and a cosmic ray in
+        two of the first frames from the sky), ``normalize``, ``weights``
+        ('variance' or None), ``gain`` and ``read_noise``; and
+        `~astroalign_nd.register`'s options.
 
     Attributes
     ----------
@@ -91,20 +90,9 @@ class LiveStack:
     (4, 'frame3')
     """
 
-    def __init__(self, reference: Any, *, sigma: float | None = 3.0, n_start: int = 5,
-                 normalize: str | None = "offset", weights: str | None = "variance",
-                 gain: float | None = None, read_noise: float | None = None,
-                 hdu: int | str | None = None, unit: Any = None, order: str | int = "bilinear",
-                 name: str = "reference", **options: Any):
-        self.opts = _check_options("average", None if sigma is None else "sigma",
-                                   3.0 if sigma is None else sigma, None, None, 3, 1, 1,
-                                   normalize, "reference", 1.0, gain, read_noise)
-        if isinstance(n_start, bool) or not isinstance(n_start, int) or n_start < 3:
-            raise ValueError(f"n_start must be an integer >= 3; got {n_start!r}.")
-        if weights not in ("variance", None):
-            raise ValueError(f"weights must be 'variance' or None; got {weights!r}.")
-        self.n_start, self.weights, self.gain, self.read_noise = n_start, weights, gain, \
-            read_noise
+    def __init__(self, reference: Any, *, hdu: int | str | None = None, unit: Any = None,
+                 order: str | int = "bilinear", name: str = "reference", **options: Any):
+        self.opts, options = StackConfig.from_keywords("live", options)
         self.hdu, self.unit = hdu, unit
         self.options = dict(options, order=order)
         resample = {f.name for f in dataclasses.fields(ResampleConfig)}
@@ -117,7 +105,7 @@ class LiveStack:
         self.shape, self.wcs, self.meta = parsed.data.shape, parsed.wcs, parsed.meta
         self.unit_out = parsed.unit or "adu"
         self.used, self.rejected, self._stats = [], [], []
-        self._acc, self._ref_sky = _Running(self.shape, n_start), None
+        self._acc, self._ref_sky = _Running(self.shape, self.opts.n_start), None
         valid = np.isfinite(parsed.data) & (True if parsed.mask is None else ~parsed.mask)
         var = _variance(parsed.uncertainty)
         self._add_arrays(np.asarray(parsed.data, dtype=np.float64), var, valid, name)
@@ -152,12 +140,12 @@ class LiveStack:
         st = array_stats(data, var, valid)
         self._ref_sky = st.sky if self._ref_sky is None else self._ref_sky
         normalise(st, self._ref_sky, self.opts.normalize)
-        var = frame_variance(data, var, st, self.gain, self.read_noise)
+        var = frame_variance(data, var, st, self.opts.gain, self.opts.read_noise)
         x = data * st.scale - st.offset
         var = var * st.scale ** 2
         valid = valid & np.isfinite(var)
-        st.weight = 1.0 if self.weights is None else 1.0 / max(float(np.median(var[valid])),
-                                                               1e-300)
+        st.weight = 1.0 if self.opts.weights is None else \
+            1.0 / max(float(np.median(var[valid])), 1e-300)
         self._stats.append(st)
         self.used.append(name)
         self._acc.add(x, var, valid, len(self._stats) - 1, self._stats, self.opts)

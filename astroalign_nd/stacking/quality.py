@@ -595,7 +595,7 @@ def select_frames(table, select=None, *, max_fwhm=None, max_elongation=None,
                   f"({table['weight'][i]:.3g})", f"select={frac:g}")
     out = ["; ".join(r) if r else None for r in reasons]
     n_left = sum(r is None for r in out)
-    if n_left < min_frames:
+    if n_left < min_frames and culprits:  # (too few frames to start with is not the selection's)
         worst = max(culprits, key=culprits.get)
         raise SelectionError(
             f"the selection leaves {n_left} of {n} frames, fewer than {min_frames}: relax "

@@ -13,6 +13,7 @@ from astroalign_nd.cli.options import _FIELDS, _registration_options
 from astroalign_nd.config import (DetectionConfig, MatchingConfig, ModelConfig,
                                   RegistrationConfig, ResampleConfig)
 from astroalign_nd.matching import match_points
+from astroalign_nd.options import cli_fields
 
 
 def _defaults(func):
@@ -111,7 +112,7 @@ def test_cli_options_come_from_the_configs():
     actions = {a.dest: a for a in parser._actions}
     for cls in (ModelConfig, ResampleConfig, RegistrationConfig, DetectionConfig,
                 MatchingConfig):
-        for name, flag, kwargs in config.cli_fields(cls):
+        for name, flag, kwargs in cli_fields(cls):
             assert name in _FIELDS and flag in actions[name].option_strings
             assert actions[name].help == kwargs["help"]
     # The defaults that the help text shows are the configs' ones.

@@ -17,8 +17,8 @@ from astroalign_nd import AstroalignWarning, TransformNotFoundError, stack
 from astroalign_nd.cli.main import main
 from astroalign_nd.io import write_ccddata
 from astroalign_nd.simulate import add_satellite_trail, simulate_sequence
-from astroalign_nd.stacking import LiveStack, watch_folder
-from astroalign_nd.stacking.combine import CombineOptions, reject
+from astroalign_nd.stacking import LiveStack, StackConfig, watch_folder
+from astroalign_nd.stacking.combine import reject
 
 WORKTREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 POSIX = pytest.mark.skipif(not hasattr(signal, "SIGINT") or os.name != "posix",
@@ -172,15 +172,18 @@ def test_nothing_registered_is_refused(ten):
     (dict(method="mean"), ValueError, "method must be one of"),
     (dict(clip="extrema"), ValueError, "clip must be one of"),
     (dict(normalize="median"), ValueError, "normalize must be one of"),
-    (dict(sigma=-1.0), ValueError, "sigma_low must be finite and > 0"),
-    (dict(sigma="3"), TypeError, "sigma_low must be a number"),
+    (dict(sigma=-1.0), ValueError, "sigma must be a finite number > 0; got -1.0."),
+    (dict(sigma="3"), TypeError, "sigma must be a finite number > 0; got '3'."),
+    (dict(sigma_low=0), ValueError, "sigma_low must be a finite number > 0 or None"),
     (dict(nlow=-1), ValueError, "nlow must be an integer >= 0"),
     (dict(maxiters=0), ValueError, "maxiters must be an integer >= 1"),
-    (dict(memory_limit=0), ValueError, "memory_limit must be finite and > 0"),
-    (dict(gain=0.0), ValueError, "gain must be finite and > 0"),
+    (dict(memory_limit=0), ValueError, r"memory_limit must be a finite number > 0 \(bytes\)"),
+    (dict(gain=0.0), ValueError, "gain must be a finite number > 0"),
     (dict(weights=[1.0]), ValueError, "one finite number >= 0 per frame"),
+    (dict(weights=[1.0, -1.0]), ValueError, "weights must be 'variance' or 'auto' or None or a sequence"),
     (dict(weights="snr"), ValueError, "weights must be 'variance'"),
     (dict(canvas="full"), ValueError, "canvas must be one of"),
+    (dict(n_start=4), TypeError, "n_start: not an option of stack"),
 ])
 def test_bad_arguments(ten, kw, err, match):
     with pytest.raises(err, match=match):
@@ -236,7 +239,7 @@ def test_live_stack_clips_against_the_running_stack(ten):
     deep = ccd.flags >= 5
     assert np.max(np.abs(_deviation(ccd, ten.truth)[deep])) < 5.0
     assert ccd.meta["NCOMBINE"] == 10 and live.used[0] == "reference"
-    plain = LiveStack(frames[0], sigma=None)
+    plain = LiveStack(frames[0], clip=None)
     for frame in frames[1:]:
         plain.add(frame)
     assert np.max(np.abs(_deviation(plain.result(), ten.truth)[deep])) > 20.0
@@ -245,7 +248,7 @@ def test_live_stack_clips_against_the_running_stack(ten):
 def test_reject_keeps_a_pixel_whose_values_would_all_go():
     x = np.array([[[0.0]], [[100.0]]])
     keep = reject(x, np.ones_like(x), np.ones(x.shape, bool),
-                  CombineOptions(clip="minmax", nlow=1, nhigh=1))
+                  StackConfig(clip="minmax", nlow=1, nhigh=1))
     assert keep.all()
 
 
