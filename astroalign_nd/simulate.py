@@ -2710,7 +2710,8 @@ def simulate_night(shape=(256, 256), *, n_frames=24, fwhm_range=(2.0, 8.0), refe
         transforms.append(from_matrix(np.array([[1.0, 0, dx], [0, 1.0, dy], [0, 0, 1.0]])))
     sky_noise = np.sqrt(background * transp / gain + read_noise ** 2)
     meta = dict(fwhm=fwhm, transparency=transp, elongation=elong, trailed=trailed,
-                satellite=satellite, cloudy=cloudy, sky_noise=sky_noise, faint_x=fx,
+                satellite=satellite, cloudy=cloudy, sky_noise=sky_noise, star_x=xs, star_y=ys,
+                star_flux=flux, faint_x=fx,
                 faint_y=fy, faint_flux=float(faint_flux), background=background, gain=gain,
                 read_noise=read_noise, seed=seed)
     truth = simulate_image(shape, np.concatenate([xs, fx]), np.concatenate([ys, fy]),

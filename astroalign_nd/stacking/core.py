@@ -22,7 +22,7 @@ from ..io.write import check_not_input, check_output_path
 from ..io.writers import output_suffixes
 from .combine import combine_files, frame_stats, frame_weights, normalise
 from .header import stack_ccddata
-from .quality import finish_table, measure_frames
+from .quality import as_taken, finish_table, measure_frames
 from .options import StackConfig
 
 __all__ = ["stack"]
@@ -301,7 +301,7 @@ def _measure(frames, rejected, opts, weights, measured):
     for i, (name, path, _) in enumerate(frames):
         try:
             st = frame_stats(path, opts.memory_limit)
-            _as_taken(st, *measured[i])
+            as_taken(st, *measured[i])
             ref_unit = st.unit if i == 0 else ref_unit
             factor = _unit_factor(st, ref_unit)
             ref_sky = st.sky if ref_sky is None else ref_sky
@@ -322,24 +322,6 @@ def _measure(frames, rejected, opts, weights, measured):
         weights = weights[[frames[i][2] for i in used]]
     frame_weights(stats, weights, opts.gain, opts.read_noise)
     return used, stats
-
-
-def _as_taken(st, row, m):
-    """
-    A registered frame's stats with its noise as taken (before resampling smoothed it):
-    its sky noise, or the factor of its propagated variance; its transparency and
-    measures for ``normalize='stars'`` and the header.
-    """
-    if m is None:
-        return
-    if st.median_variance is not None and m.median_variance and st.median_variance > 0:
-        st.var_factor = max(m.median_variance / st.median_variance, 1.0)
-        st.median_variance = m.median_variance
-    elif m.sky_noise > 0:
-        st.noise = m.sky_noise
-    st.transparency = row["transparency"]
-    st.quality = {k: row[k] for k in ("fwhm", "elongation", "transparency", "sky_noise",
-                                      "weight")}
 
 
 def _quality(frames, ref_item, others, result, rejected, hdu, unit, opts):

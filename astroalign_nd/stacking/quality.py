@@ -22,14 +22,15 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from astropy.table import Table
 
-__all__ = ["FrameMeasures", "measure_frame", "star_shapes", "transparency", "frame_quality",
-           "quality_weights", "select_frames", "SelectionError", "QUALITY_COLUMNS"]
+__all__ = ["FrameMeasures", "measure_frame", "measure_frames", "star_shapes", "transparency",
+           "frame_quality", "quality_weights", "select_frames", "as_taken", "SelectionError",
+           "QUALITY_COLUMNS"]
 
 _GAUSS_FWHM = 2.0 * math.sqrt(2.0 * math.log(2.0))
 #: Stars (brightest, unsaturated) whose shapes are measured.
@@ -78,6 +79,9 @@ class FrameMeasures:
         The frame's largest value (stars reaching it are not photometered).
     median_variance : float or None
         The median of its own variance (None without an uncertainty).
+    sky_subtracted : ndarray or None
+        The frame minus its smooth sky, once `transparency` has made it (kept
+        for the reference, which every frame's photometry meets).
     """
 
     sky: float
@@ -92,6 +96,7 @@ class FrameMeasures:
     peak: np.ndarray
     saturation: float
     median_variance: float | None = None
+    sky_subtracted: np.ndarray | None = field(default=None, repr=False)
 
 
 def _cutouts(data, x, y, half):
@@ -369,15 +374,13 @@ def _sky_map(data, box, mask=None):
             return np.full(data.shape, sigma_clipped_stats(data[np.isfinite(data)])[1])
 
 
-def _aperture_fluxes(data, x, y, radius, measures):
+def _sky_subtracted(data, measures):
     """
-    Circular-aperture fluxes above a smooth sky map, and their noise.  The sky is
-    measured with the detected stars masked (to twice their FWHM): the wings of
-    broad stars in a crowded field would raise it, and lower the fluxes.
+    The frame minus a smooth sky measured with the detected stars masked (to twice
+    their FWHM): the wings of broad stars in a crowded field would raise it, and
+    lower the fluxes.
     """
-    from photutils.aperture import CircularAperture, aperture_photometry
-
-    box = int(np.clip(4 * radius, 32, max(32, min(data.shape) // 3)))
+    box = int(np.clip(min(data.shape) // 4, 32, 128))
     stars = np.zeros(data.shape, dtype=bool)
     r = max(2.0 * measures.fwhm, 3.0)
     half = int(math.ceil(r))
@@ -388,8 +391,13 @@ def _aperture_fluxes(data, x, y, radius, measures):
         rr, cc = ys + dy - half, xs + dx - half
         ok = (rr >= 0) & (rr < data.shape[0]) & (cc >= 0) & (cc < data.shape[1])
         stars[rr[ok], cc[ok]] = True
-    sub = data - _sky_map(data, box, stars | ~np.isfinite(data))
-    sky_noise = measures.sky_noise
+    return data - _sky_map(data, box, stars | ~np.isfinite(data))
+
+
+def _aperture_fluxes(sub, x, y, radius, sky_noise):
+    """Circular-aperture fluxes of a sky-subtracted frame, and their noise."""
+    from photutils.aperture import CircularAperture, aperture_photometry
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         phot = aperture_photometry(np.where(np.isfinite(sub), sub, 0.0),
@@ -436,10 +444,12 @@ def transparency(data, ref_data, points, ref_points, measures, ref_measures):
     if not keep.any():
         return float("nan"), 0
     points, ref_points = points[keep], ref_points[keep]
-    f, ef = _aperture_fluxes(np.asarray(data, float), points[:, 0], points[:, 1], radius,
-                             measures)
-    r, er = _aperture_fluxes(np.asarray(ref_data, float), ref_points[:, 0], ref_points[:, 1],
-                             radius, ref_measures)
+    sub = _sky_subtracted(np.asarray(data, float), measures)
+    if ref_measures.sky_subtracted is None:
+        ref_measures.sky_subtracted = _sky_subtracted(np.asarray(ref_data, float), ref_measures)
+    f, ef = _aperture_fluxes(sub, points[:, 0], points[:, 1], radius, measures.sky_noise)
+    r, er = _aperture_fluxes(ref_measures.sky_subtracted, ref_points[:, 0], ref_points[:, 1],
+                             radius, ref_measures.sky_noise)
     peak_f = _local_max(data, points)
     peak_r = _local_max(ref_data, ref_points)
     ok = (np.isfinite(f) & np.isfinite(r) & (r > 20.0 * er) & (f > 5.0 * ef)
@@ -750,6 +760,33 @@ def frame_quality(frames: Any, reference: Any = None, *, select: Any = None,
     return finish_table(rows, select, dict(max_fwhm=max_fwhm, max_elongation=max_elongation,
                                            min_transparency=min_transparency,
                                            min_stars=min_stars))
+
+
+def as_taken(st, row, m):
+    """
+    A registered frame's stats with its noise as taken (before resampling smoothed it):
+    its sky noise, or the factor of its propagated variance; its transparency and
+    measures for ``normalize='stars'`` and the header.
+
+    Parameters
+    ----------
+    st : `~astroalign_nd.stacking.combine.FrameStats`
+        Of the registered frame; changed in place.
+    row : dict or None
+        Its quality row (`quality_row`).
+    m : `FrameMeasures` or None
+        Its measures as taken (None: ``st`` is left as it is).
+    """
+    if m is None:
+        return
+    if st.median_variance is not None and m.median_variance and st.median_variance > 0:
+        st.var_factor = max(m.median_variance / st.median_variance, 1.0)
+        st.median_variance = m.median_variance
+    elif m.sky_noise > 0:
+        st.noise = m.sky_noise
+    st.transparency = row["transparency"]
+    st.quality = {k: row[k] for k in ("fwhm", "elongation", "transparency", "sky_noise",
+                                      "weight")}
 
 
 def finish_table(rows, select, limits):
