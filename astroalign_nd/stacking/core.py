@@ -22,7 +22,7 @@ from ..io.write import check_not_input, check_output_path
 from ..io.writers import output_suffixes
 from .combine import combine_files, frame_stats, frame_weights, normalise
 from .header import stack_ccddata
-from .quality import as_taken, finish_table, measure_frames
+from .quality import as_taken, auto_weight, finish_table, measure_frames
 from .options import StackConfig
 
 __all__ = ["stack"]
@@ -87,8 +87,9 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         ``method``, the rejection ``clip``, sky ``normalize``, ``weights``,
         ``gain`` and ``read_noise``, the ``canvas``, ``memory_limit``, the
         frame selection ``select``, ``max_fwhm``, ``max_elongation``,
-        ``min_transparency``, ``min_stars``... each documented there), and `~astroalign_nd.register_batch`'s options
-        (``transform_type``, detection and matching options...).
+        ``min_transparency``, ``min_stars``... each documented there), and
+        `~astroalign_nd.register_batch`'s options (``transform_type``,
+        detection and matching options...).
 
     Returns
     -------
@@ -316,7 +317,7 @@ def _measure(frames, rejected, opts, weights, measured):
         used.append(i)
         stats.append(st)
     if isinstance(weights, str) and weights == "auto":
-        w = np.array([st.quality["weight"] if st.quality else np.nan for st in stats])
+        w = np.array([auto_weight(st) for st in stats])
         weights = np.where(np.isfinite(w), w, np.nanmedian(w) if np.isfinite(w).any() else 1)
     elif weights is not None and not isinstance(weights, str):
         weights = weights[[frames[i][2] for i in used]]

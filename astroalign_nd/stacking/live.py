@@ -24,7 +24,7 @@ from ..io.write import FITS_EXTENSIONS, check_not_input, check_output_path
 from ..registration import prepare_target, register_and_match
 from .combine import array_stats, frame_variance, normalise, reject
 from .header import stack_ccddata
-from .quality import (as_taken, frame_time, measure_parsed, quality_row, quality_table,
+from .quality import (as_taken, auto_weight, frame_time, measure_parsed, quality_row, quality_table,
                       quality_weights, select_frames, transparency)
 from .options import StackConfig
 
@@ -206,7 +206,7 @@ class LiveStack:
         var = var * st.scale ** 2
         valid = valid & np.isfinite(var)
         if self.opts.weights == "auto":
-            st.weight = measured[0]["weight"]
+            st.weight = auto_weight(st)
         else:
             st.weight = 1.0 if self.opts.weights is None else \
                 1.0 / max(float(np.median(var[valid])), 1e-300)

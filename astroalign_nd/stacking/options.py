@@ -161,9 +161,9 @@ class StackConfig:
         point sources' signal-to-noise, ``T**2 / (sigma**2 * A)`` from each
         frame's transparency ``T``, sky noise ``sigma`` and PSF
         noise-equivalent area ``A`` (`~astroalign_nd.frame_quality`; the
-        derivation is in the stacking docs).  None: equal weights.  A sequence (not for a live stack): one
-        weight per frame, the reference's first when it is not one of
-        the frames.
+        derivation is in the frame quality docs).  None: equal weights.
+        A sequence (not for a live stack): one weight per frame, the
+        reference's first when it is not one of the frames.
     memory_limit : float, optional
         Bytes of working memory for the combination (default 512 MB).
     canvas : {'reference', 'union'}, optional
@@ -250,7 +250,8 @@ class StackConfig:
         flag="--read-noise", type=float)
     weights: object = option(
         "variance", FrameWeights(),
-        "frame weights: inverse median variance (default), or equal", flag="--weights")
+        "frame weights: inverse median variance (default), auto (faint stars: "
+        "transparency, sky noise and seeing), or equal", flag="--weights")
     memory_limit: float = option(
         DEFAULT_MEMORY_LIMIT, Real(0, lo_open=True, unit="bytes"),
         "working memory of the combination, MB (default: %(default)s)", used_by=("stack",),

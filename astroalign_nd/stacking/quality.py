@@ -29,7 +29,8 @@ import numpy as np
 from astropy.table import Table
 
 __all__ = ["FrameMeasures", "measure_frame", "measure_frames", "star_shapes", "transparency",
-           "frame_quality", "quality_weights", "select_frames", "as_taken", "SelectionError",
+           "frame_quality", "quality_weights", "select_frames", "as_taken", "auto_weight",
+           "SelectionError",
            "QUALITY_COLUMNS"]
 
 _GAUSS_FWHM = 2.0 * math.sqrt(2.0 * math.log(2.0))
@@ -272,15 +273,16 @@ def measure_frame(data, mask=None, *, variance=None, n_sources=300, **detect_opt
 
 def _difference_noise(data, valid):
     """
-    The per-pixel noise from differences of horizontally adjacent pixels (which
-    cancel the sky and its gradients): their sigma-clipped standard deviation over
-    sqrt(2).  A standard deviation, not a MAD: the MAD of integer counts with a noise
-    of one or two counts is quantised.
+    The per-pixel noise from differences of pixels two columns apart (which cancel
+    the sky and its gradients, and compare pixels of one colour in a raw Bayer
+    mosaic): their sigma-clipped standard deviation over sqrt(2).  A standard
+    deviation, not a MAD: the MAD of integer counts with a noise of one or two
+    counts is quantised.
     """
     from astropy.stats import sigma_clipped_stats
 
-    d = data[:, 1:] - data[:, :-1]
-    ok = valid[:, 1:] & valid[:, :-1]
+    d = data[:, 2:] - data[:, :-2]
+    ok = valid[:, 2:] & valid[:, :-2]
     d = d[ok]
     if d.size == 0:
         return float("nan")
@@ -787,6 +789,20 @@ def as_taken(st, row, m):
     st.transparency = row["transparency"]
     st.quality = {k: row[k] for k in ("fwhm", "elongation", "transparency", "sky_noise",
                                       "weight")}
+
+
+def auto_weight(st):
+    """
+    A frame's ``weights='auto'`` weight for its values as normalised: its quality
+    weight ``T**2 / (sigma**2 * A)`` (for frames scaled by ``1 / T``) divided by the
+    star signal ``T * scale`` its normalisation leaves (1 for ``normalize='stars'``):
+    with signal ``g = T s`` and noise ``sigma s`` per pixel, the best weight is
+    ``g / (sigma**2 s**2 A)``.  NaN without a measure.
+    """
+    if not st.quality:
+        return float("nan")
+    t = st.transparency if st.transparency and np.isfinite(st.transparency) else 1.0
+    return st.quality["weight"] / (t * st.scale)
 
 
 def finish_table(rows, select, limits):
