@@ -167,8 +167,8 @@ def night_part(tmp):
     rows = []
     runs = {"equal weights": dict(weights=None),
             "inverse variance (default)": dict(),
-            "ideal weights (truth), normalize='stars'": dict(weights=ideal_weights(night),
-                                                              normalize="stars"),
+            "ideal weights (truth), normalize='stars'": dict(
+                weights=ideal_weights(night), normalize="stars"),
             "weights='auto'": dict(weights="auto"),
             "weights='auto', select='auto'": dict(weights="auto", select="auto"),
             "weights='auto', normalize='stars'": dict(weights="auto", normalize="stars"),

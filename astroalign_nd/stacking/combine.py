@@ -509,6 +509,7 @@ def normalise(st, reference_sky, normalize):
                              "normalize='offset' or 'scale'.")
         st.scale = 1.0 / t
         st.offset = st.sky * st.scale - reference_sky
+    else:
         st.offset, st.scale = 0.0, 1.0
 
 

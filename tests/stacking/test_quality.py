@@ -100,7 +100,7 @@ def test_weights_formula_and_selection_rules():
 
 def test_stack_auto_weights_selection_and_header(night):
     with pytest.warns(AstroalignWarning, match=r"frame\d was left out of the stack: trailed"):
-        ccd = stack(night.frames, weights="auto", select="auto", normalize="stars")
+        ccd = stack(night.frames, weights="auto", max_elongation=2.0, normalize="stars")
     h = ccd.meta
     k = int(np.flatnonzero(night.meta["trailed"])[0])
     c = int(np.flatnonzero(night.meta["cloudy"])[0])
@@ -110,7 +110,7 @@ def test_stack_auto_weights_selection_and_header(night):
     j = names.index(f"frame{c}") + 1
     # normalize='stars': the cloudy frame scaled by 1 / 0.4; its weight about 0.4^2 of
     # a clear frame's of the same seeing; its measures in the header.
-    assert abs(h[f"AASCL{j:03d}"] * 0.4 - 1) < 0.03
+    assert abs(h[f"AASCL{j:03d}"] * 0.4 - 1) < 0.05
     assert abs(h[f"AATRN{j:03d}"] - 0.4) < 0.012 and h["AAFWH001"] == pytest.approx(
         2.58, abs=0.1)
     clear = [i for i in range(1, 6) if i != j]
