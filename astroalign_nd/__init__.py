@@ -39,6 +39,7 @@ _LAZY = {
     "apply_transform": "resample",
     "register_batch": "batch",
     "stack": "stacking",
+    "frame_quality": "stacking",
     "solve_sequence": "batch",
     "LinearTransform2D": "transforms",
     "TranslationTransform": "transforms",

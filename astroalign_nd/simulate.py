@@ -42,6 +42,7 @@ from astroalign_nd.transforms.convert import as_matrix, from_matrix
 
 __all__ = [
     "SimulatedPair",
+    "simulate_night",
     "render_stars",
     "simulate_image",
     "simulate_field",
@@ -2637,3 +2638,138 @@ def simulate_sparse_pair(shape=(512, 512), *, n_stars=25, rotation=None, transla
                          truth_matrix=pair.truth_matrix, source_stars=pair.source_stars,
                          target_stars=tgt, transients=pair.transients, meta=meta,
                          mapping=pair.mapping)
+
+
+def simulate_night(shape=(256, 256), *, n_frames=24, fwhm_range=(2.0, 8.0), reference_fwhm=2.5,
+                   n_cloudy=3, cloud_transparency=0.4, n_trailed=2, trail_elongation=3.0,
+                   n_satellite=1, n_stars=120, flux_range=(2e3, 1e5), n_faint=40,
+                   faint_flux=300.0, background=200.0, read_noise=5.0, gain=1.0, max_shift=6.0,
+                   seed=None):
+    """
+    Simulate a night of frames of one field whose quality varies: seeing,
+    thin cloud, trailed frames and a satellite.
+
+    Frame ``k`` is the field shifted by ``shifts[k]`` (sub-pixel: every frame
+    but the reference is resampled by a stack), seen with its own seeing
+    (FWHM log-uniform in ``fwhm_range``; the reference ``reference_fwhm``)
+    and transparency (1, or ``cloud_transparency`` for ``n_cloudy``
+    frames); ``n_trailed`` frames have their stars trailed to
+    ``trail_elongation`` (major over minor axis of the trailed PSF) and
+    ``n_satellite`` frames a satellite trail.  Besides the bright stars
+    (``flux_range``: the registration's), ``n_faint`` faint stars of flux
+    ``faint_flux`` lie on a grid away from them, for the stack's faint-star
+    signal-to-noise.  Noise: Poisson on ``(sky + stars) * gain`` plus
+    ``read_noise``; the frames carry no uncertainty, as a camera's do not.
+
+    Parameters
+    ----------
+    shape : tuple of int, optional
+    n_frames : int, optional
+        The first is the reference (round stars, clear sky).
+    fwhm_range : (float, float), optional
+        Pixels.
+    reference_fwhm : float, optional
+    n_cloudy, n_trailed, n_satellite : int, optional
+        Frames (other than the reference) with thin cloud, trailed stars, a
+        satellite trail (disjoint sets).
+    cloud_transparency : float, optional
+    trail_elongation : float, optional
+    n_stars : int, optional
+        Bright stars in the field.
+    flux_range : (float, float), optional
+        Their fluxes (counts).
+    n_faint : int, optional
+    faint_flux : float, optional
+        Counts at transparency 1.
+    background, read_noise, gain : float, optional
+        The sky (counts, scaled by each frame's transparency), counts, e-/count.
+    max_shift : float, optional
+        Pixels.
+    seed : int, `numpy.random.Generator` or None, optional
+
+    Returns
+    -------
+    night : `SimulatedSequence`
+        ``meta`` holds the truth per frame: ``fwhm``, ``transparency``,
+        ``elongation``, ``trailed``, ``satellite`` (bool arrays),
+        ``sky_noise`` (the sky's noise per pixel, counts), and the faint
+        stars ``faint_x``, ``faint_y`` (on the reference) and ``faint_flux``.
+
+    Examples
+    --------
+    >>> from astroalign_nd.simulate import simulate_night
+    >>> night = simulate_night((128, 128), n_frames=6, n_faint=4, n_cloudy=1, n_trailed=1,
+    ...                        n_satellite=1, seed=1)
+    >>> len(night.frames), int(night.meta["trailed"].sum()), night.meta["transparency"][0]
+    (6, 1, 1.0)
+    """
+    from astropy.nddata import CCDData
+
+    shape = _check_shape(shape)
+    n_frames = _check_count(n_frames, "n_frames")
+    if n_cloudy + n_trailed + n_satellite > n_frames - 1:
+        n_bad = n_cloudy + n_trailed + n_satellite
+        raise ValueError(f"n_cloudy + n_trailed + n_satellite ({n_bad}) must leave the "
+                         f"reference: at most n_frames - 1 "
+                         f"({n_frames - 1}).")
+    lo, hi = (float(v) for v in fwhm_range)
+    if not 0 < lo <= hi:
+        raise ValueError(f"fwhm_range must be (low, high) with 0 < low <= high; got "
+                         f"{fwhm_range!r}.")
+    rng_stars, rng_frames = _spawn(seed, 2)
+    ny, nx = shape
+    fwhm = np.exp(rng_stars.uniform(np.log(lo), np.log(hi), n_frames))
+    fwhm[0] = reference_fwhm
+    kinds = rng_stars.permutation(np.arange(1, n_frames))
+    cloudy = np.zeros(n_frames, bool)
+    cloudy[kinds[:n_cloudy]] = True
+    trailed = np.zeros(n_frames, bool)
+    trailed[kinds[n_cloudy:n_cloudy + n_trailed]] = True
+    satellite = np.zeros(n_frames, bool)
+    satellite[kinds[n_cloudy + n_trailed:n_cloudy + n_trailed + n_satellite]] = True
+    transp = np.where(cloudy, float(cloud_transparency), 1.0)
+    shifts = rng_stars.uniform(-max_shift, max_shift, (n_frames, 2))
+    shifts[0] = 0.0
+    pad = max_shift + 3.0 * hi
+    xs = rng_stars.uniform(-pad, nx - 1 + pad, n_stars)
+    ys = rng_stars.uniform(-pad, ny - 1 + pad, n_stars)
+    (flo, fhi), alpha = _check_flux_range(flux_range, 1.5)
+    flux = _draw_fluxes(rng_stars, n_stars, flo, fhi, alpha)
+    # The faint stars: a jittered grid, away from the edges and from the bright stars.
+    side = int(np.ceil(np.sqrt(max(n_faint, 1)) * 1.6))
+    gx, gy = np.meshgrid(np.linspace(30, nx - 31, side), np.linspace(30, ny - 31, side))
+    gx, gy = gx.ravel(), gy.ravel()
+    dist = np.hypot(gx[:, None] - xs[None], gy[:, None] - ys[None]).min(axis=1)
+    order = np.argsort(-dist, kind="stable")[:n_faint]
+    fx, fy = gx[order] + 0.3, gy[order] + 0.6
+    elong = np.where(trailed, float(trail_elongation), 1.0)
+    frames, transforms = [], []
+    for k in range(n_frames):
+        dx, dy = shifts[k]
+        trail = None
+        if trailed[k]:
+            sig = fwhm[k] * _FWHM_TO_SIGMA
+            trail = (float(np.sqrt(12.0 * (trail_elongation ** 2 - 1.0)) * sig),
+                     float(rng_stars.uniform(0, 180)))
+        img = simulate_image(shape, np.concatenate([xs, fx]) - dx, np.concatenate([ys, fy]) - dy,
+                             np.concatenate([flux, np.full(len(fx), float(faint_flux))])
+                             * transp[k], fwhm=fwhm[k], background=background * transp[k],
+                             read_noise=read_noise, gain=gain, seed=rng_frames, trail=trail,
+                             noise="gaussian")
+        if satellite[k]:
+            y0, y1 = rng_stars.uniform(0, ny, 2)
+            img = add_satellite_trail(img, (-5.0, y0), (nx + 5.0, y1), width=2.5,
+                                      amplitude=6.0 * np.sqrt(background)).astype(np.float32)
+        frames.append(CCDData(img, unit="adu", meta={"MJD-OBS": 60000.5 + k * 0.01}))
+        transforms.append(from_matrix(np.array([[1.0, 0, dx], [0, 1.0, dy], [0, 0, 1.0]])))
+    sky_noise = np.sqrt(background * transp / gain + read_noise ** 2)
+    meta = dict(fwhm=fwhm, transparency=transp, elongation=elong, trailed=trailed,
+                satellite=satellite, cloudy=cloudy, sky_noise=sky_noise, star_x=xs, star_y=ys,
+                star_flux=flux, faint_x=fx,
+                faint_y=fy, faint_flux=float(faint_flux), background=background, gain=gain,
+                read_noise=read_noise, seed=seed)
+    truth = simulate_image(shape, np.concatenate([xs, fx]), np.concatenate([ys, fy]),
+                           np.concatenate([flux, np.full(len(fx), float(faint_flux))]),
+                           fwhm=fwhm[0], background=background, noise=False)
+    return SimulatedSequence(frames=frames, truth=truth, transforms=transforms,
+                             sky=list(background * transp), shifts=shifts, meta=meta)

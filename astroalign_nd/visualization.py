@@ -15,7 +15,10 @@ Diagnostic plots of a registration.
   `save_diagnostic_figure`, which writes it to a file (the command line's
   ``register --plot``, and ``batch --plot DIR`` for each frame);
 * `plot_night`: a batch's drift, rotation, RMS and matched stars against
-  frame, and `save_night_figure` (``batch --plot DIR``'s night summary).
+  frame, and `save_night_figure` (``batch --plot DIR``'s night summary);
+* `plot_frame_quality`: a night's seeing, elongation, transparency, sky
+  noise and weights against time (`~astroalign_nd.frame_quality`'s table),
+  the frames left out marked.
 
 The functions take what `~astroalign_nd.find_transform` and
 `~astroalign_nd.register` return (the transform, the matched points, the
@@ -42,7 +45,7 @@ from .resample.nddata import apply_transform
 
 __all__ = ["plot_matches", "plot_invariants", "plot_residuals", "plot_difference",
            "plot_registration", "save_diagnostic_figure", "match_colors", "plot_night",
-           "save_night_figure", "NO_DATA_COLOR"]
+           "save_night_figure", "plot_frame_quality", "NO_DATA_COLOR"]
 
 #: Options of `plot_registration` used to resample the source (when ``aligned`` is not
 #: given) rather than to find the transform.
@@ -733,6 +736,93 @@ def plot_night(result, *, fig=None):
     n_ok = int((~failed).sum())
     fig.suptitle(f"{n_ok} of {len(k)} frames registered"
                  + (f", {int(failed.sum())} failed (red crosses)" if failed.any() else ""))
+    return fig
+
+
+def plot_frame_quality(table, *, fig=None):
+    """
+    A night's frames measured: FWHM, elongation, transparency, sky noise and
+    weight against time, the frames left out marked.
+
+    Five panels share the time axis (hours from the first frame, from the
+    ``time`` column; the frame's place when the headers give no time): the
+    median star FWHM (px, with its spread), the elongation, the
+    transparency, the sky noise and the weight.  The frames used are blue
+    dots; those left out red crosses, the first words of their reason
+    beside them in the weight panel.
+
+    Parameters
+    ----------
+    table : `~astropy.table.Table`
+        As `~astroalign_nd.frame_quality` returns it (or
+        `~astroalign_nd.stacking.LiveStack`'s ``quality``).
+    fig : `~matplotlib.figure.Figure`, optional
+        The figure to draw on (cleared first); a new pyplot figure by default.
+
+    Returns
+    -------
+    fig : `~matplotlib.figure.Figure`
+        With five Axes.
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from astroalign_nd.visualization import plot_frame_quality
+    >>> t = Table({"name": ["a", "b", "c"], "time": [60000.0, 60000.01, 60000.02],
+    ...            "fwhm": [3.0, 3.4, 6.0], "fwhm_spread": [0.1, 0.1, 0.3],
+    ...            "elongation": [1.05, 1.1, 3.0], "transparency": [1.0, 0.98, 0.9],
+    ...            "sky_noise": [10.0, 10.2, 10.1], "weight": [1.0, 0.8, 0.1],
+    ...            "used": [True, True, False], "reason": ["", "", "trailed"]})
+    >>> fig = plot_frame_quality(t)
+    >>> [ax.get_ylabel() for ax in fig.axes]
+    ['FWHM [px]', 'elongation', 'transparency', 'sky noise', 'weight']
+    """
+    needed = {"fwhm", "elongation", "transparency", "sky_noise", "weight", "used"}
+    missing = needed - set(getattr(table, "colnames", ()))
+    if missing:
+        raise TypeError("plot_frame_quality needs frame_quality's table; got "
+                        f"{type(table).__name__} without the columns {sorted(missing)}.")
+    if fig is None:
+        _matplotlib()
+        import matplotlib.pyplot as plt
+
+        fig = plt.figure(figsize=(8, 10), layout="constrained")
+    else:
+        fig.clear()
+    axes = fig.subplots(5, 1, sharex=True)
+    time = np.asarray(table["time"], dtype=float) if "time" in table.colnames else \
+        np.full(len(table), np.nan)
+    if np.isfinite(time).all() and len(time):
+        x, xlabel = (time - time.min()) * 24.0, "hours from the first frame"
+    else:
+        x, xlabel = np.arange(len(table), dtype=float), "frame"
+    used = np.asarray(table["used"], dtype=bool)
+    spread = np.asarray(table["fwhm_spread"], float) if "fwhm_spread" in table.colnames \
+        else None
+    for ax, col, label in ((axes[0], "fwhm", "FWHM [px]"),
+                           (axes[1], "elongation", "elongation"),
+                           (axes[2], "transparency", "transparency"),
+                           (axes[3], "sky_noise", "sky noise"),
+                           (axes[4], "weight", "weight")):
+        y = np.asarray(table[col], dtype=float)
+        ax.plot(x, y, "-", color="0.75", zorder=0)
+        if col == "fwhm" and spread is not None:
+            ax.errorbar(x[used], y[used], yerr=spread[used], fmt="o", color="C0", ms=4)
+        else:
+            ax.plot(x[used], y[used], "o", color="C0", ms=4)
+        ax.plot(x[~used], np.where(np.isfinite(y[~used]), y[~used], 0.0), "x", color="red",
+                ms=8, mew=2)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    if "reason" in table.colnames:
+        for xi, yi, why in zip(x[~used], np.asarray(table["weight"], float)[~used],
+                               np.asarray(table["reason"])[~used]):
+            axes[4].annotate(str(why).split(":")[0][:24], (xi, yi if np.isfinite(yi) else 0),
+                             textcoords="offset points", xytext=(4, 4), fontsize="x-small",
+                             color="red")
+    axes[-1].set_xlabel(xlabel)
+    fig.suptitle(f"{int(used.sum())} of {len(used)} frames used"
+                 + (f", {int((~used).sum())} left out (red crosses)" if (~used).any() else ""))
     return fig
 
 

@@ -9,6 +9,10 @@ within a memory limit).  `LiveStack` adds frames one at a time to a
 running stack with clipping against it, and `watch_folder` feeds it the
 frames that appear in a folder (``astroalign-nd watch``).  `StackConfig`
 holds the options of both, each checked once (and the commands' flags).
+`frame_quality` measures every frame of a night as it was taken (seeing,
+trailing, transparency, sky noise) and gives the weights and the selection
+that ``stack(weights='auto', select='auto')`` uses
+(``astroalign_nd.stacking.quality``).
 The frames are assumed calibrated: stacking does not subtract bias or
 dark nor divide by a flat (do that first, e.g. with ccdproc).
 
@@ -20,7 +24,7 @@ from .._lazy import attach
 
 # name -> submodule that defines it
 _LAZY = {"stack": "core", "LiveStack": "live", "watch_folder": "live",
-         "StackConfig": "options"}
+         "StackConfig": "options", "frame_quality": "quality"}
 
 __all__ = list(_LAZY)
 

@@ -61,6 +61,15 @@ class FrameStats:
         Its unit (``BUNIT``), if its file says.
     converted : str or None
         How it was brought into the reference's unit, if it was.
+    var_factor : float
+        Its variance on the stack's grid is its propagated (or sky) variance
+        times this: the variance of the frame as taken over that of the
+        resampled frame, whose interpolation smoothed (and correlated) its
+        noise (see `frame_variance`).
+    transparency : float or None
+        The stars' flux relative to the reference's (``normalize='stars'``).
+    quality : dict or None
+        Its measures (FWHM, elongation, transparency, sky noise) for the header.
     """
 
     sky: float
@@ -73,6 +82,9 @@ class FrameStats:
     n_rejected: int = field(default=0)
     unit: str | None = None
     converted: str | None = None
+    var_factor: float = 1.0
+    transparency: float | None = None
+    quality: dict | None = None
 
 
 def robust_sigma(values):
@@ -276,20 +288,29 @@ def _sigma_clip(x, var, valid, opts):
     """
     Reject values beyond ``sigma_low``/``sigma_high`` times the spread about the
     median, iteratively.  The spread is the MAD's sigma, but never less than
-    the frames' median uncertainty; with fewer than `MIN_MAD_VALUES` values
+    each value's own uncertainty; with fewer than `MIN_MAD_VALUES` values
     it is that uncertainty alone (the MAD of a few values, one of them an
     outlier, is as large as the outlier's distance).
     """
     keep = valid.copy()
-    floor = np.sqrt(_nanmedian(np.where(keep, var, np.nan)))
+    # Each value's own uncertainty (its frame as taken: see `frame_variance`), so that an
+    # unresampled frame is not held to the smoothed frames' tighter scatter.
+    floor = np.sqrt(var)
+    tolerance = opts.star_tolerance or 0.0
     for _ in range(opts.maxiters):
         vals = np.where(keep, x, np.nan)
         med = _nanmedian(vals)
         mad = _MAD_TO_SIGMA * _nanmedian(np.abs(vals - med))
         spread = np.where(keep.sum(axis=0) >= MIN_MAD_VALUES, np.fmax(mad, floor), floor)
+        allow = 0.0
+        if tolerance > 0 and np.isfinite(med).any():
+            # The stars' own signal above the sky (each row's: the median of its medians).
+            with np.errstate(invalid="ignore"):
+                sky = np.nanmedian(med, axis=-1, keepdims=True)
+                allow = tolerance * np.abs(np.nan_to_num(med - sky))
         with np.errstate(invalid="ignore"):
-            bad = keep & ((x - med > opts.sigma_high * spread)
-                          | (med - x > opts.sigma_low * spread))
+            bad = keep & ((x - med > opts.sigma_high * spread + allow)
+                          | (med - x > opts.sigma_low * spread + allow))
         if not bad.any():
             break
         keep &= ~bad
@@ -388,7 +409,7 @@ def frame_variance(data, var, stats, gain, read_noise):
     variance : ndarray
     """
     if var is not None:
-        return var
+        return var * stats.var_factor if stats.var_factor != 1.0 else var
     if gain is not None:
         rn = 0.0 if read_noise is None else read_noise
         return np.maximum(data, 0.0) / gain + (rn / gain) ** 2
@@ -467,7 +488,10 @@ def normalise(st, reference_sky, normalize):
     ----------
     st : `FrameStats`
     reference_sky : float
-    normalize : {None, 'offset', 'scale'}
+    normalize : {None, 'offset', 'scale', 'stars'}
+        'stars': scaled by the inverse of its ``transparency`` (its stars'
+        flux relative to the reference's), then its sky brought to the
+        reference's.
 
     Raises
     ------
@@ -483,6 +507,14 @@ def normalise(st, reference_sky, normalize):
                              f"{st.sky:.4g} and the reference's {reference_sky:.4g} "
                              "(sky-subtracted frames?). Use normalize='offset'.")
         st.offset, st.scale = 0.0, reference_sky / st.sky
+    elif normalize == "stars":
+        t = st.transparency
+        if t is None or not (np.isfinite(t) and t > 0):
+            raise ValueError("normalize='stars' needs the frame's transparency from its "
+                             "matched stars, which could not be measured; use "
+                             "normalize='offset' or 'scale'.")
+        st.scale = 1.0 / t
+        st.offset = st.sky * st.scale - reference_sky
     else:
         st.offset, st.scale = 0.0, 1.0
 

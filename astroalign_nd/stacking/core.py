@@ -28,6 +28,7 @@ from .drizzle import (DrizzleAccumulator, blot_mask, coverage_report, output_sha
                       scaled_wcs, weight_map)
 from .colour import _demosaicing, colour_ccddata, drizzle_bayer, register_bayer
 from .header import stack_ccddata
+from .quality import as_taken, auto_weight, finish_table, measure_frames
 from .options import StackConfig
 
 __all__ = ["stack"]
@@ -42,11 +43,20 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
     Register frames onto a reference and combine them into one deep image.
 
     Each frame is registered as `~astroalign_nd.register_batch` registers
-    it (onto the reference's grid, or onto the union canvas), its sky level
-    is brought to the reference's, values far from the other frames' are
+    it (onto the reference's grid, or onto the union canvas) and measured as
+    it was taken (`~astroalign_nd.frame_quality`: its sky noise, stars' FWHM
+    and elongation, transparency), the frames ``select`` and the limits
+    leave out are set aside with the reason, each frame's sky level is
+    brought to the reference's, values far from the other frames' are
     rejected pixel by pixel (cosmic rays, satellite and aircraft trails,
-    hot pixels), and the rest are combined with their weights, a strip of
-    rows at a time within ``memory_limit``.  The frames are assumed
+    hot pixels; not the cores of the sharpest frames' stars), and the rest
+    are combined with their weights, a strip of rows at a time within
+    ``memory_limit``.  Each frame's noise, weight and rejection limits are
+    those of the frame as taken: interpolation smooths a frame's pixel
+    noise (and correlates it), so a resampled frame's variance is its
+    propagated variance times the ratio of its variance as taken to it,
+    and the stack's uncertainty is that of sums over a few pixels and more
+    (an aperture), not of one smoothed pixel.  The frames are assumed
     calibrated (bias, dark and flat already applied, e.g. with ccdproc):
     the stack does not calibrate them.
 
@@ -81,9 +91,11 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         The stacking options, the fields of
         `~astroalign_nd.stacking.StackConfig` (how the frames are combined:
         ``method``, the rejection ``clip``, sky ``normalize``, ``weights``,
-        ``gain`` and ``read_noise``, the ``canvas``, ``memory_limit``... each
-        documented there), and `~astroalign_nd.register_batch`'s options
-        (``transform_type``, detection and matching options...).
+        ``gain`` and ``read_noise``, the ``canvas``, ``memory_limit``, the
+        frame selection ``select``, ``max_fwhm``, ``max_elongation``,
+        ``min_transparency``, ``min_stars``... each documented there), and
+        `~astroalign_nd.register_batch`'s options (``transform_type``,
+        detection and matching options...).
 
     Returns
     -------
@@ -94,8 +106,11 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         ``flags`` the number of frames reaching each pixel; ``meta`` the
         reference's header with ``NCOMBINE``, ``IMCMBnnn`` (every frame
         combined, with its sky offset ``AASKYnnn``, scale ``AASCLnnn``,
-        weight ``AAWGTnnn`` and rejected pixels ``AANRJnnn``) and
-        ``AAREJnnn`` (every frame left out, and why).  With ``drizzle``:
+        weight ``AAWGTnnn``, rejected pixels ``AANRJnnn`` and its measures:
+        FWHM ``AAFWHnnn``, elongation ``AAELGnnn``, transparency
+        ``AATRNnnn``, sky noise ``AANOInnn``), ``AAREJnnn`` (every frame
+        left out, and why) and a HISTORY line of how many were used of how
+        many.  With ``drizzle``:
         on the finer grid, its WCS the reference's scaled to it (SIP too);
         the uncertainty through drizzle's squared-weight path; ``mask``
         True where no input reached; ``flags`` the number of frames reaching
@@ -170,19 +185,23 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         rejected = [(f.name, f.error) for f in result.failed if not _not_done(f)]
         x0, y0 = result.canvas_offset
         # What a drizzle reads again: each frame as given, and its transform onto the canvas.
+        # (by registered file, which the quality selection below keeps or not)
         sources = [(ref_item[0], np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1.0]]))]
         sources += [(it[0], f.transform) for f, (it, _) in zip(result.frames, others) if f.ok]
+        sources = {frame[1]: src for frame, src in zip(frames_, sources)}
         if others and not result.succeeded:
             raise TransformNotFoundError(
                 "no frame could be registered onto the reference: "
                 + "; ".join(f"{n}: {e}" for n, e in rejected))
-        used, stats = _measure(frames_, rejected, opts, weights)
+        frames_, measured = _quality(frames_, ref_item, others, result, rejected, hdu, unit,
+                                     opts)
+        used, stats = _measure(frames_, rejected, opts, weights, measured)
         for name, why in rejected:  # never silently: the header alone is easy to miss
             warn(f"{name} was left out of the stack: {why}")
-        opts = _feasible_clip(opts, len(used))
+        opts = _feasible_clip(_star_clip(opts, stats), len(used))
         paths = [frames_[i][1] for i in used]
         if opts.drizzle is not None:
-            ccd, weight = _drizzled(paths, [sources[i] for i in used], stats, result, ref, opts,
+            ccd, weight = _drizzled(paths, [sources[p] for p in paths], stats, result, ref, opts,
                                     folder, dtype, [frames_[i][0] for i in used], rejected,
                                     hdu=hdu, unit=unit)
         else:
@@ -193,6 +212,7 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
     if opts.drizzle is None:
         ccd = _stacked(value, variance, coverage, ref, wcs, dtype,
                        [frames_[i][0] for i in used], stats, rejected, opts)
+    ccd.meta.add_history(f"astroalign_nd stack: {len(used)} of {n_frames} frames used")
     if interrupt is not None:
         # One HISTORY card (72 characters): the frames left out are in NREJECT.
         ccd.meta.add_history(f"partial stack (interrupted): {len(used)} of {len(others) + 1} "
@@ -485,16 +505,18 @@ def _reference_name(item):
     return f"{name} (reference)"
 
 
-def _measure(frames, rejected, opts, weights):
+def _measure(frames, rejected, opts, weights, measured=None):
     """
     Each frame's statistics, normalisation and weight; a frame that cannot
     be measured joins ``rejected``.  Returns the indices used and their stats.
+    ``measured``: each frame's quality row and measures as taken (default: none).
     """
     used, stats = [], []
     ref_sky = ref_unit = None
     for i, (name, path, _) in enumerate(frames):
         try:
             st = frame_stats(path, opts.memory_limit)
+            as_taken(st, *(measured[i] if measured else (None, None)))
             ref_unit = st.unit if i == 0 else ref_unit
             factor = _unit_factor(st, ref_unit)
             ref_sky = st.sky if ref_sky is None else ref_sky
@@ -508,10 +530,59 @@ def _measure(frames, rejected, opts, weights):
             continue
         used.append(i)
         stats.append(st)
-    if weights is not None and not isinstance(weights, str):
+    if isinstance(weights, str) and weights == "auto":
+        w = np.array([auto_weight(st) for st in stats])
+        weights = np.where(np.isfinite(w), w, np.nanmedian(w) if np.isfinite(w).any() else 1)
+    elif weights is not None and not isinstance(weights, str):
         weights = weights[[frames[i][2] for i in used]]
     frame_weights(stats, weights, opts.gain, opts.read_noise)
     return used, stats
+
+
+def _quality(frames, ref_item, others, result, rejected, hdu, unit, opts):
+    """
+    Every registered frame measured as taken (`~astroalign_nd.frame_quality`'s rows), the
+    selection applied: the frames left out join ``rejected`` with the reason.  Returns
+    the frames kept and their ``(row, measures)``.
+    """
+    ok = [(f, it) for f, (it, _) in zip(result.frames, others) if f.ok]
+    limits = dict(max_fwhm=opts.max_fwhm, max_elongation=opts.max_elongation,
+                  min_transparency=opts.min_transparency, min_stars=opts.min_stars)
+    try:
+        rows, measures = measure_frames(
+            (frames[0][0], ref_item[0]),
+            [(f.name, it[0], f.points, f.quality) for f, it in ok], hdu=hdu, unit=unit)
+    except (ValueError, TypeError) as exc:
+        if opts.weights == "auto" or opts.normalize == "stars" or opts.select is not None \
+                or any(v is not None for v in limits.values()):
+            raise ValueError(f"the reference cannot be measured ({exc}): weights='auto', "
+                             "normalize='stars', select and the limits need its stars; use "
+                             "weights='variance' and no selection.") from None
+        return frames, [(None, None)] * len(frames)
+    rows = list(finish_table(rows, opts.select, limits))
+    kept, measured = [], []
+    for frame, row, m in zip(frames, rows, measures):
+        if row["used"] or m is None:  # (one not measured is combined as before)
+            kept.append(frame)
+            measured.append((row, m))
+        else:
+            rejected.append((frame[0], row["reason"]))
+    return kept, measured
+
+
+def _star_clip(opts, stats):
+    """
+    The clipping's allowance for the stars' own signal (``star_tolerance``), unless
+    given: the largest ratio of a frame's star peak to the median frame's (peaks scale
+    as the inverse FWHM squared), minus 1, plus 0.3 for registration and normalisation
+    errors.
+    """
+    fwhm = np.array([st.quality["fwhm"] for st in stats if st.quality], float)
+    fwhm = fwhm[np.isfinite(fwhm) & (fwhm > 0)]
+    if opts.clip != "sigma" or opts.star_tolerance is not None or fwhm.size < 2:
+        return opts
+    ratio = (np.median(fwhm) / fwhm) ** 2
+    return dataclasses.replace(opts, star_tolerance=float(np.max(np.abs(ratio - 1.0)) + 0.3))
 
 
 def _feasible_clip(opts, n_used):

@@ -18,7 +18,13 @@ __all__ = ["stack_header", "stack_ccddata", "MAX_LISTED"]
 #: Structural cards of the reference's file: the stack's own are written with its data.
 _STRUCTURAL = ("SIMPLE", "BITPIX", "NAXIS", "NAXIS1", "NAXIS2", "NAXIS3", "EXTEND", "BZERO",
                "BSCALE", "BLANK", "DATAMIN", "DATAMAX", "NCOMBINE", "NREJECT")
-_LISTS = ("IMCMB", "AASKY", "AASCL", "AAWGT", "AANRJ", "AAREJ")
+_LISTS = ("IMCMB", "AASKY", "AASCL", "AAWGT", "AANRJ", "AAREJ", "AAFWH", "AAELG", "AATRN",
+          "AANOI")
+#: A frame's measures as taken (`~astroalign_nd.frame_quality`): keyword prefix, comment.
+_MEASURES = (("fwhm", "AAFWH", "median star FWHM, pixels"),
+             ("elongation", "AAELG", "median star elongation"),
+             ("transparency", "AATRN", "transparency, stars vs reference"),
+             ("sky_noise", "AANOI", "sky noise per pixel as taken"))
 
 #: Frames listed with numbered keywords (``IMCMB001``...); beyond, in HISTORY only.
 MAX_LISTED = 999
@@ -40,6 +46,10 @@ def _used_cards(header, used):
             header[f"AAWGT{k:03d}"] = (float(f"{frame['weight']:.6g}"), "relative weight")
         if "n_rejected" in frame:
             header[f"AANRJ{k:03d}"] = (int(frame["n_rejected"]), "pixels rejected")
+        for key, prefix, comment in _MEASURES:
+            value = (frame.get("quality") or {}).get(key)
+            if value is not None and np.isfinite(value):
+                header[f"{prefix}{k:03d}"] = (float(f"{value:.5g}"), comment)
 
 
 def stack_header(meta, used, rejected, settings):
@@ -53,7 +63,8 @@ def stack_header(meta, used, rejected, settings):
         is written from its ``wcs``).
     used : list of dict
         One per frame combined: ``name``, and optionally ``offset``,
-        ``scale``, ``weight``, ``n_rejected``.
+        ``scale``, ``weight``, ``n_rejected`` and ``quality`` (a dict of
+        its ``fwhm``, ``elongation``, ``transparency`` and ``sky_noise``).
     rejected : list of (str, str)
         ``(name, reason)`` of each frame left out.
     settings : dict
@@ -124,7 +135,7 @@ def stack_ccddata(value, variance, coverage, *, meta, names, stats, rejected, se
     stacked : `~astropy.nddata.CCDData`
     """
     used = [dict(name=n, offset=st.offset, scale=st.scale, weight=st.weight,
-                 n_rejected=st.n_rejected) for n, st in zip(names, stats)]
+                 n_rejected=st.n_rejected, quality=st.quality) for n, st in zip(names, stats)]
     header = stack_header(meta, used, rejected, settings)
     for n, st in zip(names, stats):
         if st.converted:

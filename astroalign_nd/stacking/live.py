@@ -22,6 +22,7 @@ from astropy.nddata import CCDData
 from .._input import parse_input
 from ..config import RegistrationConfig
 from ..resample import ResampleConfig
+from ..exceptions import warn
 from ..io import FITSWriter, write_output
 from ..io.write import FITS_EXTENSIONS, check_not_input, check_output_path
 from ..options import Int, Real, convert
@@ -30,6 +31,8 @@ from .combine import array_stats, frame_variance, normalise, reject
 from .core import drizzle_ccddata
 from .drizzle import DrizzleAccumulator, blot_mask, output_shape, pixel_map, weight_map
 from .header import stack_ccddata
+from .quality import (as_taken, auto_weight, frame_time, measure_parsed, quality_row, quality_table,
+                      quality_weights, select_frames, transparency)
 from .options import StackConfig
 
 __all__ = ["LiveStack", "watch_folder", "write_with_retry"]
@@ -74,15 +77,22 @@ class LiveStack:
         there: default 5, at least 3; the stack clips the values held as
         soon as there are three, but five tell a trail and a cosmic ray in
         two of the first frames from the sky), ``normalize``, ``weights``
-        ('variance' or None), ``gain`` and ``read_noise``; and
-        `~astroalign_nd.register`'s options.
+        ('variance', 'auto' or None: 'auto' from each frame's transparency,
+        sky noise and star size, relative to the reference's), ``select``
+        (None or 'auto': a frame trailed or an outlier among the frames so
+        far is left out with the reason, and a warning), ``max_fwhm``,
+        ``max_elongation``, ``min_transparency``, ``min_stars``, ``gain``
+        and ``read_noise``; and `~astroalign_nd.register`'s options.
 
     Attributes
     ----------
     used : list of str
         The frames in the stack (the reference first).
     rejected : list of (str, str)
-        The frames that failed, and why.
+        The frames that failed or were left out, and why.
+    quality : `~astropy.table.Table`
+        Every frame measured so far, as `~astroalign_nd.frame_quality`
+        gives it (those left out too, with the reason).
 
     Examples
     --------
@@ -116,12 +126,22 @@ class LiveStack:
         self._driz = None if self.opts.drizzle is None else DrizzleAccumulator(
             output_shape(self.shape, self.opts.drizzle), self.opts.drizzle, self.opts.pixfrac,
             self.opts.kernel)
+        self._ref_data = np.asarray(parsed.data, dtype=np.float64)
+        self._ref_m = measure_parsed(parsed)
+        row = quality_row(name, self._ref_m, self._ref_m, 1.0, self._ref_m.n_stars,
+                          time=frame_time(parsed.meta))
+        row["weight"] = 1.0
+        self._rows = [row]
         valid = np.isfinite(parsed.data) & (True if parsed.mask is None else ~parsed.mask)
         var = _variance(parsed.uncertainty)
-        data = np.asarray(parsed.data, dtype=np.float64)
-        self._add_arrays(data, var, valid, (parsed, None), name)
+        self._add_arrays(self._ref_data, var, valid, (parsed, None), name, (row, self._ref_m))
 
-    def add(self, frame: Any, name: str | None = None) -> None:
+    @property
+    def quality(self):
+        """Every frame measured so far (`~astroalign_nd.frame_quality`'s table)."""
+        return quality_table(self._rows)
+
+    def add(self, frame: Any, name: str | None = None) -> str | None:
         """
         Register ``frame`` onto the reference and add it to the stack.
 
@@ -132,6 +152,12 @@ class LiveStack:
         name : str, optional
             Its name in the header (default: the file name, or ``frame<n>``).
 
+        Returns
+        -------
+        left_out : str or None
+            Why the frame was left out (``select``, the limits: it is then
+            in `rejected`, and a warning says so), or None once added.
+
         Raises
         ------
         Exception
@@ -141,33 +167,78 @@ class LiveStack:
         if name is None:
             name = os.path.basename(os.fspath(frame)) if isinstance(
                 frame, (str, os.PathLike)) else f"frame{len(self.used) + len(self.rejected)}"
-        arrays = self._registered(frame)
+        prepared = self._registered(frame, name)
         with _interrupts_held():  # a Ctrl-C leaves the frame out or in, never half added
-            self._add_arrays(*arrays, name)
+            return self._commit(prepared, name)
 
-    def _registered(self, frame):
+    def _registered(self, frame, name):
         """
-        ``(data, variance, valid, raw)`` of ``frame`` on the reference's grid;
-        ``raw`` is the frame as given and its transform when drizzling, else None.
+        ``frame`` on the reference's grid and measured as taken, nothing added yet:
+        ``(data, variance, valid, raw, (row, measures))``; ``raw`` is the frame as
+        given and its transform when drizzling, else None.
         """
-        ccd, match = register_and_match(frame, self._ref, hdu=self.hdu, unit=self.unit,
-                                        **self.options)
+        ccd, result = register_and_match(frame, self._ref, hdu=self.hdu, unit=self.unit,
+                                         **self.options)
+        parsed = parse_input(frame, "source", hdu=self.hdu, unit=self.unit)
+        row, m = self._measure(parsed, name, result)
         data = np.asarray(ccd.data, dtype=np.float64)
         valid = np.isfinite(data) & (True if ccd.mask is None else ~np.asarray(ccd.mask))
-        raw = None if self._driz is None else (
-            parse_input(frame, "frame", hdu=self.hdu, unit=self.unit), match.transform)
-        return data, _variance(ccd.uncertainty), valid, raw
+        raw = None if self._driz is None else (parsed, result.transform)
+        return data, _variance(ccd.uncertainty), valid, raw, (row, m)
 
-    def _add_arrays(self, data, var, valid, raw, name):
+    def _commit(self, prepared, name):
+        """
+        A registered frame added to the stack, or left out by the selection
+        (returns the reason then, else None).
+        """
+        data, var, valid, raw, (row, m) = prepared
+        why = self._left_out(row)
+        if why is not None:
+            row.update(used=False, reason=why)
+            self._rows.append(row)
+            warn(f"{name} was left out of the live stack: {why}")
+            self.fail(name, why)
+            return why
+        self._rows.append(row)
+        self._add_arrays(data, var, valid, raw, name, (row, m))
+        return None
+
+    def _measure(self, p, name, result):
+        """The frame's quality row and measures as taken (before resampling)."""
+        data = np.asarray(p.data, dtype=np.float64)
+        m = measure_parsed(p)
+        t, n = transparency(data, self._ref_data, result.source_points, result.target_points,
+                            m, self._ref_m)
+        row = quality_row(name, m, self._ref_m, t, n, dict(
+            rms=result.rms, log10_false_alarm=result.log10_false_alarm),
+            time=frame_time(p.meta))
+        row["weight"] = float(quality_weights(quality_table([self._rows[0], row]))[1])
+        return row, m
+
+    def _left_out(self, row):
+        """Why the new frame is left out (the limits, and 'auto' among the frames so far)."""
+        o = self.opts
+        rows = [r for r in self._rows if r.get("used", True)] + [row]
+        reasons = select_frames(quality_table(rows), o.select, max_fwhm=o.max_fwhm,
+                                max_elongation=o.max_elongation,
+                                min_transparency=o.min_transparency, min_stars=o.min_stars,
+                                min_frames=0)
+        return reasons[-1]
+
+    def _add_arrays(self, data, var, valid, raw, name, measured):
         st = array_stats(data, var, valid)
+        as_taken(st, *measured)
         self._ref_sky = st.sky if self._ref_sky is None else self._ref_sky
         normalise(st, self._ref_sky, self.opts.normalize)
         var = frame_variance(data, var, st, self.opts.gain, self.opts.read_noise)
         x = data * st.scale - st.offset
         var = var * st.scale ** 2
         valid = valid & np.isfinite(var)
-        st.weight = 1.0 if self.opts.weights is None else \
-            1.0 / max(float(np.median(var[valid])), 1e-300)
+        if self.opts.weights == "auto":
+            st.weight = auto_weight(st)
+        else:
+            st.weight = 1.0 if self.opts.weights is None else \
+                1.0 / max(float(np.median(var[valid])), 1e-300)
         self._stats.append(st)
         self.used.append(name)
         rejected = self._acc.add(x, var, valid, len(self._stats) - 1, self._stats, self.opts)
@@ -627,14 +698,15 @@ def _watch_loop(live, poller, output, interval, max_frames, timeout, callback, t
         while todo:
             path, error = todo[0], None
             try:
-                arrays = live._registered(path)  # interrupted here: not in the stack
+                # (interrupted here: not in the stack)
+                prepared = live._registered(path, os.path.basename(path))
             except Exception as exc:  # noqa: BLE001 - a bad frame is listed, not fatal
                 error = f"{type(exc).__name__}: {exc}"
             with _interrupts_held():  # the stack and the console change together
                 if path in failed:  # given up before, complete now: no longer a failure
                     live.rejected.remove(failed.pop(path))
-                if error is None:
-                    live._add_arrays(*arrays, os.path.basename(path))
+                if error is None:  # (the reason when the selection leaves it out)
+                    error = live._commit(prepared, os.path.basename(path))
                 else:
                     live.fail(os.path.basename(path), error)
                 todo.pop(0)

@@ -38,17 +38,19 @@ from ..options import Choice, Int, Real, check_fields, convert, fields_of, optio
 from ..io.bayer import BAYER_PATTERNS
 from .drizzle import DRIZZLE_KERNELS
 
-__all__ = ["StackConfig", "FrameWeights", "STACK_METHODS", "CLIP_METHODS",
+__all__ = ["StackConfig", "FrameWeights", "FrameSelection", "STACK_METHODS", "CLIP_METHODS",
            "NORMALIZE_METHODS", "WEIGHT_METHODS", "DEMOSAIC_METHODS", "DEFAULT_MEMORY_LIMIT"]
 
 #: The combinations: weighted mean, median, and the sum (the mean times the number of frames).
 STACK_METHODS = ("average", "median", "sum")
 #: The rejections: sigma clipping about the median, min/max (extrema) clipping, none.
 CLIP_METHODS = ("sigma", "minmax", None)
-#: The sky normalisations: an offset (sky added), a scale (transparency), none.
-NORMALIZE_METHODS = ("offset", "scale", None)
-#: The frame weights by name: the inverse median variance, equal weights.
-WEIGHT_METHODS = ("variance", None)
+#: The sky normalisations: an offset (sky added), a scale (the sky ratio), the stars'
+#: flux ratio (transparency from matched stars) with the sky offset, none.
+NORMALIZE_METHODS = ("offset", "scale", "stars", None)
+#: The frame weights by name: the inverse median variance, the faint-source weights from
+#: each frame's transparency, sky noise and star size, equal weights.
+WEIGHT_METHODS = ("variance", "auto", None)
 #: The demosaicing methods of ``colour-demosaicing`` offered for raw colour frames.
 DEMOSAIC_METHODS = ("Menon2007", "Malvar2004", "bilinear")
 #: Default working memory of the combination, bytes.
@@ -81,6 +83,34 @@ class FrameWeights:
         return tuple(float(v) for v in w)
 
 
+class FrameSelection:
+    """The frame selection: None, 'auto', or a fraction of the frames to keep in (0, 1]."""
+
+    # (Not ``choices``: the command line's flag takes a fraction too.)
+    names = (None, "auto")
+
+    def describe(self):
+        return "None, 'auto' or a fraction of the frames to keep in (0, 1]"
+
+    def convert(self, value):
+        if value is None or isinstance(value, str):
+            if value in self.names:
+                return value
+            try:  # the command line's fraction
+                value = float(value)
+            except ValueError:
+                raise ValueError from None
+        if isinstance(value, bool):
+            raise TypeError
+        try:
+            f = float(value)
+        except (TypeError, ValueError):
+            raise TypeError from None
+        if not 0 < f <= 1:
+            raise ValueError
+        return f
+
+
 @dataclasses.dataclass(frozen=True)
 class StackConfig:
     """
@@ -111,13 +141,15 @@ class StackConfig:
         Sigma clipping's rounds at most (default 3).
     nlow, nhigh : int, optional
         Min/max clipping's counts (default 1 and 1).
-    normalize : {'offset', 'scale', None}, optional
+    normalize : {'offset', 'scale', 'stars', None}, optional
         Bring each frame's sky (its sigma-clipped median) to the
         reference's before the rejection, so that a night's changing sky
         does not decide which frames are clipped: 'offset' (default)
         subtracts the difference (moonlight, twilight: sky added), 'scale'
-        multiplies by the ratio (thin cloud: transparency; needs positive
-        sky levels), None leaves the frames as they are.
+        multiplies by the ratio (needs positive sky levels), 'stars'
+        divides by the transparency measured on the matched stars (thin
+        cloud; not the sky ratio, which clouds and moonlight break) and
+        subtracts the sky offset, None leaves the frames as they are.
     gain, read_noise : float, optional
         For frames without an uncertainty: their variance is
         ``max(value, 0) / gain + (read_noise / gain) ** 2`` (``gain`` in
@@ -125,13 +157,17 @@ class StackConfig:
         ``create_deviation``).  Without ``gain``, such a frame's variance
         is its measured sky noise squared.  Frames with an uncertainty
         use their own, propagated through the registration.
-    weights : 'variance', None or sequence of float, optional
+    weights : 'variance', 'auto', None or sequence of float, optional
         'variance' (default): each frame weighs the inverse of its median
-        pixel variance (per frame, not per pixel: per-pixel weights from a
-        Poisson variance would favour the pixels that came out low).
-        None: equal weights.  A sequence (not for a live stack): one
-        weight per frame, the reference's first when it is not one of
-        the frames.
+        pixel variance as taken, before resampling (per frame, not per
+        pixel: per-pixel weights from a Poisson variance would favour the
+        pixels that came out low).  'auto': the weights that maximise faint
+        point sources' signal-to-noise, ``T**2 / (sigma**2 * A)`` from each
+        frame's transparency ``T``, sky noise ``sigma`` and PSF
+        noise-equivalent area ``A`` (`~astroalign_nd.frame_quality`; the
+        derivation is in the frame quality docs).  None: equal weights.
+        A sequence (not for a live stack): one weight per frame, the
+        reference's first when it is not one of the frames.
     memory_limit : float, optional
         Bytes of working memory for the combination (default 512 MB).
     canvas : {'reference', 'union'}, optional
@@ -190,6 +226,32 @@ class StackConfig:
         green's detail (their stars take green's width and position: a
         real colour offset such as atmospheric dispersion disappears);
         'bilinear' keeps each colour's own.
+    select : None, 'auto' or float, optional
+        Frames left out before combining
+        (`~astroalign_nd.stacking.quality.select_frames`): None (default)
+        only by the limits below; 'auto' also the trailed frames and the
+        outliers of the night (robust z-scores of FWHM, transparency and
+        sky noise; a live stack: of the frames so far); a fraction in
+        (0, 1] (not for a live stack) keeps that fraction, the highest
+        ``'auto'`` weights first.  Every frame left out is in the header
+        (``AAREJnnn``), the log and a warning, with the reason; leaving
+        fewer than 3 frames is a
+        `~astroalign_nd.stacking.quality.SelectionError` (a ValueError)
+        naming the limit to relax.  The reference is never left out.
+    max_fwhm, max_elongation, min_transparency : float, optional
+        Leave out the frames whose stars are wider (pixels), more elongated
+        (major over minor axis), or dimmer (relative to the reference's).
+    min_stars : int, optional
+        Leave out the frames with fewer sources detected.
+    star_tolerance : float, optional
+        Sigma clipping's allowance for the stars' own signal: a value goes
+        only beyond ``sigma`` spreads plus this times the pixel's median
+        above the sky, so that the cores of the sharpest frames' stars
+        (far above the others' at the same pixel) stay and only outliers
+        (cosmic rays, trails, hot pixels) go.  Default (None): from the
+        night's PSF differences, the largest ratio of a frame's star peak
+        to the median frame's (the inverse FWHM squared) minus 1, plus
+        0.3; 0: plain sigma clipping.
 
     Raises
     ------
@@ -242,7 +304,8 @@ class StackConfig:
         flag="--read-noise", type=float)
     weights: object = option(
         "variance", FrameWeights(),
-        "frame weights: inverse median variance (default), or equal", flag="--weights")
+        "frame weights: inverse median variance (default), auto (faint stars: "
+        "transparency, sky noise and seeing), or equal", flag="--weights")
     memory_limit: float = option(
         DEFAULT_MEMORY_LIMIT, Real(0, lo_open=True, unit="bytes"),
         "working memory of the combination, MB (default: %(default)s)", used_by=("stack",),
@@ -276,6 +339,28 @@ class StackConfig:
         "Menon2007", Choice(DEMOSAIC_METHODS),
         "with --bayer: colour-demosaicing's method (default: %(default)s)", used_by=("stack",),
         flag="--demosaic")
+    select: object = option(
+        None, FrameSelection(),
+        "leave frames out: 'auto' (trailed frames and the night's outliers) or a fraction "
+        "to keep", flag="--select")
+    max_fwhm: float | None = option(
+        None, Real(0, lo_open=True, none=True, unit="pixels"),
+        "leave out frames whose stars' FWHM is larger (pixels)", flag="--max-fwhm",
+        type=float)
+    max_elongation: float | None = option(
+        None, Real(1, none=True), "leave out frames whose stars are more elongated (trailed)",
+        flag="--max-elongation", type=float)
+    min_transparency: float | None = option(
+        None, Real(0, lo_open=True, none=True),
+        "leave out frames whose stars are dimmer, relative to the reference's",
+        flag="--min-transparency", type=float)
+    min_stars: int | None = option(
+        None, Int(0, None, none=True), "leave out frames with fewer stars detected",
+        flag="--min-stars", type=int)
+    star_tolerance: float | None = option(
+        None, Real(0, none=True), "sigma clipping's allowance for the stars' own signal "
+        "(default: from the night's PSF differences; 0: plain clipping)",
+        flag="--star-tolerance", type=float)
 
     def __post_init__(self):
         check_fields(self)
@@ -321,4 +406,5 @@ class StackConfig:
         if user == "live":  # it clips and weighs against a running stack
             convert("a live stack's clip", Choice(("sigma", None)), config.clip)
             convert("a live stack's weights", Choice(WEIGHT_METHODS), config.weights)
+            convert("a live stack's select", Choice((None, "auto")), config.select)
         return config, {k: v for k, v in options.items() if k not in mine}

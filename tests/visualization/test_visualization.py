@@ -301,3 +301,24 @@ def test_lazy_submodule_does_not_import_matplotlib():
                           text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert astroalign_nd.visualization is vis
+
+
+def test_plot_frame_quality_marks_the_frames_left_out():
+    pytest.importorskip("matplotlib")
+    from astropy.table import Table
+
+    from astroalign_nd.visualization import plot_frame_quality
+
+    t = Table({"name": ["a", "b", "c", "d"], "time": [60000.0, 60000.01, 60000.02, 60000.03],
+               "fwhm": [3.0, 3.4, 6.0, 3.1], "fwhm_spread": [0.1, 0.1, 0.3, 0.1],
+               "elongation": [1.05, 1.1, 3.0, 1.0], "transparency": [1.0, 0.98, 0.9, 0.4],
+               "sky_noise": [10.0, 10.2, 10.1, 7.0], "weight": [1.0, 0.8, 0.1, 0.2],
+               "used": [True, True, False, False], "reason": ["", "", "trailed: 3", "cloud"]})
+    fig = plot_frame_quality(t)
+    assert len(fig.axes) == 5 and fig.axes[-1].get_xlabel() == "hours from the first frame"
+    # Each panel: the line, the used frames and the red crosses of the two left out.
+    crosses = [ln for ln in fig.axes[1].lines if ln.get_color() == "red"]
+    assert len(crosses) == 1 and list(crosses[0].get_ydata()) == [3.0, 1.0]
+    assert "2 left out" in fig._suptitle.get_text()
+    with pytest.raises(TypeError, match="frame_quality's table"):
+        plot_frame_quality(Table({"name": ["a"]}))
