@@ -148,8 +148,8 @@ def test_long_sequence_is_not_shrunk(kind):
     # fitted directly on the others (199 searches would take most of the test's time).
     ref = astroalign_nd.Reference(cats[0])
     for i in (1, 100, 199):
-        pw, (isrc, idst) = find_transform(cats[i], ref, transform_type=kind)
-        assert len(isrc) == 300 and np.array_equal(isrc, idst)
+        pw, (matched, _) = find_transform(cats[i], ref, transform_type=kind)
+        assert len(matched) == 300
         np.testing.assert_allclose(as_matrix(pw), as_matrix(fit_transform(cats[i], cats[0],
                                                                           kind)[0]), atol=1e-9)
     glob, pair, shift = [], [], []
