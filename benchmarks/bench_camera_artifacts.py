@@ -6,7 +6,7 @@ astroalign's detections, as its README does; see ``bench_real.py``):
 
 * ``edge band``: related simulated pairs (1024x1024, 100 stars), without and
   with the same kind of bright band along the first rows of both frames
-  (`astroalign_nd.simulate.add_edge_band`, 25 sigma on row 0, decaying
+  (`add_edge_band` of tests/_frame_defects.py, 25 sigma on row 0, decaying
   over 1 row).  "change" is the median and largest |error with band -
   error without| over the seeds solved both ways.
 * ``night``: simulated nights of 10 frames (256x256, 200 stars, sky sigma
@@ -18,7 +18,7 @@ astroalign's detections, as its README does; see ``bench_real.py``):
   px; "night (whole)" counts the nights with every frame so.
 * ``a8280271``: the raw SAAO frame with cosmic rays against its copy
   rotated by 2 degrees, shifted by (35, -12), resampled (cubic) with noise
-  of 2% of its standard deviation (`astroalign_nd.simulate.resampled_copy`),
+  of 2% of its standard deviation (`resampled_copy` of tests/_frame_defects.py),
   one noise seed each (skipped without ``../shared/data``).
 
 Errors are the largest over the frame (pixels); a returned answer more
@@ -40,11 +40,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # _frame_defects
 from bench_real import call, error  # noqa: E402
 
 import astroalign_nd as aand  # noqa: E402
-from astroalign_nd.simulate import (add_edge_band, add_satellite_trail,  # noqa: E402
-                                    resampled_copy, simulate_pair, simulate_sequence)
+from astroalign_nd.simulate import (add_satellite_trail, simulate_pair,  # noqa: E402
+                                    simulate_sequence)
+from _frame_defects import add_edge_band, resampled_copy  # noqa: E402
 
 TOOLS = ("astroalign_nd", "astroalign", "aafitrans")
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -19,7 +19,7 @@ put them (target pixels).  Columns, all on the same pairs in one run:
 
 Cases:
 
-* sparse, wrong errors: `~astroalign_nd.simulate.simulate_sparse_pair`
+* sparse, wrong errors: `simulate_sparse_pair` below
   (about 25 faint stars, 0.12 px per-axis centroid offsets between the
   frames, 3 faint stars hit by a cosmic ray), random rotation and shift;
 * sparse, honest errors: the same without the offsets and the hits;
@@ -44,8 +44,104 @@ import numpy as np
 
 from astroalign_nd import find_match
 from astroalign_nd.matching import verify
-from astroalign_nd.simulate import simulate_pair, simulate_sparse_pair
+from astroalign_nd._kernels import GAUSS_SIGMA_TO_FWHM
+from astroalign_nd.simulate import SimulatedPair, simulate_image, simulate_pair
+from astroalign_nd.simulate.stars import _check_count, _check_real, _spawn
 from astroalign_nd.transforms import apply_matrix, fit_transform
+
+
+def simulate_sparse_pair(shape=(512, 512), *, n_stars=25, rotation=None, translation=None,
+                         scale=None, flux_range=(600.0, 6e4), background=300.0,
+                         centroid_jitter=0.12, n_hits=3, seed=None, **pair_options):
+    """
+    A sparse, faint pair whose detections' position errors are wrong.
+
+    Like a blue frame of a high-latitude field against a red one: about
+    ``n_stars`` stars, most near the detection limit, and centroids that
+    differ between the two frames by more than their noise says.  Two
+    things the detector cannot know are added to the target frame:
+
+    * ``centroid_jitter``: every star is drawn at its true position plus a
+      Gaussian offset of this many pixels per axis (a star's colour moves
+      its centroid between bands; the PSFs differ).  The bright stars'
+      position errors, estimated from their S/N, are then far too small;
+    * ``n_hits``: as many of the fainter stars get a cosmic-ray-like hit of
+      one or two pixels, 1 to 2 pixels from their centre, that pulls their
+      centroid without making them look different.
+
+    The truth (``transform``, ``truth_matrix``, ``target_stars``) is that of
+    the stars' true positions: the offsets are errors of the frame, not
+    part of the transform.
+
+    Parameters
+    ----------
+    shape : tuple of int, optional
+        Both frames' shape ``(ny, nx)``.
+    n_stars, rotation, translation, scale, flux_range, background
+        As for `simulate_pair` (here: few, faint stars on a bright sky).
+    centroid_jitter : float, optional
+        Per-axis standard deviation of the target stars' offsets, pixels.
+    n_hits : int, optional
+        Number of fainter target stars hit by a cosmic ray.
+    seed : int or `numpy.random.Generator`, optional
+        Makes the pair reproducible.
+    **pair_options
+        Other options of `simulate_pair` (``fwhm``, ``read_noise``...).
+
+    Returns
+    -------
+    pair : `SimulatedPair`
+        With ``meta["centroid_jitter"]``, ``meta["hit_ids"]`` (the ids of
+        the hit stars) and ``meta["target_offsets"]`` (per target star, in
+        the order of ``target_stars``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from bench_fit_weights import simulate_sparse_pair
+    >>> pair = simulate_sparse_pair(seed=3, rotation=30.0)
+    >>> len(pair.source_stars) < 40, len(pair.meta["hit_ids"])
+    (True, 3)
+    >>> off = pair.meta["target_offsets"]
+    >>> bool(0.05 < np.std(off) < 0.2)
+    True
+    """
+    centroid_jitter = _check_real(centroid_jitter, "centroid_jitter", minimum=0.0,
+                                  hint=" Pass the offsets' standard deviation in pixels.")
+    n_hits = _check_count(n_hits, "n_hits")
+    rng_pair, rng_off, rng_img = _spawn(seed, 3)
+    pair = simulate_pair(shape, n_stars=n_stars, rotation=rotation, translation=translation,
+                         scale=scale, flux_range=flux_range, background=background,
+                         seed=rng_pair, **pair_options)
+    meta = pair.meta
+    tgt = pair.target_stars
+    off = rng_off.normal(0.0, centroid_jitter, (len(tgt), 2))
+    xt, yt = np.asarray(tgt["x"]) + off[:, 0], np.asarray(tgt["y"]) + off[:, 1]
+    image = simulate_image(
+        meta["target_shape"], xt, yt, np.asarray(tgt["flux"]), fwhm=meta["target_fwhm"],
+        psf=meta["psf"], background=meta["target_background"], gradient=meta["gradient"],
+        read_noise=meta["read_noise"], gain=meta["gain"], saturation=meta["saturation"],
+        noise=meta["noise"], seed=rng_img, dtype=pair.target.dtype)
+    # Hits on the fainter half (the catalog is brightest first), at a peak
+    # of 1 to 3 times the star's own.
+    faint = np.arange(len(tgt) // 2, len(tgt))
+    hit = rng_off.choice(faint, size=min(n_hits, len(faint)), replace=False)
+    sig = meta["target_fwhm"] / GAUSS_SIGMA_TO_FWHM
+    for i in hit:
+        ang = rng_off.uniform(0.0, 2.0 * np.pi)
+        dist = rng_off.uniform(1.0, 2.0)
+        peak = tgt["flux"][i] / (2.0 * np.pi * sig**2) * rng_off.uniform(1.0, 3.0)
+        for k in range(int(rng_off.integers(1, 3))):
+            c = int(np.floor(xt[i] + (dist + k) * np.cos(ang) + 0.5))
+            r = int(np.floor(yt[i] + (dist + k) * np.sin(ang) + 0.5))
+            if 0 <= r < image.shape[0] and 0 <= c < image.shape[1]:
+                image[r, c] += peak
+    meta = {**meta, "centroid_jitter": centroid_jitter,
+            "hit_ids": [int(v) for v in tgt["id"][hit]], "target_offsets": off}
+    return SimulatedPair(source=pair.source, target=image, transform=pair.transform,
+                         truth_matrix=pair.truth_matrix, source_stars=pair.source_stars,
+                         target_stars=tgt, transients=pair.transients, meta=meta,
+                         mapping=pair.mapping)
 
 
 def corner_error(matrix, truth, shape):

@@ -2,9 +2,9 @@
 What real frames do, simulated: astroalign_nd against astroalign on
 the same pairs, in one run.
 
-Six pairs per category, made with the package's simulator and its effects
-(`~astroalign_nd.simulate.add_nebulosity`, `~astroalign_nd.simulate.to_8bit`,
-`~astroalign_nd.simulate.bayer_bin`, `~astroalign_nd.simulate.add_overscan`):
+Six pairs per category, made with the package's simulator and the effects of
+tests/_frame_defects.py (``add_nebulosity``, ``to_8bit``, ``bayer_bin``,
+``add_overscan``):
 crowded blends (10,000 stars on 256x256 over a bright sky), nebulosity with
 knots brighter than most stars, 8-bit gamma-stretched JPEG renderings with
 saturated, bloated stars, undersampled Bayer-binned frames with hot pixels,
@@ -24,14 +24,15 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # _frame_defects
 from bench_real import error  # noqa: E402
 
 warnings.simplefilter("ignore")
 
 
 def cases():
-    from astroalign_nd.simulate import (add_nebulosity, add_overscan, bayer_bin, simulate_pair,
-                                        to_8bit)
+    from astroalign_nd.simulate import simulate_pair
+    from _frame_defects import add_nebulosity, add_overscan, bayer_bin, to_8bit
 
     for seed in range(6):
         pr = simulate_pair((256, 256), n_stars=10000, background=500 + 100 * seed,

@@ -44,7 +44,7 @@ attempt, timed with ``find_transform`` against astroalign's on the same
 pair (per pair: the ratio of the two times):
 
 - ``refused 8-bit``: two unrelated sparse 8-bit frames
-  (`~astroalign_nd.simulate.simulate_trust_case` 'sparse_8bit', seeds s
+  (``simulate_trust_case`` of tests/_frame_defects.py, 'sparse_8bit', seeds s
   and s + 100), which every tool must refuse;
 - ``refused 1024``: two unrelated 1024x1024 fields of 300 stars;
 - ``small overlap 2048``: a 2048x2048 pair of 3000 stars shifted by
@@ -140,7 +140,9 @@ WORKLOADS = {  # name -> (maker, stars at 1024^2, stars at 4096^2)
 
 def refused_8bit(seed):
     """Two unrelated sparse 8-bit frames: (source, target, None)."""
-    from astroalign_nd.simulate import simulate_trust_case
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    sys.path.insert(0, os.path.join(repo, "tests"))  # _frame_defects
+    from _frame_defects import simulate_trust_case
 
     return (simulate_trust_case("sparse_8bit", seed=seed).source,
             simulate_trust_case("sparse_8bit", seed=seed + 100).target, None)

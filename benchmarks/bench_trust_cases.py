@@ -1,7 +1,7 @@
 """
 The trust cases: astroalign_nd, astroalign and aafitrans on the same pairs.
 
-Each case is drawn by `astroalign_nd.simulate.simulate_trust_case` (seeds
+Each case is drawn by `simulate_trust_case` (tests/_frame_defects.py) (seeds
 ``--first-seed`` to ``--first-seed + n - 1``):
 
 * ``trailed``: 512x512 frames of 20-40 stars, the source's trailed over
@@ -45,9 +45,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # _frame_defects
 from bench_real import METHODS, RUNNERS, call, error, time_ratio  # noqa: E402
 
-from astroalign_nd.simulate import TRUST_CASES, simulate_trust_case  # noqa: E402
+from _frame_defects import TRUST_CASES, simulate_trust_case  # noqa: E402
 
 
 def main(argv=None):

@@ -10,8 +10,10 @@ import astroalign_nd as aand
 from astroalign_nd.detection import DetectionConfig
 from astroalign_nd.detection import find_sources
 from astroalign_nd.detection.daofind import control_sources
-from astroalign_nd.simulate import (add_edge_band, add_satellite_trail, simulate_field,
-                                    simulate_pair, simulate_sequence)
+from astroalign_nd.simulate import (add_satellite_trail, simulate_field, simulate_pair,
+                                    simulate_sequence)
+
+from _frame_defects import add_edge_band
 
 
 def _frame_error(estimate, truth, shape, n=17):

@@ -18,8 +18,9 @@ from scipy import ndimage
 
 from _helpers import frame_error
 from astroalign_nd import PoorFitWarning, find_sources, find_transform
-from astroalign_nd.simulate import (add_nebulosity, add_overscan, bayer_bin, simulate_pair,
-                                    to_8bit)
+from astroalign_nd.simulate import simulate_pair
+
+from _frame_defects import add_nebulosity, add_overscan, bayer_bin, to_8bit
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 needs_data = pytest.mark.skipif(not (DATA / "real").is_dir() or not (DATA / "field").is_dir(),

@@ -18,8 +18,9 @@ import pytest
 import astroalign_nd
 from astroalign_nd.detection import find_sources
 from astroalign_nd.matching import match_points
-from astroalign_nd.simulate import (TRUST_CASES, resampled_copy, simulate_image,
-                                    simulate_trust_case)
+from astroalign_nd.simulate import simulate_image
+
+from _frame_defects import TRUST_CASES, resampled_copy, simulate_trust_case
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 FRAME = (0.0, 511.0, 0.0, 511.0)

@@ -363,7 +363,7 @@ def test_keyword_only():
 # -- the real-frame effects: bad input gets a clear error, the input is not modified ----------
 
 def _effects_bad_inputs():
-    from astroalign_nd.simulate import add_nebulosity, add_overscan, bayer_bin, to_8bit
+    from _frame_defects import add_nebulosity, add_overscan, bayer_bin, to_8bit
 
     img = np.full((64, 64), 100.0, np.float32)
     return [
@@ -394,7 +394,7 @@ def test_effects_reject_bad_input(case):
 
 
 def test_effects_leave_input_alone():
-    from astroalign_nd.simulate import add_nebulosity, add_overscan, to_8bit
+    from _frame_defects import add_nebulosity, add_overscan, to_8bit
 
     img = simulate_pair((64, 64), n_stars=20, seed=3).source
     before = img.copy()
@@ -497,7 +497,7 @@ def test_distortion_fills_the_target_frame():
 def test_bayer_bin_keeps_the_distortion():
     full = simulate_pair((256, 256), n_stars=200, fwhm=2.6, seed=1, rotation=10.0,
                          distortion={"k1": -0.02})
-    from astroalign_nd.simulate import bayer_bin
+    from _frame_defects import bayer_bin
 
     binned = bayer_bin(full)
     m = binned.matched_stars()
