@@ -132,10 +132,10 @@ def test_a_frame_being_registered_at_the_stop_is_named(six, tmp_path, monkeypatc
         os.link(p, watched / os.path.basename(p))
     real = live_mod.LiveStack._registered
 
-    def registered(self, frame):
+    def registered(self, frame, name):
         if frame.endswith("f2.fits"):
             raise KeyboardInterrupt("SIGTERM")
-        return real(self, frame)
+        return real(self, frame, name)
 
     monkeypatch.setattr(live_mod.LiveStack, "_registered", registered)
     out = tmp_path / "live.fits"
