@@ -460,7 +460,7 @@ def simulate_night(shape=(256, 256), *, n_frames=24, fwhm_range=(2.0, 8.0), refe
     >>> from astroalign_nd.simulate import simulate_night
     >>> night = simulate_night((128, 128), n_frames=6, n_faint=4, n_cloudy=1, n_trailed=1,
     ...                        n_satellite=1, seed=1)
-    >>> len(night.frames), int(night.meta["trailed"].sum()), night.meta["transparency"][0]
+    >>> len(night.frames), int(night.meta["trailed"].sum()), float(night.meta["transparency"][0])
     (6, 1, 1.0)
     """
     from astropy.nddata import CCDData
