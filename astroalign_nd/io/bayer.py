@@ -34,13 +34,12 @@ import numpy as np
 from astropy.modeling.models import Scale, Shift
 from scipy import ndimage
 
+from ..stacking.options import BAYER_PATTERNS  # declared with the stack's ``bayer`` option
 from ..transforms import LinearTransform2D, as_matrix, from_matrix
 
 __all__ = ["BAYER_PATTERNS", "bayer_pattern", "bayer_channels", "balanced_grey", "superpixel",
            "superpixel_to_raw"]
 
-#: The Bayer patterns understood, by the colours of the first 2x2 cell row by row.
-BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 #: The channels of a colour stack, in order (0 red, 1 green, 2 blue).
 _CHANNELS = "RGB"
 #: Superpixel (x, y) -> raw pixel: ``2 * x + 0.5`` (the centre of its 2x2 cell).

@@ -40,20 +40,18 @@ from dataclasses import dataclass
 import numpy as np
 from astropy.modeling import Model
 from astropy.wcs import Sip
-from drizzle.resample import SUPPORTED_DRIZZLE_KERNELS, Drizzle, blot_image
+from drizzle.resample import Drizzle, blot_image
 
 from ..batch.canvas import canvas_wcs
 from ..exceptions import warn
 from ..transforms import ProjectiveTransform
 from ..transforms.convert import as_matrix
+from .options import DRIZZLE_KERNELS
 
 __all__ = ["DRIZZLE_KERNELS", "check_drizzle_options", "output_shape", "pixel_map",
            "pixel_area", "weight_map", "blot_mask", "scaled_wcs", "DrizzleAccumulator",
            "DrizzlePlanes", "on_output_grid", "coverage_report", "MAX_EMPTY_FRACTION",
            "MAX_WEIGHT_SPREAD"]
-
-#: The drizzle kernels, as the `drizzle` package names them.
-DRIZZLE_KERNELS = tuple(SUPPORTED_DRIZZLE_KERNELS)
 
 #: Input pixels per band when a transform is evaluated on a frame's grid (a few MB).
 _BAND_PIXELS = 1 << 20

@@ -35,11 +35,18 @@ import dataclasses
 import numpy as np
 
 from ..options import Choice, Int, Real, check_fields, convert, fields_of, option
-from ..io.bayer import BAYER_PATTERNS
-from .drizzle import DRIZZLE_KERNELS
 
 __all__ = ["StackConfig", "FrameWeights", "FrameSelection", "STACK_METHODS", "CLIP_METHODS",
            "NORMALIZE_METHODS", "WEIGHT_METHODS", "DEMOSAIC_METHODS", "DEFAULT_MEMORY_LIMIT"]
+
+# The two lists below are declared here, not imported from ``drizzle.py`` and
+# ``io/bayer.py`` (which use them), so that the command line's flags are built
+# without importing astropy.modeling or the drizzle package.
+
+#: The drizzle kernels, as the `drizzle` package names them.
+DRIZZLE_KERNELS = ("square", "gaussian", "point", "turbo", "lanczos2", "lanczos3")
+#: The Bayer patterns understood, by the colours of the first 2x2 cell row by row.
+BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 
 #: The combinations: weighted mean, median, and the sum (the mean times the number of frames).
 STACK_METHODS = ("average", "median", "sum")

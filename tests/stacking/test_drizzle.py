@@ -127,6 +127,14 @@ def test_bad_drizzle_options(kw, what):
         stack([np.zeros((8, 8)), np.zeros((8, 8))], **kw)
 
 
+def test_the_kernel_option_lists_the_drizzle_packages_kernels():
+    # The option declares the list itself (the CLI imports no drizzle): it must stay drizzle's.
+    from drizzle.resample import SUPPORTED_DRIZZLE_KERNELS
+
+    from astroalign_nd.stacking.drizzle import DRIZZLE_KERNELS
+    assert set(DRIZZLE_KERNELS) == set(SUPPORTED_DRIZZLE_KERNELS)
+
+
 def test_pixel_map_of_a_polynomial_and_sip_scaled_wcs():
     t = PolynomialTransform(degree=2, A_2_0=1e-4, translation_x=1.0)
     pm = pixel_map(t, (5, 200), scale=2, offset=(-3, 0))
