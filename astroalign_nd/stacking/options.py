@@ -204,7 +204,13 @@ class StackConfig:
     pixfrac : float, optional
         With ``drizzle``: the linear fraction of an input pixel its value is
         dropped onto, in (0, 1] (default 0.7; toward 1 with few frames or
-        little dither, or the output gets holes).
+        little dither, or the output gets holes).  For the sharpest stack
+        of well-dithered frames use ``pixfrac = sqrt(3 / n_frames)`` (at
+        most 1): each output pixel then gets about three drops on average
+        (``n_frames * pixfrac**2``), enough for no holes and an honest
+        uncertainty, while the drop, whose width adds to the stars', is as
+        small as that allows (0.43 for 16 frames, 0.31 for 32; see the
+        drizzle section of the benchmarks page).
     kernel : str, optional
         With ``drizzle``: the drizzle kernel, one of
         `~astroalign_nd.stacking.drizzle.DRIZZLE_KERNELS` (default 'square').
