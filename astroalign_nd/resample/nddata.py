@@ -33,7 +33,7 @@ from astropy import units as u
 from astropy.wcs import Sip
 from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUncertainty,
                             VarianceUncertainty)
-from .._input import parse_input
+from ..io.read import parse_input
 from ..exceptions import AstroalignWarning, warn
 from ..options import astroalign_advice
 from ..io.header import (add_history, add_provenance, check_quality, fits_text, header_from_meta,

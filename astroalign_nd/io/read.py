@@ -119,7 +119,7 @@ def is_channels_first(arr):
     Examples
     --------
     >>> import numpy as np
-    >>> from astroalign_nd._input import is_channels_first
+    >>> from astroalign_nd.io.read import is_channels_first
     >>> is_channels_first(np.zeros((3, 50, 60))), is_channels_first(np.zeros((50, 60, 3)))
     (True, False)
     """
@@ -197,7 +197,7 @@ def position_columns(table, name="catalog", columns=None):
     Examples
     --------
     >>> from astropy.table import Table
-    >>> from astroalign_nd._input import position_columns
+    >>> from astroalign_nd.io.read import position_columns
     >>> position_columns(Table(names=["id", "x_centroid", "y_centroid"]))
     ('x_centroid', 'y_centroid')
     """
@@ -426,7 +426,7 @@ def bottom_up(arr):
     Examples
     --------
     >>> import numpy as np
-    >>> from astroalign_nd._input import bottom_up
+    >>> from astroalign_nd.io.read import bottom_up
     >>> bottom_up(np.array([[1, 2], [3, 4]]))
     array([[3, 4],
            [1, 2]])
