@@ -22,7 +22,7 @@ from astropy.io import fits
 from astropy.nddata import NDData
 from astropy.table import Table
 
-from ._input import parse_input, position_columns
+from .io.read import parse_input, position_columns
 from ._kernels import num_threads
 from .config import RegistrationConfig
 from .detection import find_sources

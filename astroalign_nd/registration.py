@@ -21,7 +21,7 @@ import numpy as np
 from astropy import log
 from astropy.utils.exceptions import AstropyWarning
 
-from ._input import parse_input
+from .io.read import parse_input
 from .config import RegistrationConfig, split_options
 from .detection.options import DetectionConfig
 from .matching.options import DEFAULT_NEIGHBORS, MatchingConfig

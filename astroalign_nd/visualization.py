@@ -36,7 +36,7 @@ import os
 
 import numpy as np
 
-from ._input import parse_input
+from .io.read import parse_input
 from .resample.options import ResampleConfig
 from .io.write import atomic_open, check_not_input, check_output_path
 from .matching.asterisms import build_asterisms

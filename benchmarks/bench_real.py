@@ -82,7 +82,7 @@ WARPS = [
 
 def load(path):
     """(float32 image, original dtype) of a file, as astroalign_nd reads it."""
-    from astroalign_nd._input import parse_input
+    from astroalign_nd.io.read import parse_input
 
     p = parse_input(str(path))
     img = p.detection_image

@@ -181,7 +181,7 @@ def ccddata_cost(size, n_stars, repeats):
 
 def stage_breakdown(size, n_stars, repeats):
     import astroalign_nd
-    from astroalign_nd._input import parse_input
+    from astroalign_nd.io.read import parse_input
     from astroalign_nd.matching.search import match_control_points, search_tolerance
     from astroalign_nd.registration import Reference
     from astroalign_nd.resample import apply_transform, resample

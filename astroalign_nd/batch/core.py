@@ -11,7 +11,7 @@ from contextlib import closing
 from dataclasses import asdict, replace
 from typing import Any
 import numpy as np
-from .._input import batch_frames
+from ..io.read import batch_frames
 from ..config import RegistrationConfig
 from ..resample import ResampleConfig
 from ..exceptions import warn

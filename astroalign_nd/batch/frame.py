@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass, field, replace
-from .._input import parse_input
+from ..io.read import parse_input
 from ..exceptions import warn
 from ..io import WRITERS, writer_for
 from ..registration import find_for_apply, quality_dict

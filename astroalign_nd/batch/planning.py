@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import os
-from .._input import batch_frames
+from ..io.read import batch_frames
 from ..io import WRITERS, output_suffixes, transform_from_header, writer_for
 from ..io.write import FITS_EXTENSIONS
 

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from astropy.nddata import CCDData
 
-from .._input import parse_input
+from ..io.read import parse_input
 from ..io import writer_for
 from ..resample import apply_transform
 from ..transforms.convert import from_matrix

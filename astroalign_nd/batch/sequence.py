@@ -30,7 +30,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .._input import batch_frames
+from ..io.read import batch_frames
 from ..config import RegistrationConfig
 from ..exceptions import AstroalignError, warn
 from ..matching.pairing import mutual_matches

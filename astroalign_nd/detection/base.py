@@ -17,7 +17,7 @@ import abc
 import numpy as np
 from astropy.table import Table
 
-from .._input import image_and_mask
+from ..io.read import image_and_mask
 from .candidates import _as_image
 
 __all__ = ["SourceFinderBase"]

@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 from astropy.table import Table
 from astropy.utils.exceptions import AstropyWarning
-from .._input import image_and_mask
+from ..io.read import image_and_mask
 from .._kernels import GAUSS_SIGMA_TO_FWHM as _GAUSS_SIGMA_TO_FWHM
 from .._kernels import adaptive_fwhm as _adaptive_fwhm
 from .._kernels import lost_window_fraction as _lost_window_fraction

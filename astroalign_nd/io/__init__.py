@@ -24,8 +24,8 @@ Storing transforms in files.
   `ValueError` that names it.
 """
 
-from .header import (QUALITY_KEYWORDS, add_provenance, distorted_wcs, transform_from_header,
-                     transform_to_header)
+from .header import QUALITY_KEYWORDS, add_provenance, transform_from_header, transform_to_header
+from .sip import distorted_wcs
 from .transform_files import read_transform, write_transform
 from .write import atomic_open, atomic_write, write_ccddata, write_table
 from .writers import (WRITERS, FITSWriter, Writer, output_suffixes, register_writer,

@@ -30,10 +30,10 @@ from dataclasses import fields
 from typing import Any
 import numpy as np
 from astropy import units as u
-from astropy.wcs import Sip
 from astropy.nddata import (CCDData, FlagCollection, InverseVariance, StdDevUncertainty,
                             VarianceUncertainty)
-from .._input import parse_input
+from ..io.read import parse_input
+from ..io.sip import sip_through_linear
 from ..exceptions import AstroalignWarning, warn
 from ..options import astroalign_advice
 from ..io.header import (add_history, add_provenance, check_quality, fits_text, header_from_meta,
@@ -123,41 +123,10 @@ def _carry_wcs(wcs, matrix, shape_out):
     else:
         w.wcs.pc = np.asarray(w.wcs.get_pc()) @ inv
     if w.sip is not None:
-        sip = w.sip
-        a, b = _sip_through(sip.a, sip.b, lin, inv)
-        ap, bp = (_sip_through(sip.ap, sip.bp, lin, inv) if sip.ap is not None
-                  else (None, None))
-        w.sip = Sip(a, b, ap, bp, w.wcs.crpix)
+        w.sip = sip_through_linear(w.sip, lin, w.wcs.crpix)
     _drop_lookup_tables(wcs, w, lin, matrix[:2, 2])
     w.pixel_shape = (shape_out[1], shape_out[0])
     return w
-
-
-def _poly_product(p, q):
-    """Product of two polynomials in (x, y) given as coefficient arrays ``c[i, j]`` of x^i y^j."""
-    out = np.zeros((p.shape[0] + q.shape[0] - 1, p.shape[1] + q.shape[1] - 1))
-    for i, j in zip(*np.nonzero(p)):
-        out[i:i + q.shape[0], j:j + q.shape[1]] += p[i, j] * q
-    return out
-
-
-def _sip_through(a, b, lin, inv):
-    """SIP terms ``(a, b)`` of ``u`` rewritten as those of ``v = lin u``: ``lin f(inv v)``."""
-    order = a.shape[0] - 1
-    # u1 and u2 as polynomials of v: the rows of ``inv``.
-    u1 = np.array([[0.0, inv[0, 1]], [inv[0, 0], 0.0]])
-    u2 = np.array([[0.0, inv[1, 1]], [inv[1, 0], 0.0]])
-    pow1, pow2 = [np.ones((1, 1))], [np.ones((1, 1))]
-    for _ in range(order):
-        pow1.append(_poly_product(pow1[-1], u1))
-        pow2.append(_poly_product(pow2[-1], u2))
-    f1 = np.zeros((order + 1, order + 1))
-    f2 = np.zeros((order + 1, order + 1))
-    for i, j in zip(*np.nonzero((a != 0) | (b != 0))):
-        term = _poly_product(pow1[i], pow2[j])[:order + 1, :order + 1]
-        f1[:term.shape[0], :term.shape[1]] += a[i, j] * term
-        f2[:term.shape[0], :term.shape[1]] += b[i, j] * term
-    return lin[0, 0] * f1 + lin[0, 1] * f2, lin[1, 0] * f1 + lin[1, 1] * f2
 
 
 def _drop_lookup_tables(old, new, lin, shift):

@@ -26,7 +26,7 @@ import numpy as np
 from astropy.nddata import CCDData, StdDevUncertainty
 from scipy import ndimage
 
-from .._input import parse_input
+from ..io.read import parse_input
 from ..exceptions import AstroalignError
 from ..io import write_ccddata
 from ..io.bayer import (balanced_grey, bayer_channels, bayer_pattern, superpixel,

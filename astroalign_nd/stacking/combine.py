@@ -17,10 +17,11 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from astropy.io import fits
 from astropy.stats import sigma_clipped_stats
 
-__all__ = ["FrameStats", "frame_stats", "array_stats", "read_rows",
+from ..io.read import image_shape_unit, read_rows
+
+__all__ = ["FrameStats", "frame_stats", "array_stats",
            "combine_files", "normalise", "frame_weights", "reject", "combine", "frame_variance",
            "rows_per_strip", "robust_sigma", "MIN_MAD_VALUES"]
 
@@ -112,59 +113,6 @@ def robust_sigma(values):
     return float(_MAD_TO_SIGMA * np.median(np.abs(v - np.median(v))))
 
 
-def _uncertainty_kind(hdul):
-    """The UNCERT extension's kind ('std', 'var', 'ivar') and HDU, or (None, None)."""
-    if "UNCERT" not in hdul:
-        return None, None
-    hdu = hdul["UNCERT"]
-    utype = str(hdu.header.get("UTYPE", "StdDevUncertainty"))
-    kinds = {"StdDevUncertainty": "std", "VarianceUncertainty": "var",
-             "InverseVariance": "ivar"}
-    kind = next((v for k, v in kinds.items() if k in utype), None)
-    if kind is None:
-        raise ValueError(f"unknown uncertainty type {utype!r} in {hdul.filename()}; a stack "
-                         "needs StdDevUncertainty, VarianceUncertainty or InverseVariance.")
-    return kind, hdu
-
-
-def _as_variance(u, kind):
-    u = np.asarray(u, dtype=np.float64)
-    if kind == "std":
-        return u * u
-    if kind == "ivar":
-        with np.errstate(divide="ignore"):
-            return np.where(u > 0, 1.0 / np.where(u > 0, u, 1.0), np.inf)
-    return u.copy()
-
-
-def read_rows(path, r0, r1):
-    """
-    Rows ``r0:r1`` of a registered frame: values, variance (or None) and validity.
-
-    Parameters
-    ----------
-    path : str
-    r0, r1 : int
-
-    Returns
-    -------
-    data : (rows, nx) float64 ndarray
-    variance : (rows, nx) float64 ndarray or None
-    valid : (rows, nx) bool ndarray
-        Unmasked, with a finite value (and a finite, non-negative variance).
-    """
-    with fits.open(path, memmap=True) as hdul:
-        data = np.array(hdul[0].data[r0:r1], dtype=np.float64)
-        valid = np.isfinite(data)
-        if "MASK" in hdul:
-            valid &= ~np.asarray(hdul["MASK"].data[r0:r1]).astype(bool)
-        kind, uhdu = _uncertainty_kind(hdul)
-        var = None if kind is None else _as_variance(uhdu.data[r0:r1], kind)
-    if var is not None:
-        valid &= np.isfinite(var) & (var >= 0)
-    return data, var, valid
-
-
 def frame_stats(path, memory_limit=512e6):
     """
     The sky, noise and median variance of a registered frame (see `FrameStats`).
@@ -188,9 +136,7 @@ def frame_stats(path, memory_limit=512e6):
     ValueError
         If the frame is not a 2-D image, or has no valid pixel.
     """
-    with fits.open(path, memmap=True) as hdul:
-        shape = hdul[0].data.shape
-        unit = hdul[0].header.get("BUNIT")
+    shape, unit = image_shape_unit(path)
     if len(shape) != 2:
         raise ValueError(f"its data has shape {shape}, not a 2-D image like the other "
                          "frames; stack one plane (colour channel) at a time.")

@@ -14,7 +14,7 @@ import numpy as np
 from astropy.io import fits
 from astropy.nddata import CCDData, VarianceUncertainty
 
-from .._input import batch_frames, parse_input
+from ..io.read import batch_frames, parse_input
 from ..batch import BatchResult, reference_on_canvas, register_batch
 from ..batch.canvas import canvas_wcs
 from ..batch.core import Interrupted

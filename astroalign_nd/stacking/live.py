@@ -19,7 +19,7 @@ import numpy as np
 from astropy.io import fits
 from astropy.nddata import CCDData
 
-from .._input import parse_input
+from ..io.read import parse_input
 from ..config import RegistrationConfig
 from ..resample import ResampleConfig
 from ..exceptions import warn

@@ -340,7 +340,7 @@ def measure_frames(reference, others, *, hdu=None, unit=None):
         that cannot be measured has its error as ``reason``.
     measures : list of `FrameMeasures` or None
     """
-    from .._input import parse_input
+    from ..io.read import parse_input
 
     ref = parse_input(reference[1], "reference", hdu=hdu, unit=unit)
     ref_data = np.asarray(ref.data, dtype=np.float64)
@@ -731,7 +731,7 @@ def frame_quality(frames: Any, reference: Any = None, *, select: Any = None,
     >>> len(t), bool(abs(t["fwhm"][1] - 3.0) < 0.3), bool(abs(t["transparency"][2] - 1) < 0.05)
     (3, True, True)
     """
-    from .._input import batch_frames, parse_input
+    from ..io.read import batch_frames, parse_input
     from ..registration import Reference, find_match
 
     items, hdu = batch_frames(frames, hdu)

@@ -281,7 +281,7 @@ def test_channels_first_cubes(tmp_path):
 def test_image_files_are_read_bottom_up(tmp_path):
     """A PNG that looks like the FITS frame registers as the FITS frame does."""
     skio = pytest.importorskip("skimage.io")
-    from astroalign_nd._input import FLIP_HISTORY, parse_input
+    from astroalign_nd.io.read import FLIP_HISTORY, parse_input
 
     pair = simulate_pair((160, 160), n_stars=100, rotation=12.0, translation=(5.0, 3.0),
                          seed=8)

@@ -543,7 +543,7 @@ def test_hdulist_in_memory_keeps_extensions(pair, tmp_path, cls):
 def test_fits_paths_read_in_native_order_and_register_as_arrays(tmp_path):
     # FITS data are big-endian: a file read here is swapped in place (no second
     # copy), and registering the files gives the arrays' result bit for bit.
-    from astroalign_nd._input import parse_input
+    from astroalign_nd.io.read import parse_input
 
     pair = simulate_pair((256, 256), n_stars=120, rotation=20.0, seed=4)
     src = pair.source.astype(np.float32)

@@ -10,7 +10,7 @@ from astropy.wcs import WCS
 
 from astroalign_nd import PolynomialTransform, ProjectiveTransform, SimilarityTransform
 from astroalign_nd.io import add_provenance, transform_from_header, transform_to_header
-from astroalign_nd.io.header import distorted_wcs
+from astroalign_nd.io.sip import distorted_wcs
 
 SHAPE = (3000, 4096)  # (ny, nx)
 DOMAIN = (0.0, SHAPE[1] - 1.0, 0.0, SHAPE[0] - 1.0)

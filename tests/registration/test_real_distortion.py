@@ -16,7 +16,7 @@ import pytest
 from scipy import ndimage
 
 from astroalign_nd import find_transform
-from astroalign_nd._input import parse_input
+from astroalign_nd.io.read import parse_input
 from astroalign_nd.exceptions import PoorFitWarning
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"

@@ -160,7 +160,7 @@ def test_wide_stars_estimated_on_binned_copy_without_runaway():
 # -- the same categories on real frames (skip without ../shared/data) -----------------------
 
 def _load(path):
-    from astroalign_nd._input import parse_input
+    from astroalign_nd.io.read import parse_input
 
     return np.asarray(parse_input(str(path)).detection_image, dtype=np.float32)
 

@@ -39,7 +39,8 @@ from astropy.table import Table
 from astropy.wcs import WCS, FITSFixedWarning
 
 __all__ = ["ParsedInput", "parse_input", "image_and_mask", "iter_frames", "batch_frames",
-           "bottom_up", "FLIP_HISTORY", "is_channels_first", "position_columns"]
+           "bottom_up", "FLIP_HISTORY", "is_channels_first", "position_columns",
+           "read_rows", "image_shape_unit"]
 
 _X_NAMES = ("x", "x_centroid", "xcentroid", "x_0", "x_fit", "xcen", "X_IMAGE")
 _Y_NAMES = ("y", "y_centroid", "ycentroid", "y_0", "y_fit", "ycen", "Y_IMAGE")
@@ -119,7 +120,7 @@ def is_channels_first(arr):
     Examples
     --------
     >>> import numpy as np
-    >>> from astroalign_nd._input import is_channels_first
+    >>> from astroalign_nd.io.read import is_channels_first
     >>> is_channels_first(np.zeros((3, 50, 60))), is_channels_first(np.zeros((50, 60, 3)))
     (True, False)
     """
@@ -197,7 +198,7 @@ def position_columns(table, name="catalog", columns=None):
     Examples
     --------
     >>> from astropy.table import Table
-    >>> from astroalign_nd._input import position_columns
+    >>> from astroalign_nd.io.read import position_columns
     >>> position_columns(Table(names=["id", "x_centroid", "y_centroid"]))
     ('x_centroid', 'y_centroid')
     """
@@ -426,7 +427,7 @@ def bottom_up(arr):
     Examples
     --------
     >>> import numpy as np
-    >>> from astroalign_nd._input import bottom_up
+    >>> from astroalign_nd.io.read import bottom_up
     >>> bottom_up(np.array([[1, 2], [3, 4]]))
     array([[3, 4],
            [1, 2]])
@@ -777,3 +778,76 @@ def batch_frames(sources: Any, hdu: int | str | tuple | None = None
         return iter_frames(iterator), hdu
     # Already in memory (list, tuple, array of frames): a list of references.
     return [_labelled(item) for item in sources], hdu
+
+
+# Registered frames on disk, read a strip of rows at a time through a memory
+# map (the stack's combination never holds whole frames in memory).
+
+def image_shape_unit(path):
+    """
+    The shape and unit (``BUNIT``) of a FITS file's primary image, data not read.
+
+    Parameters
+    ----------
+    path : str
+
+    Returns
+    -------
+    shape : tuple of int
+    unit : str or None
+    """
+    with fits.open(path, memmap=True) as hdul:
+        return hdul[0].data.shape, hdul[0].header.get("BUNIT")
+
+
+def _uncertainty_kind(hdul):
+    """The UNCERT extension's kind ('std', 'var', 'ivar') and HDU, or (None, None)."""
+    if "UNCERT" not in hdul:
+        return None, None
+    hdu = hdul["UNCERT"]
+    utype = str(hdu.header.get("UTYPE", "StdDevUncertainty"))
+    kinds = {"StdDevUncertainty": "std", "VarianceUncertainty": "var",
+             "InverseVariance": "ivar"}
+    kind = next((v for k, v in kinds.items() if k in utype), None)
+    if kind is None:
+        raise ValueError(f"unknown uncertainty type {utype!r} in {hdul.filename()}; a stack "
+                         "needs StdDevUncertainty, VarianceUncertainty or InverseVariance.")
+    return kind, hdu
+
+
+def _as_variance(u, kind):
+    u = np.asarray(u, dtype=np.float64)
+    if kind == "std":
+        return u * u
+    if kind == "ivar":
+        with np.errstate(divide="ignore"):
+            return np.where(u > 0, 1.0 / np.where(u > 0, u, 1.0), np.inf)
+    return u.copy()
+
+
+def read_rows(path, r0, r1):
+    """
+    Rows ``r0:r1`` of a registered frame: values, variance (or None) and validity.
+
+    Parameters
+    ----------
+    path : str
+    r0, r1 : int
+
+    Returns
+    -------
+    data : (rows, nx) float64 ndarray
+    variance : (rows, nx) float64 ndarray or None
+    valid : (rows, nx) bool ndarray
+        Unmasked, with a finite value (and a finite, non-negative variance).
+    """
+    with fits.open(path, memmap=True) as hdul:
+        data = np.array(hdul[0].data[r0:r1], dtype=np.float64)
+        valid = np.isfinite(data)
+        if "MASK" in hdul:
+            valid &= ~np.asarray(hdul["MASK"].data[r0:r1]).astype(bool)
+        kind, uhdu = _uncertainty_kind(hdul)
+        var = None if kind is None else _as_variance(uhdu.data[r0:r1], kind)
+    if var is not None:
+        valid &= np.isfinite(var) & (var >= 0)
+    return data, var, valid
