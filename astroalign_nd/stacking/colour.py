@@ -275,7 +275,7 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
         'auto' (each frame's ``BAYERPAT``...) or the pattern of every frame's
         first 2x2 cell.
     method : str
-        The demosaicing method (`DEMOSAIC_METHODS`).
+        The demosaicing method (``astroalign_nd.stacking.options.DEMOSAIC_METHODS``).
     hdu, unit, order
         As in `~astroalign_nd.stack`.
     options : dict

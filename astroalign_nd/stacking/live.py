@@ -156,7 +156,7 @@ class LiveStack:
         -------
         left_out : str or None
             Why the frame was left out (``select``, the limits: it is then
-            in `rejected`, and a warning says so), or None once added.
+            in ``rejected``, and a warning says so), or None once added.
 
         Raises
         ------

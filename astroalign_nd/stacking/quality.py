@@ -336,7 +336,7 @@ def measure_frames(reference, others, *, hdu=None, unit=None):
     Returns
     -------
     rows : list of dict
-        One per frame, the reference first (see `quality_row`); a frame
+        One per frame, the reference first (see ``quality_row``); a frame
         that cannot be measured has its error as ``reason``.
     measures : list of `FrameMeasures` or None
     """
@@ -621,7 +621,7 @@ def select_frames(table, select=None, *, max_fwhm=None, max_elongation=None,
 
 
 def quality_table(rows):
-    """The quality rows (dicts) as a `~astropy.table.Table` of `QUALITY_COLUMNS`."""
+    """The quality rows (dicts) as a `~astropy.table.Table` of ``QUALITY_COLUMNS``."""
     cols = {}
     for key in QUALITY_COLUMNS:
         vals = [r.get(key) for r in rows]
@@ -643,7 +643,7 @@ def quality_table(rows):
 
 
 def quality_row(name, measures, ref_measures, transp, n_phot, match_quality=None, time=None):
-    """One frame's row of the quality table (a dict of `QUALITY_COLUMNS`)."""
+    """One frame's row of the quality table (a dict of ``QUALITY_COLUMNS``)."""
     q = match_quality or {}
     return dict(name=name, time=time, fwhm=measures.fwhm, fwhm_spread=measures.fwhm_spread,
                 elongation=measures.elongation, n_stars=measures.n_stars,
@@ -699,15 +699,15 @@ def frame_quality(frames: Any, reference: Any = None, *, select: Any = None,
     reference : optional
         The reference (default: the first frame): the first row.
     select, max_fwhm, max_elongation, min_transparency, min_stars : optional
-        The selection, as in `select_frames` (default: none; every frame
-        that could be measured is used).
+        The selection, as in `~astroalign_nd.stacking.quality.select_frames`
+        (default: none; every frame that could be measured is used).
     hdu, unit, **options
         As in `~astroalign_nd.register` (matching and detection options).
 
     Returns
     -------
     table : `~astropy.table.Table`
-        Columns `QUALITY_COLUMNS`: ``name``, ``time`` (MJD, from the
+        Columns `~astroalign_nd.stacking.quality.QUALITY_COLUMNS`: ``name``, ``time`` (MJD, from the
         header; NaN without), ``fwhm`` and ``fwhm_spread`` (pixels),
         ``elongation``, ``n_stars``, ``star_ratio`` (to the reference's),
         ``sky``, ``sky_noise``, ``transparency``, ``n_photometry`` (pairs
@@ -777,10 +777,10 @@ def as_taken(st, row, m):
 
     Parameters
     ----------
-    st : `~astroalign_nd.stacking.combine.FrameStats`
+    st : ``astroalign_nd.stacking.combine.FrameStats``
         Of the registered frame; changed in place.
     row : dict or None
-        Its quality row (`quality_row`).
+        Its quality row (``quality_row``).
     m : `FrameMeasures` or None
         Its measures as taken (None: ``st`` is left as it is).
     """
