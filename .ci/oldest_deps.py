@@ -15,8 +15,6 @@ import tomllib
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-#: The optional-dependency groups whose packages run inside astroalign_nd.
-RUNTIME_EXTRAS = ("exact", "dask", "plot", "ccdproc")
 _REQ = re.compile(r"^\s*([A-Za-z0-9_.-]+)\s*(\[[^\]]*\])?\s*(.*)$")
 
 
@@ -24,7 +22,9 @@ def floors(pyproject=Path(__file__).resolve().parent.parent / "pyproject.toml"):
     """``{distribution name: floor}`` of every runtime dependency."""
     project = tomllib.loads(Path(pyproject).read_text(encoding="utf-8"))["project"]
     reqs = list(project["dependencies"])
-    for extra in RUNTIME_EXTRAS:
+    # The runtime extras are the ones the "all" extra names: astroalign_nd[exact,dask,...].
+    runtime = re.search(r"\[(.*)\]", project["optional-dependencies"]["all"][0]).group(1)
+    for extra in runtime.split(","):
         reqs += project["optional-dependencies"][extra]
     out = {}
     for req in reqs:
