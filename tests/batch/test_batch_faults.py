@@ -328,8 +328,9 @@ def test_dask_retry_after_a_worker_dies_recognises_its_output(tmp_path, night):
     paths = paths[:4]
     out = tmp_path / "out"
     marker = str(tmp_path / "died")
+    # ":0": any free port (None means dask's 8787, which another cluster may hold)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None, silence_logs=50) as cluster:
+                                  dashboard_address=":0", silence_logs=50) as cluster:
         with distributed.Client(cluster) as client:
             # own globals: exec in a function would keep the names local to that call
             client.run(exec, _DIE_AFTER_WRITE.format(name="f02_aligned.fits", marker=marker), {})
