@@ -124,18 +124,24 @@ def test_dithered_sequence_against_pairwise():
     assert np.median(glob) < 0.85 * np.median(pair), (np.median(glob), np.median(pair))
 
 
+#: Frames of the long sequence: enough that the shrinking bias (which grows with the number
+#: of frames) fails both of the test's assertions by a wide margin.
+N_LONG = 100
+
+
 @pytest.mark.parametrize("kind", ["similarity", "affine"])
 def test_long_sequence_is_not_shrunk(kind):
     """
-    200 frames that all see the same stars: the joint solution is as
+    100 frames that all see the same stars: the joint solution is as
     precise as pairwise registration (the reference's centroid errors are
     in both), however many frames there are.  Residuals fitted in the
     common frame rather than in each frame's own pixels shrank every frame
-    but the reference by about 75 ppm here (0.014 px at the corners), and
-    the errors grew to 1.4-1.7 times the pairwise ones.
+    but the reference (a bias that grows with the number of frames): 0.009
+    px at the corners here (0.018 px with 200 frames), and the errors grew
+    to 1.17 times the pairwise ones (1.8 times with 200 frames).
     """
     shape = (256, 256)
-    truth = dither_transforms(200, max_shift=40, max_rotation=2, shape=shape, seed=7)
+    truth = dither_transforms(N_LONG, max_shift=40, max_rotation=2, shape=shape, seed=7)
     rng = np.random.default_rng(8)
     sky = rng.uniform(0, 256, (300, 2))
     cats = []
@@ -145,16 +151,16 @@ def test_long_sequence_is_not_shrunk(kind):
     sol = solve_sequence(cats, reference=0, transform_type=kind)
     # Pairwise registration to the reference matches all 300 stars of these catalogs, so its
     # transform is the least-squares fit on them (to 1e-12 px): checked on a few frames, and
-    # fitted directly on the others (199 searches would take most of the test's time).
+    # fitted directly on the others (99 searches would take most of the test's time).
     ref = astroalign_nd.Reference(cats[0])
-    for i in (1, 100, 199):
+    for i in (1, N_LONG // 2, N_LONG - 1):
         pw, (matched, _) = find_transform(cats[i], ref, transform_type=kind)
         assert len(matched) == 300
         np.testing.assert_allclose(as_matrix(pw), as_matrix(fit_transform(cats[i], cats[0],
                                                                           kind)[0]), atol=1e-9)
     glob, pair, shift = [], [], []
     corners = np.array([[0.0, 0.0], [255.0, 0.0], [0.0, 255.0], [255.0, 255.0]])
-    for i in range(1, 200):
+    for i in range(1, N_LONG):
         true = _truth(truth, i, 0)
         pw = fit_transform(cats[i], cats[0], kind)[0]
         glob.append(_max_error(sol.transforms[i], true, shape))
@@ -166,7 +172,7 @@ def test_long_sequence_is_not_shrunk(kind):
         centre = p.mean(axis=0)
         shift.append(np.mean(np.hypot(*(g - centre).T) - np.hypot(*(p - centre).T)))
     assert np.median(glob) < 1.05 * np.median(pair), (np.median(glob), np.median(pair))
-    assert abs(np.mean(shift)) < 0.002, np.mean(shift)  # px; the shrinking gave -0.014
+    assert abs(np.mean(shift)) < 0.002, np.mean(shift)  # px; the shrinking gave -0.009
 
 
 def test_false_link_is_rejected_and_reported(monkeypatch):

@@ -68,8 +68,9 @@ def test_header_round_trip_exact(transform_type, seed, mirrored, shift):
 @pytest.mark.parametrize("transform_type", ["euclidean", "similarity"])
 def test_header_round_trip_exact_rotations(transform_type):
     # from_matrix recovers the angle through arctan2, 1 ulp off for about one
-    # matrix in ten; the written ROT/SCALE cards must make the trip exact.
-    for seed in range(0, 3000, 7):
+    # matrix in ten; the written ROT/SCALE cards must make the trip exact.  These 286
+    # matrices hold 20 (euclidean) and 42 (similarity) that from_matrix does not recover.
+    for seed in range(0, 3000, 21):
         for mirrored in (False, True):
             rng = np.random.default_rng(seed)
             m = random_matrix(rng, transform_type, mirrored)
