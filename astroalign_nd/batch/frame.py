@@ -123,13 +123,7 @@ def _run(job, cfg):
             return _apply_stage(job, cfg, t0, src_path)
         done = _skip_or_refuse(job, cfg)
         if done is not None:
-            transform = done["transform"]
-            if cfg.union:  # back to reference pixels, for the canvas computation
-                transform = shifted_transform(transform, done["offset"], sign=+1)
-            return FrameResult(name=job.name, status="skipped", transform=transform,
-                               quality=done["quality"], output=job.output, source=src_path,
-                               seconds=time.perf_counter() - t0, shape=done["source_shape"],
-                               _grid=(done["shape"], done["offset"]))
+            return _skipped(job, done, cfg, src_path, time.perf_counter() - t0)
         # Read (parsed) once, here on the worker, for both stages.
         src, _, result = find_for_apply(job.source, cfg.reference, cfg.options, hdu=cfg.hdu,
                                         unit=cfg.unit)
@@ -146,6 +140,17 @@ def _run(job, cfg):
         return _apply_stage(job, cfg, t0, src_path)
     except Exception as exc:  # noqa: BLE001 - report every failure, keep going
         return _failed(job, exc, t0, src_path)
+
+
+def _skipped(job, done, cfg, src_path, seconds):
+    """A frame whose complete output is kept (``skip_existing``), as `_skip_or_refuse` read it."""
+    transform = done["transform"]
+    if cfg.union:  # back to reference pixels, for the canvas computation
+        transform = shifted_transform(transform, done["offset"], sign=+1)
+    return FrameResult(name=job.name, status="skipped", transform=transform,
+                       quality=done["quality"], output=job.output, source=src_path,
+                       seconds=seconds, shape=done["source_shape"],
+                       _grid=(done["shape"], done["offset"]))
 
 
 def _registered_before(job, done, src_path, t0):

@@ -780,6 +780,31 @@ def batch_frames(sources: Any, hdu: int | str | tuple | None = None
     return [_labelled(item) for item in sources], hdu
 
 
+def frame_name(label, i):
+    """A frame's short name: its file name, or ``frame<i>`` in memory."""
+    return os.path.basename(label) if label is not None else f"frame{i}"
+
+
+def display_names(items):
+    """
+    The names of `batch_frames`' ``(frame, label)`` items as reports show
+    them: basenames, or the label as given where two inputs share a
+    basename, and ``#2``, ``#3``... after a frame given again.
+    """
+    base = [frame_name(label, i) for i, (_, label) in enumerate(items)]
+    counts = {}
+    for b in base:
+        counts[b] = counts.get(b, 0) + 1
+    names = [label if label is not None and counts[b] > 1 else b
+             for (_, label), b in zip(items, base)]
+    seen, out = {}, []
+    for n in names:  # the same path given twice
+        k = seen.get(n, 0)
+        seen[n] = k + 1
+        out.append(n if k == 0 else f"{n}#{k + 1}")
+    return out
+
+
 # Registered frames on disk, read a strip of rows at a time through a memory
 # map (the stack's combination never holds whole frames in memory).
 
