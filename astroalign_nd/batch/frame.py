@@ -214,15 +214,11 @@ def shifted_transform(transform, offset, sign):
     m = as_matrix(transform).copy()
     m[0, 2] += sign * offset[0]
     m[1, 2] += sign * offset[1]
-    out = from_matrix(m, transform_type=_type_of(transform))
+    # The registry name of the transform's own class (None for any other class).
+    entry = transform_type_of(transform, exact=True)
+    out = from_matrix(m, transform_type=None if entry is None else entry.name)
     out.meta.update(getattr(transform, "meta", {}) or {})
     return out
-
-
-def _type_of(transform):
-    """The registry name of the transform's own class (None for any other class)."""
-    entry = transform_type_of(transform, exact=True)
-    return None if entry is None else entry.name
 
 
 def _stream_jobs(items, namer):

@@ -281,17 +281,13 @@ def weights(frames, obs):
 
 def star_positions(frames, obs):
     """Each track's common-frame position: the weighted mean of its detections (S, 2)."""
-    pred = _predictions(frames, obs)
+    pred = frames.layer.predict(frames.theta[obs.frame], obs.q)
     w = weights(frames, obs)
     wsum = np.bincount(obs.track, w, obs.n_tracks)
     xs = np.column_stack([np.bincount(obs.track, w * pred[:, i], obs.n_tracks)
                           for i in range(2)])
     with np.errstate(invalid="ignore", divide="ignore"):
         return xs / wsum[:, None], pred
-
-
-def _predictions(frames, obs):
-    return frames.layer.predict(frames.theta[obs.frame], obs.q)
 
 
 def _bundle_system(frames, obs):

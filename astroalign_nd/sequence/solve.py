@@ -618,7 +618,9 @@ def _solve(graph, refs, shapes, names, ref, kind, tolerance, unsolved, counts):
     idx = {id(k): (stars[k.source].index(k.source_points), stars[k.target].index(k.target_points))
            for k in graph.links}
     while True:
-        solved = _connected(graph, refs, ref)
+        # The frames joined to the reference by accepted links.
+        place = graph.placement(root=ref)
+        solved = {f for f, (root, _) in place.items() if root == ref and refs[f] is not None}
         frames = _initial(graph, shapes, ref, kind, solved)
         links = [k for k in graph.links if k.status == "accepted" and k.source in solved]
         _adjust_links(frames, links, stars, idx)
@@ -636,12 +638,6 @@ def _solve(graph, refs, shapes, names, ref, kind, tolerance, unsolved, counts):
     obs = _observations(frames, links, stars, idx)
     fit = _adjust_bundle(frames, obs)
     return _assemble(frames, graph, obs, fit, shapes, names, solved, unsolved)
-
-
-def _connected(graph, refs, ref):
-    """The frames joined to the reference by accepted links."""
-    place = graph.placement(root=ref)
-    return {f for f, (root, _) in place.items() if root == ref and refs[f] is not None}
 
 
 def _initial(graph, shapes, ref, kind, solved):
