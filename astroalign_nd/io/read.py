@@ -435,12 +435,6 @@ def bottom_up(arr):
     return np.ascontiguousarray(arr[::-1])
 
 
-def _flipped_header():
-    header = fits.Header()
-    header["HISTORY"] = FLIP_HISTORY
-    return header
-
-
 def _read_path(path, name, hdu=None, unit=None):
     path = os.fspath(path)
     if not os.path.exists(path):
@@ -458,8 +452,10 @@ def _read_path(path, name, hdu=None, unit=None):
         if arr.ndim == 3 and arr.shape[2] == 4:
             arr = arr[..., :3]  # drop alpha
         _check_image_array(arr, name)
+        header = fits.Header()
+        header["HISTORY"] = FLIP_HISTORY
         return ParsedInput(data=bottom_up(arr), mask=None, unit=_as_unit(unit),
-                           meta=_flipped_header(), kind="image-file",
+                           meta=header, kind="image-file",
                            name=os.path.basename(path))
     try:
         p = _read_fits(path, name, hdu, unit)

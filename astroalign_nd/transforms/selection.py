@@ -469,7 +469,9 @@ def prepare_problem(src_pts, dst_pts, linear, *, transform_type, degree, source_
             raise ValueError("linear=None needs pairs_given=True; pass the linear match's "
                              "matrix or model to grow from.")
         linear = _consensus_affine(src, dst, tolerance)
-    m = _as_matrix(linear)
+    m = np.asarray(as_matrix(linear), float)
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+        raise ValueError("linear must be a finite 3x3 matrix or a linear transform model.")
     frame, centre, half, uv, frame_uv = normalise(src, source_frame)
     e_src = np.full(len(src), 0.1) if source_errors is None else np.asarray(source_errors, float)
     e_dst = np.full(len(dst), 0.1) if target_errors is None else np.asarray(target_errors, float)
@@ -723,8 +725,11 @@ def _build(prob, choice, p, trust, significance):
     s_pts, d_pts = prob.src[p.si], prob.dst[p.dj]
     entry = TRANSFORM_REGISTRY[name]
     if entry.degrees:
-        model, cov, resid = _fit_polynomial(fit_transform, s_pts, d_pts, deg, p.w, prob.centre,
-                                            prob.frame)
+        # About the frame's centre, on its domain.
+        model, cov, resid = fit_transform(
+            s_pts, d_pts, "polynomial", degree=deg, weights=p.w,
+            crpix=(float(prob.centre[0]), float(prob.centre[1])),
+            domain=tuple(float(v) for v in prob.frame))
     else:
         # (The candidates' labels are registry names: similarity, affine, projective.)
         kw = ({"parity": 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1}
@@ -800,17 +805,3 @@ def _check_and_fit(cand, uv, dst, w, frame_uv, degree, *, strict, start, what):
         raise PoorCoverageError(f"the paired stars cannot constrain {what} (degenerate "
                                 "geometry); use a lower degree or transform_type='affine'.")
     return cand, fit[0], fit[1]
-
-
-def _fit_polynomial(fit_transform, src, dst, degree, w, centre, frame):
-    """The PolynomialTransform of the final pairs, about the frame centre."""
-    return fit_transform(src, dst, "polynomial", degree=degree, weights=w,
-                         crpix=(float(centre[0]), float(centre[1])),
-                         domain=tuple(float(v) for v in frame))
-
-
-def _as_matrix(linear):
-    m = np.asarray(as_matrix(linear), float)
-    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
-        raise ValueError("linear must be a finite 3x3 matrix or a linear transform model.")
-    return m
