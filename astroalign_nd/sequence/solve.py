@@ -306,7 +306,11 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
     names = display_names(items)
     ref = reference_index(reference, items)
     seconds, t0 = {}, time.perf_counter()
-    workers = _check_workers(workers, client)
+    if workers is not None:
+        workers = convert("workers", Int(0, None), workers)
+        if client is not None and workers > 1:
+            raise ValueError("give either client (dask.distributed) or workers (local "
+                             "processes), not both.")
     with task_pool(workers) as pool:
         refs, unsolved = _detect(items, names, config, (frames_hdu, unit), n_stars, pool)
         shapes = [_shape(r) for r in refs]
@@ -364,16 +368,6 @@ def reference_index(reference, items):
                 return i
     raise ValueError("reference must be a frame's index, one of the frames itself (the same "
                      "object or path), or None to choose the best-connected frame.")
-
-
-def _check_workers(workers, client):
-    if workers is None:
-        return None
-    workers = convert("workers", Int(0, None), workers)
-    if client is not None and workers > 1:
-        raise ValueError("give either client (dask.distributed) or workers (local processes), "
-                         "not both.")
-    return workers
 
 
 def detect_frame(frame, name, config, read, n_stars):
@@ -872,7 +866,10 @@ def _assemble(frames, graph, obs, fit, shapes, names, solved, unsolved):
         r = fit.residuals[sel]
         errors[f] = adjust.predicted_error(frames, f, covs[f], shapes[f])
         covariances[f] = _matrix_covariance(frames, f, covs[f])
-        t = _model(_matrix(frames, f), kind)
+        try:  # the package model of ``kind`` (a mirrored matrix may need another)
+            t = from_matrix(_matrix(frames, f), kind)
+        except ValueError:
+            t = from_matrix(_matrix(frames, f))
         t.meta["quality"] = dict(
             n_matches=int(sel.sum()), n_links=len(mine),
             rms=float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))) if len(r) else 0.0,
@@ -888,11 +885,3 @@ def _assemble(frames, graph, obs, fit, shapes, names, solved, unsolved):
     return SequenceSolution(transforms, covariances, errors, frames.reference, graph.links,
                             dict(sorted(unsolved.items())), list(names), list(shapes),
                             n_stars=n_stars)
-
-
-def _model(m, kind):
-    """The package model of ``kind`` for the matrix ``m`` (a mirrored one may need another)."""
-    try:
-        return from_matrix(m, kind)
-    except ValueError:
-        return from_matrix(m)

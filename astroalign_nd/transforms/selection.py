@@ -627,25 +627,21 @@ def _select(prob, p, fits, significance):
             best = i
             accepted.append(i)
     if auto and len(p.fuv) >= CV_ALL_DEGREES_PAIRS:
-        best = _cv_walk(accepted, candidates)
+        # The last accepted candidate that also lowers the held-out error of the
+        # one before.  With hundreds of stars every cell holds enough of them for
+        # its held-out error to judge: terms the tests accept but that predict
+        # held-out cells worse follow centroid systematics (a night's frames
+        # drifting over the detector chose degrees 2 to 4; the held-out error
+        # said affine).
+        best = accepted[0]
+        for i in accepted[1:]:
+            if candidates[i]["cv_chi2"] < candidates[best]["cv_chi2"]:
+                best = i
     if auto and fits[best][1] > CV_FROM_DEGREE:
         best = _cv_choice(fits, candidates, cv_cells, accepted, best)
     for i, entry in enumerate(candidates):
         entry["chosen"] = i == best
     return best, candidates
-
-
-def _cv_walk(accepted, candidates):
-    """The last accepted candidate that also lowers the held-out error of the one before."""
-    # With hundreds of stars every cell holds enough of them for its held-out
-    # error to judge: terms the tests accept but that predict held-out cells
-    # worse follow centroid systematics (a night's frames drifting over the
-    # detector chose degrees 2 to 4; the held-out error said affine).
-    best = accepted[0]
-    for i in accepted[1:]:
-        if candidates[i]["cv_chi2"] < candidates[best]["cv_chi2"]:
-            best = i
-    return best
 
 
 def _cv_choice(fits, candidates, cv_cells, accepted, last):
