@@ -687,20 +687,11 @@ def image_and_mask(image, mask=None, name="image"):
     return p.detection_image, own
 
 
-def _is_named_pair(item):
-    """``(frame, file name)``, as ``ImageFileCollection.ccds(return_fname=True)`` yields."""
-    return (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], str)
-            and not isinstance(item[0], (str, os.PathLike)))
-
-
-def _is_collection(sources):
-    """A `ccdproc.ImageFileCollection` (duck-typed: ccdproc is optional)."""
-    return hasattr(sources, "files_filtered") and hasattr(sources, "location")
-
-
 def _labelled(item):
     """``(frame, label)``: the label is a path as given, a pair's file name, or None."""
-    if _is_named_pair(item):
+    if (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], str)
+            and not isinstance(item[0], (str, os.PathLike))):
+        # ``(frame, file name)``, as ``ImageFileCollection.ccds(return_fname=True)`` yields.
         return item[0], item[1]
     if isinstance(item, (str, os.PathLike)):
         return item, os.fspath(item)
@@ -754,7 +745,8 @@ def batch_frames(sources: Any, hdu: int | str | tuple | None = None
             f"sources must be a list of frames; got the single path {os.fspath(sources)!r}. "
             "Pass [path], or an ImageFileCollection for a folder."
         )
-    if _is_collection(sources):
+    # A ccdproc.ImageFileCollection (duck-typed: ccdproc is optional).
+    if hasattr(sources, "files_filtered") and hasattr(sources, "location"):
         # ccdproc.ImageFileCollection: its (filtered) files, read one at a
         # time by whoever registers them.  ext=0 is ccdproc's default and
         # CCDData.read's "first HDU with data"; other values choose an HDU.
