@@ -473,6 +473,19 @@ def _pair_meta(info, seed, dist, m, mapping, **entries):
     return meta
 
 
+def _check_missing(missing_fraction):
+    return _check_real(
+        missing_fraction, "missing_fraction", minimum=0.0, maximum=1.0, strict_max=True,
+        hint=" Pass the fraction of stars to drop from each frame, in [0, 1).")
+
+
+def _target_fwhm(fwhm, target_fwhm, m):
+    """The target's FWHM: by default the same seeing on the sky (the source's, scaled)."""
+    return _check_fwhm(
+        fwhm * float(np.sqrt(abs(np.linalg.det(m[:2, :2])))) if target_fwhm is None
+        else target_fwhm, "target_fwhm")
+
+
 def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=None, scale=None,
                   translation=None, mirror=False, target_shape=None, fwhm=3.0, target_fwhm=None,
                   psf="gaussian", beta=3.0, background=100.0, target_background=None,
@@ -635,9 +648,7 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     common, noise_model = _frame_options(
         psf, beta, dtype, noise, gradient=gradient, read_noise=read_noise, gain=gain,
         saturation=saturation, n_hot_pixels=n_hot_pixels, n_cosmic_rays=n_cosmic_rays)
-    missing_fraction = _check_real(
-        missing_fraction, "missing_fraction", minimum=0.0, maximum=1.0, strict_max=True,
-        hint=" Pass the fraction of stars to drop from each frame, in [0, 1).")
+    missing_fraction = _check_missing(missing_fraction)
     target_background = _check_pair_image_options(
         background, target_background, gradient, read_noise, gain, saturation, n_hot_pixels,
         n_cosmic_rays)
@@ -646,10 +657,7 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     model, m, info = _pair_transform(rng_geom, transform, rotation, scale, translation, mirror,
                                      shape, target_shape)
     m_inv = np.linalg.inv(m)
-    # The target's FWHM: by default the same seeing on the sky (the source's, scaled).
-    target_fwhm = _check_fwhm(
-        fwhm * float(np.sqrt(abs(np.linalg.det(m[:2, :2])))) if target_fwhm is None
-        else target_fwhm, "target_fwhm")
+    target_fwhm = _target_fwhm(fwhm, target_fwhm, m)
 
     mapping = _pair_mapping(m, dist)
     pads = (_stamp_half_size(fwhm) + 1.0, _stamp_half_size(target_fwhm) + 1.0)
