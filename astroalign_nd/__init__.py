@@ -9,7 +9,8 @@ The pipeline, one subpackage per stage: `~astroalign_nd.detection` (sources)
 `~astroalign_nd.transforms` (models, fits, model selection) ->
 `~astroalign_nd.resample` (pixels, and CCDData in and out).
 `~astroalign_nd.registration` strings them together; `~astroalign_nd.io`
-reads and writes, `~astroalign_nd.batch` runs many frames and
+reads and writes, `~astroalign_nd.batch` runs many frames,
+`~astroalign_nd.sequence` solves them together and
 `~astroalign_nd.stacking` stacks them.
 
 Code written for astroalign 2.6 runs on this package's engine with
@@ -40,7 +41,7 @@ _LAZY = {
     "register_batch": "batch",
     "stack": "stacking",
     "frame_quality": "stacking",
-    "solve_sequence": "batch",
+    "solve_sequence": "sequence",
     "LinearTransform2D": "transforms",
     "TranslationTransform": "transforms",
     "EuclideanTransform": "transforms",

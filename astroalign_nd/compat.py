@@ -241,16 +241,6 @@ def _segment_sources(image, mask, detection_sigma, min_area):
     return np.column_stack([np.asarray(found["x"], float), np.asarray(found["y"], float)])
 
 
-def _skimage_transform(matrix):
-    """A skimage SimilarityTransform (AffineTransform if mirrored) for the matrix."""
-    from skimage.transform import AffineTransform, SimilarityTransform
-
-    m = np.array(matrix, dtype=float)
-    if np.linalg.det(m[:2, :2]) > 0:
-        return SimilarityTransform(matrix=m)
-    return AffineTransform(matrix=m)
-
-
 # -- find_transform ------------------------------------------------------------------
 
 def find_transform(source: Any, target: Any, max_control_points: int = 50,
@@ -338,8 +328,12 @@ def find_transform(source: Any, target: Any, max_control_points: int = 50,
         result = find_match(*refs, n_sources=n, max_sources=n, **opts)
     except (TransformNotFoundError, TooFewSourcesError) as exc:
         result = _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc)
-    return (_skimage_transform(result.transform.matrix),
-            (result.source_points, result.target_points))
+    # A skimage SimilarityTransform (an AffineTransform if mirrored), as astroalign returns.
+    from skimage.transform import AffineTransform, SimilarityTransform
+
+    m = np.array(result.transform.matrix, dtype=float)
+    model = SimilarityTransform if np.linalg.det(m[:2, :2]) > 0 else AffineTransform
+    return model(matrix=m), (result.source_points, result.target_points)
 
 
 def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
@@ -405,15 +399,6 @@ def _fallback(inputs, refs, n, detection_sigma, min_area, opts, exc):
 
 # -- apply_transform and register ------------------------------------------------------
 
-def _snapped_matrix(transform):
-    """The 3x3 matrix of any transform, entries within 1e-12 of an integer rounded."""
-    m = np.array(as_matrix(transform), dtype=float)
-    r = np.round(m)
-    close = np.abs(m - r) < _SNAP
-    m[close] = r[close]
-    return m
-
-
 def apply_transform(transform: Any, source: Any, target: Any, fill_value: float | None = None,
                     propagate_mask: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """
@@ -465,7 +450,11 @@ def apply_transform(transform: Any, source: Any, target: Any, fill_value: float 
     >>> footprint[0]
     array([ True, False, False, False])
     """
-    m = _snapped_matrix(transform)
+    # Entries within 1e-12 of an integer rounded.
+    m = np.array(as_matrix(transform), dtype=float)
+    r = np.round(m)
+    close = np.abs(m - r) < _SNAP
+    m[close] = r[close]
     data = np.asarray(_data(source))
     if data.dtype.kind not in "biuf" or data.ndim not in (2, 3):
         raise TypeError(

@@ -194,7 +194,12 @@ def read_catalog(path: str | os.PathLike, *, format: str | None = None) -> Table
         if path.suffix.lower() == ".ecsv":
             return Table.read(path, format="ascii.ecsv")
         if _is_fits(path):
-            return _fits_table(path)
+            with fits.open(path, memmap=False) as hdul:
+                index = next((i for i, hdu in enumerate(hdul)
+                              if isinstance(hdu, (fits.BinTableHDU, fits.TableHDU))), None)
+            if index is None:
+                raise ValueError("the FITS file holds no table HDU")
+            return Table.read(path, format="fits", hdu=index)
         return Table.read(path, format="ascii.basic" if _has_header(path)
                           else "ascii.no_header")
     except (OSError, ValueError, TypeError, IndexError) as exc:
@@ -206,15 +211,6 @@ def read_catalog(path: str | os.PathLike, *, format: str | None = None) -> Table
 def _is_fits(path):
     with open(path, "rb") as fh:
         return fh.read(9) == b"SIMPLE  ="
-
-
-def _fits_table(path):
-    with fits.open(path, memmap=False) as hdul:
-        index = next((i for i, hdu in enumerate(hdul)
-                      if isinstance(hdu, (fits.BinTableHDU, fits.TableHDU))), None)
-    if index is None:
-        raise ValueError("the FITS file holds no table HDU")
-    return Table.read(path, format="fits", hdu=index)
 
 
 def _has_header(path):

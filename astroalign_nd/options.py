@@ -399,7 +399,10 @@ def cli_fields(config_class, user=None):
             kwargs["default"] = "none" if kwargs["default"] is None else kwargs["default"]
         text = f.metadata["help"]
         text = text() if callable(text) else text
-        kwargs["help"] = text.replace("{default}", _shown(f.default))
+        # A float default as ``1e-6``, not ``1e-06``.
+        shown = (f"{f.default:g}".replace("e-0", "e-").replace("e+0", "e+")
+                 if isinstance(f.default, float) else str(f.default))
+        kwargs["help"] = text.replace("{default}", shown)
         found.append((f.name, flag, kwargs))
     return found
 
@@ -481,10 +484,3 @@ def astroalign_advice(unknown):
         advice += (" Or keep astroalign's API and return values with "
                    "'from astroalign_nd import compat as aa'.")
     return advice
-
-
-def _shown(value):
-    """A default as help text shows it (``1e-6``, not ``1e-06``)."""
-    if isinstance(value, float):
-        return f"{value:g}".replace("e-0", "e-").replace("e+0", "e+")
-    return str(value)

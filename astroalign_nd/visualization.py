@@ -257,13 +257,6 @@ def _label(ax, title, frame=""):
     ax.set_ylabel(f"y [px]{frame}")
 
 
-def _invariant_ratios(points, n_neighbors):
-
-    ast = build_asterisms(points, n_neighbors=n_neighbors)
-    # The asterisms keep log(L2/L1), log(L1/L0); the paper plots the ratios.
-    return np.exp(ast.invariants)
-
-
 def plot_invariants(source_points, target_points=None, *, ax=None, n_neighbors=4):
     """
     Plot triangles in the invariant space of the method: ``L2/L1`` against ``L1/L0``.
@@ -310,7 +303,8 @@ def plot_invariants(source_points, target_points=None, *, ax=None, n_neighbors=4
 
     hi = 5.0
     for pts, label, marker in sets:
-        ratios = _invariant_ratios(pts, n_neighbors)
+        # The asterisms keep log(L2/L1), log(L1/L0); the paper plots the ratios.
+        ratios = np.exp(build_asterisms(pts, n_neighbors=n_neighbors).invariants)
         if len(ratios):
             hi = max(hi, float(np.percentile(ratios[:, 1], 99)) * 1.2)
         style = dict(facecolors="none", edgecolors="C0") if marker == "o" else dict(c="C1")

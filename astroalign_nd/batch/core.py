@@ -11,7 +11,7 @@ from contextlib import closing
 from dataclasses import asdict, replace
 from typing import Any
 import numpy as np
-from ..io.read import batch_frames
+from ..io.read import batch_frames, display_names
 from ..config import RegistrationConfig
 from ..resample import ResampleConfig
 from ..exceptions import warn
@@ -20,10 +20,11 @@ from ..registration import Reference, prepare_target
 from .results import BatchResult, FrameResult
 from .frame import (_Config, _Job, _failed, _own_output, _registered_before, _stream_jobs,
                     shifted_transform)
-from .planning import _StreamNamer, _display_names, _is_path, _plan_outputs
+from .planning import _StreamNamer, _is_path, _plan_outputs
 from .canvas import canvas_wcs, _kept_on_canvas, _union_grid, _valid_margin
 from .runners import _execute
-from .sequence import SOLVE_OPTIONS, solve_jobs
+from ..sequence.solve import SOLVE_OPTIONS
+from .joint import solve_jobs
 
 __all__ = ['register_batch']
 
@@ -296,18 +297,6 @@ class Interrupted(Exception):
     """A frame that an interrupted batch did not finish (the error of its result)."""
 
 
-def _split_options(target, options, solve):
-    """The search's options, and those of the joint solution (solve_sequence's own)."""
-    if isinstance(target, Reference):
-        # The reference's detection options are the batch's, unless overridden here.
-        options = {**target.detect_options, **options}
-    global_options = {k: options.pop(k) for k in SOLVE_OPTIONS if k in options}
-    if global_options and solve != "global":
-        raise TypeError(f"{sorted(global_options)} are options of solve='global'; pass "
-                        "solve='global' too, or leave them out.")
-    return options, global_options
-
-
 def _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, suffix, client,
                      workers, solve="pairwise"):
     """Refuse `register_batch`'s bad arguments before any work."""
@@ -334,6 +323,18 @@ def _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, su
         raise ValueError(f"workers must be a non-negative integer; got {workers!r}.")
 
 
+def _split_options(target, options, solve):
+    """The search's options, and those of the joint solution (solve_sequence's own)."""
+    if isinstance(target, Reference):
+        # The reference's detection options are the batch's, unless overridden here.
+        options = {**target.detect_options, **options}
+    global_options = {k: options.pop(k) for k in SOLVE_OPTIONS if k in options}
+    if global_options and solve != "global":
+        raise TypeError(f"{sorted(global_options)} are options of solve='global'; pass "
+                        "solve='global' too, or leave them out.")
+    return options, global_options
+
+
 def _first_jobs(items, stream, union, output_dir, suffix, protected):
     """
     The jobs of the first pass and the output paths (None for a generator,
@@ -341,7 +342,7 @@ def _first_jobs(items, stream, union, output_dir, suffix, protected):
     """
     if stream:
         return _stream_jobs(items, _StreamNamer(output_dir, suffix, protected)), None
-    names = _display_names(items)
+    names = display_names(items)
     outputs = [None] * len(items)
     if output_dir is not None:
         outputs, renamed = _plan_outputs(items, output_dir, suffix, protected)

@@ -123,13 +123,7 @@ def _run(job, cfg):
             return _apply_stage(job, cfg, t0, src_path)
         done = _skip_or_refuse(job, cfg)
         if done is not None:
-            transform = done["transform"]
-            if cfg.union:  # back to reference pixels, for the canvas computation
-                transform = shifted_transform(transform, done["offset"], sign=+1)
-            return FrameResult(name=job.name, status="skipped", transform=transform,
-                               quality=done["quality"], output=job.output, source=src_path,
-                               seconds=time.perf_counter() - t0, shape=done["source_shape"],
-                               _grid=(done["shape"], done["offset"]))
+            return _skipped(job, done, cfg, src_path, time.perf_counter() - t0)
         # Read (parsed) once, here on the worker, for both stages.
         src, _, result = find_for_apply(job.source, cfg.reference, cfg.options, hdu=cfg.hdu,
                                         unit=cfg.unit)
@@ -146,6 +140,17 @@ def _run(job, cfg):
         return _apply_stage(job, cfg, t0, src_path)
     except Exception as exc:  # noqa: BLE001 - report every failure, keep going
         return _failed(job, exc, t0, src_path)
+
+
+def _skipped(job, done, cfg, src_path, seconds):
+    """A frame whose complete output is kept (``skip_existing``), as `_skip_or_refuse` read it."""
+    transform = done["transform"]
+    if cfg.union:  # back to reference pixels, for the canvas computation
+        transform = shifted_transform(transform, done["offset"], sign=+1)
+    return FrameResult(name=job.name, status="skipped", transform=transform,
+                       quality=done["quality"], output=job.output, source=src_path,
+                       seconds=seconds, shape=done["source_shape"],
+                       _grid=(done["shape"], done["offset"]))
 
 
 def _registered_before(job, done, src_path, t0):
@@ -209,15 +214,11 @@ def shifted_transform(transform, offset, sign):
     m = as_matrix(transform).copy()
     m[0, 2] += sign * offset[0]
     m[1, 2] += sign * offset[1]
-    out = from_matrix(m, transform_type=_type_of(transform))
+    # The registry name of the transform's own class (None for any other class).
+    entry = transform_type_of(transform, exact=True)
+    out = from_matrix(m, transform_type=None if entry is None else entry.name)
     out.meta.update(getattr(transform, "meta", {}) or {})
     return out
-
-
-def _type_of(transform):
-    """The registry name of the transform's own class (None for any other class)."""
-    entry = transform_type_of(transform, exact=True)
-    return None if entry is None else entry.name
 
 
 def _stream_jobs(items, namer):

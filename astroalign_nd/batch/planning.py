@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import os
-from ..io.read import batch_frames
+from ..io.read import batch_frames, frame_name
 from ..io import WRITERS, output_suffixes, transform_from_header, writer_for
 from ..io.write import FITS_EXTENSIONS
 
@@ -46,11 +46,6 @@ def _output_name(stem, suffix):
     return f"{stem}{suffix}"
 
 
-def _base(label, i):
-    """A frame's short name: its file name, or ``frame<i>`` in memory."""
-    return os.path.basename(label) if label is not None else f"frame{i}"
-
-
 def _in_folder(path, folder_real):
     """True when ``path`` (as given) names a file directly inside ``folder_real``."""
     return os.path.realpath(os.path.dirname(os.path.abspath(path))) == folder_real
@@ -63,22 +58,6 @@ def _located(frame, label):
     if label is not None and os.path.dirname(label):  # a pair's file name with its folder
         return label
     return None
-
-
-def _display_names(items):
-    """Basenames, or the label as given where two inputs share a basename."""
-    base = [_base(label, i) for i, (_, label) in enumerate(items)]
-    counts = {}
-    for b in base:
-        counts[b] = counts.get(b, 0) + 1
-    names = [label if label is not None and counts[b] > 1 else b
-             for (_, label), b in zip(items, base)]
-    seen, out = {}, []
-    for n in names:  # the same path given twice
-        k = seen.get(n, 0)
-        seen[n] = k + 1
-        out.append(n if k == 0 else f"{n}#{k + 1}")
-    return out
 
 
 def plan_outputs(sources, output_dir, suffix="_aligned", protected=()):
@@ -133,7 +112,7 @@ def plan_outputs(sources, output_dir, suffix="_aligned", protected=()):
 
 
 def _plan_outputs(items, output_dir, suffix, protected):
-    stems = [_stem(_base(label, i)) for i, (_, label) in enumerate(items)]
+    stems = [_stem(frame_name(label, i)) for i, (_, label) in enumerate(items)]
     natural = [_output_name(s, suffix) for s in stems]
     out_real = os.path.realpath(output_dir)
     located = [_located(frame, label) for frame, label in items]
@@ -178,7 +157,7 @@ class _StreamNamer:
 
     def __call__(self, i, frame, label):
         """``(display name, output path or None, renamed (natural, used) or None)``."""
-        base = name = _base(label, i)
+        base = name = frame_name(label, i)
         k = 2
         while name in self.shown:
             name, k = f"{base}#{k}", k + 1

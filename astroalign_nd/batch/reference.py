@@ -151,8 +151,11 @@ def write_reference(target: Any, result: BatchResult, output_dir: str | os.PathL
     frame = dict(name=os.path.basename(src) if src else "reference", transform=shift,
                  output=path, source=src)
     try:
-        if os.path.exists(path) and not overwrite and skip_existing \
-                and _on_grid(path, result.canvas_shape, offset):
+        # A complete reference output on this grid is kept.
+        done = (_read_done(path)[0] if os.path.exists(path) and not overwrite and skip_existing
+                else None)
+        if done is not None and tuple(done["shape"]) == tuple(result.canvas_shape) \
+                and tuple(done["offset"]) == tuple(offset):
             return FrameResult(status="skipped", seconds=time.perf_counter() - t0, **frame)
         ccd = reference_on_canvas(target, result, **options)
         writer_for(path).write(ccd, path, overwrite=overwrite)
@@ -160,11 +163,3 @@ def write_reference(target: Any, result: BatchResult, output_dir: str | os.PathL
         return FrameResult(status="failed", error=f"{type(exc).__name__}: {exc}",
                            seconds=time.perf_counter() - t0, **frame)
     return FrameResult(status="reference", seconds=time.perf_counter() - t0, **frame)
-
-
-def _on_grid(path, shape, offset):
-    """The reference output at ``path`` is complete and lies on this grid."""
-    done, _ = _read_done(path)
-    if done is None:
-        return False
-    return tuple(done["shape"]) == tuple(shape) and tuple(done["offset"]) == tuple(offset)

@@ -123,7 +123,7 @@ class BatchResult:
     canvas_offset : tuple or None
         ``(x0, y0)``: reference pixel coordinates of the output grid's pixel
         ``(0, 0)``; ``(0, 0)`` for ``canvas='reference'``.
-    solution : `~astroalign_nd.batch.SequenceSolution` or None
+    solution : `~astroalign_nd.sequence.SequenceSolution` or None
         The joint solution of ``solve='global'`` (its links, their
         residuals, the rejected ones); None otherwise.
 

@@ -9,15 +9,11 @@ from __future__ import annotations
 import collections
 import contextlib
 import itertools
-import multiprocessing
 import os
-import sys
-import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-from .._settings import conf
-from .._kernels import threads_chosen
+from .._pools import init_worker, pool_context, sigterm_unwinds, stop_pool, stopped_on_interrupt
 from .frame import _failed, _run, _stat_key
 
 __all__ = []
@@ -25,64 +21,19 @@ __all__ = []
 # -- running jobs ----------------------------------------------------------------------------
 
 _WORKER_CONFIG = None
-_IN_JOB = False  # a worker is registering a frame (SIGTERM then unwinds instead of exiting)
-
-#: Seconds an interrupted batch gives its workers to stop (after SIGTERM) before SIGKILL.
-_STOP_TIMEOUT = 5.0
 # Times a dask task lost with its worker's data (cancelled, not killed) is sent again.
 _DASK_RESUBMITS = 2
-
-
-class _WorkerStop(BaseException):
-    """SIGTERM in a worker during a frame: unwinds it (temporary files removed), then exits."""
-
-
-def _on_worker_sigterm(signum, frame):
-    if _IN_JOB:
-        raise _WorkerStop()
-    os._exit(128 + signum)
-
-
-def _worker_signals():
-    """A worker leaves interrupts to the main process, which stops it and writes the summary."""
-    import signal
-
-    # A terminal's Ctrl-C reaches the whole process group: the main process handles it.
-    if getattr(signal, "SIGINT", None) is not None:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if os.name != "posix":  # Windows: terminate() is TerminateProcess, no handler runs
-        return
-    signal.signal(signal.SIGTERM, _on_worker_sigterm)
-    # A main process killed outright (SIGKILL) cannot stop its workers: they stop themselves.
-    parent = os.getppid()
-
-    def watch():
-        while os.getppid() == parent:
-            time.sleep(0.5)
-        os.kill(os.getpid(), signal.SIGTERM)
-
-    threading.Thread(target=watch, name="astroalign_nd-parent-watch", daemon=True).start()
 
 
 def _init_worker(cfg, threads):
     global _WORKER_CONFIG
     _WORKER_CONFIG = cfg
-    _worker_signals()
-    # Several processes share the cores: do not let each run every core's
-    # threads, unless the user chose how many.
-    if not threads_chosen():
-        conf.num_threads = threads
+    init_worker(threads)
 
 
 def _run_in_worker(job):
-    global _IN_JOB
-    try:
-        _IN_JOB = True
+    with sigterm_unwinds():
         return _run(job, _WORKER_CONFIG)
-    except _WorkerStop:
-        os._exit(143)
-    finally:
-        _IN_JOB = False
 
 
 def _queued(job, inflight):
@@ -187,14 +138,6 @@ def _execute_dask(jobs, cfg, client, stream, inflight):
                 client.cancel([fut for _, fut in by_key.values()])
 
 
-def _pool_context():
-    # fork starts fast and needs no importable __main__; the compiled loops'
-    # thread pool is re-created in the child (see _kernels).
-    methods = multiprocessing.get_all_start_methods()
-    return multiprocessing.get_context("fork" if "fork" in methods and os.name == "posix"
-                                       and not _is_macos() else None)
-
-
 def _execute_pool(jobs, cfg, workers, inflight):
     """
     The jobs in a pool of ``workers`` processes.
@@ -205,74 +148,22 @@ def _execute_pool(jobs, cfg, workers, inflight):
     frame that kills its worker again is the culprit and fails with that
     reason; then the batch goes on in a fresh pool.
     """
-    ctx = _pool_context()
+    ctx = pool_context()
     threads = max(1, (os.cpu_count() or 1) // workers)
     back = collections.deque()  # jobs to (re)submit first: their submission failed
     while True:
         suspects = []
         pool = _start_pool(ctx, workers, cfg, threads)
-        with _stopped_on_interrupt(pool):
+        with stopped_on_interrupt(pool):
             yield from _shared_round(pool, jobs, back, suspects, workers, inflight)
         if not suspects and not back:
             return
         yield from _solo_round(sorted(suspects, key=lambda j: j.index), ctx, cfg, threads)
 
 
-def _init_task_worker(threads):
-    _worker_signals()
-    if not threads_chosen():
-        conf.num_threads = threads
-
-
-@contextlib.contextmanager
-def task_pool(workers):
-    """
-    A pool of ``workers`` local processes for plain tasks (the detections
-    and matches of `~astroalign_nd.solve_sequence`), or None for
-    ``workers`` None, 0 or 1; stopped at once if the block is interrupted.
-    """
-    if workers is None or workers <= 1:
-        yield None
-        return
-    threads = max(1, (os.cpu_count() or 1) // workers)
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context(),
-                               initializer=_init_task_worker, initargs=(threads,))
-    with _stopped_on_interrupt(pool):
-        yield pool
-
-
 def _start_pool(ctx, n, cfg, threads):
     return ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker,
                                initargs=(cfg, threads))
-
-
-@contextlib.contextmanager
-def _stopped_on_interrupt(pool):
-    """Shut ``pool`` down; if the block is left by an exception (an interrupt), stop it now."""
-    try:
-        yield pool
-    except BaseException:  # KeyboardInterrupt, SIGTERM, the consumer gone (GeneratorExit)
-        _stop_pool(pool)
-        raise
-    pool.shutdown(wait=True)
-
-
-def _stop_pool(pool, timeout=None):
-    """End the workers of ``pool`` now: SIGTERM (they unwind), then SIGKILL after ``timeout``."""
-    timeout = _STOP_TIMEOUT if timeout is None else timeout
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    for p in procs:
-        with contextlib.suppress(Exception):
-            p.terminate()
-    deadline = time.monotonic() + timeout
-    for p in procs:
-        p.join(max(0.0, deadline - time.monotonic()))
-    for p in procs:
-        if p.is_alive():
-            with contextlib.suppress(Exception):
-                p.kill()
-                p.join(1.0)
-    pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _results(pending):
@@ -342,7 +233,7 @@ def _solo_round(suspects, ctx, cfg, threads):
             yield job, res
     except BaseException:
         if pool is not None:
-            _stop_pool(pool)
+            stop_pool(pool)
         raise
     if pool is not None:
         pool.shutdown(wait=True)
@@ -371,7 +262,3 @@ def _death_message(procs):
     return (f"a worker process died while registering this frame, also when it was retried "
             f"alone in a fresh worker{how}; the other frames went on. Out of memory? Try "
             "fewer workers or a smaller max_sources, or register this frame alone to see why.")
-
-
-def _is_macos():
-    return sys.platform == "darwin"

@@ -92,6 +92,8 @@ def _frame_line(f):
 
 def _batch_frames(args):
     """``(target, sources)`` of ``batch``, from -r/--reference or the older form."""
+    from ..io.write import same_file
+
     if args.reference is not None:
         target, sources = args.reference, list(args.images)
     else:
@@ -102,23 +104,13 @@ def _batch_frames(args):
     _check_input(target)
     for src in sources:
         _check_input(src)
-    kept = [src for src in sources if not _same_path(src, target)]
+    kept = [src for src in sources if not same_file(src, target)]
     if len(kept) < len(sources):
         # Registered onto itself it would be written twice (as _aligned and _reference), and
         # counted twice by whatever stacks the folder.
         print(f"the reference {os.path.basename(target)} is among the images: it is written "
               "once, as the reference", flush=True)
     return target, kept
-
-
-def _same_path(a, b):
-    """True if the two paths name one file (by real path, or as hard links)."""
-    if os.path.realpath(a) == os.path.realpath(b):
-        return True
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
 
 
 def _check_batch_options(args):
@@ -157,15 +149,6 @@ def _check_existing_outputs(args, target, sources):
         raise _CLIError(f"{len(there)} of the outputs exist in {args.output_dir} (e.g. "
                         f"{os.path.basename(there[0])}): pass --skip-existing to register only "
                         "the frames without one, or --overwrite to replace them.")
-
-
-def _dask_client_class():
-    try:
-        from dask.distributed import Client
-    except ImportError:
-        raise _CLIError("--scheduler needs dask.distributed: "
-                        "pip install 'astroalign_nd[dask]'") from None
-    return Client
 
 
 def _frame_reporter(n, bar):
@@ -239,7 +222,13 @@ def _cmd_batch(args):
     plots = _check_plot_dir(args, target, sources) if args.plot is not None else None
     progress = args.progress if args.progress is not None else sys.stderr.isatty()
     client = None
-    client_class = _dask_client_class() if args.scheduler else None
+    client_class = None
+    if args.scheduler:
+        try:
+            from dask.distributed import Client as client_class
+        except ImportError:
+            raise _CLIError("--scheduler needs dask.distributed: "
+                            "pip install 'astroalign_nd[dask]'") from None
 
     n = len(sources)
     if args.canvas == "union":

@@ -28,17 +28,7 @@ _CONFIGS = (ModelConfig, ResampleConfig, RegistrationConfig, DetectionConfig, Ma
 def _registration_options():
     """Options shared by ``register`` and ``batch`` (passed on to `astroalign_nd.register`)."""
     parent = argparse.ArgumentParser(add_help=False)
-    _add_model_options(parent.add_argument_group("registration options"))
-    _add_detection_options(parent.add_argument_group(
-        "detection options", "as in astroalign_nd.find_sources; by default estimated from "
-        "each image"))
-    _add_matching_options(parent.add_argument_group(
-        "matching options", "as in astroalign_nd.matching.match_points"))
-    return parent
-
-
-def _add_model_options(group):
-    """The model, resampling and input options of a registration."""
+    group = parent.add_argument_group("registration options")
     for config in (ModelConfig, ResampleConfig, RegistrationConfig):
         _add_fields(group, config)
     group.add_argument(
@@ -53,16 +43,12 @@ def _add_model_options(group):
         help="FITS extension to read, an index or a name (default: the first one with "
         "image data); MASK, UNCERT and FLAGS extensions are read as CCDData.read does",
     )
-
-
-def _add_detection_options(det):
-    """Options passed on to `astroalign_nd.find_sources` (None: estimated from each image)."""
-    _add_fields(det, DetectionConfig)
-
-
-def _add_matching_options(mat):
-    """Options passed on to `astroalign_nd.matching.match_points`."""
-    _add_fields(mat, MatchingConfig)
+    _add_fields(parent.add_argument_group(
+        "detection options", "as in astroalign_nd.find_sources; by default estimated from "
+        "each image"), DetectionConfig)
+    _add_fields(parent.add_argument_group(
+        "matching options", "as in astroalign_nd.matching.match_points"), MatchingConfig)
+    return parent
 
 
 def _add_fields(group, config, user=None):
@@ -98,19 +84,14 @@ _FIELDS = tuple(name for config in _CONFIGS for name, _, _ in cli_fields(config)
 
 def _registration_kwargs(args):
     """`register`'s keyword arguments: every option given (None: the library's default)."""
-    kwargs = dict(hdu=_hdu(args.hdu))
+    # --hdu 1 is an index, --hdu SCI an extension name.
+    hdu = args.hdu
+    kwargs = dict(hdu=int(hdu) if hdu is not None and hdu.lstrip("-").isdigit() else hdu)
     for name in _FIELDS:
         value = getattr(args, name, None)
         if value is not None:
             kwargs[name] = tuple(value) if isinstance(value, list) else value
     return kwargs
-
-
-def _hdu(value):
-    """``--hdu 1`` is an index, ``--hdu SCI`` an extension name."""
-    if value is None:
-        return None
-    return int(value) if value.lstrip("-").isdigit() else value
 
 
 # -- input and output checks -----------------------------------------------------------------

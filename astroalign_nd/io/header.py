@@ -120,16 +120,6 @@ def _check_prefix(prefix):
     return upper
 
 
-def _keywords(prefix):
-    """All the keywords this module may write, for a given prefix."""
-    return [prefix + name for name in _suffixes()]
-
-
-def _entry(model):
-    """The registry entry a model is stored as: any other (affine) astropy model as 'affine'."""
-    return transform_type_of(model) or TRANSFORM_REGISTRY["affine"]
-
-
 def _indices(entry):
     """The matrix elements stored for a type."""
     return tuple(ij for row in _MATRIX_ROWS[:entry.matrix_rows] for ij in row)
@@ -291,7 +281,8 @@ def transform_to_header(model: Model, header: fits.Header | Mapping | None = Non
             "the forward transform is stored (save to ASDF to keep the inverse).",
             AstropyUserWarning,
         )
-    entry = _entry(model)
+    # Any other (affine) astropy model is stored as 'affine'.
+    entry = transform_type_of(model) or TRANSFORM_REGISTRY["affine"]
 
     if header is None:
         out = fits.Header()
@@ -306,7 +297,7 @@ def transform_to_header(model: Model, header: fits.Header | Mapping | None = Non
                 f"got {type(header).__name__} ({exc})."
             ) from None
     present = set(out.keys())  # (looking up all ~100 keywords costs more)
-    for key in _keywords(prefix):
+    for key in (prefix + name for name in _suffixes()):
         if key in present:
             out.remove(key, remove_all=True)
 

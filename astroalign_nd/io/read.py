@@ -435,12 +435,6 @@ def bottom_up(arr):
     return np.ascontiguousarray(arr[::-1])
 
 
-def _flipped_header():
-    header = fits.Header()
-    header["HISTORY"] = FLIP_HISTORY
-    return header
-
-
 def _read_path(path, name, hdu=None, unit=None):
     path = os.fspath(path)
     if not os.path.exists(path):
@@ -458,8 +452,10 @@ def _read_path(path, name, hdu=None, unit=None):
         if arr.ndim == 3 and arr.shape[2] == 4:
             arr = arr[..., :3]  # drop alpha
         _check_image_array(arr, name)
+        header = fits.Header()
+        header["HISTORY"] = FLIP_HISTORY
         return ParsedInput(data=bottom_up(arr), mask=None, unit=_as_unit(unit),
-                           meta=_flipped_header(), kind="image-file",
+                           meta=header, kind="image-file",
                            name=os.path.basename(path))
     try:
         p = _read_fits(path, name, hdu, unit)
@@ -691,20 +687,11 @@ def image_and_mask(image, mask=None, name="image"):
     return p.detection_image, own
 
 
-def _is_named_pair(item):
-    """``(frame, file name)``, as ``ImageFileCollection.ccds(return_fname=True)`` yields."""
-    return (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], str)
-            and not isinstance(item[0], (str, os.PathLike)))
-
-
-def _is_collection(sources):
-    """A `ccdproc.ImageFileCollection` (duck-typed: ccdproc is optional)."""
-    return hasattr(sources, "files_filtered") and hasattr(sources, "location")
-
-
 def _labelled(item):
     """``(frame, label)``: the label is a path as given, a pair's file name, or None."""
-    if _is_named_pair(item):
+    if (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], str)
+            and not isinstance(item[0], (str, os.PathLike))):
+        # ``(frame, file name)``, as ``ImageFileCollection.ccds(return_fname=True)`` yields.
         return item[0], item[1]
     if isinstance(item, (str, os.PathLike)):
         return item, os.fspath(item)
@@ -758,7 +745,8 @@ def batch_frames(sources: Any, hdu: int | str | tuple | None = None
             f"sources must be a list of frames; got the single path {os.fspath(sources)!r}. "
             "Pass [path], or an ImageFileCollection for a folder."
         )
-    if _is_collection(sources):
+    # A ccdproc.ImageFileCollection (duck-typed: ccdproc is optional).
+    if hasattr(sources, "files_filtered") and hasattr(sources, "location"):
         # ccdproc.ImageFileCollection: its (filtered) files, read one at a
         # time by whoever registers them.  ext=0 is ccdproc's default and
         # CCDData.read's "first HDU with data"; other values choose an HDU.
@@ -778,6 +766,31 @@ def batch_frames(sources: Any, hdu: int | str | tuple | None = None
         return iter_frames(iterator), hdu
     # Already in memory (list, tuple, array of frames): a list of references.
     return [_labelled(item) for item in sources], hdu
+
+
+def frame_name(label, i):
+    """A frame's short name: its file name, or ``frame<i>`` in memory."""
+    return os.path.basename(label) if label is not None else f"frame{i}"
+
+
+def display_names(items):
+    """
+    The names of `batch_frames`' ``(frame, label)`` items as reports show
+    them: basenames, or the label as given where two inputs share a
+    basename, and ``#2``, ``#3``... after a frame given again.
+    """
+    base = [frame_name(label, i) for i, (_, label) in enumerate(items)]
+    counts = {}
+    for b in base:
+        counts[b] = counts.get(b, 0) + 1
+    names = [label if label is not None and counts[b] > 1 else b
+             for (_, label), b in zip(items, base)]
+    seen, out = {}, []
+    for n in names:  # the same path given twice
+        k = seen.get(n, 0)
+        seen[n] = k + 1
+        out.append(n if k == 0 else f"{n}#{k + 1}")
+    return out
 
 
 # Registered frames on disk, read a strip of rows at a time through a memory

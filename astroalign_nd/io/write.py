@@ -515,7 +515,8 @@ def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):
     check_writable_dir(os.path.dirname(os.path.abspath(path)))
 
 
-def _same_file(a, b):
+def same_file(a, b):
+    """True if the two paths name one file (by real path, or as hard links)."""
     if os.path.realpath(a) == os.path.realpath(b):
         return True
     try:
@@ -562,7 +563,7 @@ def check_not_input(output, inputs):
     """
     output = os.fspath(output)
     for item in inputs:
-        if isinstance(item, (str, os.PathLike)) and _same_file(output, os.fspath(item)):
+        if isinstance(item, (str, os.PathLike)) and same_file(output, os.fspath(item)):
             raise ValueError(f"output {output} is the input {os.fspath(item)}: writing it "
                              "would destroy that input; give another output name.")
 

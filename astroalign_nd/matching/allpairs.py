@@ -215,18 +215,6 @@ def pairing_radius(sigma, density, n_pairs, n_unpaired):
     return float(sigma * np.clip(k, MIN_SIGMAS, MAX_SIGMAS))
 
 
-def _working_model(entry, degree, parity):
-    """The layer of the iterations (the type's ``fit_layer``): (layer, its degree or None)."""
-    layer = entry.cls.fit_layer(parity=parity, degree=degree)
-    return layer, (layer.degree if entry.degrees else None)
-
-
-def _design_parts(cand):
-    """D0, Du, Dv with ``design(u, v) = D0 + u Du + v Dv`` (each (2, k))."""
-    d = cand.design(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
-    return d[0], d[1] - d[0], d[2] - d[0]
-
-
 def _normal_equations(cand, uv, dst):
     """(A^T A, A^T b) of the candidate's design over these pairs."""
     k = cand.k
@@ -234,7 +222,9 @@ def _normal_equations(cand, uv, dst):
         # From the moments of (u, v): no design matrix of all the pairs.
         # (Sums of column products: a matrix product of (N, 2) arrays is slower, and
         # threaded BLAS calls stall on a busy machine.)
-        d0, du, dv = _design_parts(cand)
+        # D0, Du, Dv with ``design(u, v) = D0 + u Du + v Dv`` (each (2, k)).
+        d = cand.design(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
+        d0, du, dv = d[0], d[1] - d[0], d[2] - d[0]
         u, v = uv[:, 0], uv[:, 1]
         x, y = dst[:, 0], dst[:, 1]
 
@@ -311,11 +301,6 @@ def _predict_start(start, src):
     return np.column_stack([x, y]).astype(float)
 
 
-def _sigma(r2):
-    """Per-axis residual scatter from the median squared distance (Rayleigh law)."""
-    return float(np.sqrt(np.median(r2) / (2.0 * np.log(2.0)))) if len(r2) else 0.0
-
-
 class _State:
     """The iteration's current pairs, model and radius."""
 
@@ -339,7 +324,9 @@ class _State:
         self.params, self.si, self.dj, self.cand = params, si, dj, cand
         self.pred = _chunked_predict(p, cand, params, p.uv)
         r = np.take(self.pred, si, axis=0) - dst
-        self.sigma = _sigma(r[:, 0] ** 2 + r[:, 1] ** 2)
+        # The per-axis scatter from the median squared distance (Rayleigh law).
+        r2 = r[:, 0] ** 2 + r[:, 1] ** 2
+        self.sigma = float(np.sqrt(np.median(r2) / (2.0 * np.log(2.0)))) if len(r2) else 0.0
         if p.fixed_radius is None:
             new = pairing_radius(self.sigma, p.density, len(si), len(p.uv) - len(si))
             self.radius = min(max(new, p.min_radius), p.tolerance)
@@ -475,9 +462,13 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
         lo, hi = bounds(src)
         frame = (lo[0] - 0.5, hi[0] + 0.5, lo[1] - 0.5, hi[1] + 0.5)
     frame, centre, half, uv, _ = normalise(src, frame)
-    # degree='auto' starts from the polynomial of degree 1 (an affine map).
-    cand, deg = ((PolynomialLayer(1), None) if degree == "auto"
-                 else _working_model(entry, degree, parity))
+    # degree='auto' starts from the polynomial of degree 1 (an affine map); else
+    # the iterations fit the type's ``fit_layer``.
+    if degree == "auto":
+        cand, deg = PolynomialLayer(1), None
+    else:
+        cand = entry.cls.fit_layer(parity=parity, degree=degree)
+        deg = cand.degree if entry.degrees else None
     lo, hi = bounds(dst)
     density = len(dst) / max(float(np.prod(hi - lo)), 1.0)
     tol = float(tolerance if radius is None else max(radius, 0.0))
@@ -508,18 +499,6 @@ def _check_not_chance(state):
             "transform= (or let the search find it), or pass a larger first radius (max_radius).")
 
 
-def _pixel_matrix(state):
-    """The 3x3 pixel matrix of the last fit of a candidate affine in (u, v)."""
-    p = state.p
-    q = _chunked_predict(p, state.cand, state.params, np.array([[0.0, 0.0], [1.0, 0.0],
-                                                                [0.0, 1.0]]))
-    m = np.eye(3)
-    if not state.cand.adds_position:  # (a shift keeps its exact identity)
-        m[:2, :2] = np.column_stack([q[1] - q[0], q[2] - q[0]]) / p.half
-    m[:2, 2] = q[0] - m[:2, :2] @ p.centre
-    return m
-
-
 def _fit_final(state, name, kw):
     """`fit_transform`'s (model, covariance, residuals) on the current pairs."""
     p = state.p
@@ -529,7 +508,14 @@ def _fit_final(state, name, kw):
     entry = TRANSFORM_REGISTRY[name]
     if (entry.linear and entry.cls.iterated_exactly() and state.cand is not None
             and state.cand.affine_in_position):
-        return fit_from_matrix(name, _pixel_matrix(state), s, d, kw.get("parity", 1))
+        # The 3x3 pixel matrix of the last fit (the candidate is affine in (u, v)).
+        q = _chunked_predict(p, state.cand, state.params, np.array([[0.0, 0.0], [1.0, 0.0],
+                                                                    [0.0, 1.0]]))
+        m = np.eye(3)
+        if not state.cand.adds_position:  # (a shift keeps its exact identity)
+            m[:2, :2] = np.column_stack([q[1] - q[0], q[2] - q[0]]) / p.half
+        m[:2, 2] = q[0] - m[:2, :2] @ p.centre
+        return fit_from_matrix(name, m, s, d, kw.get("parity", 1))
     return fit_transform(s, d, name, **kw)
 
 

@@ -255,11 +255,6 @@ def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
     return model, si, dj, resid, cov, used_tol
 
 
-def _corners(frame, dst):
-    x0, x1, y0, y1 = frame if frame is not None else bounding_frame(dst)
-    return np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
-
-
 #: The largest error (px) over the overlap that a match may admit by its own
 #: witnesses (`_model_misfit`) and still be returned, whatever the matching
 #: radius: a radius widened for trailed or bloated stars widens the search,
@@ -303,7 +298,8 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame, tol=None, predicted=
     """
     n = len(src)
     k_model, k_aff = type(model).n_dof, 6
-    corners = _corners(frame, dst)
+    x0, x1, y0, y1 = frame if frame is not None else bounding_frame(dst)
+    corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
     if src_err is not None and dst_err is not None:
         s2 = abs(np.linalg.det(model.matrix[:2, :2]))
         var = s2 * src_err**2 + dst_err**2

@@ -159,15 +159,6 @@ def _to_variance(arr, kind, dtype, out=None):
         return np.divide(1.0, arr, out=out, casting="unsafe")
 
 
-def _from_variance(var, okind):
-    """In place: a variance plane to a standard deviation (1) or inverse variance (2)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if okind == 1:
-            np.sqrt(var, out=var)
-        else:
-            np.divide(1.0, var, out=var)
-
-
 def _bands(coeffs, shape_out, ny, order):
     """
     Bands of output rows ``(r0, r1)`` with the source rows ``(s0, s1)`` they read.
@@ -280,7 +271,12 @@ class _Job:
         """``(data, variance, mask)`` in the caller's layout, the mask shared by all channels."""
         out, out_var, has_var = self.out, self.out_var, self.has_var
         if has_var and self.okind and not self.compiled:
-            _from_variance(out_var, self.okind)
+            # In place: the variance to a standard deviation (1) or inverse variance (2).
+            with np.errstate(divide="ignore", invalid="ignore"):
+                if self.okind == 1:
+                    np.sqrt(out_var, out=out_var)
+                else:
+                    np.divide(1.0, out_var, out=out_var)
         mask_out = self.masks[0]
         if out.shape[0] > 1:
             # The mask applies to all channels: a pixel bad in one is bad in all.

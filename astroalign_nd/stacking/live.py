@@ -487,11 +487,6 @@ def write_with_retry(ccd, path, *, overwrite=True, tries=_RETRY_TRIES):
             time.sleep(_RETRY_SECONDS)
 
 
-def _is_fits_name(name):
-    low = name.lower()
-    return low.endswith(FITS_EXTENSIONS) and not name.startswith(".")
-
-
 def _complete_fits(path):
     """True if ``path`` parses as a FITS file whose data blocks are all there."""
     try:
@@ -541,7 +536,8 @@ class _Poller:
         for name in self._names():
             path = os.path.join(self.folder, name)
             real = os.path.realpath(path)
-            if real in self.seen or real in self.ignore or not _is_fits_name(name):
+            if real in self.seen or real in self.ignore or not (
+                    name.lower().endswith(FITS_EXTENSIONS) and not name.startswith(".")):
                 continue
             try:
                 st = os.stat(path)

@@ -256,15 +256,11 @@ def fit_from_matrix(transform_type, matrix, src, dst, parity=1):
     return model, _covariance(model, design, resid, None), resid
 
 
-def _free_params(model):
-    fixed = model.fixed  # (a new dict at each access)
-    return [n for n in model.param_names if not fixed[n]]
-
-
 def _covariance(model, design, resid, weights):
     """Parameter covariance via the linear design and a numerical Jacobian."""
     n_obs, n_lin = design.shape
-    free = _free_params(model)
+    fixed = model.fixed  # (a new dict at each access)
+    free = [n for n in model.param_names if not fixed[n]]
     dof = n_obs - n_lin
     if dof <= 0:
         return np.full((len(free), len(free)), np.nan)

@@ -469,7 +469,9 @@ def prepare_problem(src_pts, dst_pts, linear, *, transform_type, degree, source_
             raise ValueError("linear=None needs pairs_given=True; pass the linear match's "
                              "matrix or model to grow from.")
         linear = _consensus_affine(src, dst, tolerance)
-    m = _as_matrix(linear)
+    m = np.asarray(as_matrix(linear), float)
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+        raise ValueError("linear must be a finite 3x3 matrix or a linear transform model.")
     frame, centre, half, uv, frame_uv = normalise(src, source_frame)
     e_src = np.full(len(src), 0.1) if source_errors is None else np.asarray(source_errors, float)
     e_dst = np.full(len(dst), 0.1) if target_errors is None else np.asarray(target_errors, float)
@@ -625,25 +627,21 @@ def _select(prob, p, fits, significance):
             best = i
             accepted.append(i)
     if auto and len(p.fuv) >= CV_ALL_DEGREES_PAIRS:
-        best = _cv_walk(accepted, candidates)
+        # The last accepted candidate that also lowers the held-out error of the
+        # one before.  With hundreds of stars every cell holds enough of them for
+        # its held-out error to judge: terms the tests accept but that predict
+        # held-out cells worse follow centroid systematics (a night's frames
+        # drifting over the detector chose degrees 2 to 4; the held-out error
+        # said affine).
+        best = accepted[0]
+        for i in accepted[1:]:
+            if candidates[i]["cv_chi2"] < candidates[best]["cv_chi2"]:
+                best = i
     if auto and fits[best][1] > CV_FROM_DEGREE:
         best = _cv_choice(fits, candidates, cv_cells, accepted, best)
     for i, entry in enumerate(candidates):
         entry["chosen"] = i == best
     return best, candidates
-
-
-def _cv_walk(accepted, candidates):
-    """The last accepted candidate that also lowers the held-out error of the one before."""
-    # With hundreds of stars every cell holds enough of them for its held-out
-    # error to judge: terms the tests accept but that predict held-out cells
-    # worse follow centroid systematics (a night's frames drifting over the
-    # detector chose degrees 2 to 4; the held-out error said affine).
-    best = accepted[0]
-    for i in accepted[1:]:
-        if candidates[i]["cv_chi2"] < candidates[best]["cv_chi2"]:
-            best = i
-    return best
 
 
 def _cv_choice(fits, candidates, cv_cells, accepted, last):
@@ -723,8 +721,11 @@ def _build(prob, choice, p, trust, significance):
     s_pts, d_pts = prob.src[p.si], prob.dst[p.dj]
     entry = TRANSFORM_REGISTRY[name]
     if entry.degrees:
-        model, cov, resid = _fit_polynomial(fit_transform, s_pts, d_pts, deg, p.w, prob.centre,
-                                            prob.frame)
+        # About the frame's centre, on its domain.
+        model, cov, resid = fit_transform(
+            s_pts, d_pts, "polynomial", degree=deg, weights=p.w,
+            crpix=(float(prob.centre[0]), float(prob.centre[1])),
+            domain=tuple(float(v) for v in prob.frame))
     else:
         # (The candidates' labels are registry names: similarity, affine, projective.)
         kw = ({"parity": 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1}
@@ -800,17 +801,3 @@ def _check_and_fit(cand, uv, dst, w, frame_uv, degree, *, strict, start, what):
         raise PoorCoverageError(f"the paired stars cannot constrain {what} (degenerate "
                                 "geometry); use a lower degree or transform_type='affine'.")
     return cand, fit[0], fit[1]
-
-
-def _fit_polynomial(fit_transform, src, dst, degree, w, centre, frame):
-    """The PolynomialTransform of the final pairs, about the frame centre."""
-    return fit_transform(src, dst, "polynomial", degree=degree, weights=w,
-                         crpix=(float(centre[0]), float(centre[1])),
-                         domain=tuple(float(v) for v in frame))
-
-
-def _as_matrix(linear):
-    m = np.asarray(as_matrix(linear), float)
-    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
-        raise ValueError("linear must be a finite 3x3 matrix or a linear transform model.")
-    return m

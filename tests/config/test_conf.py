@@ -10,7 +10,7 @@ import pytest
 from astropy.config import ConfigNamespace
 
 import astroalign_nd
-from astroalign_nd import _kernels, conf, find_transform
+from astroalign_nd import _kernels, _pools, conf, find_transform
 from astroalign_nd._settings import Conf
 from astroalign_nd.batch import runners
 from astroalign_nd.batch.runners import _init_worker
@@ -76,7 +76,7 @@ def test_numpy_loops_give_the_same_transform():
 def test_batch_workers_share_the_cpus_unless_told(monkeypatch):
     # Not the worker's signal handlers and parent watch in the test process:
     # its children (the CLI tests' subprocesses) would inherit an ignored SIGINT.
-    monkeypatch.setattr(runners, "_worker_signals", lambda: None)
+    monkeypatch.setattr(_pools, "_worker_signals", lambda: None)
     monkeypatch.setattr(runners, "_WORKER_CONFIG", None)
     monkeypatch.setattr(_kernels, "_ENV_NUM_THREADS", "")
     with conf.set_temp("num_threads", 0):

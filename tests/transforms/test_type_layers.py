@@ -10,7 +10,7 @@ import pytest
 from astropy.modeling import Parameter
 
 from astroalign_nd import solve_sequence
-from astroalign_nd.batch import adjust
+from astroalign_nd.sequence import adjust
 from astroalign_nd.simulate import simulate_views
 from astroalign_nd.transforms import (TRANSFORM_REGISTRY, LinearTransform2D, ParameterLayer,
                                       SimilarityTransform, fit_transform,

@@ -9,7 +9,7 @@ from astropy.nddata import CCDData
 
 import astroalign_nd
 from astroalign_nd import find_transform, register_batch, solve_sequence
-from astroalign_nd.batch import Link, sequence
+from astroalign_nd.sequence import Link, solve
 from astroalign_nd.cli import main
 from astroalign_nd.simulate import (dither_transforms, mosaic_transforms, simulate_pair,
                                     simulate_views)
@@ -179,7 +179,7 @@ def test_false_link_is_rejected_and_reported(monkeypatch):
     shape = (256, 256)
     truth = dither_transforms(8, max_shift=30, shape=shape, seed=4)
     cats = _catalogs(truth, shape, 120, 0.05, seed=5)
-    monkeypatch.setattr(sequence, "match_link", _corrupted_link(sequence.match_link, (2, 5)))
+    monkeypatch.setattr(solve, "match_link", _corrupted_link(solve.match_link, (2, 5)))
     sol = solve_sequence(cats, reference=0)
     assert [(k.source, k.target) for k in sol.rejected] == [(2, 5)]
     assert sol.rejected[0].misfit > 5 and "disagrees" in sol.rejected[0].reason
@@ -199,8 +199,8 @@ def test_guided_hub_links_and_a_false_chain_link(monkeypatch):
     truth = dither_transforms(10, max_shift=30, shape=shape, seed=6)
     cats = _catalogs(truth, shape, 120, 0.05, seed=7)
     calls = []
-    monkeypatch.setattr(sequence, "match_link",
-                        _corrupted_link(sequence.match_link, (4, 5), calls))
+    monkeypatch.setattr(solve, "match_link",
+                        _corrupted_link(solve.match_link, (4, 5), calls))
     sol = solve_sequence(cats, reference=0, all_pairs=4)
     chain = [(i, i + 1) for i in range(9)]
     # The chain, then the hub links the prediction could not give: 5's
@@ -336,7 +336,7 @@ def test_frames_from_files_in_workers(tmp_path):
 
 def test_dense_and_sparse_factors_agree(monkeypatch):
     """The normal matrix factored dense (a fully coupled sequence) or sparse: one solution."""
-    from astroalign_nd.batch import adjust
+    from astroalign_nd.sequence import adjust
 
     shape = (200, 200)
     truth = dither_transforms(8, max_shift=20, shape=shape, seed=2)

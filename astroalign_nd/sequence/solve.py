@@ -9,7 +9,7 @@ transform to the reference solved together (a bundle adjustment).
    overlapping pair of a small set; for a large one, each frame with the
    next in time and with a few well-connected frames; then pairs across
    the groups until the frames are connected.
-3. The link adjustment (`~astroalign_nd.batch.adjust`): the frames'
+3. The link adjustment (`~astroalign_nd.sequence.adjust`): the frames'
    transforms from every link's matched stars at once; a link that
    disagrees with the rest is rejected, the worst first.
 4. The bundle adjustment: the transforms and every star's position in the
@@ -30,7 +30,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ..io.read import batch_frames
+from .._pools import task_pool
+from ..io.read import batch_frames, display_names
 from ..config import RegistrationConfig
 from ..exceptions import AstroalignError, warn
 from ..matching.pairing import mutual_matches
@@ -43,10 +44,6 @@ from ..transforms.registry import (LINEAR_TYPES, TRANSFORM_REGISTRY, transform_c
 from . import adjust
 from .links import (Graph, Link, bridge_pairs, chain_pairs, choose_hubs, guided_link,
                     match_link, wanted)
-from .frame import _failed, shifted_transform
-from .planning import _display_names, _is_path, _skip_or_refuse
-from .runners import task_pool
-from .results import FrameResult
 
 __all__ = ["solve_sequence", "SequenceSolution", "Link"]
 
@@ -81,7 +78,7 @@ class SequenceSolution:
         frame's corners, propagated from the covariance (NaN if not solved).
     reference : int
         The reference frame's index.
-    links : list of `~astroalign_nd.batch.Link`
+    links : list of `~astroalign_nd.sequence.Link`
         Every trusted link, accepted or rejected, with its residuals under
         the solution.
     unsolved : dict
@@ -306,10 +303,14 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
     if not items:
         raise ValueError("frames is empty: pass the frames to solve (file paths, CCDData, arrays "
                          "or an ImageFileCollection); one frame alone is its own reference.")
-    names = _display_names(items)
-    ref = _reference_index(reference, items)
+    names = display_names(items)
+    ref = reference_index(reference, items)
     seconds, t0 = {}, time.perf_counter()
-    workers = _check_workers(workers, client)
+    if workers is not None:
+        workers = convert("workers", Int(0, None), workers)
+        if client is not None and workers > 1:
+            raise ValueError("give either client (dask.distributed) or workers (local "
+                             "processes), not both.")
     with task_pool(workers) as pool:
         refs, unsolved = _detect(items, names, config, (frames_hdu, unit), n_stars, pool)
         shapes = [_shape(r) for r in refs]
@@ -345,8 +346,11 @@ def _check_arguments(transform_type, all_pairs, n_hubs, min_overlap, link_tolera
                             convert("min_overlap", Real(0, 1), min_overlap))
 
 
-def _reference_index(reference, items):
-    """The reference's index among ``items`` (None: to be chosen)."""
+def reference_index(reference, items):
+    """
+    The index of ``reference`` among `batch_frames`' ``items``: an index, the
+    frame itself (the same object) or its path; None stays None (to be chosen).
+    """
     if reference is None:
         return None
     if isinstance(reference, (int, np.integer)) and not isinstance(reference, bool):
@@ -357,23 +361,13 @@ def _reference_index(reference, items):
     for i, (frame, _) in enumerate(items):
         if frame is reference:
             return i
-    if _is_path(reference):
+    if isinstance(reference, (str, os.PathLike)):
         want = os.path.abspath(os.fspath(reference))
         for i, (frame, _) in enumerate(items):
-            if _is_path(frame) and os.path.abspath(os.fspath(frame)) == want:
+            if isinstance(frame, (str, os.PathLike)) and os.path.abspath(os.fspath(frame)) == want:
                 return i
     raise ValueError("reference must be a frame's index, one of the frames itself (the same "
                      "object or path), or None to choose the best-connected frame.")
-
-
-def _check_workers(workers, client):
-    if workers is None:
-        return None
-    workers = convert("workers", Int(0, None), workers)
-    if client is not None and workers > 1:
-        raise ValueError("give either client (dask.distributed) or workers (local processes), "
-                         "not both.")
-    return workers
 
 
 def detect_frame(frame, name, config, read, n_stars):
@@ -402,7 +396,7 @@ def _detect(items, names, config, read, n_stars, pool):
     # their pixels to a worker and back costs more than it saves).
     remote = {i: pool.submit(detect_frame, frame, names[i], config, read, n_stars)
               for i, (frame, _) in enumerate(items)
-              if pool is not None and _is_path(frame)}
+              if pool is not None and isinstance(frame, (str, os.PathLike))}
     refs, unsolved = [], {}
     for i, (frame, _) in enumerate(items):
         res = remote[i].result() if i in remote else detect_frame(frame, names[i], config,
@@ -618,7 +612,9 @@ def _solve(graph, refs, shapes, names, ref, kind, tolerance, unsolved, counts):
     idx = {id(k): (stars[k.source].index(k.source_points), stars[k.target].index(k.target_points))
            for k in graph.links}
     while True:
-        solved = _connected(graph, refs, ref)
+        # The frames joined to the reference by accepted links.
+        place = graph.placement(root=ref)
+        solved = {f for f, (root, _) in place.items() if root == ref and refs[f] is not None}
         frames = _initial(graph, shapes, ref, kind, solved)
         links = [k for k in graph.links if k.status == "accepted" and k.source in solved]
         _adjust_links(frames, links, stars, idx)
@@ -636,12 +632,6 @@ def _solve(graph, refs, shapes, names, ref, kind, tolerance, unsolved, counts):
     obs = _observations(frames, links, stars, idx)
     fit = _adjust_bundle(frames, obs)
     return _assemble(frames, graph, obs, fit, shapes, names, solved, unsolved)
-
-
-def _connected(graph, refs, ref):
-    """The frames joined to the reference by accepted links."""
-    place = graph.placement(root=ref)
-    return {f for f, (root, _) in place.items() if root == ref and refs[f] is not None}
 
 
 def _initial(graph, shapes, ref, kind, solved):
@@ -876,7 +866,10 @@ def _assemble(frames, graph, obs, fit, shapes, names, solved, unsolved):
         r = fit.residuals[sel]
         errors[f] = adjust.predicted_error(frames, f, covs[f], shapes[f])
         covariances[f] = _matrix_covariance(frames, f, covs[f])
-        t = _model(_matrix(frames, f), kind)
+        try:  # the package model of ``kind`` (a mirrored matrix may need another)
+            t = from_matrix(_matrix(frames, f), kind)
+        except ValueError:
+            t = from_matrix(_matrix(frames, f))
         t.meta["quality"] = dict(
             n_matches=int(sel.sum()), n_links=len(mine),
             rms=float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))) if len(r) else 0.0,
@@ -892,95 +885,3 @@ def _assemble(frames, graph, obs, fit, shapes, names, solved, unsolved):
     return SequenceSolution(transforms, covariances, errors, frames.reference, graph.links,
                             dict(sorted(unsolved.items())), list(names), list(shapes),
                             n_stars=n_stars)
-
-
-def _model(m, kind):
-    """The package model of ``kind`` for the matrix ``m`` (a mirrored one may need another)."""
-    try:
-        return from_matrix(m, kind)
-    except ValueError:
-        return from_matrix(m)
-
-
-def solve_jobs(jobs, items, target, ref, options, runners, report, cfg):
-    """
-    The transforms of `~astroalign_nd.register_batch`'s ``solve='global'``:
-    index -> `FrameResult` of each frame to resample (or keep); frames that
-    cannot be solved, or whose output may not be written, are reported as
-    failed at once.  Returns the found results and the `SequenceSolution`.
-    """
-    t0 = time.perf_counter()
-    frames = [frame for frame, _ in items]
-    index = _target_index(target, items)
-    if index is None:  # the target is not one of the frames: it joins them, unwritten
-        frames.append(ref)
-        index = len(items)
-    else:
-        frames[index] = ref  # its stars are already detected
-    client, workers = runners
-    sol = solve_sequence(frames, reference=index, client=client, workers=workers, hdu=cfg.hdu,
-                         unit=cfg.unit, **options)
-    each = (time.perf_counter() - t0) / max(1, len(items))
-    found = {}
-    for job in jobs:
-        i, src = job.index, (os.fspath(job.source) if _is_path(job.source) else None)
-        if sol.transforms[i] is None:
-            why = sol.unsolved[i]
-            error = why if why.split(":")[0].isidentifier() else (
-                f"TransformNotFoundError: {why}")
-            report.done(i, FrameResult(name=job.name, status="failed", error=error,
-                                       seconds=each, source=src))
-            continue
-        try:
-            done = _skip_or_refuse(job, cfg)
-        except Exception as exc:  # noqa: BLE001 - the frame fails, the batch goes on
-            report.done(i, _failed(job, exc, t0, src))
-            continue
-        if done is None:
-            t = sol.transforms[i]
-            found[i] = FrameResult(name=job.name, status="registered", transform=t,
-                                   quality=dict(t.meta["quality"]), source=src,
-                                   output=job.output, shape=sol.shapes[i], seconds=each,
-                                   points=_frame_points(sol, i))
-        else:
-            found[i] = _kept(job, done, cfg, src, each)
-        report.tick()
-    return found, sol
-
-
-def _frame_points(sol, i):
-    """
-    Frame ``i``'s matched stars (its pixels) and their partners (reference pixels), as
-    `~astroalign_nd.batch.FrameResult.points` holds them for the figures: from its link
-    with the reference, else from its link of most stars, the partners placed by their
-    frame's solved transform (the residuals drawn are then the joint solution's).
-    """
-    links = [k for k in sol.accepted if i in (k.source, k.target)
-             and sol.transforms[k.target if k.source == i else k.source] is not None]
-    if not links:
-        return None
-    link = max(links, key=lambda k: (sol.reference in (k.source, k.target), k.n_matches))
-    mine, other, j = ((link.source_points, link.target_points, link.target)
-                      if link.source == i else
-                      (link.target_points, link.source_points, link.source))
-    placed = sol.transforms[j](other[:, 0], other[:, 1])
-    return np.asarray(mine, dtype=float), np.column_stack(placed).astype(float)
-
-
-def _kept(job, done, cfg, src, seconds):
-    """A frame whose complete output is kept (``skip_existing``)."""
-    transform = done["transform"]
-    if cfg.union:  # back to reference pixels, for the canvas computation
-        transform = shifted_transform(transform, done["offset"], sign=+1)
-    return FrameResult(name=job.name, status="skipped", transform=transform,
-                       quality=done["quality"], output=job.output, source=src,
-                       seconds=seconds, shape=done["source_shape"],
-                       _grid=(done["shape"], done["offset"]))
-
-
-def _target_index(target, items):
-    """The index of ``target`` among the frames (the same object or path), else None."""
-    try:
-        return _reference_index(target, items)
-    except ValueError:
-        return None

@@ -66,7 +66,7 @@ class Link:
 
     Examples
     --------
-    The links of a `~astroalign_nd.batch.SequenceSolution`:
+    The links of a `~astroalign_nd.sequence.SequenceSolution`:
 
     >>> import numpy as np
     >>> from astroalign_nd import solve_sequence

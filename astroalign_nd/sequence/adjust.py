@@ -117,12 +117,6 @@ def matrix_from_theta(layer, theta, centre, parity):
     return m
 
 
-def _blocks(rows, cols, vals, shape):
-    return sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                     np.concatenate(cols))),
-                             shape=shape).tocsc()
-
-
 def _normal_terms(frames, f, q, w, cols):
     """(jacobian (n, 2, k), its normal block k x k, the prediction) of frame ``f``'s points."""
     layer = frames.layer
@@ -203,7 +197,10 @@ def link_step(frames, pairs):
                 rows_i.append(rr.ravel())
                 cols_i.append(cc.ravel())
                 vals.append(blk.ravel())
-    normal = _blocks(rows_i, cols_i, vals, (p, p)) if vals else sparse.csc_matrix((p, p))
+    normal = (sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows_i),
+                                                        np.concatenate(cols_i))),
+                                shape=(p, p)).tocsc()
+              if vals else sparse.csc_matrix((p, p)))
     delta, _ = _solve(normal, rhs)
     return _unpack(frames, delta, cols), resid
 
@@ -281,17 +278,13 @@ def weights(frames, obs):
 
 def star_positions(frames, obs):
     """Each track's common-frame position: the weighted mean of its detections (S, 2)."""
-    pred = _predictions(frames, obs)
+    pred = frames.layer.predict(frames.theta[obs.frame], obs.q)
     w = weights(frames, obs)
     wsum = np.bincount(obs.track, w, obs.n_tracks)
     xs = np.column_stack([np.bincount(obs.track, w * pred[:, i], obs.n_tracks)
                           for i in range(2)])
     with np.errstate(invalid="ignore", divide="ignore"):
         return xs / wsum[:, None], pred
-
-
-def _predictions(frames, obs):
-    return frames.layer.predict(frames.theta[obs.frame], obs.q)
 
 
 def _bundle_system(frames, obs):
