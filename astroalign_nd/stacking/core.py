@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import errno
 import os
 import tempfile
 from collections.abc import Iterator
@@ -486,9 +487,22 @@ def _register(others, ref, folder, canvas, overwrite, workers, progress, hdu, un
               for frame, label in others]
     if not frames:
         return BatchResult([], canvas_shape=tuple(ref.data.shape), canvas_offset=(0, 0))
-    return register_batch(frames, reference, output_dir=folder, overwrite=overwrite,
-                          canvas=canvas, workers=workers, progress=progress, hdu=hdu,
-                          unit=unit, order=order, **options)
+    try:
+        return register_batch(frames, reference, output_dir=folder, overwrite=overwrite,
+                              canvas=canvas, workers=workers, progress=progress, hdu=hdu,
+                              unit=unit, order=order, **options)
+    except OSError as exc:
+        if getattr(exc, "frame", None) is None:
+            raise
+        # The batch's own advice (run it again with skip_existing) is no stack's: the
+        # registered frames are the stack's working files, removed when it stops.
+        full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
+        stop = OSError(f"the stack stopped at {exc.frame}: {exc.reason.partition(': ')[2]} "
+                       f"The registered frames go to {folder} before they are combined: "
+                       + ("free some space there, or give aligned_dir a folder on another "
+                          "disk." if full else "give aligned_dir a folder you can write to."))
+        stop.errno = exc.errno
+        raise stop from None
 
 
 def _reference_on_canvas(item, result, folder, hdu, unit):
