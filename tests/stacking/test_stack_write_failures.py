@@ -20,8 +20,8 @@ def frames(tmp_path_factory):
 
 
 @pytest.mark.parametrize("extra", [[], ["--drizzle", "2"], ["--select", "auto"]])
-def test_a_full_disk_while_registering_is_one_line_and_no_stack(frames, tmp_path, monkeypatch,
-                                                                 extra):
+def test_a_full_disk_while_registering_is_one_line_and_no_stack(
+        frames, tmp_path, monkeypatch, extra):
     def publish(self, path, overwrite):  # the disk is full from the first registered frame on
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
