@@ -29,6 +29,7 @@ from scipy import ndimage
 from ..io.read import parse_input
 from ..exceptions import AstroalignError
 from ..io import write_ccddata
+from ..io.header import header_from_meta
 from ..io.bayer import (balanced_grey, bayer_channels, bayer_pattern, superpixel,
                         superpixel_to_raw)
 from ..registration import Reference, find_transform
@@ -472,7 +473,9 @@ def colour_ccddata(channels, *, meta, wcs, unit, dtype, rejected, settings):
         ``(3, ny, nx)``; ``meta`` lists the frames of the green plane, and
         HISTORY each plane's.
     """
-    meta = {k: v for k, v in dict(meta).items() if k not in _BAYER_KEYS}
+    meta = header_from_meta(meta)  # a copy, its COMMENT and blank cards kept as cards
+    for key in _BAYER_KEYS:
+        meta.remove(key, ignore_missing=True, remove_all=True)
     planes = [stack_ccddata(value, variance, coverage, meta={}, names=names, stats=stats,
                             rejected=[], settings={}, wcs=None, unit=unit, dtype=dtype)
               for value, variance, coverage, names, stats in channels]

@@ -192,3 +192,17 @@ def test_ctrl_c_in_a_bayer_stack_writes_the_partial_stack(raws, tmp_path, monkey
     assert history == ["partial stack (interrupted): 3 of 5 frames stacked, 2 not registered"]
     assert history[0] in stdout and "partial stack: 3 frames combined" in stdout
     assert np.isfinite(cube.data[:, ~cube.mask.any(axis=0)]).all()
+
+
+def test_the_reference_header_comments_are_kept(raws):
+    """The colour stack's header is the reference's, COMMENT cards included (no warning)."""
+    from astropy.io import fits
+
+    frames = []
+    for raw in raws[:3]:
+        header = fits.Header({"OBJECT": "field", "BAYERPAT": "GRBG"})
+        header["COMMENT"] = "taken automatically"
+        frames.append(CCDData(raw.data, unit=raw.unit, meta=header))
+    cube = stack(frames, bayer="auto", drizzle=2)
+    assert list(cube.meta["COMMENT"]) == ["taken automatically"]
+    assert cube.meta["OBJECT"] == "field" and "BAYERPAT" not in cube.meta
