@@ -308,9 +308,6 @@ def _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, u
                   dtype, options, *, output, overwrite):
     """Raw colour frames: demosaiced and combined per colour, or Bayer-drizzled (and written)."""
     bayer = opts.bayer if opts.bayer == "auto" else bayer_pattern(pattern=opts.bayer)
-    if opts.canvas != "reference":
-        raise ValueError("bayer frames are stacked on the reference's grid: pass "
-                         "canvas='reference' (the default).")
     # Resampling's options (the command line passes them): the demosaiced planes' only.
     resampling = {k: options.pop(k) for k in ("conserve_flux", "fill_value") if k in options}
     interrupt = None
