@@ -385,7 +385,7 @@ class _Report:
                            f"The {n} frame{'' if n == 1 else 's'} written before it "
                            "are complete: run the batch again with skip_existing=True "
                            "(--skip-existing) to finish.")
-            stop.errno = res._write_errno
+            stop.errno, stop.frame, stop.reason = res._write_errno, res.name, res.error
             raise stop
         self.results[i] = res
         if self.callback is not None:

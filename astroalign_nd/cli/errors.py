@@ -75,12 +75,13 @@ def exit_code(exc):
 
 
 #: Keywords without an underscore that are not also common words ("order", "degree").
-_PLAIN_KEYWORDS = ("fwhm", "nsigma", "tolerance", "hdu")
+_PLAIN_KEYWORDS = ("fwhm", "nsigma", "tolerance", "hdu", "nlow", "nhigh")
 
 
 def _flags():
     """The library's keyword -> the command line's option, for every option it offers."""
-    flags = {"hdu": "--hdu"}
+    flags = {"hdu": "--hdu", "unit": "--unit", "aligned_dir": "--aligned-dir",
+             "output_dir": "--output-dir", "skip_existing": "--skip-existing"}
     for config in (ModelConfig, ResampleConfig, RegistrationConfig, DetectionConfig,
                    MatchingConfig, StackConfig):
         for name, flag, kwargs in cli_fields(config):
@@ -98,6 +99,10 @@ _KEYWORD = re.compile(r"(?<![\w\-.'\"])(" + "|".join(sorted(_FLAGS, key=len, rev
 #: Any option's keyword where a check names it ("sigma must be ...").
 _CHECKED = re.compile(r"(?<![\w\-.'\"])("
                       + "|".join(sorted(_OPTION_FLAGS, key=len, reverse=True)) + r") must be ")
+#: Any option's keyword given a value ("use canvas='reference'", "pass select=None").
+_ASSIGNED = re.compile(r"(?<![\w\-.'\"])("
+                       + "|".join(sorted(_OPTION_FLAGS, key=len, reverse=True))
+                       + r")=(?:'(\w+)'|(?=[\w<]))")
 
 
 def cli_words(message):
@@ -115,12 +120,17 @@ def cli_words(message):
     'try more sources (--n-sources), or pass --fwhm <their width>.'
     >>> cli_words("method must be one of 'average', 'median', 'sum'; got 'mean'.")
     "--combine must be one of 'average', 'median', 'sum'; got 'mean'."
+    >>> cli_words("use canvas='reference', or pass select=None.")
+    'use --canvas reference, or pass --select none.'
     """
-    message = _CHECKED.sub(lambda m: _OPTION_FLAGS[m.group(1)] + " must be ", message)
-    message = _KEYWORD.sub(lambda m: _FLAGS[m.group(1)] + (" " if m.group(2) else ""), message)
     # The command line has no None (leave the option out) and no overwrite=True: a keyword
     # given with its flag ("skip_existing=True (--skip-existing)") is the flag alone.
     message = re.sub(r"\b\w+=True \((?:or )?(--[\w-]+)\)", r"\1", message)
+    message = _CHECKED.sub(lambda m: _OPTION_FLAGS[m.group(1)] + " must be ", message)
+    message = re.sub(r"\b(\w+)=True\b", lambda m: _OPTION_FLAGS.get(m.group(1), m.group(0)),
+                     message)
+    message = _ASSIGNED.sub(lambda m: f"{_OPTION_FLAGS[m.group(1)]} {m.group(2) or ''}", message)
+    message = _KEYWORD.sub(lambda m: _FLAGS[m.group(1)] + (" " if m.group(2) else ""), message)
     message = re.sub(r",? or None\b", "", message)
     message = re.sub(r"\bNone\b", "none", message)  # a choice switched off: --clip none
     return re.sub(r"(--[\w-]+)  ", r"\1 ", message)

@@ -50,7 +50,8 @@ def add_parser(sub, reg_opts):
 
 def _cmd_stack(args):
     from astroalign_nd import AstroalignError
-    from astroalign_nd.stacking import stack
+    from astroalign_nd.config import OPTIONS, check_option
+    from astroalign_nd.stacking import StackConfig, stack
 
     images = [_check_input(p) for p in args.images]
     reference = _check_input(args.reference) if args.reference else None
@@ -62,6 +63,12 @@ def _cmd_stack(args):
     if not args.memory_limit > 0:
         raise _CLIError(f"--memory-limit must be a number of MB > 0; got {args.memory_limit:g}.")
     progress = args.progress if args.progress is not None else sys.stderr.isatty()
+    stack_kwargs, reg_kwargs = _stack_kwargs(args, "stack"), _registration_kwargs(args)
+    # A bad option is the one line of the run: checked before the banner.
+    StackConfig.from_keywords("stack", dict(stack_kwargs))
+    for name, value in reg_kwargs.items():
+        if name in OPTIONS:
+            check_option(name, value)
     ref_name = os.path.basename(reference or images[0])
     n = len([p for p in images if p != (reference or images[0])])
     print(f"registering {n} frame{'' if n == 1 else 's'} onto {ref_name}, then combining",
@@ -72,8 +79,7 @@ def _cmd_stack(args):
             warnings.filterwarnings("ignore", message=".* was left out of the stack: ")
             ccd = stack(images, reference, output=args.output, overwrite=args.overwrite,
                         aligned_dir=args.aligned_dir, workers=args.workers or None,
-                        unit=args.unit, progress=progress, **_stack_kwargs(args, "stack"),
-                        **_registration_kwargs(args))
+                        unit=args.unit, progress=progress, **stack_kwargs, **reg_kwargs)
     except AstroalignError as exc:
         print(f"{_PROG}: registration refused: {exc}", file=sys.stderr)
         return EXIT_REFUSED

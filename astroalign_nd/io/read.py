@@ -304,7 +304,14 @@ def _add_extensions(p, hdul):
 
 
 def _as_unit(unit):
-    return None if unit is None else u.Unit(unit)
+    if unit is None:
+        return None
+    try:
+        return u.Unit(unit)
+    except (ValueError, TypeError):
+        # astropy's own message advises u.def_unit: a new unit is seldom what was meant.
+        raise ValueError(f"unit must be a unit astropy knows, such as 'adu', 'electron' or "
+                         f"'photon'; got {unit!r}.") from None
 
 
 def _image_hdu_index(hdul, hdu, name, where):
@@ -363,7 +370,7 @@ def _read_fits(path, name, hdu, unit):
     if isinstance(file_unit, u.UnrecognizedUnit):
         read_unit = file_unit  # CCDData.read refuses it; given, it is kept as written
     else:
-        read_unit = None if file_unit is not None else (unit if unit is not None else "adu")
+        read_unit = None if file_unit is not None else _as_unit("adu" if unit is None else unit)
     with warnings.catch_warnings():
         # Non-standard WCS keywords are fixed silently, not warned about per frame.
         warnings.simplefilter("ignore", FITSFixedWarning)

@@ -29,6 +29,7 @@ from scipy import ndimage
 from ..io.read import parse_input
 from ..exceptions import AstroalignError
 from ..io import write_ccddata
+from ..io.header import header_from_meta
 from ..io.bayer import (balanced_grey, bayer_channels, bayer_pattern, superpixel,
                         superpixel_to_raw)
 from ..registration import Reference, find_transform
@@ -303,17 +304,27 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
                                 resampling)
     channels = [[(f"{os.path.basename(ref_name)} (reference)", path, ref_item[1])]
                 for path in planes]
-    rejected = []
+    rejected, done = [], 0
     found = _find_raw_transforms(others, ref, pattern, bayer, hdu, unit, options)
-    for k, label, p, pat, transform, error in found:
-        name = os.path.basename(label) if label else f"frame{k}"
-        if error is not None:
-            rejected.append((name, error))
-            continue
-        planes = _registered_planes(p, pat, transform, shape, method, order, folder,
-                                    f"frame{k:05d}", resampling)
-        for c, path in enumerate(planes):
-            channels[c].append((name, path, k))
+    try:
+        for k, label, p, pat, transform, error in found:
+            name = os.path.basename(label) if label else f"frame{k}"
+            if error is not None:
+                rejected.append((name, error))
+            else:
+                planes = _registered_planes(p, pat, transform, shape, method, order, folder,
+                                            f"frame{k:05d}", resampling)
+                for c, path in enumerate(planes):
+                    channels[c].append((name, path, k))
+            done += 1
+    except KeyboardInterrupt as exc:
+        # Ctrl-C (SIGTERM on the command line): the frames registered so far can be stacked
+        # (a frame stopped between its colours is left out of all three).
+        for ch in channels:
+            del ch[min(len(c) for c in channels):]
+        exc.not_registered = len(others) - done
+        exc.partial_result = channels, rejected, ref, pattern
+        raise
     return channels, rejected, ref, pattern
 
 
@@ -375,10 +386,28 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
     shape = ref.data.shape
     out_shape = output_shape(shape, scale)
     accs = [DrizzleAccumulator(out_shape, scale, pixfrac, kernel) for _ in range(3)]
-    names, stats, rejected, ref_stats = [], [[], [], []], [], None
+    names, stats, rejected = [], [[], [], []], []
     frames = [(0, ref_item[2], ref, pattern, None, None)]
     found = _find_raw_transforms(others, ref, pattern, bayer, hdu, unit, options)
-    for k, label, p, pat, transform, error in itertools.chain(frames, found):
+    try:
+        _drizzle_frames(itertools.chain(frames, found), ref_item, accs, names, stats, rejected,
+                        weights, gain, read_noise, normalize, scale, saturation)
+    except KeyboardInterrupt as exc:
+        # Ctrl-C (SIGTERM on the command line): the frames drizzled so far can be stacked
+        # (a frame stopped half-way is left out of the stack and of its accounts).
+        exc.not_registered = len(others) + 1 - len(names) - len(rejected)
+        exc.partial_result = _drizzled_channels(accs, stats, names), rejected, ref, pattern
+        raise
+    return _drizzled_channels(accs, stats, names), rejected, ref, pattern
+
+
+def _drizzle_frames(frames, ref_item, accs, names, stats, rejected, weights, gain, read_noise,
+                    normalize, scale, saturation):
+    """`drizzle_bayer`'s frames drizzled one at a time into ``accs`` (and the accounts)."""
+    from .live import _interrupts_held  # (live imports the stack, which imports this)
+
+    ref_stats = None
+    for k, label, p, pat, transform, error in frames:
         k = ref_item[1] if transform is None and error is None else k
         name = os.path.basename(label) if label else f"frame{k}"
         if error is not None:
@@ -398,18 +427,23 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
             continue
         ref_stats = st if ref_stats is None else ref_stats
         pm = pixel_map(transform, data.shape, scale)
-        for c in range(3):
-            sel = valid & (channels == c)
-            var = frame_variance(data, None, st[c], gain, read_noise) * st[c].scale ** 2
-            accs[c].add(data * st[c].scale - st[c].offset, pm,
-                        np.where(sel, np.float32(st[c].weight), np.float32(0.0)), var)
-            stats[c].append(st[c])
-        names.append(name if transform is not None else f"{name} (reference)")
+        with _interrupts_held():  # a frame is in every colour and the accounts, or in none
+            for c in range(3):
+                sel = valid & (channels == c)
+                var = frame_variance(data, None, st[c], gain, read_noise) * st[c].scale ** 2
+                accs[c].add(data * st[c].scale - st[c].offset, pm,
+                            np.where(sel, np.float32(st[c].weight), np.float32(0.0)), var)
+                stats[c].append(st[c])
+            names.append(name if transform is not None else f"{name} (reference)")
+
+
+def _drizzled_channels(accs, stats, names):
+    """``(value, variance, coverage, names, stats)`` of each colour's accumulator."""
     channels = []
     for acc, st in zip(accs, stats):
         pl = acc.planes()
         channels.append((pl.value, pl.variance, pl.count, names, st))
-    return channels, rejected, ref, pattern
+    return channels
 
 
 def colour_ccddata(channels, *, meta, wcs, unit, dtype, rejected, settings):
@@ -439,7 +473,9 @@ def colour_ccddata(channels, *, meta, wcs, unit, dtype, rejected, settings):
         ``(3, ny, nx)``; ``meta`` lists the frames of the green plane, and
         HISTORY each plane's.
     """
-    meta = {k: v for k, v in dict(meta).items() if k not in _BAYER_KEYS}
+    meta = header_from_meta(meta)  # a copy, its COMMENT and blank cards kept as cards
+    for key in _BAYER_KEYS:
+        meta.remove(key, ignore_missing=True, remove_all=True)
     planes = [stack_ccddata(value, variance, coverage, meta={}, names=names, stats=stats,
                             rejected=[], settings={}, wcs=None, unit=unit, dtype=dtype)
               for value, variance, coverage, names, stats in channels]

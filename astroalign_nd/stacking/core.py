@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import errno
 import os
 import tempfile
 from collections.abc import Iterator
@@ -307,30 +308,51 @@ def _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, u
                   dtype, options, *, output, overwrite):
     """Raw colour frames: demosaiced and combined per colour, or Bayer-drizzled (and written)."""
     bayer = opts.bayer if opts.bayer == "auto" else bayer_pattern(pattern=opts.bayer)
-    if opts.canvas != "reference":
-        raise ValueError("bayer frames are stacked on the reference's grid: pass "
-                         "canvas='reference' (the default).")
     # Resampling's options (the command line passes them): the demosaiced planes' only.
     resampling = {k: options.pop(k) for k in ("conserve_flux", "fill_value") if k in options}
-    if opts.drizzle is not None:
-        ccd = _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options,
-                             bayer=bayer)
-    else:
-        _demosaicing()  # the [colour] extra's ImportError before any work
-        ccd = _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit,
-                           order, dtype, options, resampling, bayer=bayer)
+    interrupt = None
+    try:
+        if opts.drizzle is not None:
+            ccd = _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options,
+                                 bayer=bayer)
+        else:
+            _demosaicing()  # the [colour] extra's ImportError before any work
+            ccd = _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu,
+                               unit, order, dtype, options, resampling, bayer=bayer)
+    except KeyboardInterrupt as exc:
+        # Ctrl-C (SIGTERM on the command line): the partial stack of the frames registered.
+        ccd, interrupt = getattr(exc, "partial_result", None), exc
+        if not isinstance(ccd, CCDData):
+            raise
     if output is not None:
         write_output(ccd, output, overwrite=overwrite)
+    if interrupt is not None:
+        raise interrupt
     return ccd
+
+
+def _interrupted(ccd, exc, n_used, others):
+    """``exc`` with the partial stack ``ccd`` (its HISTORY says so), to raise."""
+    ccd.meta.add_history(f"partial stack (interrupted): {n_used} of {len(others) + 1} "
+                         f"frames stacked, {exc.not_registered} not registered")
+    exc.partial_result = ccd
+    return exc
 
 
 def _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit, order,
                  dtype, options, resampling, *, bayer):
     """Raw colour frames registered on their grey versions, demosaiced, combined per colour."""
+    interrupt = None
     with _aligned_folder(aligned_dir, temp_dir) as folder:
-        channels, rejected, ref, pattern = register_bayer(
-            ref_item, others, folder, bayer=bayer, method=opts.demosaic, hdu=hdu, unit=unit,
-            order=order, options=options, resampling=resampling)
+        try:
+            channels, rejected, ref, pattern = register_bayer(
+                ref_item, others, folder, bayer=bayer, method=opts.demosaic, hdu=hdu,
+                unit=unit, order=order, options=options, resampling=resampling)
+        except KeyboardInterrupt as exc:
+            partial = getattr(exc, "partial_result", None)
+            if partial is None or len(partial[0][0]) < 2:
+                raise  # no frame but the reference registered: nothing to stack
+            (channels, rejected, ref, pattern), interrupt = partial, exc
         _check_registered(others, len(channels[0]) - 1, rejected)
         combined, all_rejected = [], list(rejected)
         for frames_ in channels:
@@ -348,17 +370,27 @@ def _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, un
     settings = _settings(copts, len(used))
     settings["AABAYER"] = (pattern, "Bayer pattern of the reference's first cell")
     settings["AADEMOS"] = (opts.demosaic, "demosaicing (colour-demosaicing)")
-    return colour_ccddata(combined, meta=ref.meta, wcs=ref.wcs, unit=ref.unit or "adu",
-                          dtype=dtype, rejected=all_rejected, settings=settings)
+    ccd = colour_ccddata(combined, meta=ref.meta, wcs=ref.wcs, unit=ref.unit or "adu",
+                         dtype=dtype, rejected=all_rejected, settings=settings)
+    if interrupt is not None:
+        raise _interrupted(ccd, interrupt, len(combined[0][3]), others)
+    return ccd
 
 
 def _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options, *, bayer):
     """Raw colour frames registered on their grey versions and Bayer-drizzled."""
-    channels, rejected, ref, pattern = drizzle_bayer(
-        ref_item, others, bayer=bayer, scale=opts.drizzle, pixfrac=opts.pixfrac,
-        kernel=opts.kernel, normalize=opts.normalize, weights=weights, gain=opts.gain,
-        read_noise=opts.read_noise, hdu=hdu, unit=unit, options=options,
-        saturation=opts.saturation)
+    interrupt = None
+    try:
+        channels, rejected, ref, pattern = drizzle_bayer(
+            ref_item, others, bayer=bayer, scale=opts.drizzle, pixfrac=opts.pixfrac,
+            kernel=opts.kernel, normalize=opts.normalize, weights=weights, gain=opts.gain,
+            read_noise=opts.read_noise, hdu=hdu, unit=unit, options=options,
+            saturation=opts.saturation)
+    except KeyboardInterrupt as exc:
+        partial = getattr(exc, "partial_result", None)
+        if partial is None or len(partial[0][0][3]) < 2:
+            raise  # no frame but the reference drizzled: nothing to stack
+        (channels, rejected, ref, pattern), interrupt = partial, exc
     _check_registered(others, len(channels[0][3]) - 1, rejected)
     for name, why in rejected:
         warn(f"{name} was left out of the stack: {why}")
@@ -369,8 +401,11 @@ def _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options, *
                 "AADZKERN": (opts.kernel, "drizzle: kernel"),
                 "AABAYER": (pattern, "Bayer pattern of the reference's first cell")}
     wcs = scaled_wcs(ref.wcs, opts.drizzle, channels[0][0].shape)
-    return colour_ccddata(channels, meta=ref.meta, wcs=wcs, unit=ref.unit or "adu",
-                          dtype=dtype, rejected=rejected, settings=settings)
+    ccd = colour_ccddata(channels, meta=ref.meta, wcs=wcs, unit=ref.unit or "adu",
+                         dtype=dtype, rejected=rejected, settings=settings)
+    if interrupt is not None:
+        raise _interrupted(ccd, interrupt, len(channels[0][3]), others)
+    return ccd
 
 
 def _check_registered(others, n_registered, rejected):
@@ -486,9 +521,22 @@ def _register(others, ref, folder, canvas, overwrite, workers, progress, hdu, un
               for frame, label in others]
     if not frames:
         return BatchResult([], canvas_shape=tuple(ref.data.shape), canvas_offset=(0, 0))
-    return register_batch(frames, reference, output_dir=folder, overwrite=overwrite,
-                          canvas=canvas, workers=workers, progress=progress, hdu=hdu,
-                          unit=unit, order=order, **options)
+    try:
+        return register_batch(frames, reference, output_dir=folder, overwrite=overwrite,
+                              canvas=canvas, workers=workers, progress=progress, hdu=hdu,
+                              unit=unit, order=order, **options)
+    except OSError as exc:
+        if getattr(exc, "frame", None) is None:
+            raise
+        # The batch's own advice (run it again with skip_existing) is no stack's: the
+        # registered frames are the stack's working files, removed when it stops.
+        full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
+        stop = OSError(f"the stack stopped at {exc.frame}: {exc.reason.partition(': ')[2]} "
+                       f"The registered frames go to {folder} before they are combined: "
+                       + ("free some space there, or give aligned_dir a folder on another "
+                          "disk." if full else "give aligned_dir a folder you can write to."))
+        stop.errno = exc.errno
+        raise stop from None
 
 
 def _reference_on_canvas(item, result, folder, hdu, unit):

@@ -380,6 +380,9 @@ class StackConfig:
         if self.drizzle is not None and self.method != "average":
             raise ValueError(f"drizzle gives a weighted average; method={self.method!r} cannot "
                              "be drizzled: use method='average' (the default), or no drizzle.")
+        if self.bayer is not None and self.canvas != "reference":
+            raise ValueError("bayer frames are stacked on the reference's grid: pass "
+                             "canvas='reference' (the default).")
         for side in ("sigma_low", "sigma_high"):
             if getattr(self, side) is None:
                 object.__setattr__(self, side, self.sigma)

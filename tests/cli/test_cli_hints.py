@@ -2,6 +2,7 @@
 """On the command line every hint names a flag, never a Python keyword or None."""
 
 import pytest
+from astropy.io import fits
 
 from astroalign_nd import register
 from astroalign_nd.cli.errors import cli_words
@@ -63,3 +64,35 @@ def test_cli_words_leaves_no_python():
 def test_a_missing_file_is_file_not_found(tmp_path):
     with pytest.raises(FileNotFoundError, match="nope.fits"):
         register(str(tmp_path / "nope.fits"), str(tmp_path / "nope2.fits"))
+
+
+@pytest.mark.parametrize("message, expected", [
+    ("relax min_transparency (it left out 1), or pass select=None.",
+     "relax --min-transparency (it left out 1), or pass --select none."),
+    ("Leave such frames out, or use canvas='reference'.",
+     "Leave such frames out, or use --canvas reference."),
+    ("stack more frames, lower nlow/nhigh, or use clip='sigma'.",
+     "stack more frames, lower --nlow/--nhigh, or use --clip sigma."),
+    ("Use a lower degree (or degree='auto') or more stars.",
+     "Use a lower degree (or --degree auto) or more stars."),
+    ("skip_existing=True needs an output_dir.", "--skip-existing needs an --output-dir."),
+    ("give aligned_dir a folder on another disk.", "give --aligned-dir a folder on another disk."),
+])
+def test_library_keywords_given_values_become_flags(message, expected):
+    assert cli_words(message) == expected
+
+
+def test_an_unknown_unit_and_a_selection_hint_name_flags(demo, tmp_path, capsys):
+    source, target = demo
+    bare = str(tmp_path / "bare.fits")  # no BUNIT: --unit says what its values are in
+    fits.writeto(bare, fits.getdata(source))
+    code, err = _error(capsys, ["register", bare, target, "-o", str(tmp_path / "a.fits"),
+                                "--unit", "furlong"])
+    assert code == 2
+    assert err == ("astroalign-nd: error: --unit must be a unit astropy knows, such as 'adu', "
+                   "'electron' or 'photon'; got 'furlong'.")
+    code, err = _error(capsys, ["stack", source, target, "-o", str(tmp_path / "s.fits"),
+                                "--min-transparency", "2"])
+    assert code == 2 and "relax --min-transparency" in err and "pass --select none" in err
+    assert "=" not in err and "_" not in err.split(": ", 2)[-1].split("Left out")[0]
+    assert not (tmp_path / "s.fits").exists()

@@ -13,6 +13,7 @@ from _helpers import run_cli
 from astroalign_nd import stack
 from astroalign_nd.io import write_ccddata
 from astroalign_nd.simulate import bayer_mosaic, dither_transforms, simulate_views
+from astroalign_nd.stacking import colour
 from astroalign_nd.stacking.colour import find_bayer_transform
 
 SHAPE = (160, 200)
@@ -162,3 +163,46 @@ def test_command_line_bayer_drizzle(raws, tmp_path):
     assert cube.shape == (3, 2 * SHAPE[0], 2 * SHAPE[1]) and cube.meta["AABAYER"] == "GRBG"
     code, _, stderr = run_cli("stack", *paths, "-o", tmp_path / "x.fits", "--bayer", "CYMG")
     assert code == 2 and "invalid choice: 'CYMG'" in stderr
+
+
+@pytest.mark.parametrize("extra", [[], ["--drizzle", "2"]])
+def test_ctrl_c_in_a_bayer_stack_writes_the_partial_stack(raws, tmp_path, monkeypatch, extra):
+    """Interrupted while the fourth frame is registered: the first three are the stack."""
+    paths = []
+    for k, raw in enumerate(raws[:5]):
+        paths.append(tmp_path / f"raw{k}.fits")
+        write_ccddata(raw, paths[-1])
+    real, calls = colour.find_transform, []
+
+    def find_transform(*args, **kwargs):  # Ctrl-C while the fourth frame is registered
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt("SIGINT")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(colour, "find_transform", find_transform)
+    out = tmp_path / "rgb.fits"
+    code, stdout, err = run_cli("stack", *paths, "-o", out, "--bayer", "GRBG", "--no-progress",
+                                *extra)
+    assert code == 130 and "Traceback" not in err
+    cube = CCDData.read(out)
+    assert cube.meta["NCOMBINE"] == 3 and cube.meta["NREJECT"] == 0
+    assert [cube.meta[f"IMCMB{k:03d}"] for k in (2, 3)] == ["raw1.fits", "raw2.fits"]
+    history = [line for line in cube.meta["HISTORY"] if line.startswith("partial stack")]
+    assert history == ["partial stack (interrupted): 3 of 5 frames stacked, 2 not registered"]
+    assert history[0] in stdout and "partial stack: 3 frames combined" in stdout
+    assert np.isfinite(cube.data[:, ~cube.mask.any(axis=0)]).all()
+
+
+def test_the_reference_header_comments_are_kept(raws):
+    """The colour stack's header is the reference's, COMMENT cards included (no warning)."""
+    from astropy.io import fits
+
+    frames = []
+    for raw in raws[:3]:
+        header = fits.Header({"OBJECT": "field", "BAYERPAT": "GRBG"})
+        header["COMMENT"] = "taken automatically"
+        frames.append(CCDData(raw.data, unit=raw.unit, meta=header))
+    cube = stack(frames, bayer="auto", drizzle=2)
+    assert list(cube.meta["COMMENT"]) == ["taken automatically"]
+    assert cube.meta["OBJECT"] == "field" and "BAYERPAT" not in cube.meta

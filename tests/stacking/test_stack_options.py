@@ -66,3 +66,21 @@ def test_each_user_refuses_the_others_options():
         LiveStack(np.zeros((8, 8)), weights=[1.0])
     cfg, rest = StackConfig.from_keywords("live", {"n_start": 3, "fwhm": 2.0})
     assert cfg.n_start == 3 and rest == {"fwhm": 2.0}
+
+
+@pytest.mark.parametrize("bad, message", [
+    (["--drizzle", "0"], "--drizzle must be a finite number > 0"),
+    (["--n-sources", "2"], "--n-sources must be an integer >= 3"),
+    (["--bayer", "RGGB", "--canvas", "union"], "pass --canvas reference"),
+])
+def test_a_bad_option_is_the_one_line_of_a_stack(tmp_path, bad, message):
+    """Refused before the banner and any work: nothing on standard output, one error line."""
+    from _helpers import run_cli
+
+    frames = [tmp_path / "a.fits", tmp_path / "b.fits"]
+    for path in frames:
+        path.write_bytes(b"")  # never read: the options are refused first
+    code, stdout, err = run_cli("stack", *frames, "-o", tmp_path / "st.fits", *bad)
+    assert code == 2 and stdout == ""
+    (line,) = err.strip().splitlines()
+    assert line.startswith("astroalign-nd: error: ") and message in line
