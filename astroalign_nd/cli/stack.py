@@ -79,7 +79,8 @@ def _cmd_stack(args):
             warnings.filterwarnings("ignore", message=".* was left out of the stack: ")
             ccd = stack(images, reference, output=args.output, overwrite=args.overwrite,
                         aligned_dir=args.aligned_dir, workers=args.workers or None,
-                        unit=args.unit, progress=progress, **stack_kwargs, **reg_kwargs)
+                        unit=args.unit, progress=progress, callback=_frame_reporter(n),
+                        **stack_kwargs, **reg_kwargs)
     except AstroalignError as exc:
         print(f"{_PROG}: registration refused: {exc}", file=sys.stderr)
         return EXIT_REFUSED
@@ -92,6 +93,28 @@ def _cmd_stack(args):
             _report(partial, args.output)
         raise
     return _report(ccd, args.output)
+
+
+def _frame_reporter(n):
+    """The stack's callback: each frame's line as its registration ends."""
+    from tqdm import tqdm
+
+    done = []
+
+    def report(f):
+        done.append(f)
+        if f.status == "failed":
+            what = f"FAILED ({cli_words(f.error or '')})"
+        else:
+            q = f.quality or {}
+            fig = [f"{q['n_matches']} stars"] if "n_matches" in q else []
+            fig += [f"RMS {q['rms']:.3f} px"] if "rms" in q else []
+            what = f"registered ({', '.join(fig + [f'{f.seconds:.1f} s'])})"
+        # Above the progress bar, if there is one; at once, so a long stack is not silent.
+        tqdm.write(f"[{len(done)}/{n}] {f.name}: {what}", file=sys.stdout)
+        sys.stdout.flush()
+
+    return report
 
 
 def _report(ccd, output):

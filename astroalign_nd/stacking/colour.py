@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import itertools
 import os
+import time
 import warnings
 
 import numpy as np
 from astropy.nddata import CCDData, StdDevUncertainty
 from scipy import ndimage
 
+from ..batch.results import FrameResult
 from ..io.read import parse_input
 from ..exceptions import AstroalignError
 from ..io import write_ccddata
@@ -237,27 +239,34 @@ def find_bayer_transform(source, target, *, bayer="auto", grey="balanced", hdu=N
     return to_raw(t)
 
 
-def _find_raw_transforms(others, ref, ref_pattern, bayer, hdu, unit, options):
+def _find_raw_transforms(others, ref, ref_pattern, bayer, hdu, unit, options, callback=None):
     """
     Each frame's transform onto the reference, found on grey versions, in raw pixels.
 
     Yields ``(index, label, ParsedInput, pattern, transform, error)`` one frame at a
     time (its ParsedInput, pattern and transform None when it failed, and the error
-    then says why).
+    then says why), after giving ``callback`` its `~astroalign_nd.batch.FrameResult`.
     """
     target = Reference(_grey(ref, ref_pattern)[0])
     for (item, label), k in others:
+        start = time.perf_counter()
         try:
             p, pattern = _raw_frame(item, bayer, hdu, unit, label or f"frame{k}")
             t, _ = find_transform(_grey(p, pattern)[0], target, **options)
         except (AstroalignError, ValueError, OSError) as exc:
-            yield k, label, None, None, None, f"{type(exc).__name__}: {exc}"
-            continue
-        yield k, label, p, pattern, t, None
+            p = pattern = t = None
+            error = f"{type(exc).__name__}: {exc}"
+        else:
+            error = None
+        if callback is not None:
+            callback(FrameResult(name=os.path.basename(label) if label else f"frame{k}",
+                                 status="failed" if error else "registered", transform=t,
+                                 error=error, seconds=time.perf_counter() - start))
+        yield k, label, p, pattern, t, error
 
 
 def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order, options,
-                   resampling=None):
+                   resampling=None, callback=None):
     """
     Raw colour frames registered on their grey versions, demosaiced, and their
     colours resampled onto the reference's grid with each frame's one transform.
@@ -283,6 +292,8 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
         Registration options (``transform_type``, detection and matching).
     resampling : dict, optional
         `~astroalign_nd.apply_transform`'s ``conserve_flux`` and ``fill_value``.
+    callback : callable, optional
+        As in `~astroalign_nd.stack`.
 
     Returns
     -------
@@ -305,7 +316,7 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
     channels = [[(f"{os.path.basename(ref_name)} (reference)", path, ref_item[1])]
                 for path in planes]
     rejected, done = [], 0
-    found = _find_raw_transforms(others, ref, pattern, bayer, hdu, unit, options)
+    found = _find_raw_transforms(others, ref, pattern, bayer, hdu, unit, options, callback)
     try:
         for k, label, p, pat, transform, error in found:
             name = os.path.basename(label) if label else f"frame{k}"
@@ -346,7 +357,7 @@ def _colour_stats(data, valid, channels, gain, read_noise, normalize, ref_stats,
 
 
 def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize, weights,
-                  gain, read_noise, hdu, unit, options, saturation=None):
+                  gain, read_noise, hdu, unit, options, saturation=None, callback=None):
     """
     Bayer drizzle: each colour's raw pixels dropped at their true positions.
 
@@ -388,7 +399,7 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
     accs = [DrizzleAccumulator(out_shape, scale, pixfrac, kernel) for _ in range(3)]
     names, stats, rejected = [], [[], [], []], []
     frames = [(0, ref_item[2], ref, pattern, None, None)]
-    found = _find_raw_transforms(others, ref, pattern, bayer, hdu, unit, options)
+    found = _find_raw_transforms(others, ref, pattern, bayer, hdu, unit, options, callback)
     try:
         _drizzle_frames(itertools.chain(frames, found), ref_item, accs, names, stats, rejected,
                         weights, gain, read_noise, normalize, scale, saturation)

@@ -38,8 +38,8 @@ __all__ = ["stack"]
 def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | None = None,
           overwrite: bool = False, aligned_dir: str | os.PathLike | None = None,
           temp_dir: str | None = None, workers: int | None = None, progress: bool = False,
-          hdu: int | str | None = None, unit: Any = None, order: str | int = "bilinear",
-          dtype: Any = np.float32, **options: Any) -> CCDData:
+          callback: Any = None, hdu: int | str | None = None, unit: Any = None,
+          order: str | int = "bilinear", dtype: Any = np.float32, **options: Any) -> CCDData:
     """
     Register frames onto a reference and combine them into one deep image.
 
@@ -84,6 +84,12 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         Where the temporary folder goes (default: the system's).
     workers, progress, hdu, unit, order
         As in `~astroalign_nd.register_batch`.
+    callback : callable, optional
+        Called with each frame's `~astroalign_nd.batch.FrameResult` as soon
+        as its registration ends (registered, or failed with its error), in
+        completion order: what the command line prints while a stack runs.
+        Raw colour frames (``bayer``) give the transform, the error and the
+        time, without the match's figures.
     dtype : numpy dtype, optional
         Of the output's data and uncertainty (default float32).  An integer
         type gets the values rounded, and clipped to its range with a
@@ -164,7 +170,8 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
     _check_outputs(output, overwrite, items, ref_item)
     if opts.bayer is not None:
         return _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit,
-                             order, dtype, options, output=output, overwrite=overwrite)
+                             order, dtype, options, output=output, overwrite=overwrite,
+                             callback=callback)
     ref = parse_input(ref_item[0], "reference", hdu=hdu, unit=unit)
     if ref.data is None or ref.data.ndim != 2:
         raise ValueError("the reference must be a 2-D image (stack one colour channel at a "
@@ -173,7 +180,8 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
     with _aligned_folder(aligned_dir, temp_dir) as folder:
         try:
             result = _register([it for it, _ in others], ref, folder, opts.canvas, overwrite,
-                               workers, progress, hdu, unit, order, options, ref_item[0])
+                               workers, progress, callback, hdu, unit, order, options,
+                               ref_item[0])
         except KeyboardInterrupt as exc:
             # Ctrl-C (SIGTERM on the command line): the frames registered so far are stacked.
             result, interrupt = getattr(exc, "partial_result", None), exc
@@ -305,7 +313,7 @@ def _not_done(frame):
 
 
 def _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit, order,
-                  dtype, options, *, output, overwrite):
+                  dtype, options, *, output, overwrite, callback):
     """Raw colour frames: demosaiced and combined per colour, or Bayer-drizzled (and written)."""
     bayer = opts.bayer if opts.bayer == "auto" else bayer_pattern(pattern=opts.bayer)
     # Resampling's options (the command line passes them): the demosaiced planes' only.
@@ -314,11 +322,12 @@ def _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, u
     try:
         if opts.drizzle is not None:
             ccd = _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options,
-                                 bayer=bayer)
+                                 bayer=bayer, callback=callback)
         else:
             _demosaicing()  # the [colour] extra's ImportError before any work
             ccd = _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu,
-                               unit, order, dtype, options, resampling, bayer=bayer)
+                               unit, order, dtype, options, resampling, bayer=bayer,
+                               callback=callback)
     except KeyboardInterrupt as exc:
         # Ctrl-C (SIGTERM on the command line): the partial stack of the frames registered.
         ccd, interrupt = getattr(exc, "partial_result", None), exc
@@ -340,14 +349,15 @@ def _interrupted(ccd, exc, n_used, others):
 
 
 def _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit, order,
-                 dtype, options, resampling, *, bayer):
+                 dtype, options, resampling, *, bayer, callback):
     """Raw colour frames registered on their grey versions, demosaiced, combined per colour."""
     interrupt = None
     with _aligned_folder(aligned_dir, temp_dir) as folder:
         try:
             channels, rejected, ref, pattern = register_bayer(
                 ref_item, others, folder, bayer=bayer, method=opts.demosaic, hdu=hdu,
-                unit=unit, order=order, options=options, resampling=resampling)
+                unit=unit, order=order, options=options, resampling=resampling,
+                callback=callback)
         except KeyboardInterrupt as exc:
             partial = getattr(exc, "partial_result", None)
             if partial is None or len(partial[0][0]) < 2:
@@ -377,7 +387,8 @@ def _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, un
     return ccd
 
 
-def _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options, *, bayer):
+def _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options, *, bayer,
+                   callback):
     """Raw colour frames registered on their grey versions and Bayer-drizzled."""
     interrupt = None
     try:
@@ -385,7 +396,7 @@ def _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options, *
             ref_item, others, bayer=bayer, scale=opts.drizzle, pixfrac=opts.pixfrac,
             kernel=opts.kernel, normalize=opts.normalize, weights=weights, gain=opts.gain,
             read_noise=opts.read_noise, hdu=hdu, unit=unit, options=options,
-            saturation=opts.saturation)
+            saturation=opts.saturation, callback=callback)
     except KeyboardInterrupt as exc:
         partial = getattr(exc, "partial_result", None)
         if partial is None or len(partial[0][0][3]) < 2:
@@ -514,8 +525,8 @@ class _aligned_folder:
             remove_empty_dirs(self.created)  # nothing registered: no empty folder left
 
 
-def _register(others, ref, folder, canvas, overwrite, workers, progress, hdu, unit, order,
-              options, reference):
+def _register(others, ref, folder, canvas, overwrite, workers, progress, callback, hdu, unit,
+              order, options, reference):
     """`register_batch` of the frames other than the reference, into ``folder``."""
     frames = [frame if (_is_path(frame) or label is None) else (frame, label)
               for frame, label in others]
@@ -523,7 +534,8 @@ def _register(others, ref, folder, canvas, overwrite, workers, progress, hdu, un
         return BatchResult([], canvas_shape=tuple(ref.data.shape), canvas_offset=(0, 0))
     try:
         return register_batch(frames, reference, output_dir=folder, overwrite=overwrite,
-                              canvas=canvas, workers=workers, progress=progress, hdu=hdu,
+                              canvas=canvas, workers=workers, progress=progress,
+                              callback=callback, hdu=hdu,
                               unit=unit, order=order, **options)
     except OSError as exc:
         if getattr(exc, "frame", None) is None:

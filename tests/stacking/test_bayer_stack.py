@@ -159,6 +159,7 @@ def test_command_line_bayer_drizzle(raws, tmp_path):
     code, stdout, _ = run_cli("stack", *paths, "-o", out, "--bayer", "GRBG", "--drizzle", 2,
                               "--pixfrac", 1.0)
     assert code == 0 and "3 frames combined" in stdout
+    assert "[1/2] raw1.fits: registered (" in stdout and "[2/2] raw2.fits: registered (" in stdout
     cube = CCDData.read(out)
     assert cube.shape == (3, 2 * SHAPE[0], 2 * SHAPE[1]) and cube.meta["AABAYER"] == "GRBG"
     code, _, stderr = run_cli("stack", *paths, "-o", tmp_path / "x.fits", "--bayer", "CYMG")

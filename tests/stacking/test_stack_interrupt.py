@@ -32,10 +32,12 @@ def _stopped_after(monkeypatch, n):
     """
     real = stack_core.register_batch
 
-    def register_batch(*args, **kwargs):
-        done = []
+    def register_batch(*args, callback=None, **kwargs):
+        done, stack_callback = [], callback
 
         def callback(frame):
+            if stack_callback is not None:  # the stack's own (the command line's lines)
+                stack_callback(frame)
             done.append(frame)
             if len(done) == n:
                 if os.name == "posix":
