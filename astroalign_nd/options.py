@@ -214,17 +214,29 @@ class Choice:
 
 class AnyCallable:
     """
-    A source finder: any callable (``finder(data, mask=None)``), or None.
+    Any callable, or None: a source finder (``finder(data, mask=None)``) by default.
+
+    Parameters
+    ----------
+    what : str, optional
+        What the callable is called with, for the message.
 
     Examples
     --------
-    >>> from astroalign_nd.options import AnyCallable
+    >>> from astroalign_nd.options import AnyCallable, convert
     >>> AnyCallable().convert(None) is None
     True
+    >>> convert("callback", AnyCallable("a function of one FrameResult"), 3)
+    Traceback (most recent call last):
+    ...
+    TypeError: callback must be a function of one FrameResult or None; got 3.
     """
 
+    def __init__(self, what="a source finder (callable as finder(data, mask=None))"):
+        self.what = what
+
     def describe(self):
-        return "a source finder (callable as finder(data, mask=None)) or None"
+        return f"{self.what} or None"
 
     def convert(self, value):
         if value is None or callable(value):

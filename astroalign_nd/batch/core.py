@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from ..io.read import batch_frames, display_names
 from ..config import RegistrationConfig
+from ..options import AnyCallable, convert
 from ..resample import ResampleConfig
 from ..exceptions import warn
 from ..io.write import make_output_dir
@@ -193,6 +194,7 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     """
     _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, suffix, client,
                      workers, solve)
+    callback = convert("callback", AnyCallable("a function of one FrameResult"), callback)
     resample = ResampleConfig(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
                               method=method, add_keyword=add_keyword)
     options, global_options = _split_options(target, options, solve)

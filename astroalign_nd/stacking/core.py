@@ -30,6 +30,7 @@ from .drizzle import (DrizzleAccumulator, blot_mask, coverage_report, output_sha
 from .colour import _demosaicing, colour_ccddata, drizzle_bayer, register_bayer
 from .header import stack_ccddata
 from .quality import as_taken, auto_weight, finish_table, measure_frames
+from ..options import AnyCallable, convert
 from .options import StackConfig
 
 __all__ = ["stack"]
@@ -159,6 +160,7 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
     """
     opts, options = StackConfig.from_keywords("stack", options)
     dtype = _check_dtype(dtype)
+    callback = convert("callback", AnyCallable("a function of one FrameResult"), callback)
     items, hdu = batch_frames(frames, hdu)
     if isinstance(items, Iterator):
         items = list(items)

@@ -25,7 +25,7 @@ from ..resample import ResampleConfig
 from ..exceptions import warn
 from ..io import FITSWriter, write_output
 from ..io.write import FITS_EXTENSIONS, check_not_input, check_output_path
-from ..options import Int, Real, convert
+from ..options import AnyCallable, Int, Real, convert
 from ..registration import prepare_target, register_and_match
 from .combine import array_stats, frame_variance, normalise, reject
 from .core import drizzle_ccddata
@@ -647,6 +647,7 @@ def watch_folder(folder: str | os.PathLike, reference: Any, output: str | os.Pat
     interval = convert("interval", Real(0, lo_open=True, unit="seconds"), interval)
     timeout = convert("timeout", Real(0, none=True, unit="seconds"), timeout)
     max_frames = convert("max_frames", Int(1, None, none=True), max_frames)
+    callback = convert("callback", AnyCallable("a function of (path, error)"), callback)
     if not os.path.isdir(folder):
         raise NotADirectoryError(f"folder {folder!r} does not exist or is not a folder.")
     inputs = [reference] if isinstance(reference, (str, os.PathLike)) else []

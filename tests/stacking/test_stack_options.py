@@ -84,3 +84,19 @@ def test_a_bad_option_is_the_one_line_of_a_stack(tmp_path, bad, message):
     assert code == 2 and stdout == ""
     (line,) = err.strip().splitlines()
     assert line.startswith("astroalign-nd: error: ") and message in line
+
+
+@pytest.mark.parametrize("call", ["stack", "register_batch", "watch_folder"])
+def test_a_callback_that_is_not_callable_is_refused_before_any_work(call, tmp_path):
+    from astroalign_nd import register_batch, stack
+    from astroalign_nd.stacking import watch_folder
+
+    # Frames without stars: any work started would fail otherwise, and watch writes a stack.
+    frames = [np.zeros((16, 16)), np.zeros((16, 16))]
+    calls = {"stack": lambda: stack(frames, callback=3),
+             "register_batch": lambda: register_batch(frames, frames[0], callback=3),
+             "watch_folder": lambda: watch_folder(tmp_path, "a.fits", tmp_path / "s.fits",
+                                                  callback=3)}
+    with pytest.raises(TypeError, match="callback must be a function of .* or None; got 3"):
+        calls[call]()
+    assert not any(tmp_path.iterdir())
