@@ -31,7 +31,7 @@ from ..batch.results import FrameResult
 from ..io.read import parse_input
 from ..exceptions import AstroalignError
 from ..io import write_ccddata
-from ..io.header import header_from_meta
+from ..io.header import fits_text, header_from_meta
 from ..io.bayer import (balanced_grey, bayer_channels, bayer_pattern, superpixel,
                         superpixel_to_raw)
 from ..registration import Reference, find_transform
@@ -494,7 +494,7 @@ def colour_ccddata(channels, *, meta, wcs, unit, dtype, rejected, settings):
     header["AACHANS"] = ("R,G,B", "colour of each plane of the cube")
     for colour, (_, _, _, names, stats) in zip("RGB", channels):
         for name, st in zip(names, stats):
-            header.add_history(f"{colour}: {name} sky offset {st.offset:.6g} scale "
+            header.add_history(f"{colour}: {fits_text(name)} sky offset {st.offset:.6g} scale "
                                f"{st.scale:.6g} weight {st.weight:.6g} rejected "
                                f"{st.n_rejected} px")
     return CCDData(np.stack([pl.data for pl in planes]), unit=unit,

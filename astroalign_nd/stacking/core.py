@@ -22,6 +22,7 @@ from ..batch.core import Interrupted
 from ..exceptions import TransformNotFoundError, warn
 from ..io import write_ccddata, write_output
 from ..io.bayer import bayer_pattern
+from ..io.header import fits_text
 from ..io.write import check_not_input, check_output_path, make_output_dir, remove_empty_dirs
 from ..io.writers import output_suffixes
 from .combine import combine_files, frame_stats, frame_variance, frame_weights, normalise
@@ -302,7 +303,7 @@ def drizzle_ccddata(planes, coverage, opts, settings, *, meta, wcs, offset, name
     ccd.meta.add_history(f"astroalign_nd stack: drizzled at scale {scale:g}, pixfrac "
                          f"{pixfrac:g}, kernel {kernel}, {how}")
     for name in names:
-        ccd.meta.add_history(f"drizzled {name}")
+        ccd.meta.add_history(f"drizzled {fits_text(name)}")
     if ccd.mask.all():
         warn("no frame reaches any pixel of the stack.")
     ccd.weight = planes.weight

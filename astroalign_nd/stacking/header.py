@@ -11,7 +11,7 @@ from astropy.io import fits
 from astropy.nddata import CCDData, StdDevUncertainty
 
 from ..exceptions import warn
-from ..io.header import header_from_meta, header_without_wcs
+from ..io.header import fits_text, header_from_meta, header_without_wcs
 
 __all__ = ["stack_header", "stack_ccddata", "MAX_LISTED"]
 
@@ -34,10 +34,12 @@ def _used_cards(header, used):
     """``IMCMBnnn`` (IRAF's name of a combined frame) and its normalisation and weight."""
     numbered = len(used) <= MAX_LISTED
     for k, frame in enumerate(used, start=1):
+        # A file name may hold what a card cannot (non-ASCII characters).
+        name = fits_text(frame["name"])
         if not numbered:
-            header.add_history(f"stacked: {frame['name']}")
+            header.add_history(f"stacked: {name}")
             continue
-        header[f"IMCMB{k:03d}"] = (frame["name"], "frame combined")
+        header[f"IMCMB{k:03d}"] = (name, "frame combined")
         if "offset" in frame:
             header[f"AASKY{k:03d}"] = (round(float(frame["offset"]), 6),
                                        "sky offset subtracted")
@@ -95,6 +97,7 @@ def stack_header(meta, used, rejected, settings):
         header[key] = (value, comment)
     _used_cards(header, used)
     for k, (name, reason) in enumerate(rejected, start=1):
+        name, reason = fits_text(name), fits_text(reason)
         if len(rejected) <= MAX_LISTED:
             header[f"AAREJ{k:03d}"] = (f"{name}: {reason}", "frame left out: why")
         header.add_history(f"left out {name}: {reason}")
@@ -139,7 +142,7 @@ def stack_ccddata(value, variance, coverage, *, meta, names, stats, rejected, se
     header = stack_header(meta, used, rejected, settings)
     for n, st in zip(names, stats):
         if st.converted:
-            header.add_history(f"astroalign_nd stack: {n} {st.converted}")
+            header.add_history(f"astroalign_nd stack: {fits_text(n)} {st.converted}")
     with np.errstate(invalid="ignore"):
         std = np.sqrt(variance)
     return CCDData(_as_dtype(value, dtype, "value"), unit=unit, mask=coverage == 0,

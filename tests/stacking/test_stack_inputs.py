@@ -51,3 +51,19 @@ def test_a_cube_among_images_is_left_out_with_its_reason(files, tmp_path, capsys
     assert "LEFT OUT cube.fits" in captured.out + captured.err
     assert "not a 2-D image like the other frames" in captured.out + captured.err
     assert fits.getheader(out)["NCOMBINE"] == 3
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"drizzle": 2}])
+def test_file_names_a_header_cannot_hold_are_escaped_in_it(files, tmp_path, kwargs):
+    # A non-ASCII name, long enough to need CONTINUE cards, and a frame left out.
+    names = [tmp_path / f"{'night_frame_' * 6}{k}_filtré_ñ.fits" for k in range(4)]
+    for path, src in zip(names, files[0]):
+        CCDData.read(src, unit="adu").write(path)
+    CCDData(np.zeros((96, 96)), unit="adu").write(names[3], overwrite=True)
+    out = tmp_path / "stack.fits"
+    with pytest.warns(AstroalignWarning, match="left out of the stack"):
+        stacked = stack([str(p) for p in names], output=out, **kwargs)
+    header = fits.getheader(out)
+    assert header["NCOMBINE"] == stacked.meta["NCOMBINE"] == 3
+    assert header["IMCMB002"] == f"{'night_frame_' * 6}1_filtr\\xe9_\\xf1.fits"
+    assert header["AAREJ001"].startswith(f"{'night_frame_' * 6}3_filtr\\xe9_\\xf1.fits: ")
