@@ -46,26 +46,67 @@ def run_cli(*args):
     return code, out.getvalue(), err.getvalue()
 
 
-def random_matrix(rng, transform_type, mirrored=False, frame=1000.0):
-    """A source -> target matrix of the given type (modest shear for affine).
+def random_matrix(rng, transform_type, mirrored=False, frame=1000.0, scale_range=(0.6, 1.6),
+                  stretch=0.15, shear=0.1, shift=150.0):
+    """A source -> target matrix of the given type.
 
-    The centre of a ``frame`` x ``frame`` field stays inside the target field.
+    Similarity and affine scales are drawn from ``scale_range``; affine adds a
+    stretch of up to ``stretch`` and a shear of up to ``shear``.  The centre of
+    a ``frame`` x ``frame`` field moves by at most ``shift`` px on each axis,
+    so it stays inside the target field: the fields overlap.
     """
     rot = rng.uniform(-np.pi, np.pi) if transform_type != "translation" else 0.0
-    scale = rng.uniform(0.6, 1.6) if transform_type in ("similarity", "affine") else 1.0
+    scale = rng.uniform(*scale_range) if transform_type in ("similarity", "affine") else 1.0
     c, s = np.cos(rot), np.sin(rot)
     lin = scale * np.array([[c, -s], [s, c]])
     if transform_type == "affine":
-        lin = lin @ np.array([[rng.uniform(0.85, 1.15), rng.uniform(-0.1, 0.1)],
-                              [0.0, rng.uniform(0.85, 1.15)]])
+        lin = lin @ np.array([[rng.uniform(1 - stretch, 1 + stretch), rng.uniform(-shear, shear)],
+                              [0.0, rng.uniform(1 - stretch, 1 + stretch)]])
     if mirrored and transform_type != "translation":
         lin = lin @ np.diag([1.0, -1.0])
     m = np.eye(3)
     m[:2, :2] = lin
-    # Keep the frame centre inside the target frame: the fields overlap.
     centre = np.array([frame / 2, frame / 2])
-    m[:2, 2] = centre - lin @ centre + rng.uniform(-150, 150, 2)
+    m[:2, 2] = centre - lin @ centre + rng.uniform(-shift, shift, 2)
     return m
+
+
+# Points spanning a typical detector, with non-integer and negative values.
+SAMPLE_XS = np.array([0.0, 1.0, -3.5, 123.456, 2047.0, 4095.75, -1000.0])
+SAMPLE_YS = np.array([0.0, 2.0, 7.25, -45.5, 2047.0, 10.0, 3000.0])
+
+
+def sample_linear_transforms(similarity_translation_y=-0.1):
+    """One model of each linear type, plus a mirrored one of each that can mirror.
+
+    Keys: ``translation``, ``euclidean``, ``euclidean-mirrored``, ``similarity``,
+    ``similarity-mirrored``, ``affine``, ``affine-mirrored``.  Several matrix
+    elements need all 17 significant digits; ``similarity_translation_y`` may be
+    given one with an exponent (a FITS float card cannot hold either exactly).
+    """
+    import astropy.units as u
+
+    from astroalign_nd.transforms import (AffineTransform, EuclideanTransform,
+                                          SimilarityTransform, TranslationTransform)
+
+    return {
+        "translation": TranslationTransform(translation_x=12.345678901234567,
+                                            translation_y=-7.0 / 3.0),
+        "euclidean": EuclideanTransform(rotation=0.7 * u.rad, translation_x=-12.5,
+                                        translation_y=3.0 / 7.0),
+        "euclidean-mirrored": EuclideanTransform(rotation=-2.1 * u.rad, translation_x=100.0,
+                                                 translation_y=-50.25, parity=-1),
+        "similarity": SimilarityTransform(scale=1.0123456789, rotation=np.pi / 7 * u.rad,
+                                          translation_x=1e3 / 3.0,
+                                          translation_y=similarity_translation_y),
+        "similarity-mirrored": SimilarityTransform(scale=0.5, rotation=3.0 * u.rad,
+                                                   translation_x=-20.0, translation_y=5.5,
+                                                   parity=-1),
+        "affine": AffineTransform(a11=1.01, a12=0.02, a21=-0.03, a22=0.98,
+                                  translation_x=4.0, translation_y=-9.0 / 11.0),
+        "affine-mirrored": AffineTransform(a11=0.9, a12=0.1, a21=0.2, a22=-1.1,
+                                           translation_x=-3.0, translation_y=2.0),
+    }
 
 
 def write_sequence(folder, n_frames, seed, shape=(96, 96)):
