@@ -109,21 +109,40 @@ def sample_linear_transforms(similarity_translation_y=-0.1):
     }
 
 
-def write_sequence(folder, n_frames, seed, shape=(96, 96)):
+def write_sequence(folder, n_frames, seed, shape=(96, 96), n_stars=50, noise_sigma=5.0):
     """
-    Write a simulated sequence (50 stars, sky noise 5) as FITS files ``f0.fits``... in ``folder``.
+    Write a simulated sequence as FITS files ``f0.fits``... in ``folder``.
 
-    Returns the paths, the first frame (the reference) first.
+    ``n_stars`` and ``noise_sigma`` (the sky noise; None: the simulator's
+    default) go to `~astroalign_nd.simulate.simulate_sequence`.  Returns the
+    paths (str), the first frame (the reference) first.
     """
     from astropy.nddata import CCDData
 
     from astroalign_nd.io import write_ccddata
     from astroalign_nd.simulate import simulate_sequence
 
-    seq = simulate_sequence(shape, n_frames=n_frames, n_stars=50, noise_sigma=5.0, seed=seed)
+    seq = simulate_sequence(shape, n_frames=n_frames, n_stars=n_stars, noise_sigma=noise_sigma,
+                            seed=seed)
     paths = []
     for k, frame in enumerate(seq.frames):
         path = str(folder / f"f{k}.fits")
         write_ccddata(CCDData(np.asarray(frame.data), unit="adu"), path)
         paths.append(path)
     return paths
+
+
+def count_calls(monkeypatch, owner, name):
+    """Replace ``owner.name`` by a wrapper that counts its calls; return the count (a list).
+
+    Each call appends its positional arguments to the list, then runs the real function.
+    """
+    calls = []
+    real = getattr(owner, name)
+
+    def counted(*args, **kwargs):
+        calls.append(args)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(owner, name, counted)
+    return calls
