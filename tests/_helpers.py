@@ -109,6 +109,31 @@ def sample_linear_transforms(similarity_translation_y=-0.1):
     }
 
 
+class RadialTruth:
+    """
+    A known source -> target mapping: radial distortion about the frame's centre,
+    then a rotation (degrees) and a shift.
+
+    ``r' = r (1 + k r^2 / r2max)``, with ``k`` such that the corners (``r^2 =
+    r2max``) move by ``corner_px``; called as ``truth(x, y) -> (x', y')``.
+    """
+
+    def __init__(self, shape, corner_px, rotation, shift=(7.0, -5.0)):
+        ny, nx = shape
+        self.c = np.array([(nx - 1) / 2.0, (ny - 1) / 2.0])
+        self.r2max = float(np.sum(self.c ** 2))
+        self.k = corner_px / np.sqrt(self.r2max)
+        a = np.deg2rad(rotation)
+        self.rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        self.shift = np.asarray(shift, float)
+
+    def __call__(self, x, y):
+        d = np.stack([np.asarray(x, float) - self.c[0], np.asarray(y, float) - self.c[1]])
+        d = d * (1.0 + self.k * (d[0] ** 2 + d[1] ** 2) / self.r2max)
+        out = np.tensordot(self.rot, d, axes=1)
+        return out[0] + self.c[0] + self.shift[0], out[1] + self.c[1] + self.shift[1]
+
+
 def write_sequence(folder, n_frames, seed, shape=(96, 96), n_stars=50, noise_sigma=5.0):
     """
     Write a simulated sequence as FITS files ``f0.fits``... in ``folder``.
