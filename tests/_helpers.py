@@ -171,3 +171,25 @@ def count_calls(monkeypatch, owner, name):
 
     monkeypatch.setattr(owner, name, counted)
     return calls
+
+
+def edit_cards(*delete, **cards):
+    """A change to a FITS header: delete the keywords ``delete``, then set ``cards``."""
+    def change(header):
+        for key in delete:
+            del header[key]
+        for key, value in cards.items():
+            header[key] = value
+    return change
+
+
+def assert_header_refused(model, change, message):
+    """The transform keywords of ``model``, once ``change``\\ d, are refused with ``message``."""
+    import pytest
+
+    from astroalign_nd.io import transform_from_header, transform_to_header
+
+    header = transform_to_header(model)
+    change(header)
+    with pytest.raises(ValueError, match=message):
+        transform_from_header(header)
