@@ -194,10 +194,24 @@ def field(n, n_stars):
                          translation=(0.03 * n, -0.02 * n), noise="gaussian", seed=3)
 
 
+# The masked CCDData both child scripts measure: a bad block and 0.1 % scattered bad
+# pixels, a float32 standard deviation of a Poisson-like noise.
+_MASKED_CCDDATA = r"""
+def masked_ccddata(src):
+    from astropy.nddata import CCDData, StdDevUncertainty
+    mask = np.zeros(src.shape, bool)
+    mask[10:20, 10:400] = True
+    rng = np.random.default_rng(1)
+    mask.flat[rng.choice(mask.size, mask.size // 1000, replace=False)] = True
+    sigma = np.sqrt(np.abs(src) + np.float32(25.0)).astype(np.float32)
+    return CCDData(src, unit="adu", mask=mask, uncertainty=StdDevUncertainty(sigma)), mask, sigma
+"""
+
 _MEMORY_CHILD = r"""
 import json, sys, time, warnings
 warnings.filterwarnings("ignore")
 import numpy as np
+""" + _MASKED_CCDDATA + r"""
 case, path = sys.argv[1], sys.argv[2]
 
 
@@ -219,12 +233,7 @@ else:
     from astropy.nddata import CCDData, StdDevUncertainty
     mod.register(w_src, w_dst)
     if case == "ccddata":
-        mask = np.zeros(src.shape, bool)
-        mask[10:20, 10:400] = True
-        rng = np.random.default_rng(1)
-        mask.flat[rng.choice(mask.size, mask.size // 1000, replace=False)] = True
-        sigma = np.sqrt(np.abs(src) + np.float32(25.0)).astype(np.float32)
-        inp = CCDData(src, unit="adu", mask=mask, uncertainty=StdDevUncertainty(sigma))
+        inp, _, _ = masked_ccddata(src)
         # Warm the CCDData path too (its first call imports a little more).
         mod.register(CCDData(w_src, unit="adu", mask=np.zeros(w_src.shape, bool),
                              uncertainty=StdDevUncertainty(np.ones_like(w_src))), w_dst)
@@ -336,18 +345,13 @@ _STAGES_CHILD = r"""
 import json, sys, time, warnings
 warnings.filterwarnings("ignore")
 import numpy as np
+""" + _MASKED_CCDDATA + r"""
 import astroalign_nd as aa
 from astroalign_nd.resample import resample
-from astropy.nddata import CCDData, StdDevUncertainty
 d = np.load(sys.argv[1])
 src, dst = d["source"], d["target"]
 repeat = int(sys.argv[2])
-mask = np.zeros(src.shape, bool)
-mask[10:20, 10:400] = True
-rng = np.random.default_rng(1)
-mask.flat[rng.choice(mask.size, mask.size // 1000, replace=False)] = True
-sigma = np.sqrt(np.abs(src) + np.float32(25.0)).astype(np.float32)
-inp = CCDData(src, unit="adu", mask=mask, uncertainty=StdDevUncertainty(sigma))
+inp, mask, sigma = masked_ccddata(src)
 t0 = aa.find_transform(src, dst)[0]
 m = t0.matrix
 cases = {

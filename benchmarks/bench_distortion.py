@@ -137,7 +137,6 @@ def _timed(fn):
 
 
 def part_a(pair, size, rows, label):
-    import aafitrans
     import astroalign
     from skimage.transform import PolynomialTransform
 
@@ -172,16 +171,24 @@ def part_a(pair, size, rows, label):
                      _error(_sk(out[0]) if out else None, pair, size), dt,
                      err or f"{out[1]} matches"))
 
+    def detected():
+        s = find_sources(pair.source, n_sources=500)
+        d = find_sources(pair.target, n_sources=500)
+        return np.column_stack([s["x"], s["y"]]), np.column_stack([d["x"], d["y"]])
+
+    _aafitrans_rows(rows, label, "A", pair, size, detected)
+
+
+def _aafitrans_rows(rows, tag, part, pair, size, points):
+    """Rows of aafitrans (projective, polynomial) on ``points()``: (source, target), timed too."""
+    import aafitrans
+
     for ttype in ("projective", "polynomial"):
         def aaf():
-            s = find_sources(pair.source, n_sources=500)
-            d = find_sources(pair.target, n_sources=500)
-            sxy = np.column_stack([s["x"], s["y"]])
-            dxy = np.column_stack([d["x"], d["y"]])
-            tf, (ms, _) = aafitrans.find_transform(sxy, dxy, ttype=ttype, seed=0)
+            tf, (ms, _) = aafitrans.find_transform(*points(), ttype=ttype, seed=0)
             return tf, len(ms)
         out, dt, err = _timed(aaf)
-        rows.append((label, "A", f"aafitrans-{ttype}",
+        rows.append((tag, part, f"aafitrans-{ttype}",
                      _error(_sk(out[0]) if out else None, pair, size), dt,
                      err or f"{out[1]} matches"))
 
@@ -202,7 +209,6 @@ def _given_pairs(pair, n=600):
 
 
 def part_b(pair, size, rows, label):
-    import aafitrans
     from skimage.measure import ransac
     from skimage.transform import PolynomialTransform
 
@@ -261,16 +267,8 @@ def part_b(pair, size, rows, label):
                      _error(_sk(out[0]) if out else None, pair, size), dt,
                      err or f"kept {out[1]}"))
 
-        if vname == "30% swapped":
-            continue
-        for ttype in ("projective", "polynomial"):
-            def aaf():
-                tf, (ms, _) = aafitrans.find_transform(src, d, ttype=ttype, seed=0)
-                return tf, len(ms)
-            out, dt, err = _timed(aaf)
-            rows.append((tag, "B", f"aafitrans-{ttype}",
-                         _error(_sk(out[0]) if out else None, pair, size), dt,
-                         err or f"{out[1]} matches"))
+        if vname != "30% swapped":
+            _aafitrans_rows(rows, tag, "B", pair, size, lambda d=d: (src, d))
 
 
 def main(argv=None):

@@ -69,33 +69,16 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from bench_real import DEFAULT_DATA, fill_holes, load, pair_specs, singles  # noqa: E402
 
+# The known mapping (radial distortion, then a similarity) is the tests' (tests/_helpers.py).
+sys.path.insert(0, str(HERE.parent / "tests"))
+from _helpers import RadialTruth  # noqa: E402
+
 GRID_STEP = 16
 METHODS = ("nd_affine", "nd_poly_auto", "nd_poly3", "nd_projective", "astroalign",
            "aafitrans_poly", "skimage_poly3")
 
 
-# -- the known mapping ---------------------------------------------------------------------
-
-class Truth:
-    """Source -> target mapping: radial distortion about the centre, then a similarity."""
-
-    def __init__(self, shape, corner_px, rotation, shift):
-        ny, nx = shape
-        self.c = np.array([(nx - 1) / 2.0, (ny - 1) / 2.0])
-        self.r2max = float(np.sum(self.c ** 2))
-        # r' = r (1 + k r^2 / r2max): the corner (r^2 = r2max) moves by k * rmax.
-        self.k = corner_px / np.sqrt(self.r2max)
-        a = np.deg2rad(rotation)
-        self.rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-        self.shift = np.asarray(shift, float)
-
-    def __call__(self, x, y):
-        d = np.stack([np.asarray(x, float) - self.c[0], np.asarray(y, float) - self.c[1]])
-        f = 1.0 + self.k * (d[0] ** 2 + d[1] ** 2) / self.r2max
-        d = d * f
-        out = np.tensordot(self.rot, d, axes=1)
-        return out[0] + self.c[0] + self.shift[0], out[1] + self.c[1] + self.shift[1]
-
+# -- the distorted frame -------------------------------------------------------------------
 
 def distort(img, dtype, truth, seed):
     """The source frame: ``src(p) = img(T(p))``, holes filled with sky and noise."""
@@ -257,7 +240,7 @@ def main(argv=None):
     for i, path in enumerate(files):
         img, dtype = load(path)
         for j, corner in enumerate(args.corners):
-            truth = Truth(img.shape, corner, rotation=15.0 + 40 * j, shift=(7.0, -5.0))
+            truth = RadialTruth(img.shape, corner, rotation=15.0 + 40 * j, shift=(7.0, -5.0))
             src = distort(img, dtype, truth, seed=100 * i + j)
             cells = []
             for m in args.methods:

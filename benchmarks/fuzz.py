@@ -50,6 +50,10 @@ import warnings
 
 import numpy as np
 
+# The transforms drawn here are the tests' (tests/_helpers.py), over wider ranges.
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir, "tests"))
+import _helpers  # noqa: E402
+
 TYPES = ["translation", "euclidean", "similarity", "affine"]
 FRAME = 1000.0
 CORNERS = np.array([[0.0, 0.0], [FRAME, 0.0], [0.0, FRAME], [FRAME, FRAME]])
@@ -58,20 +62,9 @@ CORNERS = np.array([[0.0, 0.0], [FRAME, 0.0], [0.0, FRAME], [FRAME, FRAME]])
 # -- case generators (run in the worker: only seeds cross the process boundary) -----
 
 def random_matrix(rng, transform_type, mirrored):
-    rot = rng.uniform(-np.pi, np.pi) if transform_type != "translation" else 0.0
-    scale = rng.uniform(0.5, 2.0) if transform_type in ("similarity", "affine") else 1.0
-    c, s = np.cos(rot), np.sin(rot)
-    lin = scale * np.array([[c, -s], [s, c]])
-    if transform_type == "affine":
-        lin = lin @ np.array([[rng.uniform(0.8, 1.2), rng.uniform(-0.15, 0.15)],
-                              [0.0, rng.uniform(0.8, 1.2)]])
-    if mirrored and transform_type != "translation":
-        lin = lin @ np.diag([1.0, -1.0])
-    m = np.eye(3)
-    m[:2, :2] = lin
-    centre = np.array([FRAME / 2, FRAME / 2])
-    m[:2, 2] = centre - lin @ centre + rng.uniform(-300, 300, 2)
-    return m
+    """A source -> target matrix of the type: wider scales, shears and shifts than the tests'."""
+    return _helpers.random_matrix(rng, transform_type, mirrored, frame=FRAME,
+                                  scale_range=(0.5, 2.0), stretch=0.2, shear=0.15, shift=300.0)
 
 
 def overlap_error(model, m, n_grid=17):

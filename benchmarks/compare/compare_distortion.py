@@ -32,7 +32,6 @@ output names the package it imported)::
 It exits with status 1 if ``--compare`` finds a difference.
 """
 
-import argparse
 import json
 import os
 import sys
@@ -49,6 +48,7 @@ sys.path[:0] = [os.path.dirname(_BENCH), _BENCH, _HERE]
 _DATA = Path(_BENCH).parent.parent / "shared" / "data"
 
 # The same JSON comparison as the linear models' check.
+from _command import run_command  # noqa: E402
 from compare_transforms import compare  # noqa: E402
 
 SIZE = 1024
@@ -215,19 +215,9 @@ def record(out, data):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", help="write the results to this JSON file")
-    ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"),
-                    help="report the differences between two result files")
-    ap.add_argument("--data", type=Path, default=_DATA,
-                    help="the real data folder (skipped when absent)")
-    args = ap.parse_args(argv)
-    if args.compare:
-        return 1 if compare(*args.compare) else 0
-    if not args.out:
-        ap.error("pass --out FILE or --compare OLD NEW")
-    record(args.out, args.data)
-    return 0
+    return run_command(argv, __doc__, record, compare, [
+        (("--data",), dict(type=Path, default=_DATA,
+                           help="the real data folder (skipped when absent)"))])
 
 
 if __name__ == "__main__":

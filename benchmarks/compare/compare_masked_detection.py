@@ -17,11 +17,12 @@ Usage::
     python benchmarks/compare/compare_masked_detection.py --compare before.pkl after.pkl
 """
 
-import argparse
 import pickle
 import warnings
 
 import numpy as np
+
+from _command import run_command
 
 
 def _results():
@@ -66,25 +67,27 @@ def _results():
     return res
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out")
-    ap.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"))
-    args = ap.parse_args(argv)
-    if args.compare:
-        a, b = (pickle.load(open(f, "rb")) for f in args.compare)
-        diff = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
-        for k in diff:
-            print("differs:", k)
-        print(f"{len(set(a) | set(b))} results compared, {len(diff)} different")
-        return
+def record(out):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = _results()
-    with open(args.out, "wb") as f:
+    with open(out, "wb") as f:
         pickle.dump(res, f)
-    print(f"{len(res)} results written to {args.out}")
+    print(f"{len(res)} results written to {out}")
+
+
+def compare(old, new):
+    a, b = (pickle.load(open(f, "rb")) for f in (old, new))
+    diff = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+    for k in diff:
+        print("differs:", k)
+    print(f"{len(set(a) | set(b))} results compared, {len(diff)} different")
+    return len(diff)
+
+
+def main(argv=None):
+    return run_command(argv, __doc__, record, compare)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -23,10 +23,11 @@ Usage::
     python benchmarks/compare/compare_resample.py --compare before.npz after.npz
 """
 
-import argparse
 import re
 
 import numpy as np
+
+from _command import run_command
 
 
 def _cases():
@@ -197,16 +198,7 @@ def compare(a, b):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out")
-    ap.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"))
-    args = ap.parse_args(argv)
-    if args.compare:
-        return 1 if compare(*args.compare) else 0
-    if not args.out:
-        ap.error("give --out FILE or --compare BEFORE AFTER")
-    run(args.out)
-    return 0
+    return run_command(argv, __doc__, run, compare)
 
 
 if __name__ == "__main__":

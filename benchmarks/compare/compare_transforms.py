@@ -28,7 +28,6 @@ Usage::
     python benchmarks/compare/compare_transforms.py --compare before.json after.json
 """
 
-import argparse
 import json
 import os
 import sys
@@ -41,6 +40,8 @@ _HERE = os.path.dirname(os.path.abspath(__file__))
 _BENCH = os.path.dirname(_HERE)  # benchmarks/: bench_grid, bench_hard_cases
 # The checkout this script lives in is the one measured (not an installed copy).
 sys.path[:0] = [os.path.dirname(_BENCH), _BENCH, _HERE]
+
+from _command import run_command  # noqa: E402
 
 GRID_CELLS = [(size, stars, bg) for size in (256, 512) for stars in (300, 1000)
               for bg in (100, 5000)]
@@ -228,19 +229,9 @@ def _summarize(a, b):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", help="write the results to this JSON file")
-    ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"),
-                    help="report the differences between two result files")
-    ap.add_argument("--crowded", action="store_true",
-                    help="include the 30000-star crowded hard case (slow)")
-    args = ap.parse_args(argv)
-    if args.compare:
-        return 1 if compare(*args.compare) else 0
-    if not args.out:
-        ap.error("pass --out FILE or --compare OLD NEW")
-    record(args.out, args.crowded)
-    return 0
+    return run_command(argv, __doc__, record, compare, [
+        (("--crowded",), dict(action="store_true",
+                              help="include the 30000-star crowded hard case (slow)"))])
 
 
 if __name__ == "__main__":

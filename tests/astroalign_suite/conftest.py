@@ -1,22 +1,15 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """
-Run astroalign 2.6.2's own test suite against `astroalign_nd.compat`.
+Run astroalign 2.6.2's own tests against `astroalign_nd.compat`.
 
-``test_align.py`` (vendored verbatim, see README.md) does ``import astroalign
+``test_align.py`` (astroalign's tests, see README.md) does ``import astroalign
 as aa``.  While that module is collected, ``astroalign`` resolves to
 `astroalign_nd.compat`; the alias is removed afterwards, so that nothing else
 in the session (benchmarks comparing against the real astroalign) sees it.
-
-The suite's ``setUp`` simulates the same seeded image pair for every test
-of a class (about 0.5 s each); ``simulate_image_pair`` is memoised for
-seeded calls, which returns the same arrays and saves two thirds of the
-suite's time.
 """
 
-import copy
 import sys
 
-import numpy as np
 import pytest
 
 # doctestplus imports every .py file; this one must not clash with tests/conftest.py.
@@ -64,32 +57,3 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(quiet)
             if not HAVE_SEP:
                 item.add_marker(skip)
-
-
-@pytest.fixture(scope="module")
-def _simulations():
-    return {}
-
-
-def _key(args, kwargs):
-    def norm(v):
-        return ("array", np.asarray(v).tobytes(), np.shape(v)) if isinstance(
-            v, (np.ndarray, list)) else v
-    return (tuple(norm(a) for a in args), tuple(sorted((k, norm(v)) for k, v in kwargs.items())))
-
-
-@pytest.fixture(autouse=True)
-def _simulate_once(request, monkeypatch, _simulations):
-    simulate = getattr(request.module, "simulate_image_pair", None)
-    if simulate is None:
-        return
-
-    def cached(*args, **kwargs):
-        if kwargs.get("random_seed") is None:  # unseeded: a new pair every time
-            return simulate(*args, **kwargs)
-        key = _key(args, kwargs)
-        if key not in _simulations:
-            _simulations[key] = simulate(*args, **kwargs)
-        return copy.deepcopy(_simulations[key])
-
-    monkeypatch.setattr(request.module, "simulate_image_pair", cached)

@@ -18,6 +18,8 @@ from astroalign_nd import transform_from_header
 from astroalign_nd.cli import main
 from astroalign_nd.simulate import simulate_pair
 
+from _helpers import count_calls
+
 WORKTREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
@@ -297,14 +299,7 @@ def test_register_plot_registers_once(files, tmp_path, monkeypatch):
     from astroalign_nd import registration
 
     ref, srcs, _ = files
-    calls = []
-    real = registration.find_match_from_config
-
-    def spy(*args, **kwargs):
-        calls.append(1)
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(registration, "find_match_from_config", spy)
+    calls = count_calls(monkeypatch, registration, "find_match_from_config")
     assert main(["register", srcs[0], ref, "-o", str(tmp_path / "a.fits"),
                  "--plot", str(tmp_path / "a.png")]) == 0
     assert len(calls) == 1 and (tmp_path / "a.png").stat().st_size > 0

@@ -20,7 +20,7 @@ from astroalign_nd import transform_from_header
 from astroalign_nd.cli import main
 from astroalign_nd.simulate import simulate_pair
 
-from _helpers import run_cli
+from _helpers import count_calls, run_cli
 
 WORKTREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -203,17 +203,11 @@ def test_batch_plot_dir_draws_without_searching(night, tmp_path, monkeypatch, ca
     from astroalign_nd.batch import frame
 
     ref, frames, _ = night
-    searches = []
-    real = frame.find_for_apply
-
-    def counted(*args, **kwargs):
-        searches.append(1)
-        return real(*args, **kwargs)
+    searches = count_calls(monkeypatch, frame, "find_for_apply")
 
     def no_search(*args, **kwargs):
         raise AssertionError("the figures searched again")
 
-    monkeypatch.setattr(frame, "find_for_apply", counted)
     monkeypatch.setattr(visualization, "find_transform", no_search)
     plots = tmp_path / "plots"
     for canvas in ("reference", "union"):

@@ -41,6 +41,8 @@ from astroalign_nd.transforms import (
     TranslationTransform,
 )
 
+from _helpers import SAMPLE_XS, SAMPLE_YS, sample_linear_transforms
+
 URI_BASE = "asdf://astroalign-nd.org/astroalign_nd"
 EXTENSION_URI = f"{URI_BASE}/extensions/astroalign_nd-1.1.0"
 MANIFEST_URI = f"{URI_BASE}/manifests/astroalign_nd-1.1.0"
@@ -56,26 +58,10 @@ CLASSES = {"translation": TranslationTransform, "euclidean": EuclideanTransform,
            "similarity": SimilarityTransform, "affine": AffineTransform,
            "projective": ProjectiveTransform, "polynomial": PolynomialTransform}
 
-# Points spanning a typical detector, with non-integer and negative values.
-XS = np.array([0.0, 1.0, -3.5, 123.456, 2047.0, 4095.75, -1000.0])
-YS = np.array([0.0, 2.0, 7.25, -45.5, 2047.0, 10.0, 3000.0])
+XS, YS = SAMPLE_XS, SAMPLE_YS
 
 TRANSFORMS = {
-    "translation": TranslationTransform(translation_x=12.345678901234567,
-                                        translation_y=-7.0 / 3.0),
-    "euclidean": EuclideanTransform(rotation=0.7 * u.rad, translation_x=-12.5,
-                                    translation_y=3.0 / 7.0),
-    "euclidean-mirrored": EuclideanTransform(rotation=-2.1 * u.rad, translation_x=100.0,
-                                             translation_y=-50.25, parity=-1),
-    "similarity": SimilarityTransform(scale=1.0123456789, rotation=np.pi / 7 * u.rad,
-                                      translation_x=1e3 / 3.0, translation_y=-0.1),
-    "similarity-mirrored": SimilarityTransform(scale=0.5, rotation=3.0 * u.rad,
-                                               translation_x=-20.0, translation_y=5.5,
-                                               parity=-1),
-    "affine": AffineTransform(a11=1.01, a12=0.02, a21=-0.03, a22=0.98,
-                              translation_x=4.0, translation_y=-9.0 / 11.0),
-    "affine-mirrored": AffineTransform(a11=0.9, a12=0.1, a21=0.2, a22=-1.1,
-                                       translation_x=-3.0, translation_y=2.0),
+    **sample_linear_transforms(),
     "projective": ProjectiveTransform(h11=1.01, h12=0.02, h13=5.0 / 3.0, h21=-0.01, h22=0.99,
                                       h23=-3.5, h31=2.0e-6, h32=-1.0e-6 / 3.0),
     "polynomial": PolynomialTransform(degree=3, crpix=(2047.5, 1023.5), a11=1.001, a12=-0.02,

@@ -20,28 +20,13 @@ from astroalign_nd.transforms import (
     TranslationTransform,
 )
 
-XS = np.array([0.0, 1.0, -3.5, 123.456, 2047.0, 4095.75, -1000.0])
-YS = np.array([0.0, 2.0, 7.25, -45.5, 2047.0, 10.0, 3000.0])
+from _helpers import (SAMPLE_XS, SAMPLE_YS, assert_header_refused, edit_cards,
+                      sample_linear_transforms)
 
-# Values chosen so that several matrix elements need all 17 significant digits
-# (or an exponent), which a 20-character FITS float card cannot hold.
-TRANSFORMS = {
-    "translation": TranslationTransform(translation_x=12.345678901234567,
-                                        translation_y=-7.0 / 3.0),
-    "euclidean": EuclideanTransform(rotation=0.7 * u.rad, translation_x=-12.5,
-                                    translation_y=3.0 / 7.0),
-    "euclidean-mirrored": EuclideanTransform(rotation=-2.1 * u.rad, translation_x=100.0,
-                                             translation_y=-50.25, parity=-1),
-    "similarity": SimilarityTransform(scale=1.0123456789, rotation=np.pi / 7 * u.rad,
-                                      translation_x=1e3 / 3.0, translation_y=-1.2345e-7),
-    "similarity-mirrored": SimilarityTransform(scale=0.5, rotation=3.0 * u.rad,
-                                               translation_x=-20.0, translation_y=5.5,
-                                               parity=-1),
-    "affine": AffineTransform(a11=1.01, a12=0.02, a21=-0.03, a22=0.98,
-                              translation_x=4.0, translation_y=-9.0 / 11.0),
-    "affine-mirrored": AffineTransform(a11=0.9, a12=0.1, a21=0.2, a22=-1.1,
-                                       translation_x=-3.0, translation_y=2.0),
-}
+XS, YS = SAMPLE_XS, SAMPLE_YS
+# The similarity's translation needs an exponent in a FITS card; several other
+# matrix elements need all 17 significant digits: neither fits a 20-character float card.
+TRANSFORMS = sample_linear_transforms(similarity_translation_y=-1.2345e-7)
 TYPE_NAMES = {
     TranslationTransform: "translation",
     EuclideanTransform: "euclidean",
@@ -288,33 +273,16 @@ def test_header_without_keywords():
         transform_from_header(header, prefix="ZZ")
 
 
-def test_bad_type_keyword():
-    header = transform_to_header(TRANSFORMS["affine"])
-    header["AATTYPE"] = "homography"
-    with pytest.raises(ValueError, match="AATTYPE must be one of"):
-        transform_from_header(header)
-
-
-def test_incomplete_matrix():
-    header = transform_to_header(TRANSFORMS["affine"])
-    del header["AATM12"]
-    del header["AATM12S"]
-    with pytest.raises(ValueError, match="AATM12"):
-        transform_from_header(header)
-
-
-def test_edited_float_card_conflicts_with_string():
-    header = transform_to_header(TRANSFORMS["similarity"])
-    header["AATM02"] = header["AATM02"] + 1.0
-    with pytest.raises(ValueError, match="AATM02.*disagree"):
-        transform_from_header(header)
-
-
-def test_type_inconsistent_with_matrix():
-    header = transform_to_header(TRANSFORMS["affine"])
-    header["AATTYPE"] = "similarity"
-    with pytest.raises(ValueError, match="not a valid SimilarityTransform"):
-        transform_from_header(header)
+@pytest.mark.parametrize("key, change, message", [
+    ("affine", edit_cards(AATTYPE="homography"), "AATTYPE must be one of"),
+    ("affine", edit_cards("AATM12", "AATM12S"), "AATM12"),
+    # the float card no longer agrees with the exact string card beside it
+    ("similarity", edit_cards(AATM02=TRANSFORMS["similarity"].matrix[0, 2] + 1.0),
+     "AATM02.*disagree"),
+    ("affine", edit_cards(AATTYPE="similarity"), "not a valid SimilarityTransform"),
+], ids=["unknown-type", "incomplete-matrix", "float-card-edited", "type-not-the-matrix"])
+def test_edited_header_is_refused(key, change, message):
+    assert_header_refused(TRANSFORMS[key], change, message)
 
 
 def test_bad_header_argument():

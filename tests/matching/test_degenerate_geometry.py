@@ -26,6 +26,21 @@ def _band_catalog(rng, n_band, n_stars, row):
     return pts[rng.permutation(len(pts))]
 
 
+def _stars_and_a_row(rng, n_stars, n_row, rotation_deg, shift):
+    """
+    Related catalogs: ``n_stars`` stars under a rotation and shift (the truth, 3x3),
+    then ``n_row`` unrelated detections on row 0 in the source and 0.6 in the target.
+    """
+    stars = rng.uniform(0, 511, (n_stars, 2))
+    c, s = np.cos(np.deg2rad(rotation_deg)), np.sin(np.deg2rad(rotation_deg))
+    truth = np.array([[c, -s, shift[0]], [s, c, shift[1]], [0, 0, 1]])
+    mapped = stars @ truth[:2, :2].T + truth[:2, 2]
+    src = np.vstack([stars, np.column_stack([rng.uniform(0, 511, n_row), np.zeros(n_row)])])
+    dst = np.vstack([mapped, np.column_stack([rng.uniform(0, 511, n_row),
+                                              np.full(n_row, 0.6)])])
+    return src, dst, truth
+
+
 def test_collinear_matched_points_are_refused_with_the_reason():
     rng = np.random.default_rng(3)
     src = np.column_stack([np.sort(rng.uniform(0, 511, 17)), np.zeros(17)])
@@ -72,13 +87,7 @@ def test_unrelated_catalogs_with_a_row_of_detections_are_refused(seed):
 
 
 def test_related_catalogs_with_a_row_of_detections_still_match():
-    rng = np.random.default_rng(7)
-    stars = rng.uniform(0, 511, (60, 2))
-    c, s = np.cos(np.deg2rad(10.0)), np.sin(np.deg2rad(10.0))
-    truth = np.array([[c, -s, 12.0], [s, c, -7.0], [0, 0, 1]])
-    mapped = stars @ truth[:2, :2].T + truth[:2, 2]
-    src = np.vstack([stars, np.column_stack([rng.uniform(0, 511, 40), np.zeros(40)])])
-    dst = np.vstack([mapped, np.column_stack([rng.uniform(0, 511, 40), np.full(40, 0.6)])])
+    src, dst, truth = _stars_and_a_row(np.random.default_rng(7), 60, 40, 10.0, (12.0, -7.0))
     result = match_points(src, dst, source_frame=FRAME, target_frame=FRAME)
     assert result.n_matches >= 50
     np.testing.assert_allclose(result.transform.matrix, truth, atol=1e-6)
@@ -103,12 +112,7 @@ def test_search_goes_on_past_a_row_of_detections_to_the_real_stars(seed):
     # inliers, and the search must set them aside and find the stars.
     # (The old code raised LinAlgError on the collinear stars.)
     rng = np.random.default_rng(seed)
-    stars = rng.uniform(0, 511, (20, 2))
-    c, s = np.cos(np.deg2rad(3.0)), np.sin(np.deg2rad(3.0))
-    truth = np.array([[c, -s, 5.0], [s, c, -2.0], [0, 0, 1]])
-    mapped = stars @ truth[:2, :2].T + truth[:2, 2]
-    src = np.vstack([stars, np.column_stack([rng.uniform(0, 511, 60), np.zeros(60)])])
-    dst = np.vstack([mapped, np.column_stack([rng.uniform(0, 511, 60), np.full(60, 0.6)])])
+    src, dst, truth = _stars_and_a_row(rng, 20, 60, 3.0, (5.0, -2.0))
     src, dst = src[rng.permutation(len(src))], dst[rng.permutation(len(dst))]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", PoorFitWarning)  # a chance pair on the row may join

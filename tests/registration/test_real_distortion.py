@@ -3,7 +3,7 @@
 Distortion models on REAL frames (../shared/data/real, see its README.txt).
 
 Each frame is resampled through a known radial distortion and a similarity
-(as ``benchmarks/bench_distortion_real.py`` does), so the truth is exact
+(``_helpers.RadialTruth``, as ``benchmarks/bench_distortion_real.py`` does), so the truth is exact
 while the stars, noise and plate defects are real; the original frame is
 the target.  The simulator is not the judge here.
 """
@@ -19,30 +19,12 @@ from astroalign_nd import find_transform
 from astroalign_nd.io.read import parse_input
 from astroalign_nd.exceptions import PoorFitWarning
 
+from _helpers import RadialTruth
+
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
 
 pytestmark = pytest.mark.skipif(
     not DATA.is_dir(), reason=f"real test images not available (expected {DATA})")
-
-
-class _Truth:
-    """Source -> target: radial distortion moving the corners by ``corner`` px, then a
-    rotation and shift (the mapping of bench_distortion_real.py)."""
-
-    def __init__(self, shape, corner, rotation, shift=(7.0, -5.0)):
-        ny, nx = shape
-        self.c = np.array([(nx - 1) / 2.0, (ny - 1) / 2.0])
-        self.r2max = float(np.sum(self.c ** 2))
-        self.k = corner / np.sqrt(self.r2max)
-        a = np.deg2rad(rotation)
-        self.rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-        self.shift = np.asarray(shift, float)
-
-    def __call__(self, x, y):
-        dx, dy = x - self.c[0], y - self.c[1]
-        f = 1.0 + self.k * (dx * dx + dy * dy) / self.r2max
-        out = np.tensordot(self.rot, np.stack([dx * f, dy * f]), axes=1)
-        return out[0] + self.c[0] + self.shift[0], out[1] + self.c[1] + self.shift[1]
 
 
 def _distorted(name, corner, rotation):
@@ -51,7 +33,7 @@ def _distorted(name, corner, rotation):
     if not path.exists():
         pytest.skip(f"{path} not available")
     img = np.asarray(parse_input(str(path)).detection_image, np.float64)
-    truth = _Truth(img.shape, corner, rotation)
+    truth = RadialTruth(img.shape, corner, rotation)
     yy, xx = np.mgrid[0:img.shape[0], 0:img.shape[1]].astype(float)
     tx, ty = truth(xx, yy)
     med = float(np.nanmedian(img))

@@ -347,7 +347,10 @@ def test_dense_and_sparse_factors_agree(monkeypatch):
     for i in range(8):
         assert np.allclose(as_matrix(dense.transforms[i]), as_matrix(sparse.transforms[i]),
                            atol=1e-8)
-        assert np.allclose(dense.covariances[i], sparse.covariances[i], rtol=1e-6, atol=1e-14)
+        # Entries that nearly cancel (1e-11 beside a diagonal of 1e-4) differ in their rounding:
+        # compared to the covariance's own scale.
+        cov = dense.covariances[i]
+        assert np.allclose(cov, sparse.covariances[i], rtol=1e-6, atol=1e-8 * np.abs(cov).max())
         assert _max_error(dense.transforms[i], _truth(truth, i, 0), shape) < 0.1
 
 

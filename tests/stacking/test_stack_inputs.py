@@ -4,24 +4,19 @@
 import numpy as np
 import pytest
 from astropy.io import fits
-from astropy.nddata import CCDData
 
 from astroalign_nd import AstroalignWarning, stack
 from astroalign_nd.cli.main import main
-from astroalign_nd.simulate import simulate_sequence
+
+from _helpers import write_sequence
 
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     folder = tmp_path_factory.mktemp("frames")
-    seq = simulate_sequence((96, 96), n_frames=3, n_stars=40, seed=11)
-    paths = []
-    for k, frame in enumerate(seq.frames):
-        path = folder / f"f{k}.fits"
-        CCDData(np.asarray(frame.data), unit="adu").write(path)
-        paths.append(str(path))
+    paths = write_sequence(folder, 3, seed=11, n_stars=40, noise_sigma=None)
     cube = folder / "cube.fits"
-    fits.writeto(cube, np.stack([np.asarray(seq.frames[1].data)] * 3))
+    fits.writeto(cube, np.stack([fits.getdata(paths[1])] * 3))
     return paths, str(cube)
 
 

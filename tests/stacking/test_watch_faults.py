@@ -6,26 +6,20 @@ import shutil
 import threading
 import time
 
-import numpy as np
 import pytest
 from astropy.nddata import CCDData
 
 from astroalign_nd import register
 from astroalign_nd.io import write_ccddata
-from astroalign_nd.simulate import simulate_sequence
 from astroalign_nd.stacking import watch_folder
+
+from _helpers import write_sequence
 
 
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("src")
-    seq = simulate_sequence((96, 96), n_frames=3, n_stars=40, seed=4)
-    paths = []
-    for k, frame in enumerate(seq.frames):
-        path = folder / f"f{k}.fits"
-        write_ccddata(CCDData(np.asarray(frame.data), unit="adu"), path)
-        paths.append(str(path))
-    return paths
+    return write_sequence(tmp_path_factory.mktemp("src"), 3, seed=4, n_stars=40,
+                          noise_sigma=None)
 
 
 def _write_slowly(data, path, n_chunks=4, pause=0.4):

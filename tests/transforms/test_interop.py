@@ -25,27 +25,11 @@ from astroalign_nd.transforms import (
     to_skimage,
 )
 
-XS = np.array([0.0, 1.0, -3.5, 123.456, 2047.0, 4095.75, -1000.0])
-YS = np.array([0.0, 2.0, 7.25, -45.5, 2047.0, 10.0, 3000.0])
-POINTS = np.column_stack([XS, YS])
+from _helpers import SAMPLE_XS, SAMPLE_YS, sample_linear_transforms
 
-TRANSFORMS = {
-    "translation": TranslationTransform(translation_x=12.345678901234567,
-                                        translation_y=-7.0 / 3.0),
-    "euclidean": EuclideanTransform(rotation=0.7 * u.rad, translation_x=-12.5,
-                                    translation_y=3.0 / 7.0),
-    "euclidean-mirrored": EuclideanTransform(rotation=-2.1 * u.rad, translation_x=100.0,
-                                             translation_y=-50.25, parity=-1),
-    "similarity": SimilarityTransform(scale=1.0123456789, rotation=np.pi / 7 * u.rad,
-                                      translation_x=1e3 / 3.0, translation_y=-0.1),
-    "similarity-mirrored": SimilarityTransform(scale=0.5, rotation=3.0 * u.rad,
-                                               translation_x=-20.0, translation_y=5.5,
-                                               parity=-1),
-    "affine": AffineTransform(a11=1.01, a12=0.02, a21=-0.03, a22=0.98,
-                              translation_x=4.0, translation_y=-9.0 / 11.0),
-    "affine-mirrored": AffineTransform(a11=0.9, a12=0.1, a21=0.2, a22=-1.1,
-                                       translation_x=-3.0, translation_y=2.0),
-}
+XS, YS = SAMPLE_XS, SAMPLE_YS
+POINTS = np.column_stack([XS, YS])
+TRANSFORMS = sample_linear_transforms()
 KEYS = list(TRANSFORMS)
 
 # The class scikit-image uses for each: its Euclidean/Similarity classes
@@ -70,6 +54,14 @@ def _evaluate(model):
 
 def _assert_same_evaluation(model, other, atol=1e-9):
     assert_allclose(_evaluate(other), _evaluate(model), rtol=0.0, atol=atol)
+
+
+def _assert_converts_back(model, convert, foreign):
+    """``convert(foreign)``, with the type guessed or given, is ``model`` again."""
+    for back in (convert(foreign), convert(foreign, type(model))):
+        assert type(back) is type(model)
+        _assert_same_evaluation(model, back)
+        assert back.mirrored == model.mirrored
 
 
 def _expected(model):
@@ -240,14 +232,7 @@ def test_to_and_from_skimage(key):
     # The skimage inverse agrees with ours.
     assert_allclose(sk.inverse(POINTS), _evaluate(model.inverse), rtol=0, atol=1e-9)
 
-    back = from_skimage(sk)
-    assert type(back) is type(model)
-    _assert_same_evaluation(model, back)
-    back_typed = from_skimage(sk, type(model))
-    assert type(back_typed) is type(model)
-    _assert_same_evaluation(model, back_typed)
-    if model.mirrored:
-        assert back.mirrored and back_typed.mirrored
+    _assert_converts_back(model, from_skimage, sk)
 
 
 def test_skimage_attributes_match():
@@ -326,13 +311,7 @@ def test_to_and_from_astropy_affine(key):
     _assert_same_evaluation(model, affine)
     _assert_same_evaluation(model.inverse, affine.inverse)
 
-    back = from_astropy_affine(affine)
-    assert type(back) is type(model)
-    _assert_same_evaluation(model, back)
-    back_typed = from_astropy_affine(affine, type(model))
-    assert type(back_typed) is type(model)
-    _assert_same_evaluation(model, back_typed)
-    assert back.mirrored == model.mirrored
+    _assert_converts_back(model, from_astropy_affine, affine)
 
 
 def test_from_astropy_affine_native():

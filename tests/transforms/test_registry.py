@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 from asdf.extension import Extension, TagDefinition
-from astropy.modeling import Model, Parameter
+from astropy.modeling import Model
 
 import astroalign_nd
 from astroalign_nd.cli.main import build_parser
@@ -24,46 +24,9 @@ from astroalign_nd.transforms import (LINEAR_TYPES, NONLINEAR_TYPES, TRANSFORM_R
                                       register_transform_type, transform_class,
                                       transform_type_of, unregister_transform_type)
 
+from _toy_transforms import ScaleShift
+
 BUILTIN = ("translation", "euclidean", "similarity", "affine", "projective", "polynomial")
-
-
-class ScaleShift(LinearTransform2D):
-    """A toy linear type: uniform scale and shift, ``x' = s x + tx``, ``y' = s y + ty``."""
-
-    scale = Parameter(default=1.0)
-    translation_x = Parameter(default=0.0)
-    translation_y = Parameter(default=0.0)
-    min_points = 2
-    n_dof = 3
-
-    @staticmethod
-    def evaluate(x, y, scale, translation_x, translation_y):
-        return scale * x + translation_x, scale * y + translation_y
-
-    @property
-    def rotation(self):
-        return 0.0
-
-    @classmethod
-    def _from_matrix(cls, m):
-        if not np.allclose(m[:2, :2], m[0, 0] * np.eye(2), rtol=0.0, atol=1e-9):
-            raise ValueError("matrix is not a uniform scale")
-        return cls(scale=m[0, 0], translation_x=m[0, 2], translation_y=m[1, 2])
-
-    @classmethod
-    def _design(cls, src, weights, parity=1):
-        design = np.zeros((2 * len(src), 3))
-        design[0::2, 0], design[1::2, 0] = src[:, 0], src[:, 1]
-        design[0::2, 1] = design[1::2, 2] = 1.0
-        return design
-
-    @classmethod
-    def _linear_fit(cls, src, dst, w, parity):
-        design = cls._design(src, w, parity)
-        sw = np.sqrt(np.repeat(w, 2))
-        theta, *_ = np.linalg.lstsq(design * sw[:, None], dst.ravel() * sw, rcond=None)
-        s, tx, ty = theta
-        return np.array([[s, 0.0, tx], [0.0, s, ty], [0.0, 0.0, 1.0]]), design, theta
 
 
 class ToyHomography(ProjectiveTransform):
