@@ -4,6 +4,7 @@
 import numpy as np
 import pytest
 from astropy.io import fits
+from astropy.nddata import CCDData
 
 from astroalign_nd import AstroalignWarning, stack
 from astroalign_nd.cli.main import main
