@@ -48,6 +48,69 @@ def _extract_cutouts(data, mask, xc, yc, half, fill):
     return cut, bad
 
 
+#: FWHM (pixels) of the narrowest star a spike is told from when the stars'
+#: own FWHM is not known yet: a spike stands above its brightest neighbour
+#: by more than such a star's centre can (about 12 times).
+_SPIKE_MIN_FWHM = 0.8
+
+#: With a known FWHM, spikes are judged against stars this much narrower
+#: (a margin for the estimate and for stars off the pixel centre).
+_SPIKE_FWHM_MARGIN = 0.7
+
+#: ... and a spike stands this many noise sigmas above what its
+#: neighbours allow.
+_SPIKE_NSIGMA = 5.0
+
+
+def _neighbour_ratio(fwhm):
+    """
+    The least ratio of a star's brightest neighbouring pixel to its centre
+    pixel: a Gaussian star of this FWHM centred on a pixel, integrated over
+    the pixels.
+    """
+    from scipy.special import ndtr
+
+    s = fwhm / _GAUSS_SIGMA_TO_FWHM
+    centre = ndtr(0.5 / s) - ndtr(-0.5 / s)
+    return float((ndtr(1.5 / s) - ndtr(0.5 / s)) / centre)
+
+
+def _despike(cut, bad, noise, fwhm=None):
+    """
+    The cutouts with their single-pixel spikes (hot pixels, cosmic-ray hits
+    of one pixel) replaced by the median of their neighbours.
+
+    A spike stands above all its eight neighbours by more than the centre of
+    any star of the frame can: more than ``1 / _neighbour_ratio`` times the
+    brightest neighbour, plus `_SPIKE_NSIGMA` noise sigmas.  The ratio is
+    that of a star narrower than the frame's (``fwhm``, by
+    `_SPIKE_FWHM_MARGIN`), or of the narrowest star (`_SPIKE_MIN_FWHM`)
+    when the FWHM is not known, so that the centre of an undersampled star
+    is left alone.  ``cut`` holds background-subtracted tiles (not modified:
+    a new array is returned when a spike is found); ``bad`` pixels are
+    neither spikes nor neighbours.
+    """
+    f = _SPIKE_MIN_FWHM if fwhm is None else max(_SPIKE_MIN_FWHM, _SPIKE_FWHM_MARGIN * fwhm)
+    allow = 1.0 / _neighbour_ratio(f)
+    n, ny, nx = cut.shape
+    pad = np.full((n, ny + 2, nx + 2), np.nan)
+    pad[:, 1:-1, 1:-1] = np.where(bad, np.nan, cut)
+    nbs = np.stack([pad[:, 1 + dy:ny + 1 + dy, 1 + dx:nx + 1 + dx]
+                    for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx])
+    with np.errstate(invalid="ignore"):
+        top = np.fmax.reduce(nbs, axis=0)
+        spike = ~bad & (cut > allow * np.fmax(top, 0.0) + _SPIKE_NSIGMA * noise)
+    if not spike.any():
+        return cut
+    out = np.array(cut)
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all neighbours bad: NaN
+        out[spike] = np.nanmedian(nbs[:, spike], axis=0)
+    out[spike & ~np.isfinite(out)] = 0.0
+    return out
+
+
 def _auto_bin(shape):
     # Aim for a binned image of ~300 px on its long side: DAOStarFinder's
     # cost scales with the pixel count, and candidates are refined later.
@@ -135,12 +198,13 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates, lines=None,
             "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b), "snr": snr}
 
 
-def _recenter(data, mask, cand, b, fwhm):
+def _recenter(data, mask, cand, b, fwhm, noise):
     """
     Recentre the coarse candidates at full resolution.
 
-    The brightest 3x3 sum in the block around each binned peak (a sum, so
-    that a lone hot pixel does not win), then a few windowed-centroid steps.
+    The brightest 3x3 sum in the block around each binned peak, with
+    single-pixel spikes removed (`_despike`: a hot pixel beside a faint star
+    does not win), then a few windowed-centroid steps.
     """
     rc = int(np.ceil(b + 3))
     xc = np.round(cand["x"]).astype(int)
@@ -148,6 +212,7 @@ def _recenter(data, mask, cand, b, fwhm):
     cut, bad = _extract_cutouts(data, mask, xc, yc, rc, 0.0)
     cut -= cand["bkg"][:, None, None]
     cut[bad] = 0.0
+    cut = _despike(cut, bad, noise, fwhm)
     box = np.zeros_like(cut)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):

@@ -13,10 +13,12 @@ from .._kernels import mirrored_windowed_centroid as _mirrored_windowed_centroid
 from .._kernels import windowed_centroid as _windowed_centroid
 from ..options import Int, convert
 from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
-from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
+from .candidates import (_as_image, _auto_bin, _binned_candidates, _despike, _extract_cutouts,
+                         _recenter)
 from .background import (_bin_mean, _correlated_noise_factor, _local_background,
                          estimate_noise)
 from .lines import line_background
+from .trails import find_trails, trail_pieces
 from .options import DetectionConfig
 from .base import SourceFinderBase, _standard_table
 
@@ -168,7 +170,19 @@ def _detect(image, mask, n_sources, config, nsigma):
         cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand, lines=lines)
     if len(cand["x"]) == 0:
         return _empty_table(fwhm or 0.0, noise, b)
-    cand = _recenter(data, mask, cand, b, fwhm)
+    cand = _recenter(data, mask, cand, b, fwhm, noise)
+    trails = find_trails(cand["x"], cand["y"], data, mask, noise)
+    if trails:
+        # A trail's pieces (`trails`) are not stars, and took the places of
+        # faint ones among the candidates: more candidates, less the pieces.
+        n_pieces = int(trail_pieces(data, mask, cand["x"], cand["y"], trails, noise).sum())
+        cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand + n_pieces,
+                                  lines=opts.get("lines"))
+        cand = _recenter(data, mask, cand, b, fwhm, noise)
+        keep = ~trail_pieces(data, mask, cand["x"], cand["y"], trails, noise)
+        cand = {k: v[keep] for k, v in cand.items()}
+        if len(cand["x"]) == 0:
+            return _empty_table(fwhm or 0.0, noise, b)
 
     if fwhm is not None:
         tab = _measure(data, mask, cand, fwhm, noise, b, opts)
@@ -326,6 +340,8 @@ def _measure_at(data, mask, cand, fwhm, noise, b, opts):
     # biases fluxes and pulls centroids towards the tile centre.
     cut = cut - _local_background(cut, bad, min(2.0 * fwhm, half - 1.0))[:, None, None]
     cut[bad] = 0.0
+    # Hot pixels in a star's tile pull its centroid and width.
+    cut = _despike(cut, bad, noise, fwhm)
     tab, ncol = _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts)
     if tab is None or len(tab["flux"]) == 0:
         return _empty_table(fwhm, noise, b)

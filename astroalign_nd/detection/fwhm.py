@@ -3,7 +3,8 @@
 
 import numpy as np
 from .._kernels import adaptive_fwhm as _adaptive_fwhm
-from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
+from .candidates import (_as_image, _auto_bin, _binned_candidates, _despike, _extract_cutouts,
+                         _recenter)
 from .background import _bin_mean, _local_background, estimate_noise
 
 __all__ = ['estimate_fwhm']
@@ -43,7 +44,7 @@ def estimate_fwhm(data, *, mask=None, n_stars=30):
     cand = _binned_candidates(data, mask, b, noise, 5.0, 4 * n_stars)
     if len(cand["x"]) == 0:
         return float("nan")
-    cand = _recenter(data, mask, cand, b, None)
+    cand = _recenter(data, mask, cand, b, None, noise)
     return _estimate_fwhm(data, mask, cand, noise, n_max=max(5 * n_stars, 30)).fwhm
 
 
@@ -132,7 +133,7 @@ def _wide_fwhm(data, mask, n_max, half):
         bc = _binned_candidates(binned, bmask, 1, bnoise, 5.0, 150)
         if len(bc["x"]) < 3:
             break
-        bc = _recenter(binned, bmask, bc, 1, None)
+        bc = _recenter(binned, bmask, bc, 1, None, bnoise)
         bfw, bok = _candidate_fwhms(binned, bmask, bc, n_max, half, bnoise)
         bwide = np.isfinite(bfw) & (bfw >= half / 1.5 - 0.5)
         if bok.sum() >= 3 and bwide.sum() < 0.5 * (bok.sum() + bwide.sum()):
@@ -152,6 +153,8 @@ def _candidate_fwhms(data, mask, cand, n_max, half, noise=None):
     cut = cut - _local_background(cut - bkg[:, None, None], bad, 0.75 * half)[
         :, None, None] - bkg[:, None, None]
     cut[bad] = 0.0
+    if noise is not None and np.isfinite(noise) and noise > 0:
+        cut = _despike(cut, bad, noise)  # a hot pixel by a star narrows it
     fwhm = _adaptive_fwhm(cut, bad, x - xc, y - yc, sigma0=max(1.5, half / 10.0), n_iter=6)
     peak = cut.reshape(len(x), -1).max(axis=1)
     # Hot pixels and cosmic rays give a tiny FWHM; saturated (flat-topped)
