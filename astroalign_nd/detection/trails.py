@@ -56,9 +56,14 @@ _RIDGE_SAMPLES = 10
 #: ... and their median stands this many standard errors above the sides.
 _RIDGE_NSIGMA = 5.0
 
-#: A candidate on a trail is a star when its centre stands this many noise
-#: sigmas above the trail this far (pixels) along it, on both sides.
-_STAR_NSIGMA, _STAR_OFFSET = 3.0, 6.0
+#: A candidate on a trail is a star when the light across the trail there
+#: exceeds the trail's this far (pixels) along it, on both sides, by this
+#: many noise sigmas and this many times the trail's light ...
+_STAR_OFFSET, _STAR_NSIGMA, _STAR_CONTRAST = 6.0, 5.0, 2.0
+
+#: ... the light across the trail summed over this many pixels either side,
+#: less the sky this far (pixels) either side.
+_CROSS_HALF, _SKY_OFFSETS = 3, (8.0, 9.0, 10.0)
 
 
 class Trail:
@@ -237,46 +242,64 @@ def find_trails(x, y, data, mask, noise):
     return trails
 
 
-def _box_median(data, mask, x, y):
-    """Median of the finite, unmasked pixels of the 3x3 box around each ``(x, y)`` (NaN outside)."""
-    ny, nx = data.shape
-    xi, yi = np.rint(x).astype(int), np.rint(y).astype(int)
-    off = np.arange(-1, 2)
-    iy = yi[:, None, None] + off[None, :, None]
-    ix = xi[:, None, None] + off[None, None, :]
-    inside = (iy >= 0) & (iy < ny) & (ix >= 0) & (ix < nx)
-    iyc, ixc = np.clip(iy, 0, ny - 1), np.clip(ix, 0, nx - 1)
-    vals = np.asarray(data[iyc, ixc], float)
-    good = inside & np.isfinite(vals)
+def _cross_sections(data, mask, line, t):
+    """
+    The trail's light across it at positions ``t`` along it, less the sky.
+
+    Bilinearly interpolated pixels are summed over `_CROSS_HALF` pixels
+    either side of the centre line, less as many times the mean of the
+    pixels `_SKY_OFFSETS` either side (NaN where any is outside the frame
+    or masked).
+    """
+    from scipy.ndimage import map_coordinates
+
+    img = np.asarray(data, float)
     if mask is not None:
-        good &= ~mask[iyc, ixc]
-    vals = np.where(good, vals, np.nan).reshape(len(x), -1)
-    out = np.full(len(x), np.nan)
-    rows = good.reshape(len(x), -1).any(axis=1)
-    for i in np.flatnonzero(rows):  # a few dozen candidates on a trail
-        out[i] = _median(vals[i][np.isfinite(vals[i])])
-    return out
+        img = np.where(mask, np.nan, img)
+    core = np.arange(-_CROSS_HALF, _CROSS_HALF + 1.0)
+    sky = np.concatenate([-np.asarray(_SKY_OFFSETS), _SKY_OFFSETS])
+    u = np.concatenate([core, sky])
+    (px, py), (ux, uy) = line.point, line.direction
+    xs = px + t[:, None] * ux - u[None, :] * uy
+    ys = py + t[:, None] * uy + u[None, :] * ux
+    ny, nx = img.shape
+    inside = ((xs >= 0) & (xs <= nx - 1) & (ys >= 0) & (ys <= ny - 1)).all(axis=1)
+    vals = map_coordinates(img, [ys.ravel(), xs.ravel()], order=1, mode="nearest",
+                           prefilter=False).reshape(xs.shape)
+    light = vals[:, :core.size].sum(axis=1) - core.size * vals[:, core.size:].mean(axis=1)
+    return np.where(inside, light, np.nan)
 
 
 def trail_pieces(data, mask, x, y, trails, noise):
     """
     Which candidates ``(x, y)`` are pieces of the ``trails`` (bool array).
 
-    A candidate on a trail is kept as a star when its 3x3 median stands
-    `_STAR_NSIGMA` noise sigmas above the trail's, `_STAR_OFFSET` pixels
-    along the trail on both sides (medians: a hot pixel does not make a
-    star).
+    A candidate on a trail is kept as a star when the light across the
+    trail there (`_cross_sections`: a star adds its own) exceeds the
+    trail's `_STAR_OFFSET` pixels along it, on both sides, by
+    `_STAR_NSIGMA` noise sigmas (of such a sum) and by `_STAR_CONTRAST`
+    times the trail's own: a star that outshines the trail, whose centroid
+    it barely pulls.  Each is the median of three cross-sections a pixel
+    apart (a hot pixel does not make a star).
     """
     x, y = np.asarray(x, float), np.asarray(y, float)
     piece = np.zeros(len(x), bool)
+    steps = np.array([-1.0, 0.0, 1.0])
+    n_core = 2 * _CROSS_HALF + 1
+    sigma = noise * np.sqrt(n_core + n_core ** 2 / (2.0 * len(_SKY_OFFSETS)))
     for line in trails:
         on = np.flatnonzero(~piece & (line.distance(x, y) <= _HALF_WIDTH))
         if on.size == 0:
             continue
-        ux, uy = line.direction * _STAR_OFFSET
-        centre = _box_median(data, mask, x[on], y[on])
-        sides = np.fmax(_box_median(data, mask, x[on] + ux, y[on] + uy),
-                        _box_median(data, mask, x[on] - ux, y[on] - uy))
-        star = centre - sides > _STAR_NSIGMA * noise
+        t = ((x[on] - line.point[0]) * line.direction[0]
+             + (y[on] - line.point[1]) * line.direction[1])
+
+        def light(offset):
+            cs = _cross_sections(data, mask, line, (t[:, None] + offset + steps).ravel())
+            return np.median(cs.reshape(len(t), 3), axis=1)
+
+        trail = np.fmax(light(-_STAR_OFFSET), light(_STAR_OFFSET))
+        with np.errstate(invalid="ignore"):
+            star = light(0.0) - trail > np.maximum(_STAR_NSIGMA * sigma, _STAR_CONTRAST * trail)
         piece[on[~star]] = True
     return piece
