@@ -1,6 +1,8 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """Candidate peaks on a (binned) image, and cutouts around them."""
 
+import functools
+
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from .._kernels import GAUSS_SIGMA_TO_FWHM as _GAUSS_SIGMA_TO_FWHM
@@ -62,6 +64,7 @@ _SPIKE_FWHM_MARGIN = 0.7
 _SPIKE_NSIGMA = 5.0
 
 
+@functools.lru_cache(maxsize=64)
 def _neighbour_ratio(fwhm):
     """
     The least ratio of a star's brightest neighbouring pixel to its centre
@@ -92,22 +95,30 @@ def _despike(cut, bad, noise, fwhm=None):
     """
     f = _SPIKE_MIN_FWHM if fwhm is None else max(_SPIKE_MIN_FWHM, _SPIKE_FWHM_MARGIN * fwhm)
     allow = 1.0 / _neighbour_ratio(f)
-    n, ny, nx = cut.shape
-    pad = np.full((n, ny + 2, nx + 2), np.nan)
-    pad[:, 1:-1, 1:-1] = np.where(bad, np.nan, cut)
-    nbs = np.stack([pad[:, 1 + dy:ny + 1 + dy, 1 + dx:nx + 1 + dx]
-                    for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx])
-    with np.errstate(invalid="ignore"):
-        top = np.fmax.reduce(nbs, axis=0)
-        spike = ~bad & (cut > allow * np.fmax(top, 0.0) + _SPIKE_NSIGMA * noise)
+    # Only pixels above the noise margin can be spikes: their neighbours are
+    # gathered, not the whole stack's.
+    k, iy, ix = np.nonzero(~bad & (cut > _SPIKE_NSIGMA * noise))
+    if k.size == 0:
+        return cut
+    _, ny, nx = cut.shape
+    nbs = np.full((8, k.size), -np.inf)
+    for j, (dy, dx) in enumerate((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+                                 if dy or dx):
+        y, x = iy + dy, ix + dx
+        inside = (y >= 0) & (y < ny) & (x >= 0) & (x < nx)
+        y, x = np.clip(y, 0, ny - 1), np.clip(x, 0, nx - 1)
+        good = inside & ~bad[k, y, x]
+        nbs[j, good] = cut[k[good], y[good], x[good]]
+    top = nbs.max(axis=0)
+    # (A pixel with no good neighbour is not judged.)
+    spike = np.isfinite(top) & (cut[k, iy, ix] > allow * np.maximum(top, 0.0)
+                                + _SPIKE_NSIGMA * noise)
     if not spike.any():
         return cut
+    nbs = nbs[:, spike]
+    nbs[~np.isfinite(nbs)] = np.nan
     out = np.array(cut)
-    import warnings
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all neighbours bad: NaN
-        out[spike] = np.nanmedian(nbs[:, spike], axis=0)
-    out[spike & ~np.isfinite(out)] = 0.0
+    out[k[spike], iy[spike], ix[spike]] = np.nanmedian(nbs, axis=0)  # one at least is good
     return out
 
 
