@@ -50,13 +50,12 @@ def _extract_cutouts(data, mask, xc, yc, half, fill):
     return cut, bad
 
 
-#: FWHM (pixels) of the narrowest star a spike is told from when the stars'
-#: own FWHM is not known yet: a spike stands above its brightest neighbour
-#: by more than such a star's centre can (about 12 times).
-_SPIKE_MIN_FWHM = 0.8
+#: Frames whose stars are narrower than this (FWHM, pixels) are not
+#: despiked: a star of a heavily undersampled frame is a spike itself.
+_DESPIKE_MIN_FWHM = 2.0
 
-#: With a known FWHM, spikes are judged against stars this much narrower
-#: (a margin for the estimate and for stars off the pixel centre).
+#: Spikes are judged against stars this much narrower than the frame's
+#: (a margin for the estimate and for stars off the pixel centre) ...
 _SPIKE_FWHM_MARGIN = 0.7
 
 #: ... and a spike stands this many noise sigmas above what its
@@ -78,23 +77,22 @@ def _neighbour_ratio(fwhm):
     return float((ndtr(1.5 / s) - ndtr(0.5 / s)) / centre)
 
 
-def _despike(cut, bad, noise, fwhm=None):
+def _despike(cut, bad, noise, fwhm):
     """
     The cutouts with their single-pixel spikes (hot pixels, cosmic-ray hits
     of one pixel) replaced by the median of their neighbours.
 
     A spike stands above all its eight neighbours by more than the centre of
     any star of the frame can: more than ``1 / _neighbour_ratio`` times the
-    brightest neighbour, plus `_SPIKE_NSIGMA` noise sigmas.  The ratio is
-    that of a star narrower than the frame's (``fwhm``, by
-    `_SPIKE_FWHM_MARGIN`), or of the narrowest star (`_SPIKE_MIN_FWHM`)
-    when the FWHM is not known, so that the centre of an undersampled star
-    is left alone.  ``cut`` holds background-subtracted tiles (not modified:
-    a new array is returned when a spike is found); ``bad`` pixels are
-    neither spikes nor neighbours.
+    brightest neighbour, plus `_SPIKE_NSIGMA` noise sigmas, the ratio being
+    that of a star narrower than the frame's ``fwhm`` (by
+    `_SPIKE_FWHM_MARGIN`), so that no star's centre is taken for one.  Only
+    for frames whose stars are `_DESPIKE_MIN_FWHM` wide or more (the
+    callers' check).  ``cut`` holds background-subtracted tiles (not
+    modified: a new array is returned when a spike is found); ``bad``
+    pixels are neither spikes nor neighbours.
     """
-    f = _SPIKE_MIN_FWHM if fwhm is None else max(_SPIKE_MIN_FWHM, _SPIKE_FWHM_MARGIN * fwhm)
-    allow = 1.0 / _neighbour_ratio(f)
+    allow = 1.0 / _neighbour_ratio(_SPIKE_FWHM_MARGIN * fwhm)
     # Only pixels above the noise margin can be spikes: their neighbours are
     # gathered, not the whole stack's.
     k, iy, ix = np.nonzero(~bad & (cut > _SPIKE_NSIGMA * noise))
@@ -209,13 +207,15 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates, lines=None,
             "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b), "snr": snr}
 
 
-def _recenter(data, mask, cand, b, fwhm, noise):
+def _recenter(data, mask, cand, b, fwhm, noise=None, spike_fwhm=None):
     """
     Recentre the coarse candidates at full resolution.
 
-    The brightest 3x3 sum in the block around each binned peak, with
-    single-pixel spikes removed (`_despike`: a hot pixel beside a faint star
-    does not win), then a few windowed-centroid steps.
+    The brightest 3x3 sum in the block around each binned peak (a sum, so
+    that a lone hot pixel does not win), then a few windowed-centroid steps.
+    With ``noise`` and ``spike_fwhm`` (the stars' FWHM), single-pixel spikes
+    are removed first (`_despike`: a hot pixel beside a faint star does not
+    pull it).
     """
     rc = int(np.ceil(b + 3))
     xc = np.round(cand["x"]).astype(int)
@@ -223,7 +223,8 @@ def _recenter(data, mask, cand, b, fwhm, noise):
     cut, bad = _extract_cutouts(data, mask, xc, yc, rc, 0.0)
     cut -= cand["bkg"][:, None, None]
     cut[bad] = 0.0
-    cut = _despike(cut, bad, noise, fwhm)
+    if spike_fwhm is not None:
+        cut = _despike(cut, bad, noise, spike_fwhm)
     box = np.zeros_like(cut)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):

@@ -44,7 +44,7 @@ def estimate_fwhm(data, *, mask=None, n_stars=30):
     cand = _binned_candidates(data, mask, b, noise, 5.0, 4 * n_stars)
     if len(cand["x"]) == 0:
         return float("nan")
-    cand = _recenter(data, mask, cand, b, None, noise)
+    cand = _recenter(data, mask, cand, b, None)
     return _estimate_fwhm(data, mask, cand, noise, n_max=max(5 * n_stars, 30)).fwhm
 
 
@@ -74,7 +74,7 @@ def _log_mode(values, width=0.1):
     return float(10 ** np.median(lv[close])), float(close.mean())
 
 
-def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
+def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14, spike_fwhm=None):
     """
     Stage 2: FWHM from the population of compact candidates.
 
@@ -89,7 +89,7 @@ def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
     pixels, bright ones of tens), both widths are returned and the scale
     search of `_best_scale` chooses.
     """
-    fw, ok = _candidate_fwhms(data, mask, cand, n_max, half, noise)
+    fw, ok = _candidate_fwhms(data, mask, cand, n_max, half, noise, spike_fwhm)
     vals = fw[ok]
     wide = np.isfinite(fw) & (fw >= half / 1.5 - 0.5)
     compact = None
@@ -133,7 +133,7 @@ def _wide_fwhm(data, mask, n_max, half):
         bc = _binned_candidates(binned, bmask, 1, bnoise, 5.0, 150)
         if len(bc["x"]) < 3:
             break
-        bc = _recenter(binned, bmask, bc, 1, None, bnoise)
+        bc = _recenter(binned, bmask, bc, 1, None)
         bfw, bok = _candidate_fwhms(binned, bmask, bc, n_max, half, bnoise)
         bwide = np.isfinite(bfw) & (bfw >= half / 1.5 - 0.5)
         if bok.sum() >= 3 and bwide.sum() < 0.5 * (bok.sum() + bwide.sum()):
@@ -142,8 +142,11 @@ def _wide_fwhm(data, mask, n_max, half):
     return None
 
 
-def _candidate_fwhms(data, mask, cand, n_max, half, noise=None):
-    """FWHM of each of the first ``n_max`` candidates, and which are usable."""
+def _candidate_fwhms(data, mask, cand, n_max, half, noise=None, spike_fwhm=None):
+    """
+    FWHM of each of the first ``n_max`` candidates, and which are usable
+    (single-pixel spikes removed first when ``spike_fwhm`` is given).
+    """
     top = np.arange(min(n_max, len(cand["x"])))
     x, y, bkg = cand["x"][top], cand["y"][top], cand["bkg"][top]
     xc = np.round(x).astype(int)
@@ -153,8 +156,8 @@ def _candidate_fwhms(data, mask, cand, n_max, half, noise=None):
     cut = cut - _local_background(cut - bkg[:, None, None], bad, 0.75 * half)[
         :, None, None] - bkg[:, None, None]
     cut[bad] = 0.0
-    if noise is not None and np.isfinite(noise) and noise > 0:
-        cut = _despike(cut, bad, noise)  # a hot pixel by a star narrows it
+    if spike_fwhm is not None and noise is not None and np.isfinite(noise) and noise > 0:
+        cut = _despike(cut, bad, noise, spike_fwhm)  # a hot pixel by a star narrows it
     fwhm = _adaptive_fwhm(cut, bad, x - xc, y - yc, sigma0=max(1.5, half / 10.0), n_iter=6)
     peak = cut.reshape(len(x), -1).max(axis=1)
     # Hot pixels and cosmic rays give a tiny FWHM; saturated (flat-topped)

@@ -182,29 +182,27 @@ def test_trail_pieces_of_a_night_frame_are_not_sources(seed):
     assert np.sum(~on) >= np.sum(off) - 3
 
 
-@pytest.mark.parametrize("fwhm", [1.0, 1.3, 3.0])
-def test_despike_leaves_undersampled_stars(fwhm):
-    # Stars as narrow as 1 px FWHM, centred on a pixel (their sharpest) and
-    # off it, at every brightness, with Poisson noise: no pixel of theirs is
+@pytest.mark.parametrize("fwhm", [2.0, 3.0, 5.0])
+def test_despike_leaves_stars(fwhm):
+    # Stars of the frame's FWHM, centred on a pixel (their sharpest) and off
+    # it, at every brightness, with Poisson noise: no pixel of theirs is
     # taken for a spike.
     from astroalign_nd.detection.candidates import _despike
     from astroalign_nd.simulate import render_stars
 
     rng = np.random.default_rng(int(fwhm * 10))
-    n, half, sky, read = 400, 6, 100.0, 10.0
+    n, half, sky, read = 400, 8, 100.0, 10.0
     noise = np.sqrt(sky + read**2)
     cut = np.zeros((n, 2 * half + 1, 2 * half + 1))
     dx = np.where(np.arange(n) % 2 == 0, 0.0, rng.uniform(-0.5, 0.5, n))
     dy = np.where(np.arange(n) % 2 == 0, 0.0, rng.uniform(-0.5, 0.5, n))
-    flux = 10 ** rng.uniform(2.0, 6.0, n)
+    flux = 10 ** rng.uniform(2.0, 6.5, n)
     for i in range(n):
         render_stars(cut[i].shape, [half + dx[i]], [half + dy[i]], [flux[i]], fwhm=fwhm,
                      out=cut[i])
     cut = rng.poisson(cut + sky) - sky + rng.normal(0.0, read, cut.shape)
     bad = np.zeros(cut.shape, bool)
-    # Unknown FWHM (recentring) and the frame's FWHM (measurement).
-    for known in (None, fwhm):
-        assert np.array_equal(_despike(cut, bad, noise, known), cut)
+    assert np.array_equal(_despike(cut, bad, noise, fwhm), cut)
     # A hot pixel at 50 sigma beside each star (3 px from its centre) is
     # replaced, and nothing else.
     hot = cut.copy()
@@ -213,8 +211,27 @@ def test_despike_leaves_undersampled_stars(fwhm):
     others = np.ones(cut.shape[1:], bool)
     others[half, half + 3] = False
     assert np.array_equal(out[:, others], hot[:, others])
-    faint = flux < 3e3  # where the hot pixel outshines the star's wing by far
+    faint = flux < 3e3  # where the hot pixel outshines the star's light by far
     assert np.all(np.abs(out[faint, half, half + 3] - cut[faint, half, half + 3]) < 5 * noise)
+
+
+def test_undersampled_frame_is_not_despiked(monkeypatch):
+    # Stars of 1.2 px FWHM are nearly spikes themselves: such a frame is
+    # measured without despiking, and its stars are all found.
+    import astroalign_nd.detection.candidates as candidates
+    import astroalign_nd.detection.daofind as daofind
+    import astroalign_nd.detection.fwhm as fwhm_mod
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("an undersampled frame was despiked")
+
+    for module in (candidates, daofind, fwhm_mod):
+        monkeypatch.setattr(module, "_despike", refuse)
+    image, stars = simulate_field((256, 256), n_stars=60, fwhm=1.2, flux_range=(3e3, 3e5),
+                                  seed=2)
+    found = find_sources(image, n_sources=100)
+    assert found.meta["fwhm"] < 2.0
+    assert _n_true(found, stars, radius=0.5) >= 55
 
 
 def test_trails_are_found_only_where_a_trail_is():
@@ -227,7 +244,7 @@ def test_trails_are_found_only_where_a_trail_is():
     def trails(image):
         noise = estimate_noise(image)
         cand = _recenter(image, None, _binned_candidates(image, None, 2, noise, 3.0, 180),
-                         2, None, noise)
+                         2, None)
         return find_trails(cand["x"], cand["y"], image, None, noise)
 
     for seed in (0, 5):
