@@ -199,9 +199,9 @@ def _detect(image, mask, n_sources, config, nsigma):
         # Stage 2: the FWHM of the population of compact sources.
         est = _estimate_fwhm(data, mask, cand, noise)
         if not est.doubtful and est.fwhm >= _DESPIKE_MIN_FWHM:
+            # (The estimate, a mode, stays: hot pixels by a few stars do not move it.)
             spike_fwhm = est.fwhm
             cand = _recenter(data, mask, coarse, b, None, noise, spike_fwhm)
-            est = _estimate_fwhm(data, mask, cand, noise, spike_fwhm=spike_fwhm)
         opts["spike_fwhm"] = spike_fwhm
         tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
         tab.meta["fwhm_source"] = "estimate"

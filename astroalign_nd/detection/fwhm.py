@@ -3,8 +3,7 @@
 
 import numpy as np
 from .._kernels import adaptive_fwhm as _adaptive_fwhm
-from .candidates import (_as_image, _auto_bin, _binned_candidates, _despike, _extract_cutouts,
-                         _recenter)
+from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
 from .background import _bin_mean, _local_background, estimate_noise
 
 __all__ = ['estimate_fwhm']
@@ -74,7 +73,7 @@ def _log_mode(values, width=0.1):
     return float(10 ** np.median(lv[close])), float(close.mean())
 
 
-def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14, spike_fwhm=None):
+def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
     """
     Stage 2: FWHM from the population of compact candidates.
 
@@ -89,7 +88,7 @@ def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14, spike_fwhm=N
     pixels, bright ones of tens), both widths are returned and the scale
     search of `_best_scale` chooses.
     """
-    fw, ok = _candidate_fwhms(data, mask, cand, n_max, half, noise, spike_fwhm)
+    fw, ok = _candidate_fwhms(data, mask, cand, n_max, half, noise)
     vals = fw[ok]
     wide = np.isfinite(fw) & (fw >= half / 1.5 - 0.5)
     compact = None
@@ -142,11 +141,8 @@ def _wide_fwhm(data, mask, n_max, half):
     return None
 
 
-def _candidate_fwhms(data, mask, cand, n_max, half, noise=None, spike_fwhm=None):
-    """
-    FWHM of each of the first ``n_max`` candidates, and which are usable
-    (single-pixel spikes removed first when ``spike_fwhm`` is given).
-    """
+def _candidate_fwhms(data, mask, cand, n_max, half, noise=None):
+    """FWHM of each of the first ``n_max`` candidates, and which are usable."""
     top = np.arange(min(n_max, len(cand["x"])))
     x, y, bkg = cand["x"][top], cand["y"][top], cand["bkg"][top]
     xc = np.round(x).astype(int)
@@ -156,8 +152,6 @@ def _candidate_fwhms(data, mask, cand, n_max, half, noise=None, spike_fwhm=None)
     cut = cut - _local_background(cut - bkg[:, None, None], bad, 0.75 * half)[
         :, None, None] - bkg[:, None, None]
     cut[bad] = 0.0
-    if spike_fwhm is not None and noise is not None and np.isfinite(noise) and noise > 0:
-        cut = _despike(cut, bad, noise, spike_fwhm)  # a hot pixel by a star narrows it
     fwhm = _adaptive_fwhm(cut, bad, x - xc, y - yc, sigma0=max(1.5, half / 10.0), n_iter=6)
     peak = cut.reshape(len(x), -1).max(axis=1)
     # Hot pixels and cosmic rays give a tiny FWHM; saturated (flat-topped)

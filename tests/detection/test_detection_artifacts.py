@@ -220,12 +220,11 @@ def test_undersampled_frame_is_not_despiked(monkeypatch):
     # measured without despiking, and its stars are all found.
     import astroalign_nd.detection.candidates as candidates
     import astroalign_nd.detection.daofind as daofind
-    import astroalign_nd.detection.fwhm as fwhm_mod
 
     def refuse(*args, **kwargs):
         raise AssertionError("an undersampled frame was despiked")
 
-    for module in (candidates, daofind, fwhm_mod):
+    for module in (candidates, daofind):
         monkeypatch.setattr(module, "_despike", refuse)
     image, stars = simulate_field((256, 256), n_stars=60, fwhm=1.2, flux_range=(3e3, 3e5),
                                   seed=2)
