@@ -11,7 +11,8 @@ astroalign's detections, as its README does; see ``bench_real.py``):
   error without| over the seeds solved both ways.
 * ``night``: simulated nights of 10 frames (256x256, 200 stars, sky sigma
   10, shifts within 5 px), each frame with 300 single hot pixels at 50
-  sigma, one with a 3-px wide 30-sigma satellite trail; every frame is
+  sigma, one with a 3-px wide 30-sigma satellite trail
+  (`simulate_hot_night` of tests/_frame_defects.py); every frame is
   registered onto the first (astroalign_nd: ``register_batch``, the
   registrations of ``stack``; the peers: frame by frame, the first
   ``--peer-frames`` of each night).  A frame counts as solved within 0.1
@@ -44,9 +45,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # _frame
 from bench_real import call, error  # noqa: E402
 
 import astroalign_nd as aand  # noqa: E402
-from astroalign_nd.simulate import (add_satellite_trail, simulate_pair,  # noqa: E402
-                                    simulate_sequence)
-from _frame_defects import add_edge_band, resampled_copy  # noqa: E402
+from astroalign_nd.simulate import simulate_pair  # noqa: E402
+from _frame_defects import add_edge_band, resampled_copy, simulate_hot_night  # noqa: E402
 
 TOOLS = ("astroalign_nd", "astroalign", "aafitrans")
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -88,25 +88,9 @@ def band_case(table, seeds, wrong, timeout):
                 row["change"].append(abs(e1 - e0))
 
 
-def _night(seed):
-    seq = simulate_sequence((256, 256), n_frames=10, n_stars=200, max_shift=5,
-                            noise_sigma=10.0, seed=seed)
-    rng = np.random.default_rng(seed + 999)
-    frames = []
-    trail_frame = int(rng.integers(1, 10))
-    for k, f in enumerate(seq.frames):
-        d = np.array(f.data, float)
-        d.flat[rng.integers(0, d.size, 300)] += 50 * 10.0
-        if k == trail_frame:
-            y0, y1 = rng.uniform(0, 255, 2)
-            d = add_satellite_trail(d, (-10, y0), (266, y1), width=3.0, amplitude=30 * 10.0)
-        frames.append(d.astype(np.float32))
-    return seq, frames
-
-
 def night_case(table, seeds, timeout, peer_frames, tol=0.1):
     for seed in seeds:
-        seq, frames = _night(seed)
+        seq, frames, _, _ = simulate_hot_night(seed)
         truths = [np.asarray(t.matrix, float) for t in seq.transforms]
         shape = frames[0].shape
         # Ours: the registrations of `stack` (register_batch onto the first frame).

@@ -459,6 +459,65 @@ def resampled_copy(image, *, rotation=2.0, translation=(35.0, -12.0), order=3, n
     return out.astype(np.float32), from_matrix(m, "similarity")
 
 
+def simulate_hot_night(seed, *, trail=True):
+    """
+    A night of frames from a camera with hot pixels, one frame crossed by a trail.
+
+    Ten 256x256 frames of 200 stars (FWHM 3 px, fluxes 300 to 5000 counts,
+    sky noise 10 counts, integer shifts within 5 px: `simulate_sequence`),
+    each with 300 single hot pixels at 50 sigma; one frame (drawn from 1 to
+    9) is crossed by a 3-px wide satellite trail at 30 sigma, from the left
+    edge to the right at random heights.
+
+    Parameters
+    ----------
+    seed : int
+        The same seed gives the same night.
+    trail : bool, optional
+        Draw the trail (False: the same night, hot pixels and all, without it).
+
+    Returns
+    -------
+    seq : `~astroalign_nd.simulate.SimulatedSequence`
+        The clean night: its ``transforms`` are the truth.
+    frames : list of 2-D float32 ndarray
+        The frames with their defects.
+    trail_frame : int
+        The index of the frame with the trail.
+    ends : ((float, float), (float, float))
+        The trail's start and end ``(x, y)`` (outside the frame).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from _frame_defects import simulate_hot_night
+    >>> seq, frames, k, ((x0, y0), (x1, y1)) = simulate_hot_night(4)
+    >>> len(frames), frames[0].shape, 1 <= k <= 9, (x0, x1)
+    (10, (256, 256), True, (-10.0, 266.0))
+    >>> hot = frames[0] - np.asarray(seq.frames[0].data)
+    >>> int(np.sum(hot > 400))  # the hot pixels
+    300
+    """
+    from astroalign_nd.simulate import add_satellite_trail, simulate_sequence
+
+    seq = simulate_sequence((256, 256), n_frames=10, n_stars=200, max_shift=5,
+                            noise_sigma=10.0, seed=seed)
+    rng = np.random.default_rng(seed + 999)
+    frames = []
+    trail_frame = int(rng.integers(1, 10))
+    ends = None
+    for k, f in enumerate(seq.frames):
+        d = np.array(f.data, float)
+        d.flat[rng.integers(0, d.size, 300)] += 50 * 10.0
+        if k == trail_frame:
+            y0, y1 = rng.uniform(0, 255, 2)
+            ends = ((-10.0, float(y0)), (266.0, float(y1)))
+            if trail:
+                d = add_satellite_trail(d, *ends, width=3.0, amplitude=30 * 10.0)
+        frames.append(d.astype(np.float32))
+    return seq, frames, trail_frame, ends
+
+
 #: The cases that `simulate_trust_case` makes (see there).
 TRUST_CASES = ("trailed", "sparse_8bit", "resampled_copy")
 

@@ -1,6 +1,8 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """Candidate peaks on a (binned) image, and cutouts around them."""
 
+import functools
+
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from .._kernels import GAUSS_SIGMA_TO_FWHM as _GAUSS_SIGMA_TO_FWHM
@@ -46,6 +48,76 @@ def _extract_cutouts(data, mask, xc, yc, half, fill):
     cut[bad] = fill if np.isscalar(fill) else np.broadcast_to(
         np.asarray(fill)[:, None, None], cut.shape)[bad]
     return cut, bad
+
+
+#: Frames whose stars are narrower than this (FWHM, pixels) are not
+#: despiked: a star of a heavily undersampled frame is a spike itself.
+_DESPIKE_MIN_FWHM = 2.0
+
+#: Spikes are judged against stars this much narrower than the frame's
+#: (a margin for the estimate and for stars off the pixel centre) ...
+_SPIKE_FWHM_MARGIN = 0.7
+
+#: ... and a spike stands this many noise sigmas above what its
+#: neighbours allow.
+_SPIKE_NSIGMA = 5.0
+
+
+@functools.lru_cache(maxsize=64)
+def _neighbour_ratio(fwhm):
+    """
+    The least ratio of a star's brightest neighbouring pixel to its centre
+    pixel: a Gaussian star of this FWHM centred on a pixel, integrated over
+    the pixels.
+    """
+    from scipy.special import ndtr
+
+    s = fwhm / _GAUSS_SIGMA_TO_FWHM
+    centre = ndtr(0.5 / s) - ndtr(-0.5 / s)
+    return float((ndtr(1.5 / s) - ndtr(0.5 / s)) / centre)
+
+
+def _despike(cut, bad, noise, fwhm):
+    """
+    The cutouts with their single-pixel spikes (hot pixels, cosmic-ray hits
+    of one pixel) replaced by the median of their neighbours.
+
+    A spike stands above all its eight neighbours by more than the centre of
+    any star of the frame can: more than ``1 / _neighbour_ratio`` times the
+    brightest neighbour, plus `_SPIKE_NSIGMA` noise sigmas, the ratio being
+    that of a star narrower than the frame's ``fwhm`` (by
+    `_SPIKE_FWHM_MARGIN`), so that no star's centre is taken for one.  Only
+    for frames whose stars are `_DESPIKE_MIN_FWHM` wide or more (the
+    callers' check).  ``cut`` holds background-subtracted tiles (not
+    modified: a new array is returned when a spike is found); ``bad``
+    pixels are neither spikes nor neighbours.
+    """
+    allow = 1.0 / _neighbour_ratio(_SPIKE_FWHM_MARGIN * fwhm)
+    # Only pixels above the noise margin can be spikes: their neighbours are
+    # gathered, not the whole stack's.
+    k, iy, ix = np.nonzero(~bad & (cut > _SPIKE_NSIGMA * noise))
+    if k.size == 0:
+        return cut
+    _, ny, nx = cut.shape
+    nbs = np.full((8, k.size), -np.inf)
+    for j, (dy, dx) in enumerate((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+                                 if dy or dx):
+        y, x = iy + dy, ix + dx
+        inside = (y >= 0) & (y < ny) & (x >= 0) & (x < nx)
+        y, x = np.clip(y, 0, ny - 1), np.clip(x, 0, nx - 1)
+        good = inside & ~bad[k, y, x]
+        nbs[j, good] = cut[k[good], y[good], x[good]]
+    top = nbs.max(axis=0)
+    # (A pixel with no good neighbour is not judged.)
+    spike = np.isfinite(top) & (cut[k, iy, ix] > allow * np.maximum(top, 0.0)
+                                + _SPIKE_NSIGMA * noise)
+    if not spike.any():
+        return cut
+    nbs = nbs[:, spike]
+    nbs[~np.isfinite(nbs)] = np.nan
+    out = np.array(cut)
+    out[k[spike], iy[spike], ix[spike]] = np.nanmedian(nbs, axis=0)  # one at least is good
+    return out
 
 
 def _auto_bin(shape):
@@ -135,12 +207,15 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates, lines=None,
             "bkg": bkg_map[y, x].astype(float), "flux": score * (b * b), "snr": snr}
 
 
-def _recenter(data, mask, cand, b, fwhm):
+def _recenter(data, mask, cand, b, fwhm, noise=None, spike_fwhm=None):
     """
     Recentre the coarse candidates at full resolution.
 
     The brightest 3x3 sum in the block around each binned peak (a sum, so
     that a lone hot pixel does not win), then a few windowed-centroid steps.
+    With ``noise`` and ``spike_fwhm`` (the stars' FWHM), single-pixel spikes
+    are removed first (`_despike`: a hot pixel beside a faint star does not
+    pull it).
     """
     rc = int(np.ceil(b + 3))
     xc = np.round(cand["x"]).astype(int)
@@ -148,6 +223,8 @@ def _recenter(data, mask, cand, b, fwhm):
     cut, bad = _extract_cutouts(data, mask, xc, yc, rc, 0.0)
     cut -= cand["bkg"][:, None, None]
     cut[bad] = 0.0
+    if spike_fwhm is not None:
+        cut = _despike(cut, bad, noise, spike_fwhm)
     box = np.zeros_like(cut)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):

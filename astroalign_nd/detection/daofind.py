@@ -13,10 +13,12 @@ from .._kernels import mirrored_windowed_centroid as _mirrored_windowed_centroid
 from .._kernels import windowed_centroid as _windowed_centroid
 from ..options import Int, convert
 from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
-from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
+from .candidates import (_DESPIKE_MIN_FWHM, _as_image, _auto_bin, _binned_candidates, _despike,
+                         _extract_cutouts, _recenter)
 from .background import (_bin_mean, _correlated_noise_factor, _local_background,
                          estimate_noise)
 from .lines import line_background
+from .trails import find_trails, trail_pieces
 from .options import DetectionConfig
 from .base import SourceFinderBase, _standard_table
 
@@ -168,14 +170,39 @@ def _detect(image, mask, n_sources, config, nsigma):
         cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand, lines=lines)
     if len(cand["x"]) == 0:
         return _empty_table(fwhm or 0.0, noise, b)
-    cand = _recenter(data, mask, cand, b, fwhm)
+    coarse = cand
+    cand = _recenter(data, mask, coarse, b, fwhm)
+    trails = find_trails(cand["x"], cand["y"], data, mask, noise)
+    if trails:
+        # A trail's pieces (`trails`) are not stars, and took the places of
+        # faint ones among the candidates: more candidates, less the pieces.
+        n_pieces = int(trail_pieces(data, mask, cand["x"], cand["y"], trails, noise).sum())
+        coarse = _binned_candidates(data, mask, b, noise, nsigma, n_cand + n_pieces,
+                                    lines=opts.get("lines"))
+        cand = _recenter(data, mask, coarse, b, fwhm)
+        keep = ~trail_pieces(data, mask, cand["x"], cand["y"], trails, noise)
+        coarse = {k: v[keep] for k, v in coarse.items()}
+        cand = {k: v[keep] for k, v in cand.items()}
+        if len(cand["x"]) == 0:
+            return _empty_table(fwhm or 0.0, noise, b)
 
+    # Single-pixel spikes (hot pixels) are removed from the cutouts of a
+    # frame whose stars are wide enough not to be spikes themselves.
+    spike_fwhm = fwhm if fwhm is not None and fwhm >= _DESPIKE_MIN_FWHM else None
     if fwhm is not None:
+        if spike_fwhm is not None:
+            cand = _recenter(data, mask, coarse, b, fwhm, noise, spike_fwhm)
+        opts["spike_fwhm"] = spike_fwhm
         tab = _measure(data, mask, cand, fwhm, noise, b, opts)
         tab.meta["fwhm_source"] = "user"
     else:
         # Stage 2: the FWHM of the population of compact sources.
         est = _estimate_fwhm(data, mask, cand, noise)
+        if not est.doubtful and est.fwhm >= _DESPIKE_MIN_FWHM:
+            # (The estimate, a mode, stays: hot pixels by a few stars do not move it.)
+            spike_fwhm = est.fwhm
+            cand = _recenter(data, mask, coarse, b, None, noise, spike_fwhm)
+        opts["spike_fwhm"] = spike_fwhm
         tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
         tab.meta["fwhm_source"] = "estimate"
         if est.doubtful or _too_few(tab, cand, n_sources):
@@ -326,6 +353,8 @@ def _measure_at(data, mask, cand, fwhm, noise, b, opts):
     # biases fluxes and pulls centroids towards the tile centre.
     cut = cut - _local_background(cut, bad, min(2.0 * fwhm, half - 1.0))[:, None, None]
     cut[bad] = 0.0
+    if opts.get("spike_fwhm") is not None:  # hot pixels in a tile pull its centroid and width
+        cut = _despike(cut, bad, noise, min(fwhm, opts["spike_fwhm"]))
     tab, ncol = _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts)
     if tab is None or len(tab["flux"]) == 0:
         return _empty_table(fwhm, noise, b)
@@ -665,7 +694,8 @@ def _find_on_binned(data, mask, k, fwhm, opts):
     """find_sources on a k x k mean-binned copy, in full-resolution pixels."""
     binned, bmask = _bin_mean(data, mask, k)
     tab = find_sources(binned, mask=bmask, fwhm=fwhm,
-                       **{k: v for k, v in opts.items() if k not in ("lines", "noise_corr")})
+                       **{k: v for k, v in opts.items()
+                          if k not in ("lines", "noise_corr", "spike_fwhm")})
     tab["x"] = tab["x"] * k + (k - 1) / 2.0
     tab["y"] = tab["y"] * k + (k - 1) / 2.0
     tab["position_error"] = tab["position_error"] * k

@@ -13,7 +13,7 @@ from astroalign_nd.detection.daofind import control_sources
 from astroalign_nd.simulate import (add_satellite_trail, simulate_field, simulate_pair,
                                     simulate_sequence)
 
-from _frame_defects import add_edge_band
+from _frame_defects import add_edge_band, simulate_hot_night
 
 
 def _frame_error(estimate, truth, shape, n=17):
@@ -143,3 +143,115 @@ def test_night_with_hot_pixels_and_a_trail_registers_every_frame():
     errors = [_frame_error(f.transform, seq.transforms[k], (256, 256))
               for k, f in enumerate(res.frames, start=1)]
     assert max(errors) < 0.1
+
+
+@pytest.mark.parametrize("seed", [4, 14])
+def test_hot_night_registers_every_frame(seed):
+    # Nights 4 and 14 each had a frame 0.13-0.15 px off: hot pixels beside
+    # faint stars pulled their centroids.
+    seq, frames, _, _ = simulate_hot_night(seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = aand.register_batch(frames[1:], frames[0])
+    assert all(f.ok for f in res.frames)
+    errors = [_frame_error(f.transform, seq.transforms[k], (256, 256))
+              for k, f in enumerate(res.frames, start=1)]
+    assert max(errors) < 0.1
+
+
+def _off_line(x, y, ends):
+    (x0, y0), (x1, y1) = ends
+    return np.abs((np.asarray(y) - y0) * (x1 - x0) - (np.asarray(x) - x0) * (y1 - y0)) / np.hypot(
+        x1 - x0, y1 - y0)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_trail_pieces_of_a_night_frame_are_not_sources(seed):
+    # The trail frame of a night, with and without its trail: a source on
+    # the trail is one the frame has without it (a star on the trail).
+    _, frames, k, ends = simulate_hot_night(seed)
+    _, plain, _, _ = simulate_hot_night(seed, trail=False)
+    found = _registration_sources(frames[k])
+    clean = _registration_sources(plain[k])
+    on = _off_line(found["x"], found["y"], ends) < 2.5
+    d = np.hypot(np.asarray(found["x"])[on, None] - np.asarray(clean["x"])[None, :],
+                 np.asarray(found["y"])[on, None] - np.asarray(clean["y"])[None, :])
+    assert np.all(d.min(axis=1) < 1.0)
+    # The trail took no star's place: as many sources off the trail as without it.
+    off = _off_line(clean["x"], clean["y"], ends) >= 2.5
+    assert np.sum(~on) >= np.sum(off) - 3
+
+
+@pytest.mark.parametrize("fwhm", [2.0, 3.0, 5.0])
+def test_despike_leaves_stars(fwhm):
+    # Stars of the frame's FWHM, centred on a pixel (their sharpest) and off
+    # it, at every brightness, with Poisson noise: no pixel of theirs is
+    # taken for a spike.
+    from astroalign_nd.detection.candidates import _despike
+    from astroalign_nd.simulate import render_stars
+
+    rng = np.random.default_rng(int(fwhm * 10))
+    n, half, sky, read = 400, 8, 100.0, 10.0
+    noise = np.sqrt(sky + read**2)
+    cut = np.zeros((n, 2 * half + 1, 2 * half + 1))
+    dx = np.where(np.arange(n) % 2 == 0, 0.0, rng.uniform(-0.5, 0.5, n))
+    dy = np.where(np.arange(n) % 2 == 0, 0.0, rng.uniform(-0.5, 0.5, n))
+    flux = 10 ** rng.uniform(2.0, 6.5, n)
+    for i in range(n):
+        render_stars(cut[i].shape, [half + dx[i]], [half + dy[i]], [flux[i]], fwhm=fwhm,
+                     out=cut[i])
+    cut = rng.poisson(cut + sky) - sky + rng.normal(0.0, read, cut.shape)
+    bad = np.zeros(cut.shape, bool)
+    assert np.array_equal(_despike(cut, bad, noise, fwhm), cut)
+    # A hot pixel at 50 sigma beside each star (3 px from its centre) is
+    # replaced, and nothing else.
+    hot = cut.copy()
+    hot[:, half, half + 3] += 50 * noise
+    out = _despike(hot, bad, noise, fwhm)
+    others = np.ones(cut.shape[1:], bool)
+    others[half, half + 3] = False
+    assert np.array_equal(out[:, others], hot[:, others])
+    faint = flux < 3e3  # where the hot pixel outshines the star's light by far
+    assert np.all(np.abs(out[faint, half, half + 3] - cut[faint, half, half + 3]) < 5 * noise)
+
+
+def test_undersampled_frame_is_not_despiked(monkeypatch):
+    # Stars of 1.2 px FWHM are nearly spikes themselves: such a frame is
+    # measured without despiking, and its stars are all found.
+    import astroalign_nd.detection.candidates as candidates
+    import astroalign_nd.detection.daofind as daofind
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("an undersampled frame was despiked")
+
+    for module in (candidates, daofind):
+        monkeypatch.setattr(module, "_despike", refuse)
+    image, stars = simulate_field((256, 256), n_stars=60, fwhm=1.2, flux_range=(3e3, 3e5),
+                                  seed=2)
+    found = find_sources(image, n_sources=100)
+    assert found.meta["fwhm"] < 2.0
+    assert _n_true(found, stars, radius=0.5) >= 55
+
+
+def test_trails_are_found_only_where_a_trail_is():
+    # Every night's trail is found, along its true line; no other frame has one,
+    # nor a crowded cluster field (stars line up by chance there).
+    from astroalign_nd.detection.background import estimate_noise
+    from astroalign_nd.detection.candidates import _binned_candidates, _recenter
+    from astroalign_nd.detection.trails import find_trails
+
+    def trails(image):
+        noise = estimate_noise(image)
+        cand = _recenter(image, None, _binned_candidates(image, None, 2, noise, 3.0, 180),
+                         2, None)
+        return find_trails(cand["x"], cand["y"], image, None, noise)
+
+    for seed in (0, 5):
+        _, frames, k, ends = simulate_hot_night(seed)
+        found = [trails(frame) for frame in frames]
+        assert [len(f) for f in found] == [int(i == k) for i in range(len(frames))]
+        (x0, y0), (x1, y1) = ends
+        t = np.linspace(0.0, 1.0, 11)
+        assert np.all(found[k][0].distance(x0 + t * (x1 - x0), y0 + t * (y1 - y0)) < 0.5)
+    crowded, _ = simulate_field((512, 512), n_stars=4000, seed=3)
+    assert trails(crowded) == []
