@@ -109,16 +109,24 @@ def _interp_numpy(data, var, has_var, u, v, fill, sd, sv, out, out_var, out_mask
 
 
 def _linear_taps(u, n):
-    """`_axis_taps_numpy` for order 1, unclipped: first tap, validity, the 2 weights."""
-    ok = (u > -3.0) & (u < n + 2.0)
-    fl = np.floor(np.where(ok, u, 0.0))
-    f = u - fl
+    """
+    `_axis_taps_numpy` for order 1, unclipped: first tap, validity, the 2 weights.
+
+    The validity in three passes instead of a dozen: a position's two taps
+    ``i = floor(u)`` and ``i + 1``, weighted ``1 - f`` and ``f = u - i``,
+    are both on the plane or of weight zero exactly when ``0 <= u <= n - 1``,
+    or when ``u`` is a negative so small that ``f = u + 1`` rounds to 1 (the
+    weight of tap -1 is then zero): together, ``u + 1 >= 1`` and
+    ``u <= n - 1``.  (The tests check it against the rules of
+    `_axis_taps_numpy`.)  Elsewhere the taps and weights are of no use.
+    """
+    u = np.clip(u, -3.0, n + 2.0)  # (no cast of a huge position to an integer)
+    fl = np.floor(u)
     i = fl.astype(np.intp)
-    w0 = 1.0 - f
-    # Only taps with nonzero weight must lie inside the image.
-    ok &= (w0 == 0.0) | ((i >= 0) & (i <= n - 1))
-    ok &= (f == 0.0) | ((i >= -1) & (i <= n - 2))
-    return i, ok, w0, f
+    f = np.subtract(u, fl, out=fl)
+    ok = u + 1.0 >= 1.0
+    ok &= u <= n - 1.0
+    return i, ok, 1.0 - f, f
 
 
 def _bilinear_finite(data, var, has_var, u, v, fill, sd, sv, out, out_var, out_mask):

@@ -126,3 +126,23 @@ def test_source_edge_on_a_tile_edge(order):
     out, _, bad = _numpy(img, np.eye(3), (200, 260), order=order)
     assert not bad[:129, :129].any() and bad[129:].all() and bad[:, 129:].all()
     assert_array_equal(out[:129, :129], img)
+
+
+@pytest.mark.parametrize("n", [1, 2, 7])
+def test_fast_bilinear_validity_follows_the_tap_rules(n):
+    # The short validity test of the bilinear path against the general rule
+    # (every tap of nonzero weight on the plane), on the edge cases: the
+    # ends of the plane, just past them, and negatives so small that the
+    # far tap takes the whole weight.
+    tiny = [-2.0**-54, -2.0**-53, -1e-17, -5e-324, 0.0, 2.0**-60]
+    edges = [-3.5, -3.0, -2.0, -1.0, -0.5, 0.5, n - 1.0, n - 1.0 + 1e-15, n - 0.5, n + 2.0,
+             np.nextafter(n - 1.0, 0.0), np.nextafter(n - 1.0, np.inf), 1e30, -1e30]
+    rng = np.random.default_rng(0)
+    u = np.concatenate([tiny, edges, rng.uniform(-4.0, n + 3.0, 500)])
+    i, ok, w0, w1 = interpolation._linear_taps(u, n)
+    i_ref, ok_ref, w_ref = interpolation._axis_taps_numpy(u, n, 1)
+    assert_array_equal(ok, ok_ref)
+    assert ok.any() and not ok.all()
+    assert_array_equal(i[ok], i_ref[ok])
+    assert_array_equal(w0[ok], w_ref[0][ok])
+    assert_array_equal(w1[ok], w_ref[1][ok])
