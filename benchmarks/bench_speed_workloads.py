@@ -65,8 +65,9 @@ Usage::
 compiled loops turned off (``conf.use_compiled = False``: the NumPy loops an
 install without a C compiler runs, the same results), and prints their time
 over the compiled loops' (the cost `~astroalign_nd.exceptions.SlowKernelsWarning`
-states).  Run from an install without the compiled loops, every astroalign_nd
-line is the NumPy loops' (the header says whether they are built).
+states); with ``--old``, the older copy's NumPy loops as well (``oldnumpy``).
+Run from an install without the compiled loops, every astroalign_nd line is
+the NumPy loops' (the header says whether they are built).
 """
 
 import argparse
@@ -387,6 +388,8 @@ def main(argv=None):
 
     if args.numpy_kernels:
         tools["numpy"] = NumpyKernels(astroalign_nd)
+        if args.old:  # the older copy's NumPy loops too, in the same run
+            tools["oldnumpy"] = NumpyKernels(tools["old"])
     timers = {k: StageTimer(m.__name__) for k, m in tools.items()}
     built = importlib.import_module("astroalign_nd._kernels").HAVE_COMPILED
     print(f"astroalign_nd from {os.path.dirname(astroalign_nd.__file__)} (compiled loops "
@@ -465,10 +468,12 @@ def main(argv=None):
             summary.append((size, wl, {k: med[k] / med["astroalign"] for k in tools}))
             if "numpy" in tools:
                 numpy_cost.append((size, wl, med["numpy"] / med["new"]))
+                if "oldnumpy" in tools:
+                    numpy_cost.append((size, wl + " old", med["oldnumpy"] / med["old"]))
 
     if args.hard:
         # (The NumPy kernels are timed on the workloads only.)
-        compiled = {k: m for k, m in tools.items() if k != "numpy"}
+        compiled = {k: m for k, m in tools.items() if not k.endswith("numpy")}
         hard = run_hard(compiled, astroalign, args.repeats, args.seed)
         for case, res in hard.items():
             for k in compiled:
