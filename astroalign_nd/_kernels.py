@@ -49,8 +49,8 @@ WHEEL_COMMAND = "pip install --only-binary astroalign_nd astroalign_nd"
 SLOW_KERNELS_MESSAGE = (
     "astroalign_nd's compiled loops are not built, so detection, matching and resampling "
     "run their NumPy versions: the same results, slower (register() of a simulated "
-    "1024x1024 pair took 1.9 times as long as with the compiled loops, of a 4096x4096 pair "
-    "2.3 times). For the compiled loops, install a binary wheel: "
+    "1024x1024 pair took 1.7 times as long as with the compiled loops, of a 4096x4096 pair "
+    "2.1 times). For the compiled loops, install a binary wheel: "
     f"`{WHEEL_COMMAND}` (or reinstall from source with a C compiler and Cython present). "
     "astroalign_nd.HAVE_COMPILED tells which loops run; this warning is given once per "
     "process.")
