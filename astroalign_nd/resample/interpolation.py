@@ -66,17 +66,19 @@ def _axis_taps_numpy(u, n, order):
 
 
 def _interp_numpy(data, var, has_var, u, v, fill, sd, sv, out, out_var, out_mask, order,
-                  finite=False):
+                  finite=False, bounds=None):
     """
     The compiled kernel's interpolation at source positions ``(u, v)`` (NaN: outside).
 
     The same taps, weights and summation order as the compiled kernel, so the
     same bits.  ``finite`` says the planes hold no NaN or infinity: then a tap
     of zero weight adds zero, and the guards that keep its NaN out are skipped.
+    ``bounds``, if known: ``(u.min(), u.max(), v.min(), v.max())``.
     """
     ny, nx = data.shape
     if finite and order == 1:
-        return _bilinear_finite(data, var, has_var, u, v, fill, sd, sv, out, out_var, out_mask)
+        return _bilinear_finite(data, var, has_var, u, v, fill, sd, sv, out, out_var, out_mask,
+                                bounds)
     jx, okx, wx = _axis_taps_numpy(u, nx, order)
     jy, oky, wy = _axis_taps_numpy(v, ny, order)
     inside = okx & oky
@@ -129,15 +131,16 @@ def _linear_taps(u, n):
     return i, ok, 1.0 - f, f
 
 
-def _bilinear_finite(data, var, has_var, u, v, fill, sd, sv, out, out_var, out_mask):
+def _bilinear_finite(data, var, has_var, u, v, fill, sd, sv, out, out_var, out_mask,
+                     bounds=None):
     """
     `_interp_numpy` at order 1 on planes without NaN or infinity: the same
     taps, weights and sums, with fewer passes.  Taps off the plane are read
     clipped (any finite value): their weight is zero, or the pixel is outside.
     """
     ny, nx = data.shape
-    if (nx > 1 and ny > 1 and u.min() >= 0.0 and u.max() <= nx - 2.0
-            and v.min() >= 0.0 and v.max() <= ny - 2.0):
+    ulo, uhi, vlo, vhi = (u.min(), u.max(), v.min(), v.max()) if bounds is None else bounds
+    if nx > 1 and ny > 1 and ulo >= 0.0 and uhi <= nx - 2.0 and vlo >= 0.0 and vhi <= ny - 2.0:
         # Every pixel's four taps are on the plane (most tiles of a frame):
         # no validity to work out.
         fx, fy = np.floor(u), np.floor(v)
@@ -195,14 +198,15 @@ def _weighted_sum(flat, base, taps, squared):
     return acc
 
 
-def _all_outside(u, n, order):
+def _all_outside(umin, umax, n, order):
     """
-    True if no position of ``u`` along an axis of ``n`` pixels has its taps
-    on the plane (`_axis_taps_numpy` would find every one outside).
+    True if no position from ``umin`` to ``umax`` along an axis of ``n``
+    pixels has its taps on the plane (`_axis_taps_numpy` would find every
+    one outside).
     """
     # (Beyond the bounds `_axis_taps_numpy` tests first, with a pixel to spare.)
     lo, hi = (-1.5, n + 0.5) if order == 0 else (-4.0, n + 3.0)
-    return bool(u.max() < lo or u.min() > hi)
+    return bool(umax < lo or umin > hi)
 
 
 def _tile_shape(ny_out, nx_out):
@@ -223,15 +227,23 @@ def _resample_tiles(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask,
     ny_in, nx_in = data.shape
     ty, tx = tile
     per_row = -(-nx_out // tx)
+    # The row and column terms of the positions, shared by the tiles of a
+    # column or row of tiles.
+    cols, rows = {}, {}
     for t in range(start, stop):
         y0, x0 = (t // per_row) * ty, (t % per_row) * tx
         ys, xs = slice(y0, min(y0 + ty, ny_out)), slice(x0, min(x0 + tx, nx_out))
-        yo = np.arange(ys.start, ys.stop, dtype=float)[:, None]
-        xo = np.arange(xs.start, xs.stop, dtype=float)[None, :]
+        if x0 not in cols:
+            xo = np.arange(xs.start, xs.stop, dtype=float)[None, :]
+            cols[x0] = (m[0] * xo, m[3] * xo)
+        if y0 not in rows:
+            yo = np.arange(ys.start, ys.stop, dtype=float)[:, None]
+            rows[y0] = (m[1] * yo + m[2], m[4] * yo + m[5])
         # Per pixel the same operations as over whole rows: the same bits.
-        u = m[0] * xo + (m[1] * yo + m[2])
-        v = m[3] * xo + (m[4] * yo + m[5])
-        if _all_outside(u, nx_in, order) or _all_outside(v, ny_in, order):
+        u = cols[x0][0] + rows[y0][0]
+        v = cols[x0][1] + rows[y0][1]
+        bounds = (u.min(), u.max(), v.min(), v.max())
+        if _all_outside(*bounds[:2], nx_in, order) or _all_outside(*bounds[2:], ny_in, order):
             # (The corners of a rotated frame: nothing of the source there.)
             out[ys, xs] = fill
             if has_var:
@@ -239,7 +251,8 @@ def _resample_tiles(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask,
             out_mask[ys, xs] = True
             continue
         _interp_numpy(data, var, has_var, u, v, fill, sd, sv, out[ys, xs],
-                      out_var[ys, xs] if has_var else None, out_mask[ys, xs], order, finite)
+                      out_var[ys, xs] if has_var else None, out_mask[ys, xs], order, finite,
+                      bounds)
 
 
 def _resample_numpy(data, var, has_var, m, fill, sd, sv, out, out_var, out_mask, *, order):
