@@ -59,6 +59,15 @@ Usage::
 
     PYTHONPATH=. python benchmarks/bench_speed_workloads.py --repeats 5 [--old /tmp/oldpkg] [--hard]
     PYTHONPATH=. python benchmarks/bench_speed_workloads.py --no-detect [--old /tmp/oldpkg]
+    PYTHONPATH=. python benchmarks/bench_speed_workloads.py --workloads ours --numpy-kernels
+
+``--numpy-kernels`` (or ``--no-extension``) adds astroalign_nd with its
+compiled loops turned off (``conf.use_compiled = False``: the NumPy loops an
+install without a C compiler runs, the same results), and prints their time
+over the compiled loops' (the cost `~astroalign_nd.exceptions.SlowKernelsWarning`
+states); with ``--old``, the older copy's NumPy loops as well (``oldnumpy``).
+Run from an install without the compiled loops, every astroalign_nd line is
+the NumPy loops' (the header says whether they are built).
 """
 
 import argparse
@@ -356,8 +365,9 @@ def main(argv=None):
     ap.add_argument("--workloads", nargs="+", default=list(WORKLOADS))
     ap.add_argument("--old", help="folder holding astroalign_nd_old/ (an older copy)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--numpy-kernels", action="store_true",
-                    help="also time astroalign_nd with its NumPy kernels (no compiled loops)")
+    ap.add_argument("--numpy-kernels", "--no-extension", action="store_true",
+                    help="also time astroalign_nd with its NumPy kernels (no compiled loops, "
+                    "as installed without a C compiler), and their cost over the compiled ones")
     ap.add_argument("--hard", action="store_true",
                     help="also time refused pairs and a pair whose first attempt fails")
     args = ap.parse_args(argv)
@@ -378,8 +388,12 @@ def main(argv=None):
 
     if args.numpy_kernels:
         tools["numpy"] = NumpyKernels(astroalign_nd)
+        if args.old:  # the older copy's NumPy loops too, in the same run
+            tools["oldnumpy"] = NumpyKernels(tools["old"])
     timers = {k: StageTimer(m.__name__) for k, m in tools.items()}
-    print(f"astroalign_nd from {os.path.dirname(astroalign_nd.__file__)}; "
+    built = importlib.import_module("astroalign_nd._kernels").HAVE_COMPILED
+    print(f"astroalign_nd from {os.path.dirname(astroalign_nd.__file__)} (compiled loops "
+          f"{'built' if built else 'NOT built: new runs the NumPy loops'}); "
           f"astroalign {astroalign.__version__}; {os.cpu_count()} CPUs; "
           f"load average {os.getloadavg()[0]:.1f}", flush=True)
 
@@ -390,6 +404,7 @@ def main(argv=None):
 
     names = list(tools) + ["astroalign"]
     summary = []
+    numpy_cost = []  # (size, workload, NumPy loops' time over the compiled loops')
     # Per pair, each tool's time over astroalign's: solved pairs and refusals apart.
     solved_ratios = {k: [] for k in tools}
     refused_ratios = {k: [] for k in tools}
@@ -451,10 +466,14 @@ def main(argv=None):
                       + ", ".join(f"{s} {v * 1e3:.0f} ms" for s, v in st.items()))
             print(flush=True)
             summary.append((size, wl, {k: med[k] / med["astroalign"] for k in tools}))
+            if "numpy" in tools:
+                numpy_cost.append((size, wl, med["numpy"] / med["new"]))
+                if "oldnumpy" in tools:
+                    numpy_cost.append((size, wl + " old", med["oldnumpy"] / med["old"]))
 
     if args.hard:
         # (The NumPy kernels are timed on the workloads only.)
-        compiled = {k: m for k, m in tools.items() if k != "numpy"}
+        compiled = {k: m for k, m in tools.items() if not k.endswith("numpy")}
         hard = run_hard(compiled, astroalign, args.repeats, args.seed)
         for case, res in hard.items():
             for k in compiled:
@@ -466,6 +485,10 @@ def main(argv=None):
           "<= 0.10 at 4096^2):")
     for size, wl, rat in summary:
         print(f"  {size:>5}^2 {wl:>8}: " + ", ".join(f"{k} {v:.3f}" for k, v in rat.items()))
+    if numpy_cost:
+        print("NumPy loops' register time over the compiled loops' (SlowKernelsWarning's figure):")
+        for size, wl, r in numpy_cost:
+            print(f"  {size:>5}^2 {wl:>8}: {r:.2f}")
     print("Per pair, time over astroalign's in the same run:")
     for k in tools:
         print(f"  {k:>6} solved:  {_spread(solved_ratios[k])}")

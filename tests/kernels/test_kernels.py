@@ -312,3 +312,33 @@ def test_one_compiled_switch(monkeypatch):
         slow = rs.resample(img, m, (40, 40), order="bicubic", variance=np.abs(img))
     assert used and all(np.array_equal(a, b, equal_nan=True) for a, b in zip(fast, slow))
     assert k.compiled_kernels() is (k._ckernels if k.HAVE_COMPILED else None)
+
+
+def test_missing_compiled_loops_warn_once_with_cost_and_wheel(monkeypatch):
+    # As after an install without a C compiler: the NumPy loops run, and the
+    # first registration says so, with what it costs and how to get a wheel.
+    import warnings
+
+    from astroalign_nd import register
+    from astroalign_nd.exceptions import SlowKernelsWarning
+    from astroalign_nd.simulate import simulate_pair
+
+    pair = simulate_pair((160, 160), n_stars=60, rotation=20.0, translation=(5.0, -3.0),
+                         seed=4)
+    compiled = register(pair.source, pair.target) if k.HAVE_COMPILED else None
+    monkeypatch.setattr(k, "HAVE_COMPILED", False)
+    monkeypatch.setattr(k, "_WARNED_SLOW", False)
+    assert k.compiled_kernels() is None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for _ in range(3):
+            out = register(pair.source, pair.target)
+    slow = [w for w in caught if issubclass(w.category, SlowKernelsWarning)]
+    assert len(slow) == 1
+    text = str(slow[0].message)
+    assert "pip install --only-binary astroalign_nd astroalign_nd" in text
+    assert "times as long" in text and "1024x1024" in text and "4096x4096" in text
+    assert out.data.shape == pair.target.shape
+    if compiled is not None:  # the same registration, to the bit
+        assert_array_equal(out.data, compiled.data)
+        assert_array_equal(out.mask, compiled.mask)
