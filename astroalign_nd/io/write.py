@@ -23,12 +23,14 @@ import gzip
 import io
 import os
 import shutil
+import signal
 import stat
 import tempfile
+import threading
 
 __all__ = ["atomic_write", "atomic_open", "write_ccddata", "write_table", "check_output_path",
            "check_output_dir", "make_output_dir", "remove_empty_dirs", "check_not_input",
-           "FITS_EXTENSIONS"]
+           "FITS_EXTENSIONS", "interrupts_held"]
 
 #: File name endings taken as FITS by `write_ccddata` and the command line.
 FITS_EXTENSIONS = (".fits", ".fit", ".fts", ".fits.gz", ".fit.gz", ".fts.gz")
@@ -463,6 +465,32 @@ def write_table(table, path, *, format, overwrite=False):
             text.detach()
         else:
             table.write(f, format=format)
+
+
+@contextlib.contextmanager
+def interrupts_held():
+    """
+    Hold SIGINT and SIGTERM (and Windows' SIGBREAK) until the block is done, then
+    raise them as their handlers do: what the block changes is changed entirely or not
+    at all.  Only signals with a Python handler are held (a default SIGTERM still ends
+    the process at once: the files are written atomically, the old ones stay).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield  # handlers can only be set, and signals only arrive, in the main thread
+        return
+    caught, old = [], {}
+    for name in ("SIGINT", "SIGTERM", "SIGBREAK"):
+        signum = getattr(signal, name, None)
+        handler = None if signum is None else signal.getsignal(signum)
+        if callable(handler):
+            old[signum] = signal.signal(signum, lambda num, frame: caught.append((num, frame)))
+    try:
+        yield
+    finally:
+        for signum, handler in old.items():
+            signal.signal(signum, handler)
+        if caught:
+            old[caught[0][0]](*caught[0])
 
 
 def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):

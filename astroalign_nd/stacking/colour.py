@@ -32,6 +32,7 @@ from ..io.read import parse_input
 from ..exceptions import AstroalignError
 from ..io import write_ccddata
 from ..io.header import header_from_meta
+from ..io.write import interrupts_held
 from ..io.bayer import (balanced_grey, bayer_channels, bayer_pattern, superpixel,
                         superpixel_to_raw)
 from ..registration import Reference, find_transform
@@ -415,8 +416,6 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
 def _drizzle_frames(frames, ref_item, accs, names, stats, rejected, weights, gain, read_noise,
                     normalize, scale, saturation):
     """`drizzle_bayer`'s frames drizzled one at a time into ``accs`` (and the accounts)."""
-    from .live import _interrupts_held  # (live imports the stack, which imports this)
-
     ref_stats = None
     for k, label, p, pat, transform, error in frames:
         k = ref_item[1] if transform is None and error is None else k
@@ -438,7 +437,7 @@ def _drizzle_frames(frames, ref_item, accs, names, stats, rejected, weights, gai
             continue
         ref_stats = st if ref_stats is None else ref_stats
         pm = pixel_map(transform, data.shape, scale)
-        with _interrupts_held():  # a frame is in every colour and the accounts, or in none
+        with interrupts_held():  # a frame is in every colour and the accounts, or in none
             for c in range(3):
                 sel = valid & (channels == c)
                 var = frame_variance(data, None, st[c], gain, read_noise) * st[c].scale ** 2
