@@ -458,15 +458,6 @@ def write_with_retry(ccd, path, *, overwrite=True, tries=_RETRY_TRIES):
             time.sleep(_RETRY_SECONDS)
 
 
-def _complete_fits(path):
-    """True if ``path`` parses as a FITS file whose data blocks are all there."""
-    try:
-        _, shape = FITSWriter().read_done(path)  # the check a resumed batch makes
-    except Exception:  # noqa: BLE001 - any failure to parse: not (yet) a complete file
-        return False
-    return shape is not None
-
-
 class _Poller:
     """
     The new files of a folder: stable across two polls, then parsed, each once.
@@ -524,9 +515,18 @@ class _Poller:
             if self.last.get(real) != key or st.st_size == 0:
                 self.bad_polls.pop(real, None)  # still being written: count afresh
                 continue
-            if _complete_fits(path):
+            try:  # all its data blocks there (the check a resumed batch makes)?
+                _, shape = FITSWriter().read_done(path)
+            except Exception:  # noqa: BLE001 - any failure to parse: not (yet) a complete file
+                shape = None
+            if shape is not None:
                 self.seen.add(real)
-                (own if _package_output(path) else ready).append(path)
+                try:  # a file this package wrote: a registered frame or a stack
+                    header = fits.getheader(path)
+                    package = "AATTYPE" in header or "AASTKMTH" in header
+                except (OSError, ValueError):
+                    package = False
+                (own if package else ready).append(path)
             else:
                 self.bad_polls[real] = self.bad_polls.get(real, 0) + 1
                 if self.bad_polls[real] >= _UNREADABLE_POLLS:
@@ -539,15 +539,6 @@ class _Poller:
         """The files seen but not taken yet: still being written (or not yet stable)."""
         return [self.paths[real] for real in sorted(self.last)
                 if real not in self.seen and real not in self.gave_up]
-
-
-def _package_output(path):
-    """True for a file this package wrote: a registered frame or a stack."""
-    try:
-        header = fits.getheader(path)
-    except (OSError, ValueError):
-        return False
-    return "AATTYPE" in header or "AASTKMTH" in header
 
 
 def watch_folder(folder: str | os.PathLike, reference: Any, output: str | os.PathLike, *,
