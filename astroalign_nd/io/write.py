@@ -48,15 +48,6 @@ _DIR_FD = all(f in os.supports_dir_fd for f in (os.open, os.stat, os.unlink, os.
 _MAX_SUFFIX = 16
 
 
-def _suffix(base):
-    """The name's ending (``'.fits.gz'`` of ``'m31.fits.gz'``), at most `_MAX_SUFFIX` long."""
-    dot = base.find(".", 1)
-    suffix = base[dot:] if dot > 0 else ""
-    while len(suffix) > _MAX_SUFFIX and "." in suffix[1:]:
-        suffix = suffix[suffix.index(".", 1):]
-    return suffix if len(suffix) <= _MAX_SUFFIX else ""
-
-
 class _PrivateFolder:
     """
     A folder only this user can enter (``mkdtemp``: mode 0700, a fresh random name), made
@@ -76,7 +67,12 @@ class _PrivateFolder:
                                     "folder.")
         # The final name's ending is kept, so writers that choose a format or a compression
         # from it (``.fits.gz``) behave as for the final name; the length stays bounded.
-        self.name = "part" + _suffix(base)
+        # (the ending of 'm31.fits.gz' is '.fits.gz')
+        dot = base.find(".", 1)
+        suffix = base[dot:] if dot > 0 else ""
+        while len(suffix) > _MAX_SUFFIX and "." in suffix[1:]:
+            suffix = suffix[suffix.index(".", 1):]
+        self.name = "part" + (suffix if len(suffix) <= _MAX_SUFFIX else "")
         self.fd = None
         for attempt in range(5):
             self.path = tempfile.mkdtemp(prefix=_TMP_TAG, dir=folder)
@@ -180,17 +176,6 @@ _WRITE_ADVICE = {
 }
 
 
-def _os_error_in(exc):
-    """The `OSError` that ``exc`` is or that it was raised while handling, else None."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, OSError):
-            return exc
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return None
-
-
 def _write_failure(exc, path):
     """
     A clear `OSError` for a write of ``path`` that failed with ``exc``, or None.
@@ -199,7 +184,12 @@ def _write_failure(exc, path):
     (astropy.io.fits raises ``AttributeError: 'list' object has no attribute '_file'`` when
     it checks the free space of a file object): the system's error is found in the chain.
     """
-    os_error = _os_error_in(exc)
+    os_error, seen = exc, set()  # the OSError that exc is, or was raised while handling
+    while os_error is not None and not isinstance(os_error, OSError):
+        if id(os_error) in seen:
+            return None
+        seen.add(id(os_error))
+        os_error = os_error.__cause__ or os_error.__context__
     if os_error is None:
         return None
     code = os_error.errno
