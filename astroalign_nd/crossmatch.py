@@ -200,8 +200,19 @@ def read_catalog(path: str | os.PathLike, *, format: str | None = None) -> Table
             if index is None:
                 raise ValueError("the FITS file holds no table HDU")
             return Table.read(path, format="fits", hdu=index)
-        return Table.read(path, format="ascii.basic" if _has_header(path)
-                          else "ascii.no_header")
+        # Text: with a header when its first line that is not a comment names columns
+        # (is not all numbers).
+        header = False
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                words = line.split()
+                if words and not words[0].startswith("#"):
+                    try:
+                        [float(w) for w in words]
+                    except ValueError:
+                        header = True
+                    break
+        return Table.read(path, format="ascii.basic" if header else "ascii.no_header")
     except (OSError, ValueError, TypeError, IndexError) as exc:
         raise ValueError(f"could not read {os.fspath(path)!r} as a catalog "
                          f"({type(exc).__name__}: {exc}). Pass an ECSV file, a FITS table, "
@@ -211,21 +222,6 @@ def read_catalog(path: str | os.PathLike, *, format: str | None = None) -> Table
 def _is_fits(path):
     with open(path, "rb") as fh:
         return fh.read(9) == b"SIMPLE  ="
-
-
-def _has_header(path):
-    """True if the first line that is not a comment names columns (is not all numbers)."""
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for line in fh:
-            words = line.split()
-            if not words or words[0].startswith("#"):
-                continue
-            try:
-                [float(w) for w in words]
-            except ValueError:
-                return True
-            return False
-    return False
 
 
 def _flux_name(flux, which):

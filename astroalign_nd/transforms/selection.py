@@ -206,17 +206,16 @@ def _robust_fit(cand, uv, dst, var, start=None, keep=None):
     return out
 
 
-def _occupancy(uv, frame_uv, degree):
-    """Fraction of the ``(degree + 1)**2`` cells of the frame holding a star."""
+def _coverage(uv, frame_uv, degree, n_terms):
+    """
+    How the stars ``uv`` cover the frame: the fraction of the ``(degree + 1)**2``
+    cells of the frame holding a star (``occupancy``), and the stars per term.
+    """
     g = degree + 1
     x0, x1, y0, y1 = frame_uv
     ix = np.clip(((uv[:, 0] - x0) / (x1 - x0) * g).astype(int), 0, g - 1)
     iy = np.clip(((uv[:, 1] - y0) / (y1 - y0) * g).astype(int), 0, g - 1)
-    return len(np.unique(iy * g + ix)) / float(g * g), g
-
-
-def _coverage(uv, frame_uv, degree, n_terms):
-    occ, g = _occupancy(uv, frame_uv, degree)
+    occ = len(np.unique(iy * g + ix)) / float(g * g)
     return dict(grid=(g, g), occupancy=occ, n_stars=int(len(uv)),
                 stars_per_term=len(uv) / float(n_terms))
 
@@ -279,19 +278,6 @@ def _cv_better(cells_new, cv_new, cells_old, cv_old):
     diff = (cells_old - cells_new)[ok] * ok.sum()  # per-cell contributions to the mean
     se = float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else np.inf
     return gain > 2.0 * se
-
-
-def _f_pvalue(chi_small, k_small, chi_big, k_big, n_eq):
-    """P-value of the F-test that the ``k_big - k_small`` extra terms are needed."""
-    d1, d2 = k_big - k_small, n_eq - k_big
-    if d1 <= 0 or d2 <= 0:
-        return 1.0
-    f = ((chi_small - chi_big) / d1) / max(chi_big / d2, 1e-300)
-    if f <= 0:
-        return 1.0
-    return float(betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f)))
-
-# -- the stage ----------------------------------------------------------------------
 
 
 class DistortionFit:
@@ -600,8 +586,13 @@ def _select(prob, p, fits, significance):
     n_eq = 2 * len(p.fuv)
     best, cv_cells, accepted, candidates = 0, [], [0], []
     for i, (c, d, label, fit, chi2) in enumerate(fits):
-        p_value = (1.0 if i == 0 else
-                   _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq))
+        # The p-value of the F-test that the extra terms over the best so far are needed.
+        d1, d2 = c.k - fits[best][0].k, n_eq - c.k
+        p_value = 1.0
+        if i > 0 and d1 > 0 and d2 > 0:
+            f = ((fits[best][4] - chi2) / d1) / max(chi2 / d2, 1e-300)
+            if not f <= 0:
+                p_value = float(betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f)))
         bic = float(chi2 / prob.var_scale + c.k * np.log(n_eq))
         cv, cells = (_blocked_cv(c, p.fuv, p.fdst, p.w, prob.frame_uv) if auto
                      else (None, None))
