@@ -464,6 +464,22 @@ def interrupts_held():
     raise them as their handlers do: what the block changes is changed entirely or not
     at all.  Only signals with a Python handler are held (a default SIGTERM still ends
     the process at once: the files are written atomically, the old ones stay).
+
+    Examples
+    --------
+    A Ctrl-C during the block is raised once both counters have changed:
+
+    >>> import signal
+    >>> from astroalign_nd.io.write import interrupts_held
+    >>> counts = {"frames": 0, "pixels": 0}
+    >>> try:
+    ...     with interrupts_held():
+    ...         counts["frames"] += 1
+    ...         signal.raise_signal(signal.SIGINT)
+    ...         counts["pixels"] += 100
+    ... except KeyboardInterrupt:
+    ...     print("interrupted after", counts)
+    interrupted after {'frames': 1, 'pixels': 100}
     """
     if threading.current_thread() is not threading.main_thread():
         yield  # handlers can only be set, and signals only arrive, in the main thread
