@@ -200,8 +200,19 @@ def read_catalog(path: str | os.PathLike, *, format: str | None = None) -> Table
             if index is None:
                 raise ValueError("the FITS file holds no table HDU")
             return Table.read(path, format="fits", hdu=index)
-        return Table.read(path, format="ascii.basic" if _has_header(path)
-                          else "ascii.no_header")
+        # Text: with a header when its first line that is not a comment names columns
+        # (is not all numbers).
+        header = False
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                words = line.split()
+                if words and not words[0].startswith("#"):
+                    try:
+                        [float(w) for w in words]
+                    except ValueError:
+                        header = True
+                    break
+        return Table.read(path, format="ascii.basic" if header else "ascii.no_header")
     except (OSError, ValueError, TypeError, IndexError) as exc:
         raise ValueError(f"could not read {os.fspath(path)!r} as a catalog "
                          f"({type(exc).__name__}: {exc}). Pass an ECSV file, a FITS table, "
@@ -211,36 +222,6 @@ def read_catalog(path: str | os.PathLike, *, format: str | None = None) -> Table
 def _is_fits(path):
     with open(path, "rb") as fh:
         return fh.read(9) == b"SIMPLE  ="
-
-
-def _has_header(path):
-    """True if the first line that is not a comment names columns (is not all numbers)."""
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for line in fh:
-            words = line.split()
-            if not words or words[0].startswith("#"):
-                continue
-            try:
-                [float(w) for w in words]
-            except ValueError:
-                return True
-            return False
-    return False
-
-
-def _is_catalog_path(obj):
-    if not isinstance(obj, (str, os.PathLike)):
-        return False
-    path = Path(obj)
-    if path.suffix.lower() in _TEXT_SUFFIXES:
-        return True
-    if path.is_file() and _is_fits(path):
-        with fits.open(path, memmap=False) as hdul:
-            has_image = any(getattr(h, "is_image", False) and h.data is not None
-                            and np.ndim(h.data) >= 2 for h in hdul)
-            has_table = any(isinstance(h, (fits.BinTableHDU, fits.TableHDU)) for h in hdul)
-        return has_table and not has_image
-    return False
 
 
 def _flux_name(flux, which):
@@ -294,23 +275,20 @@ def _array_side(obj, name):
     return _finite_side(arr.astype(float), bad, None, None, len(arr))
 
 
-def _image_side(obj, name, config, hdu):
-    parsed = parse_input(obj, name, hdu=hdu)
-    if parsed.is_catalog:  # (a Reference of a catalog)
-        return _array_side(parsed.points, name)
-    det = {f.name: getattr(config.detection, f.name)
-           for f in dataclasses.fields(config.detection)}
-    table = find_sources(parsed.detection_image, mask=parsed.mask, n_sources=MAX_DETECTIONS,
-                         **det)
-    side = _table_side(table, f"the stars detected in the {name}", ("x", "y"), "flux")
-    side.catalog = table
-    return side
-
-
 def _read_side(obj, name, columns, flux_col, config, hdu):
     """The positions of any accepted input: a `_Side`."""
-    if _is_catalog_path(obj):
-        obj = read_catalog(obj)
+    # A catalog file: a text table, or a FITS file with a table and no image.
+    if isinstance(obj, (str, os.PathLike)):
+        path = Path(obj)
+        if path.suffix.lower() in _TEXT_SUFFIXES:
+            obj = read_catalog(obj)
+        elif path.is_file() and _is_fits(path):
+            with fits.open(path, memmap=False) as hdul:
+                has_image = any(getattr(h, "is_image", False) and h.data is not None
+                                and np.ndim(h.data) >= 2 for h in hdul)
+                has_table = any(isinstance(h, (fits.BinTableHDU, fits.TableHDU)) for h in hdul)
+            if has_table and not has_image:
+                obj = read_catalog(obj)
     if isinstance(obj, Table):
         return _table_side(obj, name, columns, flux_col)
     if columns is not None:
@@ -323,7 +301,16 @@ def _read_side(obj, name, columns, flux_col, config, hdu):
     if obj is None:
         raise TypeError(f"{name} is None; pass an (N, 2) array of positions, a Table, an "
                         "image, or a path to either.")
-    return _image_side(obj, name, config, hdu)
+    parsed = parse_input(obj, name, hdu=hdu)
+    if parsed.is_catalog:  # (a Reference of a catalog)
+        return _array_side(parsed.points, name)
+    det = {f.name: getattr(config.detection, f.name)
+           for f in dataclasses.fields(config.detection)}
+    table = find_sources(parsed.detection_image, mask=parsed.mask, n_sources=MAX_DETECTIONS,
+                         **det)
+    side = _table_side(table, f"the stars detected in the {name}", ("x", "y"), "flux")
+    side.catalog = table
+    return side
 
 
 def _brightest(side, n):
@@ -365,28 +352,24 @@ def _check_transform(transform):
     return transform
 
 
-def _local_density(dst, predicted):
-    """Target stars per square pixel around each predicted position (a grid count)."""
-    lo, hi = bounds(dst)
-    area = max(float(np.prod(hi - lo)), 1.0)
-    cell = max(np.sqrt(DENSITY_CELL_STARS * area / max(len(dst), 1)), 1e-3)
-    shape = np.maximum(np.ceil((hi - lo) / cell).astype(int), 1)
-
-    def index(p):
-        ij = np.clip(((p - lo) / cell).astype(int), 0, shape - 1)
-        return ij[:, 1] * shape[0] + ij[:, 0]
-
-    counts = np.bincount(index(dst), minlength=int(np.prod(shape)))
-    return counts[index(predicted)] / cell ** 2
-
-
 def _pair_table(src, dst, fit):
     """The table of the pairs, by rows of the caller's inputs."""
     si, dj = fit.source_index, fit.target_index
     # (np.take: rows gathered 15 times faster than by [])
     s, d, r = np.take(src.points, si, axis=0), np.take(dst.points, dj, axis=0), fit.residuals
     resid = np.sqrt(r[:, 0] ** 2 + r[:, 1] ** 2)  # (hypot is ten times slower)
-    rho = _local_density(dst.points, d + r)
+    # The target stars per square pixel around each predicted position (a grid count).
+    lo, hi = bounds(dst.points)
+    area = max(float(np.prod(hi - lo)), 1.0)
+    cell = max(np.sqrt(DENSITY_CELL_STARS * area / max(len(dst.points), 1)), 1e-3)
+    shape = np.maximum(np.ceil((hi - lo) / cell).astype(int), 1)
+
+    def index(p):
+        ij = np.clip(((p - lo) / cell).astype(int), 0, shape - 1)
+        return ij[:, 1] * shape[0] + ij[:, 0]
+
+    counts = np.bincount(index(dst.points), minlength=int(np.prod(shape)))
+    rho = counts[index(d + r)] / cell ** 2
     table = Table({"source_index": src.rows[si], "target_index": dst.rows[dj],
                    "x_source": s[:, 0], "y_source": s[:, 1],
                    "x_target": d[:, 0], "y_target": d[:, 1],

@@ -320,13 +320,28 @@ def _as_reference(obj, name, config, hdu=None, unit=None):
     return Reference(obj, hdu=hdu, unit=unit, _role=name, _config=config)
 
 
-def _escalate(src, dst, plan, config):
+def _escalate(src, dst, nn, config):
     """
-    The search over the attempts of ``plan`` (more stars, then more neighbours):
+    The search over its attempts, ``(source stars, target stars, neighbours)``:
     (the first trusted match, its numbers of source and target control points,
     the usual matching tolerance or None when the caller set one).  Raises the
     last attempt's `TransformNotFoundError` when none is trusted.
+
+    More control points help crowded fields, small overlaps and pairs whose
+    brightest stars differ; more neighbours per star (``nn``, then 6 or 8 when
+    the caller did not set it) help sparse, noisy lists (at most 60 stars):
+    they miss many stars of the other image, so few of the 4-nearest-neighbour
+    triangles are common.
     """
+    n_sources, n_top = config.n_sources, config.n_sources
+    while 2 * n_top <= config.max_sources:
+        n_top *= 2
+    plan = [(n_sources, n_sources, nn)]
+    if n_top > n_sources:
+        # Depth-matched attempts: when the pixel scales differ a lot, the
+        # brightest stars of the narrow field are found among many more of
+        # the wide field's; then many stars on both sides.
+        plan += [(n_sources, n_top, nn), (n_top, n_sources, nn), (n_top, n_top, nn)]
     matching, nonlinear = config.matching, config.model.nonlinear
     user_nn = matching.n_neighbors is not None
     attempt_matching = matching
@@ -363,7 +378,9 @@ def _escalate(src, dst, plan, config):
                 last_exc = exc
                 log.debug(f"astroalign_nd: attempt {len(tried)} found no trusted match; "
                           f"{trials} hypotheses so far")
-        if k == len(plan) and _widen(plan, src_pts, dst_pts, user_nn):
+        if (k == len(plan) and not user_nn and nn < 8
+                and max(len(src_pts), len(dst_pts)) <= 60):
+            plan.append((ns, nd, nn + 2))
             log.debug("astroalign_nd: escalating to more neighbours per star")
     if result is None:
         raise last_exc
@@ -493,8 +510,7 @@ def find_match_from_config(source: Any, target: Any, config: RegistrationConfig,
     src = _as_reference(source, "source", config.detection, hdu)
     dst = _as_reference(target, "target", config.detection, hdu)
 
-    plan = _attempt_plan(config.n_sources, config.max_sources, nn)
-    result, ns, nd, grow_tolerance = _escalate(src, dst, plan, config)
+    result, ns, nd, grow_tolerance = _escalate(src, dst, nn, config)
     result.n_sources_used = max(ns, nd)
     if config.model.nonlinear:
         result = _grow(result, src, dst, config, (ns, nd), grow_tolerance)
@@ -516,41 +532,6 @@ def _grow(result, src, dst, config, n_control, grow_tolerance):
     log.debug(f"astroalign_nd: {info['model']} model (degree {info['degree']}) over "
               f"{result.n_matches} stars, RMS {result.rms:.3f} px")
     return result
-
-
-def _attempt_plan(n_sources, max_sources, nn):
-    """
-    The attempts of the escalation: (source stars, target stars, neighbours).
-
-    More control points help crowded fields, small overlaps and pairs whose
-    brightest stars differ (`_widen` adds more neighbours per star for
-    sparse, noisy lists where many stars are missing from one image).
-    """
-    n_top = n_sources
-    while 2 * n_top <= max_sources:
-        n_top *= 2
-    plan = [(n_sources, n_sources, nn)]
-    if n_top > n_sources:
-        # Depth-matched attempts: when the pixel scales differ a lot, the
-        # brightest stars of the narrow field are found among many more of
-        # the wide field's; then many stars on both sides.
-        plan += [(n_sources, n_top, nn), (n_top, n_sources, nn), (n_top, n_top, nn)]
-    return plan
-
-
-def _widen(plan, src_pts, dst_pts, user_nn):
-    """
-    Append an attempt with more neighbours per star, for small star lists.
-
-    Sparse, noisy lists miss many stars of the other image, so few of the
-    4-nearest-neighbour triangles are common; 6 or 8 neighbours give more.
-    Returns False when there is nothing left to try.
-    """
-    ns, nd, nn = plan[-1]
-    if user_nn or nn >= 8 or max(len(src_pts), len(dst_pts)) > 60:
-        return False
-    plan.append((ns, nd, nn + 2))
-    return True
 
 
 def find_transform(source: Any, target: Any, *, transform_type: str | type = "similarity",
@@ -746,7 +727,9 @@ def register_and_match(source: Any, target: Any, *, hdu: int | str | None = None
     quality = _quality_dict(result)
     # Resampling needs the target's grid, WCS and name, not its pixels: a
     # frame read from a file here is freed before the output is made.
-    grid = _grid_only(dst._parsed)
+    # (its pixels replaced by a read-only view of one zero of the same shape)
+    zeros = np.broadcast_to(np.zeros((), dst._parsed.data.dtype), dst._parsed.data.shape)
+    grid = dataclasses.replace(dst._parsed, data=zeros, mask=None, uncertainty=None, flags=None)
     if not isinstance(target, Reference) and dst._parsed is not target:
         # Ours: the pixels go now, not at the next garbage collection.
         dst._parsed.data = dst._parsed.mask = dst._parsed.uncertainty = None
@@ -867,9 +850,3 @@ def prepare_target(target: Any, config: RegistrationConfig, hdu: int | str | Non
     ref.stars(config.n_sources)
     ref.asterisms(config.n_sources, config.matching.n_neighbors or DEFAULT_NEIGHBORS)
     return ref
-
-
-def _grid_only(parsed):
-    """``parsed`` with its pixels replaced by a read-only view of one zero of the same shape."""
-    data = np.broadcast_to(np.zeros((), parsed.data.dtype), parsed.data.shape)
-    return dataclasses.replace(parsed, data=data, mask=None, uncertainty=None, flags=None)

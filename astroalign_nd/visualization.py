@@ -150,15 +150,6 @@ def _image(image, name):
     return data
 
 
-def _zscale_norm(data):
-    from astropy.visualization import ImageNormalize, ZScaleInterval
-
-    good = data[np.isfinite(data)]
-    if good.size == 0:
-        good = np.zeros(1)
-    return ImageNormalize(good, interval=ZScaleInterval())
-
-
 #: The colour of pixels without data (masked, or outside the source's footprint).
 NO_DATA_COLOR = "#4a6fa5"
 
@@ -168,23 +159,17 @@ def _show(ax, data, cmap="gray", norm=None):
     import matplotlib
     from matplotlib.patches import Patch
 
+    if norm is None:
+        from astropy.visualization import ImageNormalize, ZScaleInterval
+
+        good = data[np.isfinite(data)]
+        norm = ImageNormalize(good if good.size else np.zeros(1), interval=ZScaleInterval())
     cmap = matplotlib.colormaps[cmap].with_extremes(bad=NO_DATA_COLOR)
-    im = ax.imshow(data, origin="lower", cmap=cmap, norm=norm or _zscale_norm(data),
-                   interpolation="nearest")
+    im = ax.imshow(data, origin="lower", cmap=cmap, norm=norm, interpolation="nearest")
     if not np.all(np.isfinite(data)):
         ax.legend(handles=[Patch(facecolor=NO_DATA_COLOR, label="no data (masked)")],
                   loc="lower right", fontsize="small", framealpha=0.8)
     return im
-
-
-def _symmetric_norm(data):
-    """A colour scale symmetric about 0, as wide as the zscale range of ``data``."""
-    from astropy.visualization import ImageNormalize, ZScaleInterval
-
-    good = data[np.isfinite(data)]
-    lo, hi = ZScaleInterval().get_limits(good) if good.size else (-1.0, 1.0)
-    half = max(abs(lo), abs(hi)) or 1.0
-    return ImageNormalize(vmin=-half, vmax=half)
 
 
 def _display_name(image, default):
@@ -467,21 +452,17 @@ def plot_difference(aligned, target, *, ax=None, colorbar=True):
     diff = a - t
     if np.isfinite(diff).any():
         diff -= np.nanmedian(diff)
-    im = _show(ax, diff, norm=_symmetric_norm(diff))
+    # A colour scale symmetric about 0, as wide as the zscale range of the difference.
+    from astropy.visualization import ImageNormalize, ZScaleInterval
+
+    good = diff[np.isfinite(diff)]
+    lo, hi = ZScaleInterval().get_limits(good) if good.size else (-1.0, 1.0)
+    half = max(abs(lo), abs(hi)) or 1.0
+    im = _show(ax, diff, norm=ImageNormalize(vmin=-half, vmax=half))
     if colorbar:
         ax.figure.colorbar(im, ax=ax, shrink=0.8, label="aligned - target - median")
     _label(ax, "aligned - target")
     return ax
-
-
-def _numbers(value):
-    """The numbers of a Parameter, a float or a tuple, as a 1-D float array (or None)."""
-    if value is None:
-        return None
-    try:
-        return np.atleast_1d(np.asarray(getattr(value, "value", value), dtype=float)).ravel()
-    except (TypeError, ValueError):
-        return None
 
 
 def _quality_text(transform):
@@ -491,8 +472,13 @@ def _quality_text(transform):
     lines = [type(transform).__name__]
     for name, fmt, unit in (("scale", "{:.6f}", ""), ("rotation_deg", "{:.4f}", " deg"),
                             ("translation", "{:.3f}", " px")):
-        values = _numbers(getattr(transform, name, None))
-        if values is not None and values.size:
+        value = getattr(transform, name, None)  # a Parameter, a float or a tuple
+        try:
+            values = np.atleast_1d(np.asarray(getattr(value, "value", value),
+                                              dtype=float)).ravel()
+        except (TypeError, ValueError):
+            continue
+        if value is not None and values.size:
             lines.append(f"{name}: " + ", ".join(fmt.format(v) for v in values) + unit)
     if q:
         lines += [f"matched stars: {q['n_matches']}", f"RMS: {q['rms']:.3f} px",
@@ -652,17 +638,6 @@ def save_diagnostic_figure(path, source, target, aligned=None, *, overwrite=Fals
     return _save(fig, path, overwrite, dpi)
 
 
-def _night_table(result):
-    """The per-frame table of a batch (a `~astroalign_nd.batch.BatchResult` or its table)."""
-    table = result.to_table() if hasattr(result, "to_table") else result
-    missing = {"name", "status", "n_matches", "rms", "shift_x", "shift_y", "rotation"} - set(
-        getattr(table, "colnames", ()))
-    if missing:
-        raise TypeError("plot_night needs a BatchResult or its to_table(); got "
-                        f"{type(result).__name__} without the columns {sorted(missing)}.")
-    return table
-
-
 def plot_night(result, *, fig=None):
     """
     A batch at a glance: drift, rotation, RMS and matched stars against frame.
@@ -695,7 +670,12 @@ def plot_night(result, *, fig=None):
     >>> [ax.get_ylabel() for ax in fig.axes]
     ['shift [px]', 'rotation [deg]', 'RMS [px]', 'matched stars']
     """
-    table = _night_table(result)
+    table = result.to_table() if hasattr(result, "to_table") else result
+    missing = {"name", "status", "n_matches", "rms", "shift_x", "shift_y", "rotation"} - set(
+        getattr(table, "colnames", ()))
+    if missing:
+        raise TypeError("plot_night needs a BatchResult or its to_table(); got "
+                        f"{type(result).__name__} without the columns {sorted(missing)}.")
     if fig is None:
         _matplotlib()
         import matplotlib.pyplot as plt

@@ -197,7 +197,14 @@ def register_batch(sources: Iterable[Any] | Any, target: Any, *,
     callback = convert("callback", AnyCallable("a function of one FrameResult"), callback)
     resample = ResampleConfig(order=order, conserve_flux=conserve_flux, fill_value=fill_value,
                               method=method, add_keyword=add_keyword)
-    options, global_options = _split_options(target, options, solve)
+    if isinstance(target, Reference):
+        # The reference's detection options are the batch's, unless overridden here.
+        options = {**target.detect_options, **options}
+    # The search's options, and those of the joint solution (solve_sequence's own).
+    global_options = {k: options.pop(k) for k in SOLVE_OPTIONS if k in options}
+    if global_options and solve != "global":
+        raise TypeError(f"{sorted(global_options)} are options of solve='global'; pass "
+                        "solve='global' too, or leave them out.")
     # Every option checked once, and the reference's stars and triangles
     # computed once, before it is shipped to the workers.
     config = RegistrationConfig.from_keywords(**options)
@@ -323,18 +330,6 @@ def _check_arguments(sources, canvas, skip_existing, output_dir, add_keyword, su
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 0):
         raise ValueError(f"workers must be a non-negative integer; got {workers!r}.")
-
-
-def _split_options(target, options, solve):
-    """The search's options, and those of the joint solution (solve_sequence's own)."""
-    if isinstance(target, Reference):
-        # The reference's detection options are the batch's, unless overridden here.
-        options = {**target.detect_options, **options}
-    global_options = {k: options.pop(k) for k in SOLVE_OPTIONS if k in options}
-    if global_options and solve != "global":
-        raise TypeError(f"{sorted(global_options)} are options of solve='global'; pass "
-                        "solve='global' too, or leave them out.")
-    return options, global_options
 
 
 def _first_jobs(items, stream, union, output_dir, suffix, protected):

@@ -113,8 +113,12 @@ def _batch_frames(args):
     return target, kept
 
 
-def _check_batch_options(args):
-    """Refuse, before any work, options that cannot run or outputs that cannot be written."""
+def _check_batch_options(args, target, sources):
+    """
+    Refuse, before any work, options that cannot run or outputs that cannot be written;
+    one error up front when outputs of an earlier run are there (rather than one failure
+    per frame), naming the two ways on.
+    """
     if args.workers < 0:
         raise _CLIError(f"--workers must be 0 or more; got {args.workers}.")
     if args.scheduler and args.workers:
@@ -130,13 +134,6 @@ def _check_batch_options(args):
         except FileExistsError:
             raise _CLIError(f"summary file {args.summary!r} already exists; pass --overwrite "
                             "(or --skip-existing) to replace it.") from None
-
-
-def _check_existing_outputs(args, target, sources):
-    """
-    One error up front when outputs of an earlier run are there (rather than one failure
-    per frame), naming the two ways on.
-    """
     if args.overwrite or args.skip_existing:
         return
     from astroalign_nd.batch import plan_outputs
@@ -169,29 +166,27 @@ def _frame_reporter(n, bar):
     return report
 
 
-def _summary_table(result, reference=None):
-    """The per-frame table of a batch, the reference's row first (when it was written)."""
-    from astropy.table import vstack
+def _write_summary(result, path, reference=None):
+    """
+    The per-frame table of a batch, the reference's row first (when it was
+    written), as ECSV (or CSV by the extension).
+    """
+    from astroalign_nd.io.write import write_table
 
-    from astroalign_nd.batch import BatchResult
-
+    fmt = "ascii.ecsv" if path.lower().endswith(".ecsv") else "ascii.csv"
     table = result.to_table()
-    if reference is not None:
+    if reference is not None:  # its row first
+        from astropy.table import vstack
+
+        from astroalign_nd.batch import BatchResult
+
         if reference.ok:  # written, or kept (--skip-existing): the row says what it is
             reference = dataclasses.replace(reference, status="reference")
         ref = BatchResult([reference], canvas_shape=result.canvas_shape,
                           canvas_offset=result.canvas_offset).to_table()
         table = vstack([ref, table], metadata_conflicts="silent")
         table.meta.update(result.to_table().meta)
-    return table
-
-
-def _write_summary(result, path, reference=None):
-    """The per-frame table of a batch, as ECSV (or CSV by the extension)."""
-    from astroalign_nd.io.write import write_table
-
-    fmt = "ascii.ecsv" if path.lower().endswith(".ecsv") else "ascii.csv"
-    write_table(_summary_table(result, reference), path, format=fmt, overwrite=True)
+    write_table(table, path, format=fmt, overwrite=True)
     print(f"wrote {path}")
 
 
@@ -217,8 +212,7 @@ def _cmd_batch(args):
     import astroalign_nd
 
     target, sources = _batch_frames(args)
-    _check_batch_options(args)
-    _check_existing_outputs(args, target, sources)
+    _check_batch_options(args, target, sources)
     plots = _check_plot_dir(args, target, sources) if args.plot is not None else None
     progress = args.progress if args.progress is not None else sys.stderr.isatty()
     client = None
@@ -289,16 +283,6 @@ def _write_reference(args, target, result):
     return reference
 
 
-def _figure_path(plot_dir, output):
-    """A frame's figure: its output's name, ending in .png."""
-    stem = os.path.basename(output)
-    for ext in (".fits.gz", ".fits", ".fit", ".fts"):
-        if stem.lower().endswith(ext):
-            stem = stem[: -len(ext)]
-            break
-    return os.path.join(plot_dir, stem + ".png")
-
-
 #: The night summary figure of ``batch --plot DIR``.
 _NIGHT_FIGURE = "night_summary.png"
 
@@ -314,7 +298,14 @@ def _check_plot_dir(args, target, sources):
 
     _check_output_dir(args.plot, "--plot")
     outputs, _ = plan_outputs(sources, args.output_dir, protected=[target])
-    plots = {out: _figure_path(args.plot, out) for out in outputs}
+    plots = {}  # each output's figure: its name, ending in .png
+    for out in outputs:
+        stem = os.path.basename(out)
+        for ext in (".fits.gz", ".fits", ".fit", ".fts"):
+            if stem.lower().endswith(ext):
+                stem = stem[: -len(ext)]
+                break
+        plots[out] = os.path.join(args.plot, stem + ".png")
     for path in [*plots.values(), os.path.join(args.plot, _NIGHT_FIGURE)]:
         if os.path.exists(path) and args.skip_existing and not args.overwrite:
             continue

@@ -47,32 +47,10 @@ def add_parser(sub):
     return p
 
 
-def _max_corner_error(recovered, truth, shape):
-    """Largest distance (px) between two transforms evaluated at the frame corners."""
-    import numpy as np
-
-    ny, nx = shape
-    x = np.array([0.0, nx - 1.0, 0.0, nx - 1.0])
-    y = np.array([0.0, 0.0, ny - 1.0, ny - 1.0])
-    xr, yr = recovered(x, y)
-    xt, yt = truth(x, y)
-    return float(np.max(np.hypot(np.asarray(xr) - xt, np.asarray(yr) - yt)))
-
-
-def _is_demo_output(path):
-    """``path`` is a FITS file an earlier demo wrote (its header says so)."""
-    from astropy.io import fits
-
-    if not os.path.isfile(path):
-        return False
-    try:
-        return fits.getval(path, _DEMO_KEY, ext=0) is True
-    except (OSError, KeyError, IndexError, ValueError):
-        return False
-
-
 def _cmd_demo(args):
     import astropy.units as u
+    import numpy as np
+    from astropy.io import fits
     from astropy.nddata import CCDData
 
     import astroalign_nd
@@ -87,7 +65,14 @@ def _cmd_demo(args):
     _check_output_dir(out_dir)
     # The demo's own earlier outputs are replaced (the README's command runs again); any
     # other file under those names is kept unless --overwrite.
-    replace = {name: args.overwrite or _is_demo_output(path) for name, path in paths.items()}
+    replace = {}
+    for name, path in paths.items():
+        replace[name] = args.overwrite
+        if not replace[name] and os.path.isfile(path):
+            try:  # a FITS file an earlier demo wrote (its header says so)
+                replace[name] = fits.getval(path, _DEMO_KEY, ext=0) is True
+            except (OSError, KeyError, IndexError, ValueError):
+                pass
     for name, path in paths.items():
         _check_writable(path, replace[name])
 
@@ -103,7 +88,12 @@ def _cmd_demo(args):
 
     # The registered frame records how it was made: rebuild the transform.
     recovered = astroalign_nd.transform_from_header(aligned.meta)
-    error = _max_corner_error(recovered, pair.transform, source.shape)
+    # The largest distance (px) between the two transforms at the frame's corners.
+    ny, nx = source.shape
+    x = np.array([0.0, nx - 1.0, 0.0, nx - 1.0])
+    y = np.array([0.0, 0.0, ny - 1.0, ny - 1.0])
+    (xr, yr), (xt, yt) = recovered(x, y), pair.transform(x, y)
+    error = float(np.max(np.hypot(np.asarray(xr) - xt, np.asarray(yr) - yt)))
 
     print(f"true transform:      {_describe(pair.transform)}")
     print(f"recovered transform: {_describe(recovered)}")

@@ -58,13 +58,6 @@ class _CLIError(Exception):
     """A problem with the command line itself (exit code 2)."""
 
 
-def _expected_errors():
-    """The exception classes that are reported without a traceback."""
-    from astroalign_nd import AstroalignError
-
-    return (AstroalignError, _CLIError) + _USER_ERRORS
-
-
 def exit_code(exc):
     """3 for a refused registration (an `~astroalign_nd.AstroalignError`), else 2."""
     from astroalign_nd import AstroalignError

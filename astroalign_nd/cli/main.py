@@ -7,8 +7,8 @@ module, and the errors, signals and exit codes every command shares.
 import argparse
 import contextlib
 import sys
-from .errors import (_PROG, HelpFormatter as _HelpFormatter, _error, _expected_errors, cli_words,
-                     exit_code, exit_codes_text)
+from .errors import (_PROG, _USER_ERRORS, HelpFormatter as _HelpFormatter, _CLIError, _error,
+                     cli_words, exit_code, exit_codes_text)
 from . import batch, demo, match, register, stack, watch
 from .options import _empty_folders_removed, _registration_options
 
@@ -145,7 +145,10 @@ def main(argv=None):
         return 2
 
     try:
-        errors = _expected_errors()
+        # The exception classes reported without a traceback.
+        from astroalign_nd import AstroalignError
+
+        errors = (AstroalignError, _CLIError) + _USER_ERRORS
     except ImportError as exc:
         return _error(f"could not import astroalign_nd: {exc}")
     import warnings

@@ -76,19 +76,6 @@ def _names(value, what):
     return tuple(parts)
 
 
-def _flux(value):
-    if value is None:
-        return None
-    if value.strip().lower() == "none":
-        return False
-    parts = [v.strip() for v in value.split(",")]
-    if len(parts) == 1:
-        return parts[0]
-    if len(parts) == 2 and all(parts):
-        return tuple(parts)
-    raise _CLIError(f"--flux takes a column name or two separated by a comma; got {value!r}.")
-
-
 def _output_format(path, inputs, overwrite):
     """The astropy format of the output, after checking it can be written (before any work)."""
     from astroalign_nd.io.write import check_not_input, check_output_path
@@ -107,16 +94,6 @@ def _output_format(path, inputs, overwrite):
     return FORMATS[suffix]
 
 
-def _search_kwargs(args):
-    kwargs = {}
-    for config in _CONFIGS:
-        for name, _, _ in cli_fields(config):
-            value = getattr(args, name, None)
-            if value is not None:
-                kwargs[name] = tuple(value) if isinstance(value, list) else value
-    return kwargs
-
-
 def _cmd_match(args):
     from astroalign_nd.crossmatch import cross_match, read_catalog
     from astroalign_nd.io.write import write_table
@@ -126,11 +103,29 @@ def _cmd_match(args):
             raise _CLIError(f"input file {path!r} does not exist or is not a file.")
     fmt = _output_format(args.output, (args.source, args.target), args.overwrite)
     source, target = read_catalog(args.source), read_catalog(args.target)
-    out = cross_match(source, target, source_columns=_names(args.source_columns,
-                                                            "--source-columns"),
-                      target_columns=_names(args.target_columns, "--target-columns"),
-                      flux=_flux(args.flux), max_radius=args.max_radius, radius=args.radius,
-                      max_iterations=args.max_iterations, **_search_kwargs(args))
+    source_columns = _names(args.source_columns, "--source-columns")
+    target_columns = _names(args.target_columns, "--target-columns")
+    flux = args.flux  # a column name or two; 'none': the first rows
+    if flux is not None:
+        parts = [v.strip() for v in flux.split(",")]
+        if flux.strip().lower() == "none":
+            flux = False
+        elif len(parts) == 1:
+            flux = parts[0]
+        elif len(parts) == 2 and all(parts):
+            flux = tuple(parts)
+        else:
+            raise _CLIError(f"--flux takes a column name or two separated by a comma; got "
+                            f"{flux!r}.")
+    search = {}  # the search options given (the others: the library's defaults)
+    for config in _CONFIGS:
+        for name, _, _ in cli_fields(config):
+            value = getattr(args, name, None)
+            if value is not None:
+                search[name] = tuple(value) if isinstance(value, list) else value
+    out = cross_match(source, target, source_columns=source_columns,
+                      target_columns=target_columns, flux=flux, max_radius=args.max_radius,
+                      radius=args.radius, max_iterations=args.max_iterations, **search)
     table = out.table
     table.meta["SOURCE"], table.meta["TARGET"] = str(args.source), str(args.target)
     write_table(table, args.output, format=fmt, overwrite=args.overwrite)

@@ -53,29 +53,6 @@ def _trend(level, window):
     return median_filter(level, size=window, mode="reflect")
 
 
-def _levels(work):
-    """Median of each row of ``work`` (NaN-aware), and its count of finite samples."""
-    if np.isnan(work).any():
-        n = np.sum(np.isfinite(work), axis=1)
-        level = np.full(work.shape[0], np.nan)
-        some = n > 0
-        level[some] = np.nanmedian(work[some], axis=1)
-        # Lines with nothing valid follow the others (the trend ignores them).
-        level[~some] = np.nanmedian(level) if some.any() else 0.0
-        return level, n
-    return _median(work, axis=1), np.full(work.shape[0], work.shape[1])
-
-
-def _line_noise(lines):
-    """Noise of each row of ``lines`` from differences of neighbouring samples
-    (which cancel gradients): their MAD, as a standard deviation of one pixel."""
-    diff = np.diff(lines, axis=1)
-    with warnings.catch_warnings():  # a line with no two valid neighbours: NaN, left out
-        warnings.simplefilter("ignore", RuntimeWarning)
-        dev = np.abs(diff - np.nanmedian(diff, axis=1)[:, None])
-        return 1.4826 * np.nanmedian(dev, axis=1) / np.sqrt(2.0)
-
-
 def _bright_lines(resid, noise):
     """
     Are there bright or noisy rows or columns in the binned residual image?
@@ -165,7 +142,16 @@ def line_background(data, mask, noise):
         step = max(1, n_along // _SAMPLES)
         sub = arr[:, ::step] if axis == 1 else arr[::step, :].T
         sub = np.ascontiguousarray(sub, dtype=np.float32)
-        level, n = _levels(sub)
+        # Each line's median (NaN-aware), and its count of finite samples.
+        if np.isnan(sub).any():
+            n = np.sum(np.isfinite(sub), axis=1)
+            level = np.full(sub.shape[0], np.nan)
+            some = n > 0
+            level[some] = np.nanmedian(sub[some], axis=1)
+            # Lines with nothing valid follow the others (the trend ignores them).
+            level[~some] = np.nanmedian(level) if some.any() else 0.0
+        else:
+            level, n = _median(sub, axis=1), np.full(sub.shape[0], sub.shape[1])
         excess = level - _trend(level, max(31, (n_lines // 16) | 1))
         excess_out = np.zeros(n_lines)
         factor = np.ones(n_lines)
@@ -176,7 +162,13 @@ def line_background(data, mask, noise):
             # noise, and whether the excess is significant against it (the
             # median's error is 1.25 sigma / sqrt(n)).  Lines below the sky
             # (overscan, dead columns) make no false peaks and are left.
-            sig = _line_noise(sub[cand].astype(np.float64))
+            # (a line's noise: the MAD of differences of neighbouring samples, as a
+            # standard deviation of one pixel; NaN for a line without two valid neighbours)
+            diff = np.diff(sub[cand].astype(np.float64), axis=1)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                dev = np.abs(diff - np.nanmedian(diff, axis=1)[:, None])
+                sig = 1.4826 * np.nanmedian(dev, axis=1) / np.sqrt(2.0)
             err = 1.25 * np.maximum(sig, noise) / np.sqrt(np.maximum(n[cand], 1))
             with np.errstate(invalid="ignore"):
                 bright = excess[cand] > 5.0 * err

@@ -138,8 +138,16 @@ def _model_matrix(model):
             "transform."
         )
     entry = transform_type_of(model)
-    if entry is None:
-        matrix = _affine_matrix(model)
+    if entry is None:  # any other astropy model, which must be affine
+        try:
+            matrix = as_matrix(model)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(
+                f"only the astroalign_nd transforms and linear 2-D astropy models (2 inputs, 2 "
+                f"outputs, affine) can go into a FITS header; {type(model).__name__} is not one "
+                f"({exc}). Save it to an ASDF file instead: asdf.AsdfFile({{'transform': "
+                "model}).write_to('transform.asdf')."
+            ) from None
     elif entry.header is not None:
         matrix = entry.header.matrix(model)  # (a polynomial: its linear part about crpix)
     else:
@@ -147,19 +155,6 @@ def _model_matrix(model):
     if not np.all(np.isfinite(matrix)):
         raise ValueError("the transform's matrix contains NaN or infinite values.")
     return matrix
-
-
-def _affine_matrix(model):
-    """The matrix of any other astropy model, which must be affine."""
-    try:
-        return as_matrix(model)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(
-            f"only the astroalign_nd transforms and linear 2-D astropy models (2 inputs, 2 "
-            f"outputs, affine) can go into a FITS header; {type(model).__name__} is not one "
-            f"({exc}). Save it to an ASDF file instead: asdf.AsdfFile({{'transform': model}})"
-            ".write_to('transform.asdf')."
-        ) from None
 
 
 def _degrees(angle):

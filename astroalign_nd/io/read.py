@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from astropy import units as u
 from astropy.io import fits
-from astropy.nddata import NDData
+from astropy.nddata import FlagCollection, NDData
 from astropy.table import Table
 from astropy.wcs import WCS, FITSFixedWarning
 
@@ -353,7 +353,15 @@ def _read_fits(path, name, hdu, unit):
                 primary = hdul[0].header.copy() if index != 0 and hdu is None else None
                 file_unit = _header_unit(header, name)
                 ext_names = {h.name for h in hdul}
-        _reraise_warnings(caught, path, name)
+        # astropy's "may have been truncated" is an error; the other warnings pass on.
+        for w in caught:
+            if "truncated" in str(w.message):
+                raise ValueError(
+                    f"{name}: could not read the data of {path!r}: the file is truncated "
+                    f"({w.message}). Copy the file again from its source, or pass another "
+                    "frame.")
+        for w in caught:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     except TypeError as exc:  # numpy: "buffer is too small for requested array"
         raise ValueError(
             f"{name}: could not read the data of {path!r}: the file is truncated or its "
@@ -389,17 +397,6 @@ def _read_fits(path, name, hdu, unit):
     p.unit = file_unit if file_unit is not None else _as_unit(unit)
     p.kind = "fits"
     return p
-
-
-def _reraise_warnings(caught, path, name):
-    """Turn astropy's "may have been truncated" into an error; pass the other warnings on."""
-    for w in caught:
-        if "truncated" in str(w.message):
-            raise ValueError(
-                f"{name}: could not read the data of {path!r}: the file is truncated "
-                f"({w.message}). Copy the file again from its source, or pass another frame.")
-    for w in caught:
-        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 def _native_in_place(arr):
@@ -476,19 +473,6 @@ def _read_path(path, name, hdu=None, unit=None):
     return p
 
 
-def _copy_flags(flags):
-    if flags is None:
-        return None
-    from astropy.nddata import FlagCollection
-
-    if isinstance(flags, FlagCollection):
-        out = FlagCollection(shape=flags.shape)
-        for key, value in flags.items():
-            out[key] = np.array(value)
-        return out
-    return np.array(flags)
-
-
 def _from_nddata(obj, name):
     arr = np.asarray(obj.data)
     _check_image_array(arr, name)
@@ -498,9 +482,16 @@ def _from_nddata(obj, name):
         # A new object (detached from the caller's NDData) on the same array:
         # the array is only read, and a copy costs a full plane.
         unc = unc.__class__(unc.array, unit=unc.unit, copy=False)
+    flags = getattr(obj, "flags", None)
+    if isinstance(flags, FlagCollection):
+        copied = FlagCollection(shape=flags.shape)
+        for key, value in flags.items():
+            copied[key] = np.array(value)
+        flags = copied
+    elif flags is not None:
+        flags = np.array(flags)
     return ParsedInput(
-        data=arr, mask=_user_mask(arr, obj.mask), uncertainty=unc, unit=obj.unit,
-        flags=_copy_flags(getattr(obj, "flags", None)),
+        data=arr, mask=_user_mask(arr, obj.mask), uncertainty=unc, unit=obj.unit, flags=flags,
         wcs=obj.wcs if getattr(obj.wcs, "has_celestial", False) else None,
         meta=meta, kind="nddata", name=type(obj).__name__)
 
@@ -565,19 +556,24 @@ def parse_input(obj: Any, name: str = "input", *, hdu: int | str | tuple | None 
         return obj
     if isinstance(getattr(obj, "_parsed", None), ParsedInput):  # a Reference
         return obj._parsed
-    return _channels_last(_in_native_order(_parse(obj, name, hdu, unit)))
-
-
-def _channels_last(p):
-    """
-    A channels-first cube as every stage takes it: ``(ny, nx, nchan)``
-    views of its data, uncertainty and flags, with ``channels_first`` set so
-    that the output is written back in the input's layout.
-    """
+    p = _parse(obj, name, hdu, unit)
+    # The pixel arrays in native byte order (big-endian arrays are copied): every
+    # computation then sees the same numbers whatever the caller's byte order (the
+    # compiled kernels need native order, and the NumPy paths sum in a different order
+    # on swapped arrays).  The caller's arrays are never changed.
+    p.data = _native_copy(p.data)
+    p.mask = _native_copy(p.mask)
+    p.flags = _native_copy(p.flags)
+    unc = p.uncertainty
+    if unc is not None and isinstance(getattr(unc, "array", None), np.ndarray) \
+            and not unc.array.dtype.isnative:
+        p.uncertainty = unc = type(unc)(_native_copy(unc.array), unit=unc.unit, copy=False)
     if p.data is None or not is_channels_first(p.data):
         return p
+    # A channels-first cube as every stage takes it: ``(ny, nx, nchan)`` views of its
+    # data, uncertainty and flags, with ``channels_first`` set so that the output is
+    # written back in the input's layout.
     p.data = np.moveaxis(p.data, 0, -1)
-    unc = p.uncertainty
     if unc is not None and is_channels_first(getattr(unc, "array", None)):
         p.uncertainty = type(unc)(np.moveaxis(unc.array, 0, -1), unit=unc.unit, copy=False)
     if isinstance(p.flags, np.ndarray) and is_channels_first(p.flags):
@@ -594,25 +590,6 @@ def _native_copy(arr):
     if not isinstance(arr, np.ndarray) or arr.dtype.isnative or arr.dtype.byteorder == "|":
         return arr
     return arr.astype(arr.dtype.newbyteorder("="))
-
-
-def _in_native_order(p):
-    """
-    ``p`` with its pixel arrays in native byte order (big-endian arrays are copied).
-
-    Every computation then sees the same numbers whatever the caller's byte
-    order: the compiled kernels need native order, and the NumPy paths sum
-    in a different order on swapped arrays.  The caller's arrays are never
-    changed.
-    """
-    p.data = _native_copy(p.data)
-    p.mask = _native_copy(p.mask)
-    p.flags = _native_copy(p.flags)
-    unc = p.uncertainty
-    if unc is not None and isinstance(getattr(unc, "array", None), np.ndarray) \
-            and not unc.array.dtype.isnative:
-        p.uncertainty = type(unc)(_native_copy(unc.array), unit=unc.unit, copy=False)
-    return p
 
 
 def _parse(obj, name, hdu, unit):
@@ -820,31 +797,6 @@ def image_shape_unit(path):
         return hdul[0].data.shape, hdul[0].header.get("BUNIT")
 
 
-def _uncertainty_kind(hdul):
-    """The UNCERT extension's kind ('std', 'var', 'ivar') and HDU, or (None, None)."""
-    if "UNCERT" not in hdul:
-        return None, None
-    hdu = hdul["UNCERT"]
-    utype = str(hdu.header.get("UTYPE", "StdDevUncertainty"))
-    kinds = {"StdDevUncertainty": "std", "VarianceUncertainty": "var",
-             "InverseVariance": "ivar"}
-    kind = next((v for k, v in kinds.items() if k in utype), None)
-    if kind is None:
-        raise ValueError(f"unknown uncertainty type {utype!r} in {hdul.filename()}; a stack "
-                         "needs StdDevUncertainty, VarianceUncertainty or InverseVariance.")
-    return kind, hdu
-
-
-def _as_variance(u, kind):
-    u = np.asarray(u, dtype=np.float64)
-    if kind == "std":
-        return u * u
-    if kind == "ivar":
-        with np.errstate(divide="ignore"):
-            return np.where(u > 0, 1.0 / np.where(u > 0, u, 1.0), np.inf)
-    return u.copy()
-
-
 def read_rows(path, r0, r1):
     """
     Rows ``r0:r1`` of a registered frame: values, variance (or None) and validity.
@@ -866,8 +818,24 @@ def read_rows(path, r0, r1):
         valid = np.isfinite(data)
         if "MASK" in hdul:
             valid &= ~np.asarray(hdul["MASK"].data[r0:r1]).astype(bool)
-        kind, uhdu = _uncertainty_kind(hdul)
-        var = None if kind is None else _as_variance(uhdu.data[r0:r1], kind)
+        var = None
+        if "UNCERT" in hdul:  # as a variance, from the UTYPE the extension holds
+            utype = str(hdul["UNCERT"].header.get("UTYPE", "StdDevUncertainty"))
+            kinds = {"StdDevUncertainty": "std", "VarianceUncertainty": "var",
+                     "InverseVariance": "ivar"}
+            kind = next((v for k, v in kinds.items() if k in utype), None)
+            if kind is None:
+                raise ValueError(f"unknown uncertainty type {utype!r} in {hdul.filename()}; a "
+                                 "stack needs StdDevUncertainty, VarianceUncertainty or "
+                                 "InverseVariance.")
+            var = np.asarray(hdul["UNCERT"].data[r0:r1], dtype=np.float64)
+            if kind == "std":
+                var = var * var
+            elif kind == "ivar":
+                with np.errstate(divide="ignore"):
+                    var = np.where(var > 0, 1.0 / np.where(var > 0, var, 1.0), np.inf)
+            else:
+                var = var.copy()
     if var is not None:
         valid &= np.isfinite(var) & (var >= 0)
     return data, var, valid

@@ -23,12 +23,14 @@ import gzip
 import io
 import os
 import shutil
+import signal
 import stat
 import tempfile
+import threading
 
 __all__ = ["atomic_write", "atomic_open", "write_ccddata", "write_table", "check_output_path",
            "check_output_dir", "make_output_dir", "remove_empty_dirs", "check_not_input",
-           "FITS_EXTENSIONS"]
+           "FITS_EXTENSIONS", "interrupts_held"]
 
 #: File name endings taken as FITS by `write_ccddata` and the command line.
 FITS_EXTENSIONS = (".fits", ".fit", ".fts", ".fits.gz", ".fit.gz", ".fts.gz")
@@ -44,15 +46,6 @@ _DIR_FD = all(f in os.supports_dir_fd for f in (os.open, os.stat, os.unlink, os.
 
 #: Longest name ending kept on the temporary file (``.fits.gz`` and the like).
 _MAX_SUFFIX = 16
-
-
-def _suffix(base):
-    """The name's ending (``'.fits.gz'`` of ``'m31.fits.gz'``), at most `_MAX_SUFFIX` long."""
-    dot = base.find(".", 1)
-    suffix = base[dot:] if dot > 0 else ""
-    while len(suffix) > _MAX_SUFFIX and "." in suffix[1:]:
-        suffix = suffix[suffix.index(".", 1):]
-    return suffix if len(suffix) <= _MAX_SUFFIX else ""
 
 
 class _PrivateFolder:
@@ -74,7 +67,12 @@ class _PrivateFolder:
                                     "folder.")
         # The final name's ending is kept, so writers that choose a format or a compression
         # from it (``.fits.gz``) behave as for the final name; the length stays bounded.
-        self.name = "part" + _suffix(base)
+        # (the ending of 'm31.fits.gz' is '.fits.gz')
+        dot = base.find(".", 1)
+        suffix = base[dot:] if dot > 0 else ""
+        while len(suffix) > _MAX_SUFFIX and "." in suffix[1:]:
+            suffix = suffix[suffix.index(".", 1):]
+        self.name = "part" + (suffix if len(suffix) <= _MAX_SUFFIX else "")
         self.fd = None
         for attempt in range(5):
             self.path = tempfile.mkdtemp(prefix=_TMP_TAG, dir=folder)
@@ -178,17 +176,6 @@ _WRITE_ADVICE = {
 }
 
 
-def _os_error_in(exc):
-    """The `OSError` that ``exc`` is or that it was raised while handling, else None."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, OSError):
-            return exc
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return None
-
-
 def _write_failure(exc, path):
     """
     A clear `OSError` for a write of ``path`` that failed with ``exc``, or None.
@@ -197,7 +184,12 @@ def _write_failure(exc, path):
     (astropy.io.fits raises ``AttributeError: 'list' object has no attribute '_file'`` when
     it checks the free space of a file object): the system's error is found in the chain.
     """
-    os_error = _os_error_in(exc)
+    os_error, seen = exc, set()  # the OSError that exc is, or was raised while handling
+    while os_error is not None and not isinstance(os_error, OSError):
+        if id(os_error) in seen:
+            return None
+        seen.add(id(os_error))
+        os_error = os_error.__cause__ or os_error.__context__
     if os_error is None:
         return None
     code = os_error.errno
@@ -463,6 +455,48 @@ def write_table(table, path, *, format, overwrite=False):
             text.detach()
         else:
             table.write(f, format=format)
+
+
+@contextlib.contextmanager
+def interrupts_held():
+    """
+    Hold SIGINT and SIGTERM (and Windows' SIGBREAK) until the block is done, then
+    raise them as their handlers do: what the block changes is changed entirely or not
+    at all.  Only signals with a Python handler are held (a default SIGTERM still ends
+    the process at once: the files are written atomically, the old ones stay).
+
+    Examples
+    --------
+    A Ctrl-C during the block is raised once both counters have changed:
+
+    >>> import signal
+    >>> from astroalign_nd.io.write import interrupts_held
+    >>> counts = {"frames": 0, "pixels": 0}
+    >>> try:
+    ...     with interrupts_held():
+    ...         counts["frames"] += 1
+    ...         signal.raise_signal(signal.SIGINT)
+    ...         counts["pixels"] += 100
+    ... except KeyboardInterrupt:
+    ...     print("interrupted after", counts)
+    interrupted after {'frames': 1, 'pixels': 100}
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield  # handlers can only be set, and signals only arrive, in the main thread
+        return
+    caught, old = [], {}
+    for name in ("SIGINT", "SIGTERM", "SIGBREAK"):
+        signum = getattr(signal, name, None)
+        handler = None if signum is None else signal.getsignal(signum)
+        if callable(handler):
+            old[signum] = signal.signal(signum, lambda num, frame: caught.append((num, frame)))
+    try:
+        yield
+    finally:
+        for signum, handler in old.items():
+            signal.signal(signum, handler)
+        if caught:
+            old[caught[0][0]](*caught[0])
 
 
 def check_output_path(path, overwrite=False, *, extensions=FITS_EXTENSIONS):

@@ -482,12 +482,14 @@ def pair_all(src, dst, start, *, transform_type="similarity", degree=None, parit
         state.params = state.si = None  # refit at least once with the chosen model
         more, converged = _iterate(state, cand, max_iterations)
         n_it += more
-    _check_not_chance(state)
     return _final(state, name, deg, parity, n_it, converged, max_iterations)
 
 
-def _check_not_chance(state):
-    """Refuse pairs no more numerous than chance coincidences would give."""
+def _final(state, name, deg, parity, n_it, converged, max_iterations):
+    """
+    The model of the chosen type fitted on the final pairs: an `AllPairs`;
+    pairs no more numerous than chance coincidences would give are refused.
+    """
     p = state.p
     n, expected = len(state.si), len(p.uv) * -np.expm1(-np.pi * state.radius ** 2 * p.density)
     chance = float(poisson.sf(n - 1, expected))
@@ -497,31 +499,6 @@ def _check_not_chance(state):
             f"would give ({expected:.1f} expected at this density; probability {chance:.2g}): "
             "the starting transform does not map the source onto the target. Check "
             "transform= (or let the search find it), or pass a larger first radius (max_radius).")
-
-
-def _fit_final(state, name, kw):
-    """`fit_transform`'s (model, covariance, residuals) on the current pairs."""
-    p = state.p
-    s, d = np.take(p.src, state.si, axis=0), np.take(p.dst, state.dj, axis=0)
-    # The linear types whose iterations solved their own problem: their final
-    # model is the last of these fits (built by `fit_from_matrix`, not solved again).
-    entry = TRANSFORM_REGISTRY[name]
-    if (entry.linear and entry.cls.iterated_exactly() and state.cand is not None
-            and state.cand.affine_in_position):
-        # The 3x3 pixel matrix of the last fit (the candidate is affine in (u, v)).
-        q = _chunked_predict(p, state.cand, state.params, np.array([[0.0, 0.0], [1.0, 0.0],
-                                                                    [0.0, 1.0]]))
-        m = np.eye(3)
-        if not state.cand.adds_position:  # (a shift keeps its exact identity)
-            m[:2, :2] = np.column_stack([q[1] - q[0], q[2] - q[0]]) / p.half
-        m[:2, 2] = q[0] - m[:2, :2] @ p.centre
-        return fit_from_matrix(name, m, s, d, kw.get("parity", 1))
-    return fit_transform(s, d, name, **kw)
-
-
-def _final(state, name, deg, parity, n_it, converged, max_iterations):
-    """The model of the chosen type fitted on the final pairs: an `AllPairs`."""
-    p = state.p
     kw = {}
     entry = TRANSFORM_REGISTRY[name]
     if entry.degrees:
@@ -530,7 +507,21 @@ def _final(state, name, deg, parity, n_it, converged, max_iterations):
     elif entry.parity:
         kw = dict(parity=parity)
     for _ in range(max_iterations):
-        model, cov, resid = _fit_final(state, name, kw)
+        s, d = np.take(p.src, state.si, axis=0), np.take(p.dst, state.dj, axis=0)
+        # The linear types whose iterations solved their own problem: their final
+        # model is the last of these fits (built by `fit_from_matrix`, not solved again).
+        if (entry.linear and entry.cls.iterated_exactly() and state.cand is not None
+                and state.cand.affine_in_position):
+            # The 3x3 pixel matrix of the last fit (the candidate is affine in (u, v)).
+            q = _chunked_predict(p, state.cand, state.params,
+                                 np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
+            m = np.eye(3)
+            if not state.cand.adds_position:  # (a shift keeps its exact identity)
+                m[:2, :2] = np.column_stack([q[1] - q[0], q[2] - q[0]]) / p.half
+            m[:2, 2] = q[0] - m[:2, :2] @ p.centre
+            model, cov, resid = fit_from_matrix(name, m, s, d, kw.get("parity", 1))
+        else:
+            model, cov, resid = fit_transform(s, d, name, **kw)
         if entry.cls.iterated_exactly():
             break
         # Another model than the iterations': pair again under its own fit.

@@ -201,7 +201,8 @@ def match_control_points(src_pts, dst_pts, *, n_control=None, source_asterisms=N
     -----
     The stages: `_prepare` (checks, frames, control points), triangles and
     their `_Hypotheses` (made batch by batch, through `_filter_hypotheses`),
-    `_score_batches` (early acceptance), `_final_pass` and `_failure_message`.
+    `_score_batches` (early acceptance), without it a final pass over the best
+    few hypotheses not refined yet, and `_failure_message`.
 
     Examples
     --------
@@ -233,8 +234,15 @@ def match_control_points(src_pts, dst_pts, *, n_control=None, source_asterisms=N
     hyp = _Hypotheses(src_ast, dst_ast, pairs, s)
     s.dst_tree, s.grid = cKDTree(s.dst_pts), PointGrid(s.dst_pts, s.tolerance)
     progress = _score_batches(s, hyp)
-    if not progress.accepted:
-        _final_pass(s, hyp, progress)
+    if not progress.accepted:  # refine the overall best few hypotheses not refined yet
+        counts = progress.counts
+        for h in np.argsort(-counts, kind="stable")[:10]:
+            if int(h) in progress.refined or counts[h] < 3:
+                continue
+            cand = _evaluate(s, hyp, h, progress.n_scored)
+            if cand is not None and (progress.best is None
+                                     or cand.rank() < progress.best.rank()):
+                progress.best = cand
     if progress.best is not None and progress.best.ok:
         return _result(progress.best, s, n_tri, progress.n_scored)
     raise _not_found(progress.n_scored, _failure_message(s, progress, n_tri))
@@ -399,24 +407,19 @@ class _Candidate:
         return (not self.ok, self.lfa)
 
 
-def _promising(s, hyp, h, n_scored):
+def _evaluate(s, hyp, h, n_scored):
     """
-    Could hypothesis h pass the false-alarm test, even optimistically?
+    Refine hypothesis h and compute its false-alarm probability (None if hopeless).
 
-    Its matches at the search radius, counted over all stars, are judged
-    at the smallest radius the refinement may reach.  Chance hypotheses
-    fail this cheaply and are not refined.
+    Could it pass the false-alarm test, even optimistically?  Its matches at the
+    search radius, counted over all stars, are first judged at the smallest radius
+    the refinement may reach: chance hypotheses fail this cheaply and are not refined.
     """
     k_all = int(count_inliers(hyp.mats[h:h + 1], s.src_pts, s.grid)[0])
     lfa = _log10_false_alarm(hyp.mats[h], s.src_pts, s.dst_pts, k_all, s.min_tolerance,
                              s.src_frame, s.dst_frame, n_scored + s.prior_trials,
                              hyp.tri_rms[h], hyp.tri_size[h], s.invariant_radius)
-    return lfa <= s.log_limit
-
-
-def _evaluate(s, hyp, h, n_scored):
-    """Refine hypothesis h and compute its false-alarm probability (None if hopeless)."""
-    if not _promising(s, hyp, h, n_scored):
+    if not lfa <= s.log_limit:
         return None
     ast = hyp.src_ast
     tri = ast.points[ast.triangles[hyp.pairs[h, 0]]]
@@ -534,17 +537,6 @@ def _set_aside_line(s, hyp, progress, cand):
     progress.ctl_keep = keep
     n = len(progress.counts)
     progress.counts[:] = count_inliers(hyp.mats[:n], s.src_ctl[keep], s.grid)
-
-
-def _final_pass(s, hyp, progress):
-    """No early acceptance: refine the overall best few hypotheses not refined yet."""
-    counts = progress.counts
-    for h in np.argsort(-counts, kind="stable")[:10]:
-        if int(h) in progress.refined or counts[h] < 3:
-            continue
-        cand = _evaluate(s, hyp, h, progress.n_scored)
-        if cand is not None and (progress.best is None or cand.rank() < progress.best.rank()):
-            progress.best = cand
 
 
 def _failure_message(s, progress, n_tri):

@@ -78,27 +78,6 @@ def _jitter(r2, var, dof):
     return hi
 
 
-def _inflation(r2, var):
-    """
-    Factor by which the predicted variances must grow so that the median
-    of ``r2 / (f var)`` is that of a chi-square with 2 degrees of freedom.
-
-    A median is not inflated by the few wrong pairs the cut after it must
-    remove, and a factor (unlike an added "jitter") keeps the bright,
-    well-measured stars' weight above the faint ones'.
-    """
-    return max(1.0, float(_median(r2 / var)) / (2.0 * np.log(2.0)))
-
-
-def _prediction_variance(cls, fit_src, fit_w, parity, pts):
-    """Per-axis variance of the fitted model's prediction at ``pts``."""
-    d_fit = cls._design(fit_src, fit_w, parity)
-    d_all = cls._design(pts, np.ones(len(pts)), parity)
-    cov = np.linalg.pinv(d_fit.T @ (d_fit * np.repeat(fit_w, 2)[:, None]))
-    rows = d_all.reshape(len(pts), 2, -1)
-    return np.einsum("nij,jk,nik->n", rows, cov, rows) / 2.0
-
-
 def _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol):
     """
     Extend a local solution outwards from its seed triangle.
@@ -145,8 +124,14 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
 
     Stages: grow a local solution over the field (`_grow_region`, for the
     models with shear), iterate match, weigh, cut and fit
-    (`_iterate_fit`), refuse a random set of pairs (`_random_pairs`), and
-    fit the model with its covariance (`_final_fit`).  Returns ``(model,
+    (`_iterate_fit`), refuse a random set of pairs, and fit the model with
+    its covariance (`_final_fit`).
+
+    A random set of pairs, however many (a wrong local optimum), is one
+    whose scatter fills the capture radius even under the most flexible
+    model.  If only the requested model leaves a large scatter, the pairs
+    are real and the model inadequate, which the caller reports
+    (PoorFitWarning).  Returns ``(model,
     si, dj, resid, cov, tolerance used)``, or None.
     """
     cls = transform_class(transform_type)
@@ -157,36 +142,30 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
         m = _grow_region(m, seed, src_pts, dst_pts, dst_tree, cls, tol)
     last = _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol,
                         src_err, dst_err, n_iter)
-    if last is None or _random_pairs(last, src_pts, dst_pts, tol):
+    if last is None:
         return None
+    si, dj, total, _ = last
+    if 4.0 * np.sqrt(_median(total)) > tol and len(si) >= 4:
+        aff, _ = AffineTransform.fit_matrix(src_pts[si], dst_pts[dj], 1.0 / total, 1)
+        r = apply_matrix(aff, src_pts[si]) - dst_pts[dj]
+        if 4.0 * np.sqrt(_median(np.einsum("ij,ij->i", r, r)) / 1.386) > tol:
+            return None
     return _final_fit(last, cls, fit_parity, src_pts, dst_pts)
-
-
-def _pair_variances(m, src, dst, src_err, dst_err):
-    """
-    Squared residuals of matched pairs under ``m`` and their expected values.
-
-    Each pair's expected squared residual is ``f (s^2 e_src^2 + e_dst^2)``
-    (``s`` the scale, ``e`` the detection's centroid errors; 0.01 px^2
-    without errors), where the factor ``f >= 1`` (`_inflation`) makes the
-    median normalised residual that of a Gaussian: it absorbs what the
-    centroid errors do not predict (undersampling, blends) while outliers
-    cannot inflate it.
-    """
-    scale2 = abs(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0])
-    if src_err is not None and dst_err is not None:
-        var = scale2 * src_err ** 2 + dst_err ** 2
-    else:
-        var = np.full(len(src), 0.01)
-    resid = apply_matrix(m, src) - dst
-    r2 = np.einsum("ij,ij->i", resid, resid)
-    return r2, var * _inflation(r2, var)
 
 
 def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, src_err,
                  dst_err, n_iter):
     """
     Match, weigh, cut and fit until the matrix and the radius settle.
+
+    Each pair's expected squared residual is ``f (s^2 e_src^2 + e_dst^2)``
+    (``s`` the scale, ``e`` the detection's centroid errors; 0.01 px^2
+    without errors), where the factor ``f >= 1`` makes the median of the
+    normalised residuals that of a chi-square with 2 degrees of freedom
+    (a Gaussian's): it absorbs what the centroid errors do not predict
+    (undersampling, blends) while the few wrong pairs the cut must remove
+    cannot inflate a median, and a factor (unlike an added "jitter") keeps
+    the bright, well-measured stars' weight above the faint ones'.
 
     Pairs whose chi-square, counting the current model's own prediction
     variance, is above 16 are rejected, and the matching radius shrinks to
@@ -200,13 +179,25 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
         si, dj = mutual_matches(apply_matrix(m, src_pts), dst_tree, cur_tol)
         if len(si) < need:
             break
-        r2, total = _pair_variances(m, src_pts[si], dst_pts[dj],
-                                    None if src_err is None else src_err[si],
-                                    None if dst_err is None else dst_err[dj])
+        if src_err is not None and dst_err is not None:
+            scale2 = abs(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0])
+            var = scale2 * src_err[si] ** 2 + dst_err[dj] ** 2
+        else:
+            var = np.full(len(si), 0.01)
+        resid = apply_matrix(m, src_pts[si]) - dst_pts[dj]
+        r2 = np.einsum("ij,ij->i", resid, resid)
+        total = var * max(1.0, float(_median(r2 / var)) / (2.0 * np.log(2.0)))
         # The current model is itself uncertain (early on it rests on the
-        # faint majority): its prediction variance enters the cut, so that
-        # the brightest stars are not rejected for the model's error.
-        pv = _prediction_variance(cls, *prev, fit_parity, src_pts[si]) if prev else 0.0
+        # faint majority): its prediction variance (per axis, at the matched
+        # stars) enters the cut, so that the brightest stars are not rejected
+        # for the model's error.
+        pv = 0.0
+        if prev:
+            d_fit = cls._design(prev[0], prev[1], fit_parity)
+            d_all = cls._design(src_pts[si], np.ones(len(si)), fit_parity)
+            cov = np.linalg.pinv(d_fit.T @ (d_fit * np.repeat(prev[1], 2)[:, None]))
+            rows = d_all.reshape(len(si), 2, -1)
+            pv = np.einsum("nij,jk,nik->n", rows, cov, rows) / 2.0
         # chi2 with 2 dof above 16 happens with probability 3e-4.
         keep = r2 / (total + pv) <= 16.0 if len(si) > cls.n_dof else np.ones(len(si), bool)
         if keep.sum() >= need:
@@ -221,22 +212,6 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
         if converged:
             break
     return last
-
-
-def _random_pairs(last, src_pts, dst_pts, tol):
-    """
-    True when the pairs' scatter fills the capture radius even under the
-    most flexible model: a random set, however many (a wrong local
-    optimum), not to be returned.  If only the requested model leaves a
-    large scatter, the pairs are real and the model inadequate, which the
-    caller reports (PoorFitWarning).
-    """
-    si, dj, total, _ = last
-    if 4.0 * np.sqrt(_median(total)) > tol and len(si) >= 4:
-        aff, _ = AffineTransform.fit_matrix(src_pts[si], dst_pts[dj], 1.0 / total, 1)
-        r = apply_matrix(aff, src_pts[si]) - dst_pts[dj]
-        return bool(4.0 * np.sqrt(_median(np.einsum("ij,ij->i", r, r)) / 1.386) > tol)
-    return False
 
 
 def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
@@ -471,27 +446,11 @@ def _on_line(points, matched, tol):
     return np.abs((points - c) @ np.array([-u[1], u[0]])) <= half
 
 
-def _box_of(pts, centre, u, pad):
-    """Oriented box (centre, u, along range, across range) around ``pts``, ``pad`` wider."""
-    v = np.array([-u[1], u[0]])
-    a, b = (pts - centre) @ u, (pts - centre) @ v
-    return centre, u, (a.min() - pad, a.max() + pad), (b.min() - pad, b.max() + pad)
-
-
 def _in_box(pts, box):
     centre, u, (a0, a1), (b0, b1) = box
     v = np.array([-u[1], u[0]])
     a, b = (pts - centre) @ u, (pts - centre) @ v
     return (a >= a0) & (a <= a1) & (b >= b0) & (b <= b1)
-
-
-def _log_tail(k, n, p):
-    """log10 P(X >= k), X ~ Binomial(n, p); 0 for k <= 0."""
-    if k <= 0:
-        return 0.0
-    n = max(n, k)
-    tail = betainc(k, n - k + 1, p) if p < 1 else 1.0
-    return float(np.log10(tail)) if tail > 0 else -300.0
 
 
 def _local_log_tail(m, src_pts, dst_pts, matched, tol):
@@ -528,14 +487,20 @@ def _local_log_tail(m, src_pts, dst_pts, matched, tol):
             u = vt[0]
         else:
             c, u = pts[0], np.array([1.0, 0.0])
-        box = _box_of(pts, c, u, tol)
+        # The oriented box (centre, u, along range, across range), tol wider.
+        v = np.array([-u[1], u[0]])
+        a, b = (pts - c) @ u, (pts - c) @ v
+        box = c, u, (a.min() - tol, a.max() + tol), (b.min() - tol, b.max() + tol)
         area = (box[2][1] - box[2][0]) * (box[3][1] - box[3][0])
         m_box = max(int(_in_box(dst_pts, box).sum()), 1)
         n_box = int(_in_box(mapped, box).sum())
         p = min(1.0, m_box * np.pi * tol ** 2 / area)
         k_extra = k - min(spare, k)
         spare -= k - k_extra
-        log_tail += _log_tail(k_extra, n_box - (k - k_extra), p)
+        if k_extra > 0:  # log10 P(X >= k_extra), X ~ Binomial(n, p)
+            n = max(n_box - (k - k_extra), k_extra)
+            tail = betainc(k_extra, n - k_extra + 1, p) if p < 1 else 1.0
+            log_tail += float(np.log10(tail)) if tail > 0 else -300.0
     return log_tail
 
 

@@ -363,20 +363,6 @@ def _pcg(a, b, d_inv, rhs, precond):
     return x if rz <= stop else None
 
 
-def _coupled_fraction(b, k):
-    """
-    The fraction of the reduced matrix's frame blocks that are not zero
-    (frames that share a star), from ``b``'s pattern collapsed to frames
-    and stars: a product 4 k^2 times smaller than the reduction itself.
-    """
-    coo = b.tocoo()
-    p, n_frames = b.shape[0], b.shape[0] // k
-    seen = sparse.coo_matrix((np.ones(len(coo.row)), (coo.row // k, coo.col // 2)),
-                             shape=(n_frames, b.shape[1] // 2)).tocsr()
-    seen.data[:] = 1.0
-    return (seen @ seen.T).nnz * k * k / float(p * p) if p else 0.0
-
-
 def _reduced(a, b, d_inv, k):
     """
     The reduced normal matrix ``a - b diag(d_inv) b^T``.  When most frames
@@ -385,7 +371,17 @@ def _reduced(a, b, d_inv, k):
     it is then returned as an ndarray, for `_solve`'s dense factor.
     """
     p = a.shape[0]
-    if not p or p > _DENSE_MAX or _coupled_fraction(b, k) <= _DENSE_FILL:
+    dense = 0 < p <= _DENSE_MAX
+    if dense:
+        # The fraction of its frame blocks that are not zero (frames that share a
+        # star), from b's pattern collapsed to frames and stars: a product 4 k^2
+        # times smaller than the reduction itself.
+        coo = b.tocoo()
+        seen = sparse.coo_matrix((np.ones(len(coo.row)), (coo.row // k, coo.col // 2)),
+                                 shape=(p // k, b.shape[1] // 2)).tocsr()
+        seen.data[:] = 1.0
+        dense = (seen @ seen.T).nnz * k * k / float(p * p) > _DENSE_FILL
+    if not dense:
         return a - b @ sparse.diags(d_inv) @ b.T
     out = a.toarray()
     u = (b @ sparse.diags(np.sqrt(d_inv))).tocsc()

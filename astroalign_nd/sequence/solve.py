@@ -494,8 +494,18 @@ def _link(refs, shapes, config, ref, numbers, runners):
     def run(pairs):
         """Match ``pairs``; True when a link joined two groups (the placement changes)."""
         joined = False
-        if guide:
-            pairs, joined = _guided(graph, refs, config, pairs)
+        if guide:  # each pair's guided link (`guided_link`), predicted through a frame
+            rest = []  # linked to both; the pairs without one are searched
+            for a, b in pairs:
+                start = graph.predict(a, b)
+                res = None if start is None else guided_link(refs[a], refs[b], config, a, b,
+                                                             start)
+                if not isinstance(res, Link):
+                    rest.append((a, b))
+                    continue
+                graph.tried.add((min(a, b), max(a, b)))
+                joined |= graph.add(res)
+            pairs = rest
         for (a, b), res in zip(pairs, _match_all(pairs, refs, config, runners, shipped)):
             graph.tried.add((min(a, b), max(a, b)))
             if isinstance(res, Link):
@@ -533,24 +543,6 @@ def _link(refs, shapes, config, ref, numbers, runners):
             break
         run_pruned(pairs)
     return graph
-
-
-def _guided(graph, refs, config, pairs):
-    """
-    The guided links (`guided_link`) of ``pairs``, in order, each predicted
-    through a frame linked to both; returns the pairs still to be searched
-    and whether a link joined two groups.
-    """
-    rest, joined = [], False
-    for a, b in pairs:
-        start = graph.predict(a, b)
-        res = None if start is None else guided_link(refs[a], refs[b], config, a, b, start)
-        if not isinstance(res, Link):
-            rest.append((a, b))
-            continue
-        graph.tried.add((min(a, b), max(a, b)))
-        joined |= graph.add(res)
-    return rest, joined
 
 
 def _best_connected(graph, refs):
@@ -628,7 +620,16 @@ def _solve(graph, refs, shapes, names, ref, kind, tolerance, unsolved, counts):
         links[worst].reason = (f"disagrees with the other links by {misfit[worst]:.2f} px "
                                f"(largest over its stars; link_tolerance is {tolerance:g} px)")
     _unsolved_reasons(graph, refs, solved, ref, unsolved)
-    _extend(frames, links, stars, idx)
+    # Each link's pairs, grown to every star its two frames share under the link
+    # adjustment's solution (mutual nearest neighbours within 3 times the link's
+    # RMS, at least 1 px): not just the stars the search matched.
+    for k in links:
+        pa, pb = np.vstack(stars[k.source].points), np.vstack(stars[k.target].points)
+        ca = _apply(_matrix(frames, k.source), pa)
+        cb = _apply(_matrix(frames, k.target), pb)
+        ia, ib = mutual_matches(ca, cKDTree(cb), max(1.0, 3.0 * k.rms))
+        if len(ia) >= len(idx[id(k)][0]):
+            idx[id(k)] = (ia, ib)
     obs = _observations(frames, links, stars, idx)
     fit = _adjust_bundle(frames, obs)
     return _assemble(frames, graph, obs, fit, shapes, names, solved, unsolved)
@@ -694,21 +695,6 @@ def _misfit(frames, link):
     pts = link.source_points
     d = _apply(both, pts) - _apply(as_matrix(link.transform), pts)
     return float(np.max(np.hypot(d[:, 0], d[:, 1])))
-
-
-def _extend(frames, links, stars, idx):
-    """
-    Each link's pairs, grown to every star its two frames share under the
-    link adjustment's solution (mutual nearest neighbours within 3 times
-    the link's RMS, at least 1 px): not just the stars the search matched.
-    """
-    for k in links:
-        pa, pb = np.vstack(stars[k.source].points), np.vstack(stars[k.target].points)
-        ca = _apply(_matrix(frames, k.source), pa)
-        cb = _apply(_matrix(frames, k.target), pb)
-        ia, ib = mutual_matches(ca, cKDTree(cb), max(1.0, 3.0 * k.rms))
-        if len(ia) >= len(idx[id(k)][0]):
-            idx[id(k)] = (ia, ib)
 
 
 def _unsolved_reasons(graph, refs, solved, ref, unsolved):
@@ -783,20 +769,6 @@ def _subset(obs, keep):
                                obs.n_tracks, obs.var[keep])
 
 
-def _reweight(frames, obs, active, resid):
-    """
-    The weights with the jitter the residuals show (`adjust.jitter`): the
-    detections' own errors leave out part of the scatter, most for the
-    bright stars, which would otherwise weigh too much.
-    """
-    _, p = frames.index()
-    n_tracks = len(np.unique(obs.track[active]))
-    r2 = np.sum(resid[active] ** 2, axis=1)
-    dof = 2 * int(active.sum()) - p - 2 * n_tracks
-    j2 = adjust.jitter(r2, 2.0 * obs.var[active], dof) / 2.0 if dof > 0 else 0.0
-    obs.w = 1.0 / (obs.var + j2)
-
-
 def _adjust_bundle(frames, obs):
     """
     The bundle adjustment, robust: Gauss-Newton to convergence, then the
@@ -827,8 +799,15 @@ def _adjust_bundle(frames, obs):
         # The median of a 2-D normal's length is 1.177 sigma.
         sigma = np.median(z[active]) / 1.1774 if active.any() else 0.0
         keep = np.isfinite(z) & (z <= _CLIP_SIGMA * max(sigma, 1e-12))
+        # The weights with the jitter the residuals show (`adjust.jitter`): the
+        # detections' own errors leave out part of the scatter, most for the
+        # bright stars, which would otherwise weigh too much.
         old = obs.w
-        _reweight(frames, obs, keep, resid)
+        _, p = frames.index()
+        r2 = np.sum(resid[keep] ** 2, axis=1)
+        dof = 2 * int(keep.sum()) - p - 2 * len(np.unique(obs.track[keep]))
+        j2 = adjust.jitter(r2, 2.0 * obs.var[keep], dof) / 2.0 if dof > 0 else 0.0
+        obs.w = 1.0 / (obs.var + j2)
         if np.array_equal(keep, active) and np.allclose(old, obs.w, rtol=1e-3):
             break
         active = keep
@@ -838,20 +817,6 @@ def _adjust_bundle(frames, obs):
     dof = 2 * len(sub.frame) - p - 2 * len(np.unique(sub.track))
     chi2 = float(np.sum(adjust.weights(frames, sub) * np.sum(r ** 2, axis=1)))
     return _BundleFit(active, resid, lu, chi2 / dof if dof > 0 else 1.0)
-
-
-def _matrix_covariance(frames, f, cov):
-    """(6, 6) covariance of frame ``f``'s matrix elements from its parameters' ``cov``."""
-    base = _matrix(frames, f)[:2].ravel()
-    theta = frames.theta[f]
-    jac = np.zeros((6, len(theta)))
-    for j in range(len(theta)):
-        step = 1e-7 * max(1.0, abs(theta[j]))
-        t = theta.copy()
-        t[j] += step
-        m = adjust.matrix_from_theta(frames.layer, t, frames.centres[f], frames.parity[f])
-        jac[:, j] = (m[:2].ravel() - base) / step
-    return jac @ cov @ jac.T
 
 
 def _assemble(frames, graph, obs, fit, shapes, names, solved, unsolved):
@@ -865,7 +830,16 @@ def _assemble(frames, graph, obs, fit, shapes, names, solved, unsolved):
         sel = fit.active & (obs.frame == f)
         r = fit.residuals[sel]
         errors[f] = adjust.predicted_error(frames, f, covs[f], shapes[f])
-        covariances[f] = _matrix_covariance(frames, f, covs[f])
+        # The (6, 6) covariance of the matrix elements, from the parameters'.
+        base, theta = _matrix(frames, f)[:2].ravel(), frames.theta[f]
+        jac = np.zeros((6, len(theta)))
+        for j in range(len(theta)):
+            step = 1e-7 * max(1.0, abs(theta[j]))
+            t = theta.copy()
+            t[j] += step
+            m = adjust.matrix_from_theta(frames.layer, t, frames.centres[f], frames.parity[f])
+            jac[:, j] = (m[:2].ravel() - base) / step
+        covariances[f] = jac @ covs[f] @ jac.T
         try:  # the package model of ``kind`` (a mirrored matrix may need another)
             t = from_matrix(_matrix(frames, f), kind)
         except ValueError:

@@ -309,42 +309,10 @@ def _map_xy(m, x, y):
     return m[0, 0] * x + m[0, 1] * y + m[0, 2], m[1, 0] * x + m[1, 1] * y + m[1, 2]
 
 
-def _check_pair_counts(n_stars, n_transients, mirror):
-    """Check `simulate_pair`'s counts of stars and its ``mirror``; return the counts."""
-    n_stars = _check_count(n_stars, "n_stars")
-    n_transients = _check_count(n_transients, "n_transients")
-    if not isinstance(mirror, (bool, np.bool_)):
-        raise TypeError(f"mirror must be True or False; got {mirror!r}.")
-    return n_stars, n_transients
-
-
-def _frame_options(psf, beta, dtype, noise, **detector):
-    """
-    The `simulate_image` options common to both frames of `simulate_pair`
-    (PSF, dtype and noise checked), and the noise model's name.
-    """
-    psf, beta = _check_psf(psf, beta)
-    dtype = _check_dtype(dtype)
-    noise_model = _check_noise(noise)
-    return dict(psf=psf, beta=beta, **detector, noise=noise, dtype=dtype), noise_model
-
-
 def _frame_stars(x, y, flux, ids, present, shape):
     """The catalog of the stars rendered in a frame and inside it."""
     keep = present & _inside(x, y, shape)
     return _star_table(x[keep], y[keep], flux[keep], ids[keep])
-
-
-def _check_pair_image_options(background, target_background, gradient, read_noise, gain,
-                              saturation, n_hot_pixels, n_cosmic_rays):
-    """Check the detector options of both frames; return the target's background."""
-    _check_image_options(background, gradient, read_noise, gain, saturation, n_hot_pixels,
-                         n_cosmic_rays)
-    if target_background is None:
-        target_background = background
-    _check_image_options(target_background, gradient, read_noise, gain, saturation,
-                         n_hot_pixels, n_cosmic_rays, name_prefix="target_")
-    return target_background
 
 
 def _pair_transform(rng, transform, rotation, scale, translation, mirror, shape,
@@ -365,17 +333,6 @@ def _pair_transform(rng, transform, rotation, scale, translation, mirror, shape,
         )
     model, m = _check_transform(transform)
     return model, m, {"random_transform": False}
-
-
-def _pair_mapping(m, dist):
-    """Source -> target pixels: the matrix ``m``, after the optics' distortion if any."""
-    if dist is None:
-        def mapping(x, y):
-            return _map_xy(m, x, y)
-    else:
-        def mapping(x, y):
-            return _map_xy(m, *_distort(dist, x, y))
-    return mapping
 
 
 def _star_region(shape, target_shape, m_inv, pads, dist):
@@ -445,15 +402,6 @@ def _draw_pair_stars(rng, n_stars, shape, target_shape, region, pads, mapping, l
     return xs, ys, flux, ids, present_src, present_tgt
 
 
-def _draw_transients(rng, n, target_shape, lo, hi, first_id):
-    """Extra stars of the target only, uniform over it, log-uniform fluxes, and their ids."""
-    nty, ntx = target_shape
-    x = rng.uniform(-0.5, ntx - 0.5, n)
-    y = rng.uniform(-0.5, nty - 0.5, n)
-    flux = np.exp(rng.uniform(np.log(lo), np.log(hi), n))
-    return x, y, flux, first_id + np.arange(n, dtype=np.int64)
-
-
 def _pair_meta(info, seed, dist, m, mapping, **entries):
     """
     A pair's ``meta``: the transform's ``info``, the options ``entries``, the
@@ -471,19 +419,6 @@ def _pair_meta(info, seed, dist, m, mapping, **entries):
         meta.update(distortion={k: dist[k] for k in _DISTORTION_KEYS},
                     corner_shift=float(np.max(np.hypot(tx_ - lx, ty_ - ly))))
     return meta
-
-
-def _check_missing(missing_fraction):
-    return _check_real(
-        missing_fraction, "missing_fraction", minimum=0.0, maximum=1.0, strict_max=True,
-        hint=" Pass the fraction of stars to drop from each frame, in [0, 1).")
-
-
-def _target_fwhm(fwhm, target_fwhm, m):
-    """The target's FWHM: by default the same seeing on the sky (the source's, scaled)."""
-    return _check_fwhm(
-        fwhm * float(np.sqrt(abs(np.linalg.det(m[:2, :2])))) if target_fwhm is None
-        else target_fwhm, "target_fwhm")
 
 
 def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=None, scale=None,
@@ -642,32 +577,51 @@ def simulate_pair(shape=(512, 512), *, n_stars=300, transform=None, rotation=Non
     shape = _check_shape(shape)
     target_shape = shape if target_shape is None else _check_shape(target_shape, "target_shape")
     dist = _check_distortion(distortion, shape)
-    n_stars, n_transients = _check_pair_counts(n_stars, n_transients, mirror)
+    n_stars = _check_count(n_stars, "n_stars")
+    n_transients = _check_count(n_transients, "n_transients")
+    if not isinstance(mirror, (bool, np.bool_)):
+        raise TypeError(f"mirror must be True or False; got {mirror!r}.")
     fwhm = _check_fwhm(fwhm, "fwhm")
     (lo, hi), alpha = _check_flux_range(flux_range, flux_index)
-    common, noise_model = _frame_options(
-        psf, beta, dtype, noise, gradient=gradient, read_noise=read_noise, gain=gain,
-        saturation=saturation, n_hot_pixels=n_hot_pixels, n_cosmic_rays=n_cosmic_rays)
-    missing_fraction = _check_missing(missing_fraction)
-    target_background = _check_pair_image_options(
-        background, target_background, gradient, read_noise, gain, saturation, n_hot_pixels,
-        n_cosmic_rays)
+    psf, beta = _check_psf(psf, beta)
+    dtype = _check_dtype(dtype)
+    noise_model = _check_noise(noise)
+    # The simulate_image options both frames share.
+    common = dict(psf=psf, beta=beta, gradient=gradient, read_noise=read_noise, gain=gain,
+                  saturation=saturation, n_hot_pixels=n_hot_pixels,
+                  n_cosmic_rays=n_cosmic_rays, noise=noise, dtype=dtype)
+    missing_fraction = _check_real(
+        missing_fraction, "missing_fraction", minimum=0.0, maximum=1.0, strict_max=True,
+        hint=" Pass the fraction of stars to drop from each frame, in [0, 1).")
+    detector = (gradient, read_noise, gain, saturation, n_hot_pixels, n_cosmic_rays)
+    _check_image_options(background, *detector)
+    target_background = background if target_background is None else target_background
+    _check_image_options(target_background, *detector, name_prefix="target_")
 
     rng_geom, rng_stars, rng_src, rng_tgt, rng_trans = _spawn(seed, 5)
     model, m, info = _pair_transform(rng_geom, transform, rotation, scale, translation, mirror,
                                      shape, target_shape)
     m_inv = np.linalg.inv(m)
-    target_fwhm = _target_fwhm(fwhm, target_fwhm, m)
+    # The target's FWHM: by default the same seeing on the sky (the source's, scaled).
+    target_fwhm = _check_fwhm(
+        fwhm * float(np.sqrt(abs(np.linalg.det(m[:2, :2])))) if target_fwhm is None
+        else target_fwhm, "target_fwhm")
 
-    mapping = _pair_mapping(m, dist)
+    def mapping(x, y):
+        """Source -> target pixels: the matrix ``m``, after the optics' distortion if any."""
+        return _map_xy(m, x, y) if dist is None else _map_xy(m, *_distort(dist, x, y))
+
     pads = (_stamp_half_size(fwhm) + 1.0, _stamp_half_size(target_fwhm) + 1.0)
     region = _star_region(shape, target_shape, m_inv, pads, dist)
     xs, ys, flux, ids, present_src, present_tgt = _draw_pair_stars(
         rng_stars, n_stars, shape, target_shape, region, pads, mapping, (lo, hi, alpha),
         missing_fraction)
     xt, yt = mapping(xs, ys)
-    tr_x, tr_y, tr_flux, tr_ids = _draw_transients(rng_trans, n_transients, target_shape,
-                                                   lo, hi, xs.size)
+    # The transients: in the target only, uniform over it, log-uniform fluxes.
+    tr_x = rng_trans.uniform(-0.5, target_shape[1] - 0.5, n_transients)
+    tr_y = rng_trans.uniform(-0.5, target_shape[0] - 0.5, n_transients)
+    tr_flux = np.exp(rng_trans.uniform(np.log(lo), np.log(hi), n_transients))
+    tr_ids = xs.size + np.arange(n_transients, dtype=np.int64)
 
     source = simulate_image(shape, xs[present_src], ys[present_src], flux[present_src],
                             fwhm=fwhm, background=background, seed=rng_src, trail=trail,

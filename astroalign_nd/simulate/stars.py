@@ -367,21 +367,6 @@ def render_stars(shape, x, y, flux, *, fwhm=3.0, psf="gaussian", beta=3.0, out=N
 
 # -- single frames ---------------------------------------------------------------------
 
-def _background_image(shape, background, gradient, dtype):
-    """Sky level ``background * (1 + gradient * (u + v) / 2)``, u, v in [0, 1]."""
-    ny, nx = shape
-    img = np.empty(shape, dtype=dtype)
-    if gradient == 0.0:
-        img.fill(background)
-        return img
-    u = np.arange(nx) / max(nx - 1, 1)
-    v = np.arange(ny) / max(ny - 1, 1)
-    bx = (background * gradient * 0.5 * u).astype(dtype)
-    by = (background * (1.0 + gradient * 0.5 * v)).astype(dtype)
-    np.add(by[:, None], bx[None, :], out=img)
-    return img
-
-
 def _add_noise(img, model, read_noise, gain, rng):
     """Photon noise (in electrons) plus Gaussian read noise, in row blocks, in place."""
     ny, nx = img.shape
@@ -440,33 +425,6 @@ def _add_artifacts(img, n_hot_pixels, n_cosmic_rays, rng):
         vals = amp[:, None] * rng.uniform(0.4, 1.0, size=(n, 4))
         ok = (t < length[:, None]) & (rr >= 0) & (rr < ny) & (cc >= 0) & (cc < nx)
         np.add.at(flat, rr[ok] * nx + cc[ok], vals[ok])
-
-
-def _check_trail(trail):
-    """``(length, angle)`` of a star trail, or None for round stars."""
-    if trail is None:
-        return None
-    try:
-        length, angle = (float(v) for v in trail)
-    except (TypeError, ValueError):
-        raise TypeError(f"trail must be (length, angle) in pixels and degrees, or None; "
-                        f"got {trail!r}.") from None
-    if not (np.isfinite(length) and np.isfinite(angle)) or not 0.0 <= length <= 1000.0:
-        raise ValueError(f"trail length must be finite, from 0 to 1000 pixels, and the angle "
-                         f"finite; got {trail!r}.")
-    return None if length == 0.0 else (length, angle)
-
-
-def _trail_points(x, y, flux, fwhm, trail):
-    """Each star as points 0.25 px apart along its trail, sharing its flux."""
-    length, angle = trail
-    k = int(np.ceil(length / 0.25)) + 1
-    t = np.linspace(-0.5 * length, 0.5 * length, k)
-    c, s = np.cos(np.deg2rad(angle)), np.sin(np.deg2rad(angle))
-    xs = (x[:, None] + c * t).ravel()
-    ys = (y[:, None] + s * t).ravel()
-    fwhm = np.broadcast_to(np.asarray(fwhm, float), x.shape)
-    return xs, ys, np.repeat(flux / k, k), np.repeat(fwhm, k)
 
 
 def _check_image_options(background, gradient, read_noise, gain, saturation, n_hot_pixels,
@@ -582,10 +540,33 @@ def simulate_image(shape, x, y, flux, *, fwhm=3.0, psf="gaussian", beta=3.0, bac
     noise = _check_noise(noise)
     rng_noise, rng_artifacts = _spawn(seed, 2)
 
-    trail = _check_trail(trail)
-    if trail is not None:
-        x, y, flux, fwhm = _trail_points(x, y, flux, fwhm, trail)
-    img = _background_image(shape, background, gradient, dtype)
+    if trail is not None:  # (length, angle); None (or length 0) for round stars
+        try:
+            length, angle = (float(v) for v in trail)
+        except (TypeError, ValueError):
+            raise TypeError(f"trail must be (length, angle) in pixels and degrees, or None; "
+                            f"got {trail!r}.") from None
+        if not (np.isfinite(length) and np.isfinite(angle)) or not 0.0 <= length <= 1000.0:
+            raise ValueError(f"trail length must be finite, from 0 to 1000 pixels, and the "
+                             f"angle finite; got {trail!r}.")
+        if length != 0.0:
+            # Each star as points 0.25 px apart along its trail, sharing its flux.
+            k = int(np.ceil(length / 0.25)) + 1
+            t = np.linspace(-0.5 * length, 0.5 * length, k)
+            c, s = np.cos(np.deg2rad(angle)), np.sin(np.deg2rad(angle))
+            fwhm = np.repeat(np.broadcast_to(np.asarray(fwhm, float), x.shape), k)
+            x, y = (x[:, None] + c * t).ravel(), (y[:, None] + s * t).ravel()
+            flux = np.repeat(flux / k, k)
+    # The sky: background * (1 + gradient * (u + v) / 2), u, v in [0, 1].
+    img = np.empty(shape, dtype=dtype)
+    if gradient == 0.0:
+        img.fill(background)
+    else:
+        u = np.arange(shape[1]) / max(shape[1] - 1, 1)
+        v = np.arange(shape[0]) / max(shape[0] - 1, 1)
+        bx = (background * gradient * 0.5 * u).astype(dtype)
+        by = (background * (1.0 + gradient * 0.5 * v)).astype(dtype)
+        np.add(by[:, None], bx[None, :], out=img)
     _render_into(img, x, y, flux, fwhm, psf, beta)
     if noise is not None:
         _add_noise(img, noise, read_noise, gain, rng_noise)

@@ -32,6 +32,7 @@ from ..io.read import parse_input
 from ..exceptions import AstroalignError
 from ..io import write_ccddata
 from ..io.header import fits_text, header_from_meta
+from ..io.write import interrupts_held
 from ..io.bayer import (balanced_grey, bayer_channels, bayer_pattern, superpixel,
                         superpixel_to_raw)
 from ..registration import Reference, find_transform
@@ -339,23 +340,6 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
     return channels, rejected, ref, pattern
 
 
-def _colour_stats(data, valid, channels, gain, read_noise, normalize, ref_stats, weight):
-    """
-    Each colour's sky, noise, normalisation and weight on one raw frame (``ref_stats``
-    None for the reference, whose skies the others are brought to).
-    """
-    out = []
-    for c in range(3):
-        st = array_stats(data, None, valid & (channels == c))
-        normalise(st, st.sky if ref_stats is None else ref_stats[c].sky, normalize)
-        if weight is None:
-            frame_weights([st], "variance", gain, read_noise)
-        else:
-            st.weight = float(weight)
-        out.append(st)
-    return out
-
-
 def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize, weights,
                   gain, read_noise, hdu, unit, options, saturation=None, callback=None):
     """
@@ -415,8 +399,6 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
 def _drizzle_frames(frames, ref_item, accs, names, stats, rejected, weights, gain, read_noise,
                     normalize, scale, saturation):
     """`drizzle_bayer`'s frames drizzled one at a time into ``accs`` (and the accounts)."""
-    from .live import _interrupts_held  # (live imports the stack, which imports this)
-
     ref_stats = None
     for k, label, p, pat, transform, error in frames:
         k = ref_item[1] if transform is None and error is None else k
@@ -427,10 +409,18 @@ def _drizzle_frames(frames, ref_item, accs, names, stats, rejected, weights, gai
         data = np.asarray(p.data, dtype=np.float64)
         channels = bayer_channels(data.shape, pat)
         valid = weight_map(data, p.mask, saturation=saturation) > 0
-        w = None if isinstance(weights, str) or weights is None else weights[k]
-        try:
-            st = _colour_stats(data, valid, channels, gain, read_noise, normalize, ref_stats,
-                               1.0 if weights is None else w)
+        # The frame's weight: given, 1 without weights, None ('variance') from its noise.
+        w = 1.0 if weights is None else None if isinstance(weights, str) else weights[k]
+        try:  # each colour's sky, noise, normalisation (to the reference's skies) and weight
+            st = []
+            for c in range(3):
+                st.append(array_stats(data, None, valid & (channels == c)))
+                normalise(st[c], st[c].sky if ref_stats is None else ref_stats[c].sky,
+                          normalize)
+                if w is None:
+                    frame_weights([st[c]], "variance", gain, read_noise)
+                else:
+                    st[c].weight = float(w)
         except ValueError as exc:
             if ref_stats is None:
                 raise ValueError(f"the reference cannot be stacked: {exc}") from None
@@ -438,7 +428,7 @@ def _drizzle_frames(frames, ref_item, accs, names, stats, rejected, weights, gai
             continue
         ref_stats = st if ref_stats is None else ref_stats
         pm = pixel_map(transform, data.shape, scale)
-        with _interrupts_held():  # a frame is in every colour and the accounts, or in none
+        with interrupts_held():  # a frame is in every colour and the accounts, or in none
             for c in range(3):
                 sel = valid & (channels == c)
                 var = frame_variance(data, None, st[c], gain, read_noise) * st[c].scale ** 2

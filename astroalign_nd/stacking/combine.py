@@ -362,18 +362,6 @@ def frame_variance(data, var, stats, gain, read_noise):
     return np.full_like(data, stats.noise ** 2)
 
 
-def _strip(paths, stats, r0, r1, gain, read_noise):
-    """Every frame's normalised values, variance and validity for rows ``r0:r1``."""
-    xs, vs, oks = [], [], []
-    for path, st in zip(paths, stats):
-        data, var, valid = read_rows(path, r0, r1)
-        var = frame_variance(data, var, st, gain, read_noise)
-        xs.append(data * st.scale - st.offset)
-        vs.append(var * st.scale ** 2)
-        oks.append(valid)
-    return np.stack(xs), np.stack(vs), np.stack(oks)
-
-
 def combine_files(paths, stats, shape, opts, *, gain=None, read_noise=None,
                   memory_limit=512e6, rejected=None):
     """
@@ -411,7 +399,15 @@ def combine_files(paths, stats, shape, opts, *, gain=None, read_noise=None,
     rows = rows_per_strip(len(paths), nx, memory_limit)
     for r0 in range(0, ny, rows):
         r1 = min(ny, r0 + rows)
-        x, var, valid = _strip(paths, stats, r0, r1, gain, read_noise)
+        # Every frame's normalised values, variance and validity for these rows.
+        xs, vs, oks = [], [], []
+        for path, st in zip(paths, stats):
+            data, var, ok = read_rows(path, r0, r1)
+            var = frame_variance(data, var, st, gain, read_noise)
+            xs.append(data * st.scale - st.offset)
+            vs.append(var * st.scale ** 2)
+            oks.append(ok)
+        x, var, valid = np.stack(xs), np.stack(vs), np.stack(oks)
         keep = reject(x, var, valid, opts)
         out = valid & ~keep
         for st, n in zip(stats, out.sum(axis=(1, 2))):
@@ -483,8 +479,18 @@ def frame_weights(stats, weights, gain, read_noise):
     if weights is None:
         w = np.ones(len(stats))
     elif isinstance(weights, str):
-        w = np.array([1.0 / (_typical_variance(st, gain, read_noise) * st.scale ** 2)
-                      for st in stats])
+        w = []
+        # Each frame's typical pixel variance (its median), as frame_variance gives it.
+        for st in stats:
+            if st.median_variance is not None and st.median_variance > 0:
+                typical = st.median_variance
+            elif gain is not None:
+                rn = 0.0 if read_noise is None else read_noise
+                typical = max(st.sky, 0.0) / gain + (rn / gain) ** 2 or 1.0
+            else:
+                typical = st.noise ** 2 if st.noise > 0 else 1.0
+            w.append(1.0 / (typical * st.scale ** 2))
+        w = np.array(w)
     else:
         w = np.asarray(weights, dtype=float).ravel()
         if w.size != len(stats) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
@@ -492,13 +498,3 @@ def frame_weights(stats, weights, gain, read_noise):
                              f"frames, the reference included), not all 0; got {weights!r}.")
     for st, wi in zip(stats, w):
         st.weight = float(wi)
-
-
-def _typical_variance(st, gain, read_noise):
-    """A frame's typical pixel variance (its median), as `frame_variance` gives it."""
-    if st.median_variance is not None and st.median_variance > 0:
-        return st.median_variance
-    if gain is not None:
-        rn = 0.0 if read_noise is None else read_noise
-        return max(st.sky, 0.0) / gain + (rn / gain) ** 2 or 1.0
-    return st.noise ** 2 if st.noise > 0 else 1.0

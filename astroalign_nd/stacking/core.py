@@ -167,10 +167,8 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         items = list(items)
     # In-memory frames are named by their place among the frames, in the header too.
     items = [(f, f"frame{k}" if label is None else label) for k, (f, label) in enumerate(items)]
-    ref_item, others, n_frames = _split_reference(items, reference)
-    others = _once(others, ref_item)
-    weights = _per_frame(opts.weights, n_frames)
-    _check_outputs(output, overwrite, items, ref_item)
+    ref_item, others, n_frames, weights = _checked_frames(items, reference, opts.weights,
+                                                          output, overwrite)
     if opts.bayer is not None:
         return _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit,
                              order, dtype, options, output=output, overwrite=overwrite,
@@ -190,8 +188,7 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
             result, interrupt = getattr(exc, "partial_result", None), exc
             if opts.canvas == "union" or result is None or not result.succeeded:
                 raise  # a union canvas is known only once every frame is registered
-        on_canvas = _reference_on_canvas(ref_item[0], result, folder, hdu, unit)
-        frames_ = [(_reference_name(ref_item), on_canvas, ref_item[1])]
+        frames_ = [_reference_frame(ref_item, result, folder, hdu, unit)]
         frames_ += [(f.name, f.output, k) for f, (_, k) in zip(result.frames, others) if f.ok]
         not_done = [f for f in result.failed if _not_done(f)]
         rejected = [(f.name, f.error) for f in result.failed if not _not_done(f)]
@@ -434,41 +431,32 @@ def _is_path(obj):
     return isinstance(obj, (str, os.PathLike))
 
 
-def _same(a, b):
-    """The same frame: the same object, or the same file."""
-    if a is b:
-        return True
-    if _is_path(a) and _is_path(b):
-        return os.path.realpath(os.fspath(a)) == os.path.realpath(os.fspath(b))
-    return False
-
-
-def _split_reference(items, reference):
+def _checked_frames(items, reference, weights, output, overwrite):
     """
-    ``((reference, its index), [(item, index)...] of the others, number of frames)``:
-    the reference taken out of the frames; its index is 0 when it is not one of them
-    (the others' indices then start at 1), as ``weights`` counts them.
+    The frames, checked before any work: ``(reference, its index, its label)``, the
+    others as ``[((item, label), index)...]``, the number of frames and the weights.
+
+    The reference is taken out of the frames; its index is 0 when it is not one of
+    them (the others' indices then start at 1), as ``weights`` counts them.  Each file
+    (or object) is stacked once: one given twice would count twice in the stack, as if
+    it were two exposures; each repeat is left out with a warning.  A sequence of
+    ``weights`` becomes an array of one per frame.  ``output`` can be written and is not
+    an input.
     """
     if reference is None:
         if not items:
             raise ValueError("frames is empty: give at least one frame (the first is the "
                              "reference unless reference= is given).")
-        return (items[0][0], 0, items[0][1]), [(it, k) for k, it in enumerate(items)][1:], \
-            len(items)
-    if isinstance(reference, list):
-        raise TypeError("reference must be one frame, not a list of frames.")
-    at = next((k for k, it in enumerate(items) if _same(it[0], reference)), None)
-    shift = 1 if at is None else 0
-    others = [(it, k + shift) for k, it in enumerate(items) if k != at]
-    label = os.fspath(reference) if _is_path(reference) else None
-    return (reference, 0 if at is None else at, label), others, len(items) + shift
-
-
-def _once(others, ref_item):
-    """
-    The frames with each file (or object) once: one given twice would count twice in the
-    stack, as if it were two exposures.  Each repeat is left out with a warning.
-    """
+        ref_item, n_frames = (items[0][0], 0, items[0][1]), len(items)
+        others = [(it, k) for k, it in enumerate(items)][1:]
+    else:
+        if isinstance(reference, list):
+            raise TypeError("reference must be one frame, not a list of frames.")
+        at = next((k for k, it in enumerate(items) if _same(it[0], reference)), None)
+        shift = 1 if at is None else 0
+        others = [(it, k + shift) for k, it in enumerate(items) if k != at]
+        label = os.fspath(reference) if _is_path(reference) else None
+        ref_item, n_frames = (reference, 0 if at is None else at, label), len(items) + shift
     kept, repeats = [], {}
     for (item, label), k in others:
         first = next((lab for (it, lab), _ in kept if _same(it, item)), None)
@@ -481,27 +469,37 @@ def _once(others, ref_item):
     for label, n in repeats.items():
         warn(f"{label} is given {n} times among the frames; it is stacked once (each frame "
              "counts as one exposure).")
-    return kept
+    if weights is not None and not isinstance(weights, str):
+        if len(weights) != n_frames:
+            raise ValueError(f"weights must be one finite number >= 0 per frame ({n_frames}, "
+                             f"the reference's first when it is not one of the frames), not "
+                             f"all 0; got {list(weights)!r}.")
+        weights = np.asarray(weights)
+    if output is not None:
+        check_not_input(output, [it[0] for it in items] + [ref_item[0]])
+        check_output_path(output, overwrite, extensions=output_suffixes())
+    return ref_item, kept, n_frames, weights
 
 
-def _per_frame(weights, n_frames):
-    """``weights`` as `StackConfig` holds them; a sequence as an array of one per frame."""
-    if weights is None or isinstance(weights, str):
-        return weights
-    if len(weights) != n_frames:
-        raise ValueError(f"weights must be one finite number >= 0 per frame ({n_frames}, the "
-                         f"reference's first when it is not one of the frames), not all 0; "
-                         f"got {list(weights)!r}.")
-    return np.asarray(weights)
+def _reference_frame(ref_item, result, folder, hdu, unit):
+    """
+    The reference as a frame of the stack, ``(name, path, index)``: on the canvas
+    (`~astroalign_nd.batch.reference_on_canvas`), written as a file in ``folder``.
+    """
+    ccd = reference_on_canvas(ref_item[0], result, hdu=hdu, unit=unit, add_keyword=False)
+    path = os.path.join(folder, ".reference_on_canvas.fits")
+    write_ccddata(ccd, path, overwrite=True)
+    name = os.path.basename(ref_item[2]) if ref_item[2] else "reference"
+    return f"{name} (reference)", path, ref_item[1]
 
 
-def _check_outputs(output, overwrite, items, ref_item):
-    """``output`` can be written and is not an input (checked before any work)."""
-    if output is None:
-        return
-    inputs = [it[0] for it in items] + [ref_item[0]]
-    check_not_input(output, inputs)
-    check_output_path(output, overwrite, extensions=output_suffixes())
+def _same(a, b):
+    """The same frame: the same object, or the same file."""
+    if a is b:
+        return True
+    if _is_path(a) and _is_path(b):
+        return os.path.realpath(os.fspath(a)) == os.path.realpath(os.fspath(b))
+    return False
 
 
 class _aligned_folder:
@@ -552,20 +550,6 @@ def _register(others, ref, folder, canvas, overwrite, workers, progress, callbac
                           "disk." if full else "give aligned_dir a folder you can write to."))
         stop.errno = exc.errno
         raise stop from None
-
-
-def _reference_on_canvas(item, result, folder, hdu, unit):
-    """The reference on the canvas (`~astroalign_nd.batch.reference_on_canvas`), as a file."""
-    ccd = reference_on_canvas(item, result, hdu=hdu, unit=unit, add_keyword=False)
-    path = os.path.join(folder, ".reference_on_canvas.fits")
-    write_ccddata(ccd, path, overwrite=True)
-    return path
-
-
-def _reference_name(item):
-    label = item[2]
-    name = os.path.basename(label) if label else "reference"
-    return f"{name} (reference)"
 
 
 def _measure(frames, rejected, opts, weights, measured=None):

@@ -30,30 +30,6 @@ _MEASURES = (("fwhm", "AAFWH", "median star FWHM, pixels"),
 MAX_LISTED = 999
 
 
-def _used_cards(header, used):
-    """``IMCMBnnn`` (IRAF's name of a combined frame) and its normalisation and weight."""
-    numbered = len(used) <= MAX_LISTED
-    for k, frame in enumerate(used, start=1):
-        # A file name may hold what a card cannot (non-ASCII characters).
-        name = fits_text(frame["name"])
-        if not numbered:
-            header.add_history(f"stacked: {name}")
-            continue
-        header[f"IMCMB{k:03d}"] = (name, "frame combined")
-        if "offset" in frame:
-            header[f"AASKY{k:03d}"] = (round(float(frame["offset"]), 6),
-                                       "sky offset subtracted")
-            header[f"AASCL{k:03d}"] = (round(float(frame["scale"]), 8), "scale applied")
-        if "weight" in frame:
-            header[f"AAWGT{k:03d}"] = (float(f"{frame['weight']:.6g}"), "relative weight")
-        if "n_rejected" in frame:
-            header[f"AANRJ{k:03d}"] = (int(frame["n_rejected"]), "pixels rejected")
-        for key, prefix, comment in _MEASURES:
-            value = (frame.get("quality") or {}).get(key)
-            if value is not None and np.isfinite(value):
-                header[f"{prefix}{k:03d}"] = (float(f"{value:.5g}"), comment)
-
-
 def stack_header(meta, used, rejected, settings):
     """
     The header of a stack.
@@ -95,7 +71,26 @@ def stack_header(meta, used, rejected, settings):
     header["NREJECT"] = (len(rejected), "number of frames left out")
     for key, (value, comment) in settings.items():
         header[key] = (value, comment)
-    _used_cards(header, used)
+    # IMCMBnnn (IRAF's name of a combined frame), its normalisation and weight.
+    for k, frame in enumerate(used, start=1):
+        # A file name may hold what a card cannot (non-ASCII characters).
+        name = fits_text(frame["name"])
+        if len(used) > MAX_LISTED:
+            header.add_history(f"stacked: {name}")
+            continue
+        header[f"IMCMB{k:03d}"] = (name, "frame combined")
+        if "offset" in frame:
+            header[f"AASKY{k:03d}"] = (round(float(frame["offset"]), 6),
+                                       "sky offset subtracted")
+            header[f"AASCL{k:03d}"] = (round(float(frame["scale"]), 8), "scale applied")
+        if "weight" in frame:
+            header[f"AAWGT{k:03d}"] = (float(f"{frame['weight']:.6g}"), "relative weight")
+        if "n_rejected" in frame:
+            header[f"AANRJ{k:03d}"] = (int(frame["n_rejected"]), "pixels rejected")
+        for key, prefix, comment in _MEASURES:
+            value = (frame.get("quality") or {}).get(key)
+            if value is not None and np.isfinite(value):
+                header[f"{prefix}{k:03d}"] = (float(f"{value:.5g}"), comment)
     for k, (name, reason) in enumerate(rejected, start=1):
         name, reason = fits_text(name), fits_text(reason)
         if len(rejected) <= MAX_LISTED:

@@ -7,11 +7,8 @@ file-system notification library, the same on every platform).
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import os
-import signal
-import threading
 import time
 from typing import Any, Callable
 
@@ -24,7 +21,7 @@ from ..config import RegistrationConfig
 from ..resample import ResampleConfig
 from ..exceptions import warn
 from ..io import FITSWriter, write_output
-from ..io.write import FITS_EXTENSIONS, check_not_input, check_output_path
+from ..io.write import FITS_EXTENSIONS, check_not_input, check_output_path, interrupts_held
 from ..options import AnyCallable, Int, Real, convert
 from ..registration import prepare_target, register_and_match
 from .combine import array_stats, frame_variance, normalise, reject
@@ -168,7 +165,7 @@ class LiveStack:
             name = os.path.basename(os.fspath(frame)) if isinstance(
                 frame, (str, os.PathLike)) else f"frame{len(self.used) + len(self.rejected)}"
         prepared = self._registered(frame, name)
-        with _interrupts_held():  # a Ctrl-C leaves the frame out or in, never half added
+        with interrupts_held():  # a Ctrl-C leaves the frame out or in, never half added
             return self._commit(prepared, name)
 
     def _registered(self, frame, name):
@@ -423,32 +420,6 @@ def _variance(uncertainty):
                      f"InverseVariance; got {name}.")
 
 
-@contextlib.contextmanager
-def _interrupts_held():
-    """
-    Hold SIGINT and SIGTERM (and Windows' SIGBREAK) until the block is done, then
-    raise them as their handlers do: what the block changes is changed entirely or not
-    at all.  Only signals with a Python handler are held (a default SIGTERM still ends
-    the process at once: the files are written atomically, the old ones stay).
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield  # handlers can only be set, and signals only arrive, in the main thread
-        return
-    caught, old = [], {}
-    for name in ("SIGINT", "SIGTERM", "SIGBREAK"):
-        signum = getattr(signal, name, None)
-        handler = None if signum is None else signal.getsignal(signum)
-        if callable(handler):
-            old[signum] = signal.signal(signum, lambda num, frame: caught.append((num, frame)))
-    try:
-        yield
-    finally:
-        for signum, handler in old.items():
-            signal.signal(signum, handler)
-        if caught:
-            old[caught[0][0]](*caught[0])
-
-
 def write_with_retry(ccd, path, *, overwrite=True, tries=_RETRY_TRIES):
     """
     Write ``ccd`` atomically, retrying while the old file cannot be replaced.
@@ -485,15 +456,6 @@ def write_with_retry(ccd, path, *, overwrite=True, tries=_RETRY_TRIES):
             if attempt == tries - 1:
                 raise
             time.sleep(_RETRY_SECONDS)
-
-
-def _complete_fits(path):
-    """True if ``path`` parses as a FITS file whose data blocks are all there."""
-    try:
-        _, shape = FITSWriter().read_done(path)  # the check a resumed batch makes
-    except Exception:  # noqa: BLE001 - any failure to parse: not (yet) a complete file
-        return False
-    return shape is not None
 
 
 class _Poller:
@@ -553,9 +515,18 @@ class _Poller:
             if self.last.get(real) != key or st.st_size == 0:
                 self.bad_polls.pop(real, None)  # still being written: count afresh
                 continue
-            if _complete_fits(path):
+            try:  # all its data blocks there (the check a resumed batch makes)?
+                _, shape = FITSWriter().read_done(path)
+            except Exception:  # noqa: BLE001 - any failure to parse: not (yet) a complete file
+                shape = None
+            if shape is not None:
                 self.seen.add(real)
-                (own if _package_output(path) else ready).append(path)
+                try:  # a file this package wrote: a registered frame or a stack
+                    header = fits.getheader(path)
+                    package = "AATTYPE" in header or "AASTKMTH" in header
+                except (OSError, ValueError):
+                    package = False
+                (own if package else ready).append(path)
             else:
                 self.bad_polls[real] = self.bad_polls.get(real, 0) + 1
                 if self.bad_polls[real] >= _UNREADABLE_POLLS:
@@ -568,15 +539,6 @@ class _Poller:
         """The files seen but not taken yet: still being written (or not yet stable)."""
         return [self.paths[real] for real in sorted(self.last)
                 if real not in self.seen and real not in self.gave_up]
-
-
-def _package_output(path):
-    """True for a file this package wrote: a registered frame or a stack."""
-    try:
-        header = fits.getheader(path)
-    except (OSError, ValueError):
-        return False
-    return "AATTYPE" in header or "AASTKMTH" in header
 
 
 def watch_folder(folder: str | os.PathLike, reference: Any, output: str | os.PathLike, *,
@@ -699,7 +661,7 @@ def _watch_loop(live, poller, output, interval, max_frames, timeout, callback, t
                 prepared = live._registered(path, os.path.basename(path))
             except Exception as exc:  # noqa: BLE001 - a bad frame is listed, not fatal
                 error = f"{type(exc).__name__}: {exc}"
-            with _interrupts_held():  # the stack and the console change together
+            with interrupts_held():  # the stack and the console change together
                 if path in failed:  # given up before, complete now: no longer a failure
                     live.rejected.remove(failed.pop(path))
                 if error is None:  # (the reason when the selection leaves it out)

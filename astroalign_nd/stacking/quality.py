@@ -248,7 +248,19 @@ def measure_frame(data, mask=None, *, variance=None, n_sources=300, **detect_opt
         warnings.simplefilter("ignore")
         _, sky, _ = sigma_clipped_stats(values[::step], sigma=3.0, maxiters=10)
         table = find_sources(data, mask=~valid, n_sources=n_sources, **detect_options)
-    noise = _difference_noise(data, valid)
+    # The per-pixel noise from differences of pixels two columns apart (which cancel
+    # the sky and its gradients, and compare pixels of one colour in a raw Bayer
+    # mosaic): their sigma-clipped standard deviation over sqrt(2).  A standard
+    # deviation, not a MAD: the MAD of integer counts with a noise of one or two
+    # counts is quantised.
+    d = (data[:, 2:] - data[:, :-2])[valid[:, 2:] & valid[:, :-2]]
+    noise = float("nan")
+    if d.size:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            _, _, std = sigma_clipped_stats(d[::max(1, d.size // 200_000)], sigma=3.0,
+                                            maxiters=10)
+        noise = float(std / math.sqrt(2.0))
     x, y = np.asarray(table["x"], float), np.asarray(table["y"], float)
     peak = np.asarray(table["peak"], float)
     saturation = float(np.max(values))
@@ -273,28 +285,6 @@ def measure_frame(data, mask=None, *, variance=None, n_sources=300, **detect_opt
     return FrameMeasures(sky=float(sky), sky_noise=noise, fwhm=fwhm, fwhm_spread=spread,
                          elongation=elong, area=area, n_stars=len(x), x=x, y=y, peak=peak,
                          saturation=saturation, median_variance=med_var)
-
-
-def _difference_noise(data, valid):
-    """
-    The per-pixel noise from differences of pixels two columns apart (which cancel
-    the sky and its gradients, and compare pixels of one colour in a raw Bayer
-    mosaic): their sigma-clipped standard deviation over sqrt(2).  A standard
-    deviation, not a MAD: the MAD of integer counts with a noise of one or two
-    counts is quantised.
-    """
-    from astropy.stats import sigma_clipped_stats
-
-    d = data[:, 2:] - data[:, :-2]
-    ok = valid[:, 2:] & valid[:, :-2]
-    d = d[ok]
-    if d.size == 0:
-        return float("nan")
-    d = d[::max(1, d.size // 200_000)]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        _, _, std = sigma_clipped_stats(d, sigma=3.0, maxiters=10)
-    return float(std / math.sqrt(2.0))
 
 
 def _variance_of(parsed):

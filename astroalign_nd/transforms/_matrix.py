@@ -192,12 +192,6 @@ has no inverse and cannot register an image.
                          "register an image.")
 
 
-def _weighted_lstsq(a, b, w):
-    sw = np.sqrt(np.repeat(w, a.shape[0] // len(w)))
-    theta, *_ = np.linalg.lstsq(a * sw[:, None], b * sw, rcond=None)
-    return theta
-
-
 def _rotation_matrix(angle, parity):
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, -s * parity], [s, c * parity]])

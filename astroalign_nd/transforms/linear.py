@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike
 from ._matrix import (apply_matrix, as_3x3, check_invertible, is_singular, _as_degrees,
                       _check_parity, _check_parity_value, _check_spread, _radians,
                       _rotate_shift, _rotation_matrix, _rotation_parameters,
-                      _rotation_shift_parameters, _weighted_lstsq)
+                      _rotation_shift_parameters)
 from ._pairs import _check_pairs
 from .layers import ParameterLayer, PolynomialLayer
 from .registry import transform_type_of
@@ -325,7 +325,8 @@ class LinearTransform2D(Model):
             _check_parity(parity)
         layer = cls.layer(parity)
         design = layer.design(src).reshape(2 * len(src), layer.k)
-        theta = _weighted_lstsq(design, dst.ravel(), w)
+        sw = np.sqrt(np.repeat(w, design.shape[0] // len(w)))
+        theta, *_ = np.linalg.lstsq(design * sw[:, None], dst.ravel() * sw, rcond=None)
         return layer.to_matrix(theta), design, theta
 
 

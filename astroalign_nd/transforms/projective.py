@@ -89,7 +89,14 @@ class ProjectiveTransform(Model):
     @property
     def inverse(self):
         """The analytic inverse, a `ProjectiveTransform` (target -> source)."""
-        return type(self).from_matrix(_invert_homography(self.matrix))
+        m = self.matrix
+        _check_homography(m)
+        inv = np.linalg.inv(m)
+        if abs(inv[2, 2]) <= 1e-14 * np.max(np.abs(inv)):
+            raise ValueError(
+                "the inverse of this homography sends pixel (0, 0) to infinity and cannot be "
+                "written with h33 = 1.")
+        return type(self).from_matrix(inv / inv[2, 2])
 
     @classmethod
     def from_matrix(cls, matrix: ArrayLike) -> ProjectiveTransform:
@@ -246,16 +253,6 @@ def _check_values(values):
         _check_homography(np.array([h[0:3], h[3:6], [h[6], h[7], 1.0]]))
     except ValueError as exc:
         raise ValueError(f"it holds a singular homography ({exc})") from None
-
-
-def _invert_homography(m):
-    _check_homography(m)
-    inv = np.linalg.inv(m)
-    if abs(inv[2, 2]) <= 1e-14 * np.max(np.abs(inv)):
-        raise ValueError(
-            "the inverse of this homography sends pixel (0, 0) to infinity and cannot be "
-            "written with h33 = 1.")
-    return inv / inv[2, 2]
 
 
 def _normaliser(pts):

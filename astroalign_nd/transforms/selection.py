@@ -206,17 +206,16 @@ def _robust_fit(cand, uv, dst, var, start=None, keep=None):
     return out
 
 
-def _occupancy(uv, frame_uv, degree):
-    """Fraction of the ``(degree + 1)**2`` cells of the frame holding a star."""
+def _coverage(uv, frame_uv, degree, n_terms):
+    """
+    How the stars ``uv`` cover the frame: the fraction of the ``(degree + 1)**2``
+    cells of the frame holding a star (``occupancy``), and the stars per term.
+    """
     g = degree + 1
     x0, x1, y0, y1 = frame_uv
     ix = np.clip(((uv[:, 0] - x0) / (x1 - x0) * g).astype(int), 0, g - 1)
     iy = np.clip(((uv[:, 1] - y0) / (y1 - y0) * g).astype(int), 0, g - 1)
-    return len(np.unique(iy * g + ix)) / float(g * g), g
-
-
-def _coverage(uv, frame_uv, degree, n_terms):
-    occ, g = _occupancy(uv, frame_uv, degree)
+    occ = len(np.unique(iy * g + ix)) / float(g * g)
     return dict(grid=(g, g), occupancy=occ, n_stars=int(len(uv)),
                 stars_per_term=len(uv) / float(n_terms))
 
@@ -279,19 +278,6 @@ def _cv_better(cells_new, cv_new, cells_old, cv_old):
     diff = (cells_old - cells_new)[ok] * ok.sum()  # per-cell contributions to the mean
     se = float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else np.inf
     return gain > 2.0 * se
-
-
-def _f_pvalue(chi_small, k_small, chi_big, k_big, n_eq):
-    """P-value of the F-test that the ``k_big - k_small`` extra terms are needed."""
-    d1, d2 = k_big - k_small, n_eq - k_big
-    if d1 <= 0 or d2 <= 0:
-        return 1.0
-    f = ((chi_small - chi_big) / d1) / max(chi_big / d2, 1e-300)
-    if f <= 0:
-        return 1.0
-    return float(betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f)))
-
-# -- the stage ----------------------------------------------------------------------
 
 
 class DistortionFit:
@@ -518,79 +504,67 @@ def choose_model(prob, cand, params, paired, significance, linear_type, repair):
     ``paired``: its `kept_pairs`; ``repair(layer, params, degree)``: the
     pairs kept by a refinement with that model, of that degree at most.
     """
-    if TRANSFORM_REGISTRY[prob.transform_type].degrees:
-        choice, paired = _choose_polynomial(prob, cand, paired, significance, linear_type,
-                                            repair)
-    else:
-        choice = _choose_fixed(prob, cand, params, paired)
-    trust = _trust(prob, choice, paired)
-    _warn_trust(prob, choice, paired, trust)
-    return _build(prob, choice, paired, trust, significance)
-
-
-def _choose_fixed(prob, cand, params, p):
-    """Check the coverage and fit a model without degrees (the homography) to the
-    kept pairs: a `_Choice`."""
-    # Too few pairs while growing leave the affine model of the growth
-    # stage (6 parameters): the model starts from its equivalent.
-    name = prob.transform_type
-    own = TRANSFORM_REGISTRY[name].cls.layer()
-    start = params if not cand.linear else own.from_affine(
-        _fit_affine(p.fuv, p.fdst, 1.0 / p.w, params))
-    chosen, chosen_params, chosen_cov = _check_and_fit(
-        own, p.fuv, p.fdst, p.w, prob.frame_uv, 1, strict=True, start=start,
-        what=f"a {name} model")
-    return _Choice(chosen, chosen_params, chosen_cov, name, None, [])
-
-
-def _choose_polynomial(prob, cand, p, significance, linear_type, repair):
-    """The requested polynomial, checked, or (``'auto'``) the chosen candidate:
-    (`_Choice`, `_Paired`: re-paired when ``'auto'`` chose a lower degree)."""
-    fits = _fit_pool(_candidate_pool(prob, p, linear_type), p)
-    # The residual variance scale, from the most flexible candidate (as in
-    # the F-test): the BIC needs chi-squares in units of the actual scatter.
-    n_eq = 2 * len(p.fuv)
-    prob.var_scale = max(fits[-1][4] / max(n_eq - fits[-1][0].k, 1), 1e-300)
-    best, candidates = _select(prob, p, fits, significance)
-    c, d, label, _, _ = fits[best]
-    if prob.degree == "auto":
-        chosen, chosen_params, chosen_cov = c, *fits[best][3]
-        if d < prob.top and isinstance(cand, PolynomialLayer) and cand.degree > d:
-            # The pairs were paired and clipped by a model of higher degree:
-            # pair and clip again with the chosen one, as an explicit degree
-            # would have (a few pairs that only the discarded terms followed
-            # would otherwise stay).
-            p = repair(c, chosen_params, d)
-            refit = weighted_fit(c, p.fuv, p.fdst, p.w)
-            if refit is not None:
-                chosen_params, chosen_cov = refit
-    else:
+    p = paired
+    if not TRANSFORM_REGISTRY[prob.transform_type].degrees:
+        # A model without degrees (the homography), its coverage checked.  Too few
+        # pairs while growing leave the affine model of the growth stage (6
+        # parameters): the model starts from its equivalent.
+        name = prob.transform_type
+        own = TRANSFORM_REGISTRY[name].cls.layer()
+        start = params if not cand.linear else own.from_affine(
+            _fit_affine(p.fuv, p.fdst, 1.0 / p.w, params))
         chosen, chosen_params, chosen_cov = _check_and_fit(
-            c, p.fuv, p.fdst, p.w, prob.frame_uv, d, strict=True, start=None,
-            what=f"a polynomial of degree {d}")
-    deg = d if TRANSFORM_REGISTRY[label].degrees else 1
-    return _Choice(chosen, chosen_params, chosen_cov, label, deg, candidates), p
+            own, p.fuv, p.fdst, p.w, prob.frame_uv, 1, strict=True, start=start,
+            what=f"a {name} model")
+        choice = _Choice(chosen, chosen_params, chosen_cov, name, None, [])
+    else:
+        # The requested polynomial, checked, or ('auto') the chosen candidate.
+        fits = _fit_candidates(prob, p, linear_type)
+        # The residual variance scale, from the most flexible candidate (as in
+        # the F-test): the BIC needs chi-squares in units of the actual scatter.
+        n_eq = 2 * len(p.fuv)
+        prob.var_scale = max(fits[-1][4] / max(n_eq - fits[-1][0].k, 1), 1e-300)
+        best, candidates = _select(prob, p, fits, significance)
+        c, d, label, _, _ = fits[best]
+        if prob.degree == "auto":
+            chosen, chosen_params, chosen_cov = c, *fits[best][3]
+            if d < prob.top and isinstance(cand, PolynomialLayer) and cand.degree > d:
+                # The pairs were paired and clipped by a model of higher degree:
+                # pair and clip again with the chosen one, as an explicit degree
+                # would have (a few pairs that only the discarded terms followed
+                # would otherwise stay).
+                p = repair(c, chosen_params, d)
+                refit = weighted_fit(c, p.fuv, p.fdst, p.w)
+                if refit is not None:
+                    chosen_params, chosen_cov = refit
+        else:
+            chosen, chosen_params, chosen_cov = _check_and_fit(
+                c, p.fuv, p.fdst, p.w, prob.frame_uv, d, strict=True, start=None,
+                what=f"a polynomial of degree {d}")
+        deg = d if TRANSFORM_REGISTRY[label].degrees else 1
+        choice = _Choice(chosen, chosen_params, chosen_cov, label, deg, candidates)
+    trust = _trust(prob, choice, p)
+    return _build(prob, choice, p, trust, significance)
 
 
-def _candidate_pool(prob, p, linear_type):
-    """(candidate, degree, label) of the models to compare, fewest terms first."""
+def _fit_candidates(prob, p, linear_type):
+    """
+    (candidate, degree, label, (params, cov), chi-square) of each model to compare
+    that fits the kept pairs ``p``, fewest terms first.
+    """
     if prob.degree != "auto":
-        return [(PolynomialLayer(prob.degree), prob.degree, "polynomial")]
-    pool = []
-    parity = 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1
-    linear_entry = transform_type_of(linear_type) if isinstance(linear_type, str) else None
-    if linear_entry is not None and linear_entry.conformal:
-        pool.append((SimilarityLayer(parity), 1, "similarity"))
-    pool.append((PolynomialLayer(1), 1, "affine"))
-    for d in DEGREES:
-        cov_d = _coverage(p.fuv, prob.frame_uv, d, _n_terms(d))
-        if _coverage_ok(cov_d, strict=True):
-            pool.append((PolynomialLayer(d), d, "polynomial"))
-    return pool
-
-
-def _fit_pool(pool, p):
-    """(candidate, degree, label, (params, cov), chi-square) of each candidate that fits."""
+        pool = [(PolynomialLayer(prob.degree), prob.degree, "polynomial")]
+    else:
+        pool = []
+        parity = 1 if np.linalg.det(prob.matrix[:2, :2]) > 0 else -1
+        linear_entry = transform_type_of(linear_type) if isinstance(linear_type, str) else None
+        if linear_entry is not None and linear_entry.conformal:
+            pool.append((SimilarityLayer(parity), 1, "similarity"))
+        pool.append((PolynomialLayer(1), 1, "affine"))
+        for d in DEGREES:
+            cov_d = _coverage(p.fuv, prob.frame_uv, d, _n_terms(d))
+            if _coverage_ok(cov_d, strict=True):
+                pool.append((PolynomialLayer(d), d, "polynomial"))
     fits = []
     for c, d, label in pool:
         fit = weighted_fit(c, p.fuv, p.fdst, p.w)
@@ -612,8 +586,13 @@ def _select(prob, p, fits, significance):
     n_eq = 2 * len(p.fuv)
     best, cv_cells, accepted, candidates = 0, [], [0], []
     for i, (c, d, label, fit, chi2) in enumerate(fits):
-        p_value = (1.0 if i == 0 else
-                   _f_pvalue(fits[best][4], fits[best][0].k, chi2, c.k, n_eq))
+        # The p-value of the F-test that the extra terms over the best so far are needed.
+        d1, d2 = c.k - fits[best][0].k, n_eq - c.k
+        p_value = 1.0
+        if i > 0 and d1 > 0 and d2 > 0:
+            f = ((fits[best][4] - chi2) / d1) / max(chi2 / d2, 1e-300)
+            if not f <= 0:
+                p_value = float(betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f)))
         bic = float(chi2 / prob.var_scale + c.k * np.log(n_eq))
         cv, cells = (_blocked_cv(c, p.fuv, p.fdst, p.w, prob.frame_uv) if auto
                      else (None, None))
@@ -638,31 +617,28 @@ def _select(prob, p, fits, significance):
             if candidates[i]["cv_chi2"] < candidates[best]["cv_chi2"]:
                 best = i
     if auto and fits[best][1] > CV_FROM_DEGREE:
-        best = _cv_choice(fits, candidates, cv_cells, accepted, best)
+        # With hundreds of stars the tests accept terms that only follow
+        # slightly systematic centroid errors; those terms extrapolate badly
+        # where stars are few.  Up to the cubic (a radial distortion, a
+        # tilt) the tests decide: with tens of stars held-out cells are too
+        # noisy to.  Beyond it, a degree the tests accept replaces the
+        # current one only if it also predicts the held-out cells (blocked
+        # cross-validation) meaningfully better.
+        last, best = best, max(i for i in accepted if fits[i][1] <= CV_FROM_DEGREE)
+        for i in range(best + 1, last + 1):
+            if _cv_better(cv_cells[i], candidates[i]["cv_chi2"], cv_cells[best],
+                          candidates[best]["cv_chi2"]):
+                best = i
     for i, entry in enumerate(candidates):
         entry["chosen"] = i == best
     return best, candidates
 
 
-def _cv_choice(fits, candidates, cv_cells, accepted, last):
-    """The choice among the accepted candidates above ``CV_FROM_DEGREE``."""
-    # With hundreds of stars the tests accept terms that only follow
-    # slightly systematic centroid errors; those terms extrapolate badly
-    # where stars are few.  Up to the cubic (a radial distortion, a
-    # tilt) the tests decide: with tens of stars held-out cells are too
-    # noisy to.  Beyond it, a degree the tests accept replaces the
-    # current one only if it also predicts the held-out cells (blocked
-    # cross-validation) meaningfully better.
-    best = max(i for i in accepted if fits[i][1] <= CV_FROM_DEGREE)
-    for i in range(best + 1, last + 1):
-        if _cv_better(cv_cells[i], candidates[i]["cv_chi2"], cv_cells[best],
-                      candidates[best]["cv_chi2"]):
-            best = i
-    return best
-
-
 def _trust(prob, choice, p):
-    """Coverage, predicted error over the frame and residual excess: a `_Trust`."""
+    """
+    Coverage, predicted error over the frame and residual excess: a `_Trust`,
+    after the PoorFitWarnings they call for.
+    """
     chosen, fuv, frame_uv = choice.cand, p.fuv, prob.frame_uv
     coverage = _coverage(fuv, frame_uv, choice.deg or 1, chosen.k / 2.0)
     r = predict_with(chosen, choice.params, fuv) - p.fdst
@@ -677,12 +653,9 @@ def _trust(prob, choice, p):
     grid = np.column_stack([a.ravel() for a in np.meshgrid(gx, gy)])
     pv = _prediction_var(chosen, choice.params, choice.cov * max(chi_red, 1.0), grid)
     tested = sorted({c["degree"] for c in choice.candidates})
-    return _Trust(coverage, float(np.sqrt(pv.max())), float(np.sqrt(pv.mean())), excess, tested)
-
-
-def _warn_trust(prob, choice, p, trust):
-    """The PoorFitWarnings of a fit: sparse coverage, excess residuals, uncertainty."""
-    name, n, coverage, excess = choice.name, len(p.fuv), trust.coverage, trust.excess
+    trust = _Trust(coverage, float(np.sqrt(pv.max())), float(np.sqrt(pv.mean())), excess, tested)
+    # The PoorFitWarnings: sparse coverage, excess residuals, uncertainty.
+    name, n = choice.name, len(fuv)
     what = _label(name, choice.deg)
     if not TRANSFORM_REGISTRY[name].linear and not _coverage_ok(coverage, strict=False):
         warn(f"the {n} stars fitting the {what} cover "
@@ -712,6 +685,7 @@ def _warn_trust(prob, choice, p, trust):
              f"error of up to {trust.pred_max:.2f} px over the frame (RMS {trust.pred_rms:.2f} "
              f"px, {n} stars). Use a lower degree (or degree='auto') or more stars.",
              PoorFitWarning)
+    return trust
 
 
 def _build(prob, choice, p, trust, significance):
