@@ -48,6 +48,12 @@ __all__ = ["find_transform", "find_match", "register", "Reference"]
 #: Points of a catalog used (brightest first) when ``2 * n_sources`` is fewer.
 _CATALOG_POINTS = 1000
 
+#: Batches of hypotheses (``batch_size`` each) an attempt may score after one
+#: that failed far from trust (`_escalate`).  Where a later attempt found the
+#: match (the benchmarks' hard, trust and real cases), it did so in its first
+#: batch: its triangles agree best.
+LATER_ATTEMPT_BATCHES = 4
+
 #: The detection and the matching options (the fields of their configs).
 _DETECT_KEYS = tuple(f.name for f in dataclasses.fields(DetectionConfig))
 _MATCH_KEYS = tuple(f.name for f in dataclasses.fields(MatchingConfig))
@@ -332,6 +338,14 @@ def _escalate(src, dst, nn, config):
     the caller did not set it) help sparse, noisy lists (at most 60 stars):
     they miss many stars of the other image, so few of the 4-nearest-neighbour
     triangles are common.
+
+    A refusal is an attempt that failed far from trust (no candidate passed
+    the false-alarm test): the attempts after it are budgeted
+    (`LATER_ATTEMPT_BATCHES` batches of hypotheses, the best of each
+    refined; ``budget`` of `~astroalign_nd.matching.search.match_control_points`),
+    so that a pair that does not match costs about one full attempt.  After
+    an attempt whose best candidate passed the false-alarm test (real
+    stars, not yet consistent), the next ones search in full.
     """
     n_sources, n_top = config.n_sources, config.n_sources
     while 2 * n_top <= config.max_sources:
@@ -346,6 +360,7 @@ def _escalate(src, dst, nn, config):
     user_nn = matching.n_neighbors is not None
     attempt_matching = matching
     trials, tried, k, last_exc, result = 0, set(), 0, None, None
+    budget = None  # full attempts until one fails far from trust
     grow_tolerance = None
     _detect_both(src, plan[0][0], dst, plan[0][1])
     while k < len(plan):
@@ -370,12 +385,17 @@ def _escalate(src, dst, nn, config):
             try:
                 result = _attempt(src, dst, (ns, nd, nn), (src_pts, src_err, src_frame),
                                   (dst_pts, dst_err, dst_frame), attempt_matching, trials,
-                                  linear_type=config.model.linear_type, nonlinear=nonlinear)
+                                  linear_type=config.model.linear_type, nonlinear=nonlinear,
+                                  budget=budget)
                 break
             except TransformNotFoundError as exc:
                 # Earlier attempts count in the trials factor of later ones.
                 trials += getattr(exc, "n_hypotheses", 0)
                 last_exc = exc
+                if getattr(exc, "near_trust", False):
+                    budget = None
+                elif getattr(exc, "n_hypotheses", 0) > 0:  # (not when no triangle matched)
+                    budget = LATER_ATTEMPT_BATCHES * attempt_matching.batch_size
                 log.debug(f"astroalign_nd: attempt {len(tried)} found no trusted match; "
                           f"{trials} hypotheses so far")
         if (k == len(plan) and not user_nn and nn < 8
@@ -422,8 +442,9 @@ def _detect_both(src, ns, dst, nd):
 
 
 def _attempt(src, dst, sizes, src_stars, dst_stars, matching, trials, *, linear_type,
-             nonlinear):
-    """One attempt of the search: ``match_control_points`` on ``sizes = (ns, nd, nn)``."""
+             nonlinear, budget=None):
+    """One attempt of the search: ``match_control_points`` on ``sizes = (ns, nd, nn)``
+    (``budget``: hypotheses it may score, None for all)."""
     ns, nd, nn = sizes
     settings = matching.match_kwargs()
     del settings["n_neighbors"]  # the attempt's own: ``nn``
@@ -437,7 +458,7 @@ def _attempt(src, dst, sizes, src_stars, dst_stars, matching, trials, *, linear_
                                     n_control=(ns, nd), n_neighbors=nn,
                                     source_asterisms=src.asterisms(ns, nn),
                                     target_asterisms=dst.asterisms(nd, nn),
-                                    prior_trials=trials, **settings)
+                                    prior_trials=trials, budget=budget, **settings)
 
 
 def find_match(source: Any, target: Any, *, transform_type: str | type = "similarity",

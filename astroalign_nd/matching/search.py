@@ -171,7 +171,7 @@ def search_tolerance(fwhm=None):
 
 
 def match_control_points(src_pts, dst_pts, *, n_control=None, source_asterisms=None,
-                         target_asterisms=None, prior_trials=0, **settings):
+                         target_asterisms=None, prior_trials=0, budget=None, **settings):
     """
     `match_points`, with what `~astroalign_nd.find_match` knows beyond it.
 
@@ -189,6 +189,15 @@ def match_control_points(src_pts, dst_pts, *, n_control=None, source_asterisms=N
     prior_trials : int, optional
         Hypotheses already tried on this pair by earlier attempts; they
         count in the trials factor of the false-alarm probability.
+    budget : int, optional
+        A search after others that failed (`~astroalign_nd.find_match`'s
+        later attempts): at most this many hypotheses are scored, only the
+        best of each batch is refined, and the final pass refines the best
+        `BUDGET_FINAL_REFINES` left.  A true match that an earlier attempt
+        missed comes at the head of the later attempt's list (its triangles
+        agree best), and is accepted at its first refinement; a pair that
+        does not match would have every hypothesis scored and dozens refined
+        by each attempt.  By default (None) the search is complete.
 
     **settings
         The keyword arguments of `match_points` (its defaults otherwise).
@@ -220,6 +229,7 @@ def match_control_points(src_pts, dst_pts, *, n_control=None, source_asterisms=N
         raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}; match_points "
                         f"accepts {list(_SETTINGS)}.")
     s = _prepare(src_pts, dst_pts, {**_SETTINGS, **settings}, n_control, prior_trials)
+    s.budget = budget
     src_ast = source_asterisms or build_asterisms(s.src_ctl, n_neighbors=s.n_neighbors)
     dst_ast = target_asterisms or build_asterisms(s.dst_ctl, n_neighbors=s.n_neighbors)
     pairs, _ = match_triangles(src_ast, dst_ast, s.invariant_radius,
@@ -236,7 +246,8 @@ def match_control_points(src_pts, dst_pts, *, n_control=None, source_asterisms=N
     progress = _score_batches(s, hyp)
     if not progress.accepted:  # refine the overall best few hypotheses not refined yet
         counts = progress.counts
-        for h in np.argsort(-counts, kind="stable")[:10]:
+        n_final = 10 if s.budget is None else BUDGET_FINAL_REFINES
+        for h in np.argsort(-counts, kind="stable")[:n_final]:
             if int(h) in progress.refined or counts[h] < 3:
                 continue
             cand = _evaluate(s, hyp, h, progress.n_scored)
@@ -245,7 +256,11 @@ def match_control_points(src_pts, dst_pts, *, n_control=None, source_asterisms=N
                 progress.best = cand
     if progress.best is not None and progress.best.ok:
         return _result(progress.best, s, n_tri, progress.n_scored)
-    raise _not_found(progress.n_scored, _failure_message(s, progress, n_tri))
+    exc = _not_found(progress.n_scored, _failure_message(s, progress, n_tri))
+    # Did a candidate pass the false-alarm test (real stars, a fit not yet
+    # trusted)?  Then a later attempt searches in full (`budget`).
+    exc.near_trust = bool(progress.best is not None and progress.best.lfa <= s.log_limit)
+    raise exc
 
 
 @dataclass
@@ -276,6 +291,7 @@ class _Search:
     prior_trials: int
     dst_tree: object = None  # the target points' k-d tree and grid, built once
     grid: object = None
+    budget: object = None  # hypotheses a later attempt may score (None: all)
 
     @property
     def log_limit(self):
@@ -389,7 +405,7 @@ def _filter_hypotheses(src_ast, dst_ast, pairs, s):
 class _Candidate:
     """A refined hypothesis: its model, matched stars and trust figures."""
 
-    model: object
+    model: object         # a `~astroalign_nd.matching.verify._Fitted` (no astropy model yet)
     si: np.ndarray        # matched source indices
     dj: np.ndarray        # matched target indices
     resid: np.ndarray
@@ -474,14 +490,20 @@ class _Progress:
 #: refinement budget of `_score_batches`.
 MAX_DEGENERATE = 30
 
+#: Hypotheses the final pass of a budgeted search (`match_control_points`'
+#: ``budget``) refines, of the best not refined yet (10 otherwise).
+BUDGET_FINAL_REFINES = 3
+
 
 def _score_batches(s, hyp):
     """Score the hypotheses batch by batch, refining the best few of each."""
     counts = np.zeros(hyp.n_pairs, int)  # the hypotheses' (at most one per pair)
     progress = _Progress(counts=counts[:0], ctl_keep=np.ones(len(s.src_ctl), bool))
     refined_max, start = 0, 0
-    while hyp.grow(start + s.batch_size) > start:
-        stop = min(start + s.batch_size, len(hyp))
+    limit = hyp.n_pairs if s.budget is None else min(hyp.n_pairs, s.budget)
+    per_batch = 3 if s.budget is None else 1  # refinements of each batch's best
+    while start < limit and hyp.grow(min(start + s.batch_size, limit)) > start:
+        stop = min(start + s.batch_size, len(hyp), limit)
         progress.counts = counts[:stop]
         # Control points of the source against every target star: a true
         # match also counts stars that are not among the target's brightest.
@@ -489,7 +511,7 @@ def _score_batches(s, hyp):
                                            s.grid)
         progress.n_scored = stop
         # Try the best few of this batch (ties broken by invariant distance).
-        order = start + np.argsort(-counts[start:stop], kind="stable")[:3]
+        order = start + np.argsort(-counts[start:stop], kind="stable")[:per_batch]
         for h in order:
             if counts[h] < min(s.accept_at, 4) and s.n_possible > 3:
                 break
@@ -577,7 +599,8 @@ def _result(c, s, n_tri, n_scored):
     resid = c.resid
     rms = float(np.sqrt(np.mean(np.sum(resid**2, axis=1)))) if len(resid) else float("nan")
     si, dj = c.si, c.dj
-    predicted = _predicted_error(c.model, c.cov, dst_frame or bounding_frame(dst_pts[dj]))
+    model = c.model.model()  # the one astropy model of the search: the answer's
+    predicted = _predicted_error(model, c.cov, dst_frame or bounding_frame(dst_pts[dj]))
     if predicted > 0.3:  # 3 sigma above 1 px somewhere in the frame
         warn(
             f"the transform is uncertain: its parameter covariance gives a 1-sigma position "
@@ -592,18 +615,18 @@ def _result(c, s, n_tri, n_scored):
             f"leave it uncertain by up to {c.bound:.2f} px over the overlap (3 sigma, by "
             "leaving one star out and by an affine fit of the same stars). Check it, or give "
             "more or brighter stars (n_sources, nsigma).", PoorFitWarning)
-    misfit, _, _ = _model_misfit(c.model, src_pts[si], dst_pts[dj],
+    misfit, _, _ = _model_misfit(model, src_pts[si], dst_pts[dj],
                                  None if src_err is None else src_err[si],
                                  None if dst_err is None else dst_err[dj], dst_frame)
     if misfit > 0.5:
-        name = type(c.model).__name__
+        name = type(model).__name__
         warn(
             f"the {name} leaves systematic residuals: an affine fit of the same "
             f"{len(si)} stars differs from it by up to {misfit:.2f} px over the frame. The "
             "images have shear, anisotropic scale or distortion; use transform_type='affine'.",
             PoorFitWarning)
     return MatchResult(
-        transform=c.model, source_index=si, target_index=dj, residuals=resid,
+        transform=model, source_index=si, target_index=dj, residuals=resid,
         rms=rms, covariance=c.cov, log10_false_alarm=c.lfa, n_source=len(src_pts),
         n_target=len(dst_pts), n_triangle_matches=n_tri, n_hypotheses=n_scored,
         model_misfit=misfit, predicted_error=predicted, error_bound=c.bound,

@@ -6,7 +6,7 @@ from scipy.special import betainc
 from .._kernels import median as _median
 from ..transforms.linear import AffineTransform
 from ..transforms import apply_matrix
-from ..transforms.fitting import checked_weights, fit_transform
+from ..transforms.fitting import _covariance_of, checked_weights
 from ..transforms.registry import transform_class, transform_type_of
 from .geometry import _frame_area_fraction, bounding_frame, overlap_counts
 from .pairing import mutual_matches
@@ -214,20 +214,68 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
     return last
 
 
+class _Fitted:
+    """
+    A fitted linear model as plain numbers: its type, parameter values and
+    matrix, as the astropy model of the same fit would hold them.
+
+    The refinement fits and judges dozens of hypotheses per search, and an
+    astropy model costs milliseconds to build (more than the fit): they
+    are judged on these, and `model` builds the one that is returned.
+
+    Parameters
+    ----------
+    cls : type
+        A `~astroalign_nd.transforms.LinearTransform2D` subclass.
+    matrix : (3, 3) ndarray
+        The fitted matrix; ValueError when the type cannot represent it
+        (as its ``_from_matrix``).
+    """
+
+    __slots__ = ("cls", "values", "matrix")
+
+    def __init__(self, cls, matrix):
+        self.cls = cls
+        self.values = cls._model_values(matrix)
+        self.matrix = cls._matrix_of(self.values)  # the model's own (its low bits)
+
+    @property
+    def n_dof(self):
+        return self.cls.n_dof
+
+    @property
+    def free(self):
+        """The names of the free (fitted) parameters, in the model's order."""
+        return [n for n in self.cls.param_names if not getattr(self.cls, n).fixed]
+
+    def model(self):
+        """The astropy model of these values."""
+        return self.cls(**self.values)
+
+
+def _model_type(model):
+    """The model class of an astropy model or of a `_Fitted`."""
+    return model.cls if isinstance(model, _Fitted) else type(model)
+
+
 def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
-    """The model, with its covariance and residuals, on the last fit's pairs; or None."""
+    """The model (a `_Fitted`), with its covariance and residuals, on the last
+    fit's pairs; or None."""
     si, dj, total, used_tol = last
     parity = fit_parity if transform_type_of(cls).parity else None
+    src, dst = src_pts[si], dst_pts[dj]
     try:
         # The detections' errors are checked against the residuals' scatter:
         # on faint frames they can be wrong, and a few stars claiming tiny
         # errors would pin the fit.
-        w = checked_weights(src_pts[si], dst_pts[dj], 1.0 / total, cls, parity=parity)
-        model, cov, resid = fit_transform(src_pts[si], dst_pts[dj], cls, parity=parity,
-                                          weights=w)
+        w = checked_weights(src, dst, 1.0 / total, cls, parity=parity)
+        # fit_transform's fit, checks and covariance, on matrices.
+        matrix, design, resid = cls._fit_parts(src, dst, weights=w, parity=parity)
+        fit = _Fitted(cls, matrix)
     except ValueError:  # collinear or coincident stars: no transform to trust
         return None
-    return model, si, dj, resid, cov, used_tol
+    cov = _covariance_of(cls, fit.matrix, fit.free, design, resid, w)
+    return fit, si, dj, resid, cov, used_tol
 
 
 #: The largest error (px) over the overlap that a match may admit by its own
@@ -272,7 +320,7 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame, tol=None, predicted=
         What was inconsistent, when ``bound > tol``; else None.
     """
     n = len(src)
-    k_model, k_aff = type(model).n_dof, 6
+    k_model, k_aff = _model_type(model).n_dof, 6
     x0, x1, y0, y1 = frame if frame is not None else bounding_frame(dst)
     corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
     if src_err is not None and dst_err is not None:
@@ -330,7 +378,7 @@ def _jackknife_error(model, src, dst, w, corners, n_max=60):
     and the covariance is reliable (0).
     """
     n = len(src)
-    cls = type(model)
+    cls = _model_type(model)
     if n > n_max or n <= max(cls.min_points, 3):
         return 0.0
     parity = 1 if np.linalg.det(model.matrix[:2, :2]) > 0 else -1
@@ -353,8 +401,12 @@ def _predicted_error(model, cov, frame):
     propagated from the parameter covariance.
     """
     cov = np.asarray(cov, float)
-    fixed = model.fixed  # (a new dict at each access)
-    free = [n for n in model.param_names if not fixed[n]]
+    if isinstance(model, _Fitted):
+        cls, free, values = model.cls, model.free, model.values
+    else:
+        fixed = model.fixed  # (a new dict at each access)
+        cls, free = type(model), [n for n in model.param_names if not fixed[n]]
+        values = {n: float(getattr(model, n).value) for n in model.param_names}
     if cov.shape != (len(free), len(free)) or not np.all(np.isfinite(cov)):
         return 0.0
     x0, x1, y0, y1 = frame
@@ -362,13 +414,12 @@ def _predicted_error(model, cov, frame):
     # back to source pixels, where the model's parameters act.
     inv = np.linalg.inv(model.matrix)
     corners = apply_matrix(inv, np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]]))
+
     # Finite differences through the model's static ``evaluate`` with perturbed
     # parameter values (copying an astropy model costs ~2 ms each).
-    values = {n: float(getattr(model, n).value) for n in model.param_names}
-
     def at(vals):
-        return np.array(model.evaluate(corners[:, 0], corners[:, 1],
-                                       *[vals[n] for n in model.param_names]), dtype=float)
+        return np.array(cls.evaluate(corners[:, 0], corners[:, 1],
+                                     *[vals[n] for n in cls.param_names]), dtype=float)
 
     base = at(values)
     jac = np.zeros((2 * len(corners), len(free)))

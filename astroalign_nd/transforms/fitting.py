@@ -178,7 +178,11 @@ def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
     cls = transform_class(transform_type)
     w0 = np.asarray(weights, dtype=float)
     # fit_transform's own checks say what is wrong with bad input.
-    _, design, resid = _fit_design(cls, src, dst, weights, parity, degree, crpix, domain)
+    if hasattr(cls, "_fit_parts") and degree is None and crpix is None and domain is None:
+        # (The linear types: their design and residuals without building a model.)
+        _, design, resid = cls._fit_parts(src, dst, weights=weights, parity=parity)
+    else:
+        _, design, resid = _fit_design(cls, src, dst, weights, parity, degree, crpix, domain)
     used = w0 > 0
     n, k = int(used.sum()), design.shape[1]
     if design.shape[0] != 2 * len(w0) or n < 2 * k:
@@ -258,9 +262,20 @@ def fit_from_matrix(transform_type, matrix, src, dst, parity=1):
 
 def _covariance(model, design, resid, weights):
     """Parameter covariance via the linear design and a numerical Jacobian."""
-    n_obs, n_lin = design.shape
     fixed = model.fixed  # (a new dict at each access)
     free = [n for n in model.param_names if not fixed[n]]
+    # (Only a similarity's parameters need its matrix; a polynomial has none.)
+    matrix = model.matrix if isinstance(model, SimilarityTransform) else None
+    return _covariance_of(type(model), matrix, free, design, resid, weights)
+
+
+def _covariance_of(cls, matrix, free, design, resid, weights):
+    """
+    `_covariance` of a model of type ``cls`` whose `matrix` is ``matrix`` (used
+    for a similarity only) and free parameters ``free``, without the model
+    (the matching's fit loop).
+    """
+    n_obs, n_lin = design.shape
     dof = n_obs - n_lin
     if dof <= 0:
         return np.full((len(free), len(free)), np.nan)
@@ -276,8 +291,8 @@ def _covariance(model, design, resid, weights):
     # translation and affine; euclidean's angle goes from radians to
     # degrees; similarity goes (a, b) -> (scale, rotation in degrees).
     deg = 180.0 / np.pi
-    if isinstance(model, SimilarityTransform):
-        m = model.matrix
+    if issubclass(cls, SimilarityTransform):
+        m = matrix
         a, b = m[0, 0], m[1, 0]
         r2 = a * a + b * b
         s = np.sqrt(r2)
@@ -286,7 +301,7 @@ def _covariance(model, design, resid, weights):
         jac[1, :2] = [-b / r2 * deg, a / r2 * deg]
         jac[2, 2] = jac[3, 3] = 1.0
         return jac @ cov_lin @ jac.T
-    if isinstance(model, EuclideanTransform):
+    if issubclass(cls, EuclideanTransform):
         jac = np.diag([deg, 1.0, 1.0])
         return jac @ cov_lin @ jac.T
     return cov_lin

@@ -109,25 +109,75 @@ class LinearTransform2D(Model):
         return bool(np.linalg.det(self.matrix[:2, :2]) < 0)
 
     def _linear_part(self):
-        # Evaluate the model on the unit basis: works for every subclass.  The
-        # translation parameters are zeroed for that and used directly as the
-        # shift, so that the matrix is exact (differencing ``A e + t`` and ``t``
-        # loses the low bits of ``A`` when the shift is much larger).
         values = {
             name: float(np.asarray(getattr(self, name).value).ravel()[0])
             for name in self.param_names
         }
+        return type(self)._parts_of(values)
+
+    @classmethod
+    def _parts_of(cls, values):
+        """
+        The linear part and shift of the model with these parameter values
+        (``{name: float}``): what `matrix` holds, without a model.
+        """
+        # Evaluate the model on the unit basis: works for every subclass.  The
+        # translation parameters are zeroed for that and used directly as the
+        # shift, so that the matrix is exact (differencing ``A e + t`` and ``t``
+        # loses the low bits of ``A`` when the shift is much larger).
+        values = dict(values)
         shift = None
         if "translation_x" in values and "translation_y" in values:
             shift = np.array([values["translation_x"], values["translation_y"]])
             values["translation_x"] = values["translation_y"] = 0.0
         x = np.array([0.0, 1.0, 0.0])
         y = np.array([0.0, 0.0, 1.0])
-        xo, yo = self.evaluate(x, y, *[values[name] for name in self.param_names])
+        xo, yo = cls.evaluate(x, y, *[values[name] for name in cls.param_names])
         if shift is None:
             shift = np.array([xo[0], yo[0]])
         lin = np.array([[xo[1] - xo[0], xo[2] - xo[0]], [yo[1] - yo[0], yo[2] - yo[0]]])
         return lin, shift
+
+    @classmethod
+    def _matrix_of(cls, values):
+        """The `matrix` of the model with these parameter values, without a model."""
+        lin, shift = cls._parts_of(values)
+        m = np.eye(3)
+        m[:2, :2] = lin
+        m[:2, 2] = shift
+        return m
+
+    @classmethod
+    def _values_from_matrix(cls, m):
+        """
+        The parameter values (``{name: float}``, every parameter) of
+        ``_from_matrix(m)``, raising as it does.
+
+        The built-in types say them without building a model (an astropy
+        model costs milliseconds to build: the matching's fit loop works
+        on values and matrices); another subclass builds one.
+        """
+        model = cls._from_matrix(m)
+        return {name: float(np.asarray(getattr(model, name).value).ravel()[0])
+                for name in cls.param_names}
+
+    @classmethod
+    def _model_values(cls, m):
+        """
+        `_values_from_matrix`, when the class that defines the type's
+        ``_from_matrix`` also defines it; else those of the model that
+        ``_from_matrix`` builds (a subclass may build its model otherwise).
+        """
+        own = next(k for k in cls.__mro__ if "_from_matrix" in vars(k))
+        if "_values_from_matrix" in vars(own):
+            return cls._values_from_matrix(m)
+        return LinearTransform2D._values_from_matrix.__func__(cls, m)
+
+    @classmethod
+    def _with_defaults(cls, values):
+        """``values`` with every parameter, its default for those not given, as floats."""
+        return {name: float(values[name]) if name in values else
+                float(getattr(cls, name).default) for name in cls.param_names}
 
     @property
     def inverse(self):
@@ -296,6 +346,12 @@ class LinearTransform2D(Model):
     @classmethod
     def _fit(cls, src, dst, *, weights=None, parity=None):
         """Fit and also return the linear parameter covariance and residuals."""
+        matrix, design, resid = cls._fit_parts(src, dst, weights=weights, parity=parity)
+        return cls._from_matrix(matrix), design, resid
+
+    @classmethod
+    def _fit_parts(cls, src, dst, *, weights=None, parity=None):
+        """`_fit`'s checks and fit, without the model: (matrix, design, residuals)."""
         src, dst, w = _check_pairs(cls.__name__, src, dst, weights, cls.min_points)
         if parity is not None:
             _check_parity(parity)
@@ -310,7 +366,7 @@ class LinearTransform2D(Model):
         sse, matrix, design, resid = best
         _check_spread(cls, src[w > 0], "src")
         check_invertible(matrix, cls.__name__, fitted=True)
-        return cls._from_matrix(matrix), design, resid
+        return matrix, design, resid
 
     _parities = (1,)
 
@@ -372,12 +428,16 @@ class TranslationTransform(LinearTransform2D):
 
     @classmethod
     def _from_matrix(cls, m):
+        return cls(**cls._values_from_matrix(m))
+
+    @classmethod
+    def _values_from_matrix(cls, m):
         if not np.allclose(m[:2, :2], np.eye(2), rtol=0.0, atol=1e-9):
             raise ValueError(
                 "matrix has a rotation, scale or shear part; use SimilarityTransform or "
                 "AffineTransform instead of TranslationTransform."
             )
-        return cls(translation_x=m[0, 2], translation_y=m[1, 2])
+        return cls._with_defaults(dict(translation_x=m[0, 2], translation_y=m[1, 2]))
 
     @classmethod
     def _linear_fit(cls, src, dst, w, parity):
@@ -434,8 +494,12 @@ class EuclideanTransform(LinearTransform2D):
 
     @classmethod
     def _from_matrix(cls, m):
+        return cls(**cls._values_from_matrix(m))
+
+    @classmethod
+    def _values_from_matrix(cls, m):
         det = np.linalg.det(m[:2, :2])
-        return cls(**_rotation_parameters(
+        return cls._with_defaults(_rotation_parameters(
             m, det, 1.0, "matrix has a scale or shear part; use SimilarityTransform or "
             "AffineTransform instead of EuclideanTransform."))
 
@@ -509,14 +573,18 @@ class SimilarityTransform(LinearTransform2D):
 
     @classmethod
     def _from_matrix(cls, m):
+        return cls(**cls._values_from_matrix(m))
+
+    @classmethod
+    def _values_from_matrix(cls, m):
         lin = m[:2, :2]
         det = np.linalg.det(lin)
         if is_singular(lin):
             raise ValueError("matrix is singular; it cannot be a similarity transform.")
         scale = np.sqrt(abs(det))
-        return cls(scale=scale, **_rotation_parameters(
+        return cls._with_defaults(dict(scale=scale, **_rotation_parameters(
             m, det, scale, "matrix has a shear or anisotropic scale; use AffineTransform "
-            "instead of SimilarityTransform."))
+            "instead of SimilarityTransform.")))
 
 
 class AffineTransform(LinearTransform2D):
@@ -583,10 +651,14 @@ class AffineTransform(LinearTransform2D):
 
     @classmethod
     def _from_matrix(cls, m):
-        return cls(
+        return cls(**cls._values_from_matrix(m))
+
+    @classmethod
+    def _values_from_matrix(cls, m):
+        return cls._with_defaults(dict(
             a11=m[0, 0], a12=m[0, 1], a21=m[1, 0], a22=m[1, 1],
             translation_x=m[0, 2], translation_y=m[1, 2],
-        )
+        ))
 
     @classmethod
     def fit_layer(cls, parity=1, degree=None):
