@@ -31,6 +31,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .._pools import task_pool
+from .._results import status_list
 from ..io.read import batch_frames, display_names
 from ..config import RegistrationConfig
 from ..exceptions import AstroalignError, warn
@@ -119,15 +120,9 @@ class SequenceSolution:
     attempts: list = dataclasses.field(default_factory=list)
     seconds: dict = dataclasses.field(default_factory=dict)
 
-    @property
-    def accepted(self):
-        """The links used by the solution."""
-        return [k for k in self.links if k.status == "accepted"]
-
-    @property
-    def rejected(self):
-        """The links rejected for disagreeing with the rest."""
-        return [k for k in self.links if k.status == "rejected"]
+    accepted = status_list("links", "accepted", "The links used by the solution.")
+    rejected = status_list("links", "rejected", "The links rejected for disagreeing with the "
+                           "rest.")
 
     def to_table(self):
         """
