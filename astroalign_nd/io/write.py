@@ -68,7 +68,9 @@ class _PrivateFolder:
         ``path``; the folder is removed in any case.  A failed write is one clear `OSError`.
         """
         path = os.fspath(path)
-        _refuse_existing(path, overwrite)
+        if not overwrite and os.path.lexists(path):
+            raise FileExistsError(
+                f"{path} exists; pass overwrite=True (or --overwrite) to replace it.")
         with _clear_write_errors(path):
             private = cls(path)
         try:
@@ -237,12 +239,6 @@ def _clear_write_errors(path):
         if clear is None:
             raise
         raise clear from exc
-
-
-def _refuse_existing(path, overwrite):
-    if not overwrite and os.path.lexists(path):
-        raise FileExistsError(
-            f"{path} exists; pass overwrite=True (or --overwrite) to replace it.")
 
 
 @contextlib.contextmanager
