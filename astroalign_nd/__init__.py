@@ -29,22 +29,22 @@ from .exceptions import (AstroalignError, AstroalignWarning, PoorCoverageError, 
                          SlowKernelsWarning, TooFewSourcesError, TransformNotFoundError)
 from ._lazy import attach
 
-# submodule -> the public names it defines
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    "detection": ["find_sources"],
-    "registration": ["find_transform", "find_match", "register", "Reference"],
-    "crossmatch": ["cross_match"],
-    "resample": ["apply_transform"],
-    "batch": ["register_batch"],
-    "stacking": ["stack", "frame_quality"],
-    "sequence": ["solve_sequence"],
-    "transforms": ["LinearTransform2D", "TranslationTransform", "EuclideanTransform",
-                   "SimilarityTransform", "AffineTransform", "ProjectiveTransform",
-                   "PolynomialTransform"],
-    "io": ["transform_to_header", "transform_from_header"],
-    "_settings": ["conf"],
+    ".detection": ["find_sources"],
+    ".registration": ["find_transform", "find_match", "register", "Reference"],
+    ".crossmatch": ["cross_match"],
+    ".resample": ["apply_transform"],
+    ".batch": ["register_batch"],
+    ".stacking": ["stack", "frame_quality"],
+    ".sequence": ["solve_sequence"],
+    ".transforms": ["LinearTransform2D", "TranslationTransform", "EuclideanTransform",
+                    "SimilarityTransform", "AffineTransform", "ProjectiveTransform",
+                    "PolynomialTransform"],
+    ".io": ["transform_to_header", "transform_from_header"],
+    "._settings": ["conf"],
     # True when the optional compiled kernels are built (False: their NumPy versions run).
-    "_kernels": ["HAVE_COMPILED"],
+    "._kernels": ["HAVE_COMPILED"],
 }
 
 __getattr__, __dir__, _lazy_names = attach(__name__, _LAZY, submodules=("compat", "visualization"))

@@ -32,8 +32,8 @@ def attach(package, submodule_names, submodules=()):
     package : str
         The package's ``__name__``.
     submodule_names : dict
-        Submodule (relative to ``package``) -> the list of public names it
-        defines.
+        Submodule, relative to ``package`` as in a relative import
+        (``".linear"``) -> the list of public names it defines.
     submodules : iterable of str, optional
         Submodules reachable as attributes without an explicit import.
 
@@ -54,6 +54,8 @@ def attach(package, submodule_names, submodules=()):
     ...
     AttributeError: module 'astroalign_nd' has no attribute 'no_such_name'
     """
+    if not all(module.startswith(".") for module in submodule_names):
+        raise ValueError(f"{package}: submodules are named relative to it: '.name'")
     names = {name: module for module, defined in submodule_names.items() for name in defined}
     if len(names) < sum(map(len, submodule_names.values())):
         raise ValueError(f"{package}: a public name is listed under two submodules")
@@ -63,7 +65,7 @@ def attach(package, submodule_names, submodules=()):
         if name in submodules:  # the import binds it on the package: asked once
             return importlib.import_module(f".{name}", package)
         if name in names:
-            value = getattr(importlib.import_module(f".{names[name]}", package), name)
+            value = getattr(importlib.import_module(names[name], package), name)
             setattr(sys.modules[package], name, value)  # later look-ups skip this function
             return value
         raise AttributeError(f"module {package!r} has no attribute {name!r}")

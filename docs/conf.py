@@ -145,7 +145,7 @@ def _documented_name(name):
 
     for module, names in astroalign_nd._LAZY.items():
         if name in names:
-            return f"astroalign_nd.{module}.{name}"
+            return f"astroalign_nd{module}.{name}"
     module = getattr(getattr(astroalign_nd, name, None), "__module__", None)
     if name in astroalign_nd.__all__ and module and module.startswith("astroalign_nd."):
         return f"{module}.{name}"

@@ -50,14 +50,14 @@ options class (`DetectionConfig`) does not import the stage.
 
 from .._lazy import attach
 
-# submodule -> the public names it defines
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    "daofind": ["find_sources", "DAOSourceFinder"],
-    "background": ["estimate_noise"],
-    "fwhm": ["estimate_fwhm"],
-    "base": ["SourceFinderBase"],
-    "segmentation": ["SegmentationFinder"],
-    "options": ["DetectionConfig"],
+    ".daofind": ["find_sources", "DAOSourceFinder"],
+    ".background": ["estimate_noise"],
+    ".fwhm": ["estimate_fwhm"],
+    ".base": ["SourceFinderBase"],
+    ".segmentation": ["SegmentationFinder"],
+    ".options": ["DetectionConfig"],
 }
 
 __getattr__, __dir__, __all__ = attach(__name__, _LAZY)

@@ -28,15 +28,15 @@ options class (`MatchingConfig`) does not import the stage.
 
 from .._lazy import attach
 
-# submodule -> the public names it defines
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    "result": ["MatchResult"],
-    "search": ["match_points", "search_tolerance"],
-    "geometry": ["bounding_frame", "overlap_counts", "chance_pairs_log10"],
-    "triangles": ["match_triangles", "hypothesis_matrices"],
-    "asterisms": ["Asterisms", "build_asterisms", "check_triangle_budget"],
-    "grow": ["fit_nonlinear", "extend_match"],
-    "options": ["MatchingConfig", "DEFAULT_TOLERANCE", "DEFAULT_NEIGHBORS"],
+    ".result": ["MatchResult"],
+    ".search": ["match_points", "search_tolerance"],
+    ".geometry": ["bounding_frame", "overlap_counts", "chance_pairs_log10"],
+    ".triangles": ["match_triangles", "hypothesis_matrices"],
+    ".asterisms": ["Asterisms", "build_asterisms", "check_triangle_budget"],
+    ".grow": ["fit_nonlinear", "extend_match"],
+    ".options": ["MatchingConfig", "DEFAULT_TOLERANCE", "DEFAULT_NEIGHBORS"],
 }
 
 __getattr__, __dir__, __all__ = attach(__name__, _LAZY)

@@ -109,12 +109,12 @@ options class (`ResampleConfig`) does not import the stage.
 
 from .._lazy import attach
 
-# submodule -> the public names it defines
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    "options": ["ORDERS", "METHODS", "order_index", "ResampleConfig"],
-    "core": ["resample", "working_dtype"],
-    "exact": ["resample_exact"],
-    "nddata": ["apply_transform"],
+    ".options": ["ORDERS", "METHODS", "order_index", "ResampleConfig"],
+    ".core": ["resample", "working_dtype"],
+    ".exact": ["resample_exact"],
+    ".nddata": ["apply_transform"],
 }
 
 __getattr__, __dir__, __all__ = attach(__name__, _LAZY)

@@ -16,10 +16,10 @@ The names are imported on first use (``astroalign_nd._lazy``).
 
 from .._lazy import attach
 
-# submodule -> the public names it defines
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    "solve": ["solve_sequence", "SequenceSolution"],
-    "links": ["Link"],
+    ".solve": ["solve_sequence", "SequenceSolution"],
+    ".links": ["Link"],
 }
 
 __getattr__, __dir__, __all__ = attach(__name__, _LAZY)

@@ -22,12 +22,12 @@ line builds its flags from `StackConfig` without importing the stages.
 
 from .._lazy import attach
 
-# submodule -> the public names it defines
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    "core": ["stack"],
-    "live": ["LiveStack", "watch_folder"],
-    "options": ["StackConfig"],
-    "quality": ["frame_quality"],
+    ".core": ["stack"],
+    ".live": ["LiveStack", "watch_folder"],
+    ".options": ["StackConfig"],
+    ".quality": ["frame_quality"],
 }
 
 __getattr__, __dir__, __all__ = attach(__name__, _LAZY)

@@ -51,23 +51,23 @@ The modules, bottom up: ``_matrix`` (matrix and point helpers, a leaf),
 
 from .._lazy import attach
 
-# submodule -> the public names it defines
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    "linear": ["LinearTransform2D", "TranslationTransform", "EuclideanTransform",
-               "SimilarityTransform", "AffineTransform"],
-    "projective": ["ProjectiveTransform"],
-    "polynomial": ["PolynomialTransform"],
-    "registry": ["TransformType", "HeaderHooks", "TRANSFORM_REGISTRY", "TRANSFORM_TYPES",
-                 "LINEAR_TYPES", "NONLINEAR_TYPES", "register_transform_type",
-                 "unregister_transform_type", "transform_class", "transform_type_of",
-                 "check_degree"],
-    "options": ["ModelConfig"],
-    "fitting": ["fit_transform", "checked_weights"],
-    "convert": ["as_matrix", "from_matrix", "to_skimage", "from_skimage", "to_astropy_affine",
-                "from_astropy_affine"],
-    "_matrix": ["apply_matrix"],
-    "selection": ["DistortionFit"],
-    "layers": ["ParameterLayer"],
+    ".linear": ["LinearTransform2D", "TranslationTransform", "EuclideanTransform",
+                "SimilarityTransform", "AffineTransform"],
+    ".projective": ["ProjectiveTransform"],
+    ".polynomial": ["PolynomialTransform"],
+    ".registry": ["TransformType", "HeaderHooks", "TRANSFORM_REGISTRY", "TRANSFORM_TYPES",
+                  "LINEAR_TYPES", "NONLINEAR_TYPES", "register_transform_type",
+                  "unregister_transform_type", "transform_class", "transform_type_of",
+                  "check_degree"],
+    ".options": ["ModelConfig"],
+    ".fitting": ["fit_transform", "checked_weights"],
+    ".convert": ["as_matrix", "from_matrix", "to_skimage", "from_skimage", "to_astropy_affine",
+                 "from_astropy_affine"],
+    "._matrix": ["apply_matrix"],
+    ".selection": ["DistortionFit"],
+    ".layers": ["ParameterLayer"],
 }
 
 __getattr__, __dir__, __all__ = attach(__name__, _LAZY)

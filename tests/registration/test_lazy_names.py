@@ -18,7 +18,7 @@ PACKAGES = [astroalign_nd, detection, matching, resample, sequence, stacking, tr
 def test_every_public_name_is_its_modules_object(package):
     for module, names in package._LAZY.items():
         for name in names:
-            defined = getattr(importlib.import_module(f"{package.__name__}.{module}"), name)
+            defined = getattr(importlib.import_module(module, package.__name__), name)
             assert getattr(package, name) is defined, name
             assert name in package.__all__
 
@@ -51,4 +51,6 @@ def test_import_loads_no_stage():
 
 def test_a_name_under_two_submodules_is_refused():
     with pytest.raises(ValueError, match="listed under two submodules"):
-        attach("astroalign_nd", {"registration": ["register"], "batch": ["register"]})
+        attach("astroalign_nd", {".registration": ["register"], ".batch": ["register"]})
+    with pytest.raises(ValueError, match="relative"):
+        attach("astroalign_nd", {"registration": ["register"]})
