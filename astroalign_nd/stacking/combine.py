@@ -171,6 +171,8 @@ def array_stats(data, var, valid):
     Returns
     -------
     stats : `FrameStats`
+        Its ``unit`` unset (the arrays do not say it), ``n_valid`` counted
+        in ``valid``.
 
     Raises
     ------
