@@ -29,44 +29,30 @@ from .exceptions import (AstroalignError, AstroalignWarning, PoorCoverageError, 
                          SlowKernelsWarning, TooFewSourcesError, TransformNotFoundError)
 from ._lazy import attach
 
-# name -> submodule that defines it
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    "find_sources": "detection",
-    "find_transform": "registration",
-    "find_match": "registration",
-    "register": "registration",
-    "cross_match": "crossmatch",
-    "Reference": "registration",
-    "apply_transform": "resample",
-    "register_batch": "batch",
-    "stack": "stacking",
-    "frame_quality": "stacking",
-    "solve_sequence": "sequence",
-    "LinearTransform2D": "transforms",
-    "TranslationTransform": "transforms",
-    "EuclideanTransform": "transforms",
-    "SimilarityTransform": "transforms",
-    "AffineTransform": "transforms",
-    "ProjectiveTransform": "transforms",
-    "PolynomialTransform": "transforms",
-    "transform_to_header": "io",
-    "transform_from_header": "io",
-    "conf": "_settings",
+    ".detection": ["find_sources"],
+    ".registration": ["find_transform", "find_match", "register", "Reference"],
+    ".crossmatch": ["cross_match"],
+    ".resample": ["apply_transform"],
+    ".batch": ["register_batch"],
+    ".stacking": ["stack", "frame_quality"],
+    ".sequence": ["solve_sequence"],
+    ".transforms": ["LinearTransform2D", "TranslationTransform", "EuclideanTransform",
+                    "SimilarityTransform", "AffineTransform", "ProjectiveTransform",
+                    "PolynomialTransform"],
+    ".io": ["transform_to_header", "transform_from_header"],
+    "._settings": ["conf"],
     # True when the optional compiled kernels are built (False: their NumPy versions run).
-    "HAVE_COMPILED": "_kernels",
+    "._kernels": ["HAVE_COMPILED"],
 }
+
+__getattr__, __dir__, _lazy_names = attach(__name__, _LAZY, submodules=("compat", "visualization"))
 
 __all__ = [
     "__version__",
     "AstroalignError", "AstroalignWarning", "PoorFitWarning", "TooFewSourcesError",
     "TransformNotFoundError", "PoorCoverageError", "SlowKernelsWarning",
-    *_LAZY,
+    *_lazy_names,
 ]
-
-
-# Submodules reachable as attributes without an explicit import, imported on first use
-# (matplotlib stays optional: visualization imports it only when a plot is drawn).
-_SUBMODULES = ("compat", "visualization")
-
-__getattr__, __dir__ = attach(__name__, _LAZY, _SUBMODULES)
-del attach
+del attach, _lazy_names

@@ -34,12 +34,6 @@ class _WorkerStop(BaseException):
     """SIGTERM in a worker during a frame: unwinds it (temporary files removed), then exits."""
 
 
-def _on_worker_sigterm(signum, frame):
-    if _IN_JOB:
-        raise _WorkerStop()
-    os._exit(128 + signum)
-
-
 def _worker_signals():
     """A worker leaves interrupts to the main process, which stops it and writes the summary."""
     import signal
@@ -49,7 +43,13 @@ def _worker_signals():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     if os.name != "posix":  # Windows: terminate() is TerminateProcess, no handler runs
         return
-    signal.signal(signal.SIGTERM, _on_worker_sigterm)
+
+    def on_sigterm(signum, frame):  # during a frame: unwind it; else exit at once
+        if _IN_JOB:
+            raise _WorkerStop()
+        os._exit(128 + signum)
+
+    signal.signal(signal.SIGTERM, on_sigterm)
     # A main process killed outright (SIGKILL) cannot stop its workers: they stop themselves.
     parent = os.getppid()
 

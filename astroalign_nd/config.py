@@ -140,18 +140,11 @@ def split_options(options, *, accept=("detection", "matching"), caller=None):
 # -- views -------------------------------------------------------------------------------------
 
 
-def _checks():
-    table = {}
-    for cls in (MatchingConfig, DetectionConfig, RegistrationConfig):
-        for f in dataclasses.fields(cls):
-            check = f.metadata.get("check")
-            if check is not None and not isinstance(check, Unchecked):
-                table[f.name] = check
-    return table
-
-
 #: Every checked option and how it is checked (a view of the configs' fields).
-OPTIONS = _checks()
+OPTIONS = {f.name: f.metadata["check"]
+           for cls in (MatchingConfig, DetectionConfig, RegistrationConfig)
+           for f in dataclasses.fields(cls)
+           if not isinstance(f.metadata.get("check"), (type(None), Unchecked))}
 
 
 def check_option(name, value):

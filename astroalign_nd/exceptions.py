@@ -176,23 +176,14 @@ class SlowKernelsWarning(AstroalignWarning):
 _PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep
 
 
-def _stacklevel():
-    """
-    The stacklevel of the first frame outside astroalign_nd.
-
-    So that a warning points at the caller's line, however deep in the
-    pipeline it is raised (a fixed stacklevel is right for one call path
-    only).
-    """
-    frame = sys._getframe(2)  # the caller of warn()
+def warn(message: str, category: type[Warning] = AstroalignWarning) -> None:
+    """`warnings.warn` pointing at the user's line that called astroalign_nd."""
+    # The stacklevel of the first frame outside astroalign_nd, however deep in the pipeline
+    # the warning is raised (a fixed stacklevel is right for one call path only).
+    frame = sys._getframe(1)  # the caller of warn()
     level = 2
     while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(
             _PACKAGE_DIR):
         frame = frame.f_back
         level += 1
-    return level
-
-
-def warn(message: str, category: type[Warning] = AstroalignWarning) -> None:
-    """`warnings.warn` pointing at the user's line that called astroalign_nd."""
-    warnings.warn(message, category, stacklevel=_stacklevel())
+    warnings.warn(message, category, stacklevel=level)

@@ -66,6 +66,18 @@ def _matplotlib():
     return matplotlib
 
 
+def _subplots(fig, figsize, *args, **kwargs):
+    """``fig`` (cleared first) or a new pyplot figure of ``figsize``, and its new Axes."""
+    if fig is None:
+        _matplotlib()
+        import matplotlib.pyplot as plt
+
+        fig = plt.figure(figsize=figsize, layout="constrained")
+    else:
+        fig.clear()
+    return fig, fig.subplots(*args, **kwargs)
+
+
 def _new_axes(ax, ncols=1):
     """``ax`` if given, else new Axes on a new pyplot figure."""
     if ax is not None:
@@ -539,14 +551,7 @@ def plot_registration(source, target, transform=None, points=None, aligned=None,
         transform, points = find_transform(source, target, **options)
     if aligned is None:
         aligned = apply_transform(transform, source, target, **apply_options)
-    if fig is None:
-        _matplotlib()
-        import matplotlib.pyplot as plt
-
-        fig = plt.figure(figsize=(14, 9), layout="constrained")
-    else:
-        fig.clear()
-    axes = fig.subplots(2, 3)
+    fig, axes = _subplots(fig, (14, 9), 2, 3)
     plot_matches(source, target, points, axes=axes[0, :2])
     plot_difference(aligned, target, ax=axes[0, 2])
     plot_invariants(*points, ax=axes[1, 0])
@@ -676,14 +681,7 @@ def plot_night(result, *, fig=None):
     if missing:
         raise TypeError("plot_night needs a BatchResult or its to_table(); got "
                         f"{type(result).__name__} without the columns {sorted(missing)}.")
-    if fig is None:
-        _matplotlib()
-        import matplotlib.pyplot as plt
-
-        fig = plt.figure(figsize=(8, 9), layout="constrained")
-    else:
-        fig.clear()
-    axes = fig.subplots(4, 1, sharex=True)
+    fig, axes = _subplots(fig, (8, 9), 4, 1, sharex=True)
     k = np.arange(len(table))
     failed = np.asarray(table["status"]) == "failed"
     axes[0].plot(k, table["shift_x"], "o-", label="x")
@@ -731,7 +729,7 @@ def plot_frame_quality(table, *, fig=None):
         As `~astroalign_nd.frame_quality` returns it (or
         `~astroalign_nd.stacking.LiveStack`'s ``quality``).
     fig : `~matplotlib.figure.Figure`, optional
-        The figure to draw on (cleared first); a new pyplot figure by default.
+        As in `plot_night`.
 
     Returns
     -------
@@ -756,14 +754,7 @@ def plot_frame_quality(table, *, fig=None):
     if missing:
         raise TypeError("plot_frame_quality needs frame_quality's table; got "
                         f"{type(table).__name__} without the columns {sorted(missing)}.")
-    if fig is None:
-        _matplotlib()
-        import matplotlib.pyplot as plt
-
-        fig = plt.figure(figsize=(8, 10), layout="constrained")
-    else:
-        fig.clear()
-    axes = fig.subplots(5, 1, sharex=True)
+    fig, axes = _subplots(fig, (8, 10), 5, 1, sharex=True)
     time = np.asarray(table["time"], dtype=float) if "time" in table.colnames else \
         np.full(len(table), np.nan)
     if np.isfinite(time).all() and len(time):
@@ -826,14 +817,11 @@ def save_night_figure(path, result, *, overwrite=False, dpi=100):
 
     Parameters
     ----------
-    path : str or path-like
-        The image file; its ending gives the format.
+    path, overwrite, dpi
+        As in `save_diagnostic_figure`: the image file (its ending gives the
+        format), whether to replace it, the resolution of raster formats.
     result : `~astroalign_nd.batch.BatchResult` or `~astropy.table.Table`
         As in `plot_night`.
-    overwrite : bool, optional
-        Replace ``path`` if it exists (default False: `FileExistsError`).
-    dpi : float, optional
-        Resolution of raster formats.
 
     Returns
     -------

@@ -10,7 +10,11 @@ Prints, for the non-test code under ``astroalign_nd/``:
   module such as ``registration`` counts as its own subpackage);
 * import cycles between modules, counting imports inside functions too;
 * functions longer than ``--max-lines`` code lines (docstrings, comments and
-  blank lines not counted).
+  blank lines not counted);
+* private module-level functions (``def _x``) per 1,000 code lines (the
+  development guide's limit: 30);
+* modules whose only statements are imports (and ``__all__``): re-exports
+  (package ``__init__`` files, which declare a package's names, apart).
 
 Usage::
 
@@ -61,6 +65,25 @@ def _code_lines(node, source_lines):
     return count
 
 
+def _docstring_lines(tree):
+    """The line numbers of the module's, classes' and functions' docstrings."""
+    out = set()
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(body, list) and body and isinstance(body[0], ast.Expr) \
+                and isinstance(body[0].value, ast.Constant) \
+                and isinstance(body[0].value.value, str):
+            out.update(range(body[0].lineno, body[0].end_lineno + 1))
+    return out
+
+
+def _is_all_or_doc(node):
+    if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant):
+        return True
+    return isinstance(node, ast.Assign) and [getattr(t, "id", None) for t in node.targets] == [
+        "__all__"]
+
+
 def _functions(tree):
     for node in ast.walk(tree):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
@@ -82,10 +105,21 @@ def analyse(root, max_lines):
     inner_outside_cli = []
     private = []
     long_functions = []
+    code_lines = private_functions = 0
+    reexports = []
     for mod, path in modules.items():
         text = path.read_text()
         tree = ast.parse(text)
         lines = text.split("\n")
+        docs = _docstring_lines(tree)
+        code_lines += sum(1 for ln, line in enumerate(lines, 1) if ln not in docs
+                          and line.strip() and not line.strip().startswith("#"))
+        if all(isinstance(n, (ast.Import, ast.ImportFrom)) or _is_all_or_doc(n)
+               for n in tree.body):
+            reexports.append(mod + (" (package)" if path.name == "__init__.py" else ""))
+        private_functions += sum(1 for f in tree.body if isinstance(f, (
+            ast.FunctionDef, ast.AsyncFunctionDef)) and f.name.startswith("_")
+            and not f.name.startswith("__"))
         is_pkg = path.name == "__init__.py"
         func_ranges = [(f.lineno, f.end_lineno) for f in _functions(tree)]
         for f in _functions(tree):
@@ -133,6 +167,8 @@ def analyse(root, max_lines):
     return dict(modules=len(modules), internal=internal, inner=inner, statements=statements,
                 inner_statements=inner_statements, inner_outside_cli=inner_outside_cli,
                 optional_inner=optional_inner, private=private, cycles=cycles,
+                code_lines=code_lines, private_functions=private_functions,
+                reexports=reexports,
                 long_functions=sorted(long_functions, reverse=True))
 
 
@@ -194,6 +230,14 @@ def main(argv=None):
     print(f"import cycles: {len(r['cycles'])}")
     for c in r["cycles"]:
         print("   ", " <-> ".join(c))
+    print(f"private module-level functions: {r['private_functions']} in {r['code_lines']} code "
+          f"lines ({1000 * r['private_functions'] / max(r['code_lines'], 1):.1f} per 1,000)")
+    modules_only = [m for m in r["reexports"] if not m.endswith("(package)")]
+    print(f"modules that only re-export: {len(modules_only)}; package __init__ files that "
+          f"only import their names: {len(r['reexports']) - len(modules_only)}")
+    if args.verbose:
+        for m in r["reexports"]:
+            print("   ", m)
     print(f"functions over {args.max_lines} code lines: {len(r['long_functions'])}")
     for n, f in r["long_functions"]:
         print(f"    {n:4d} {f}")

@@ -143,8 +143,9 @@ def _documented_name(name):
     """Where the top-level name ``astroalign_nd.<name>`` is documented (api.rst)."""
     import astroalign_nd
 
-    if name in astroalign_nd._LAZY:
-        return f"astroalign_nd.{astroalign_nd._LAZY[name]}.{name}"
+    for module, names in astroalign_nd._LAZY.items():
+        if name in names:
+            return f"astroalign_nd{module}.{name}"
     module = getattr(getattr(astroalign_nd, name, None), "__module__", None)
     if name in astroalign_nd.__all__ and module and module.startswith("astroalign_nd."):
         return f"{module}.{name}"

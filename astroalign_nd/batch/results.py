@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import numpy as np
 from astropy.table import Table
+from .._results import status_list
 from ..transforms.convert import as_matrix
 
 __all__ = ['FrameResult', 'BatchResult']
@@ -150,20 +151,11 @@ class BatchResult:
     canvas_offset: tuple = (0, 0)
     solution: object = field(default=None, repr=False)
 
-    @property
-    def succeeded(self):
-        """The frames registered in this run."""
-        return [f for f in self.frames if f.status == "registered"]
-
-    @property
-    def skipped(self):
-        """The frames whose complete output was already there (``skip_existing``)."""
-        return [f for f in self.frames if f.status == "skipped"]
-
-    @property
-    def failed(self):
-        """The frames that could not be registered (see their ``error``)."""
-        return [f for f in self.frames if f.status == "failed"]
+    succeeded = status_list("frames", "registered", "The frames registered in this run.")
+    skipped = status_list("frames", "skipped", "The frames whose complete output was already "
+                          "there (``skip_existing``).")
+    failed = status_list("frames", "failed", "The frames that could not be registered (see "
+                         "their ``error``).")
 
     def to_table(self):
         """

@@ -9,9 +9,15 @@ Subcommands
 ``batch SOURCES... -r TARGET --output-dir DIR``
     Register several images onto one target, going on past failures
     (``batch TARGET SOURCES...``, the older form, still works).
+``stack IMAGES... -o OUT.fits``
+    Register images onto a reference and combine them.
+``watch FOLDER -r REF --stack OUT.fits``
+    Live stacking: add each FITS frame that appears in a folder.
 ``demo --output-dir DIR``
     Simulate a star-field pair with a known transform, register it and
     report how close the recovered transform is to the truth.
+``match SOURCE TARGET -o OUT.ecsv``
+    Cross-match two star catalogs: every star paired, written as a table.
 
 Exit codes, the same for every command (``--help`` lists them too): 0 on
 success (frames skipped by ``--skip-existing`` included), 1 when some frames

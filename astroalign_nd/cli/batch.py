@@ -4,28 +4,26 @@
 import dataclasses
 import os
 import sys
-from .errors import HelpFormatter, _CLIError, cli_words, exit_codes_text
-from .options import _check_input, _check_output_dir, _registration_kwargs
+from .errors import _CLIError, cli_words
+from .options import (_add_progress, _check_input, _check_output_dir, _command_parser,
+                      _registration_kwargs)
 
 __all__ = []
 
 HELP = "register several images onto one target"
 
-DESCRIPTION = (
-    "Register each SOURCE onto TARGET, writing DIR/<name>_aligned.fits for "
-    "each and the reference itself on the same grid as DIR/<target name>_reference.fits "
-    "(to stack it with the rest), and print each frame's line as soon as it is done. "
-    "Give the target with -r/--reference (sources first, as in register and in the Python API "
-    "register_batch(sources, target)); without -r, the first image is the target (the "
-    "older form 'batch TARGET SOURCES...'). A frame that fails is reported and the "
-    "others go on; the exit code is 1 if any frame failed.")
+DESCRIPTION = """
+Register each SOURCE onto TARGET, writing DIR/<name>_aligned.fits for each and the reference
+itself on the same grid as DIR/<target name>_reference.fits (to stack it with the rest), and
+print each frame's line as soon as it is done. Give the target with -r/--reference (sources
+first, as in register and in the Python API register_batch(sources, target)); without -r, the
+first image is the target (the older form 'batch TARGET SOURCES...'). A frame that fails is
+reported and the others go on; the exit code is 1 if any frame failed."""
 
 
 def add_parser(sub, reg_opts):
     """Add the ``batch`` subcommand to the subparsers ``sub``."""
-    p = sub.add_parser("batch", parents=[reg_opts], help=HELP, description=DESCRIPTION,
-                       epilog=exit_codes_text(), formatter_class=HelpFormatter)
-    p.set_defaults(func=_cmd_batch)
+    p = _command_parser(sub, "batch", _cmd_batch, HELP, DESCRIPTION, [reg_opts])
     p.add_argument("images", metavar="SOURCES", nargs="+",
                    help="images to be transformed (FITS, or JPEG/PNG/TIFF); without "
                    "-r/--reference, the first one is the target")
@@ -61,10 +59,7 @@ def add_parser(sub, reg_opts):
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="run the frames on this dask.distributed scheduler "
                    "(e.g. tcp://host:8786)")
-    p.add_argument("--progress", dest="progress", action="store_true", default=None,
-                   help="show a progress bar (default: when standard error is a terminal)")
-    p.add_argument("--no-progress", dest="progress", action="store_false",
-                   help="never show a progress bar")
+    _add_progress(p)
 
     return p
 

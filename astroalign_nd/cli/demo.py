@@ -2,8 +2,8 @@
 """The ``demo`` command: a simulated pair registered and compared with the truth."""
 
 import os
-from .errors import HelpFormatter, _CLIError, exit_codes_text
-from .options import _check_output_dir, _check_writable, _describe
+from .errors import _CLIError
+from .options import _check_output_dir, _check_writable, _command_parser, _describe
 
 __all__ = []
 
@@ -35,9 +35,7 @@ def demo_description():
 
 def add_parser(sub):
     """Add the ``demo`` subcommand to the subparsers ``sub``."""
-    p = sub.add_parser("demo", help=HELP, description=demo_description(),
-                       epilog=exit_codes_text(), formatter_class=HelpFormatter)
-    p.set_defaults(func=_cmd_demo)
+    p = _command_parser(sub, "demo", _cmd_demo, HELP, demo_description())
     p.add_argument("--output-dir", required=True, metavar="DIR",
                    help="folder for source.fits, target.fits and aligned.fits "
                    "(created if needed)")

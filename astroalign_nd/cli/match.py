@@ -8,22 +8,21 @@ from ..config import RegistrationConfig
 from ..matching import MatchingConfig
 from ..options import cli_fields
 from ..transforms import ModelConfig
-from .errors import HelpFormatter, _CLIError, exit_codes_text
-from .options import _describe
+from .errors import _CLIError
+from .options import _add_fields, _add_output, _command_parser, _describe
 
 __all__ = []
 
 HELP = "cross-match two star catalogs: every star paired, written as a table"
 
-DESCRIPTION = (
-    "Find the transform from SOURCE to TARGET on their brightest stars, pair every star of "
-    "SOURCE with one of TARGET under it, refit the transform on all the pairs until they are "
-    "stable, and write the pairs to OUT (source_index and target_index: 0-based rows of the "
-    "inputs; positions, residual and chance probability). Catalogs are ECSV files, FITS "
-    "tables or whitespace-separated text columns (with a header line naming them, or "
-    "col1, col2...). The position columns are found by name (x/y, x_centroid/y_centroid, "
-    "xcentroid/ycentroid, X_IMAGE/Y_IMAGE...) unless given; a 'flux' column, when there is "
-    "one, picks the brightest stars for the search.")
+DESCRIPTION = """
+Find the transform from SOURCE to TARGET on their brightest stars, pair every star of SOURCE
+with one of TARGET under it, refit the transform on all the pairs until they are stable, and
+write the pairs to OUT (source_index and target_index: 0-based rows of the inputs; positions,
+residual and chance probability). Catalogs are ECSV files, FITS tables or whitespace-separated
+text columns (with a header line naming them, or col1, col2...). The position columns are found
+by name (x/y, x_centroid/y_centroid, xcentroid/ycentroid, X_IMAGE/Y_IMAGE...) unless given; a
+'flux' column, when there is one, picks the brightest stars for the search."""
 
 #: Output formats by name ending (astropy.table formats).
 FORMATS = {".ecsv": "ascii.ecsv", ".fits": "fits", ".fit": "fits", ".csv": "ascii.csv",
@@ -35,14 +34,10 @@ _CONFIGS = (ModelConfig, RegistrationConfig, MatchingConfig)
 
 def add_parser(sub):
     """Add the ``match`` subcommand to the subparsers ``sub``."""
-    p = sub.add_parser("match", help=HELP, description=DESCRIPTION, epilog=exit_codes_text(),
-                       formatter_class=HelpFormatter)
-    p.set_defaults(func=_cmd_match)
+    p = _command_parser(sub, "match", _cmd_match, HELP, DESCRIPTION)
     p.add_argument("source", metavar="SOURCE", help="catalog whose stars are mapped")
     p.add_argument("target", metavar="TARGET", help="catalog they are mapped onto")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.ecsv",
-                   help="table of the pairs to write: " + ", ".join(FORMATS))
-    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    _add_output(p, "table of the pairs to write: " + ", ".join(FORMATS), metavar="OUT.ecsv")
     cols = p.add_argument_group("catalog columns")
     cols.add_argument("--source-columns", metavar="X,Y", default=None,
                       help="the x and y columns of SOURCE (default: found by name)")
@@ -61,8 +56,7 @@ def add_parser(sub):
                          help="pairings at most (default: %(default)s)")
     search = p.add_argument_group("search options", "as in astroalign_nd.find_transform")
     for config in _CONFIGS:
-        for _, flag, kwargs in cli_fields(config):
-            search.add_argument(flag, **kwargs)
+        _add_fields(search, config)
     return p
 
 

@@ -15,7 +15,7 @@ from ..matching import MatchingConfig
 from ..options import cli_fields, from_cli
 from ..resample import ResampleConfig
 from ..transforms import ModelConfig
-from .errors import _CLIError
+from .errors import HelpFormatter, _CLIError, exit_codes_text
 
 __all__ = []
 
@@ -23,6 +23,31 @@ __all__ = []
 _CONFIGS = (ModelConfig, ResampleConfig, RegistrationConfig, DetectionConfig, MatchingConfig)
 
 # -- argument parsing ------------------------------------------------------------------------
+
+
+def _command_parser(sub, name, func, help, description, parents=()):
+    """
+    The subparser of the command ``name``, which ``func(args)`` runs: its ``help`` line in
+    the list of commands, its ``description`` and the exit codes in its ``--help``.
+    """
+    parser = sub.add_parser(name, parents=list(parents), help=help, description=description,
+                            epilog=exit_codes_text(), formatter_class=HelpFormatter)
+    parser.set_defaults(func=func)
+    return parser
+
+
+def _add_output(parser, help, flags=("-o", "--output"), metavar="OUT.fits"):
+    """The command's one output file, required, and ``--overwrite`` to replace it."""
+    parser.add_argument(*flags, required=True, metavar=metavar, help=help)
+    parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+
+
+def _add_progress(parser):
+    """``--progress`` and ``--no-progress`` (default None: when standard error is a terminal)."""
+    parser.add_argument("--progress", dest="progress", action="store_true", default=None,
+                        help="show a progress bar (default: when standard error is a terminal)")
+    parser.add_argument("--no-progress", dest="progress", action="store_false",
+                        help="never show a progress bar")
 
 
 def _registration_options():

@@ -1,28 +1,26 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """The ``register`` command: one image onto the pixel grid of another."""
 
-from .errors import HelpFormatter, _CLIError, exit_codes_text
-from .options import _check_input, _check_writable, _describe, _registration_kwargs
+from .errors import _CLIError
+from .options import (_add_output, _check_input, _check_writable, _command_parser, _describe,
+                      _registration_kwargs)
 
 __all__ = []
 
 HELP = "register SOURCE onto the pixel grid of TARGET"
 
-DESCRIPTION = ("Register the SOURCE image onto the pixel grid of the TARGET image and "
-               "write the aligned image to OUT.")
+DESCRIPTION = """
+Register the SOURCE image onto the pixel grid of the TARGET image and write the aligned image
+to OUT."""
 
 
 def add_parser(sub, reg_opts):
     """Add the ``register`` subcommand to the subparsers ``sub``."""
-    p = sub.add_parser("register", parents=[reg_opts], help=HELP, description=DESCRIPTION,
-                       epilog=exit_codes_text(), formatter_class=HelpFormatter)
-    p.set_defaults(func=_cmd_register)
+    p = _command_parser(sub, "register", _cmd_register, HELP, DESCRIPTION, [reg_opts])
     p.add_argument("source", metavar="SOURCE",
                    help="image to be transformed (FITS, or JPEG/PNG/TIFF)")
     p.add_argument("target", metavar="TARGET", help="image that defines the output grid")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.fits",
-                   help="FITS file to write the aligned image to")
-    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    _add_output(p, "FITS file to write the aligned image to")
     p.add_argument("--plot", metavar="PLOT.png", default=None,
                    help="also write a diagnostic figure (matched stars, invariants, residuals, "
                    "difference image; needs matplotlib)")

@@ -5,45 +5,37 @@ import os
 import sys
 import warnings
 
-from .errors import (_PROG, EXIT_FRAMES_FAILED, EXIT_REFUSED, HelpFormatter, _CLIError, cli_words,
-                     exit_codes_text)
-from .options import (_add_stack_options, _check_input, _check_output_dir, _check_writable,
-                      _registration_kwargs, _stack_kwargs)
+from .errors import _PROG, EXIT_FRAMES_FAILED, EXIT_REFUSED, _CLIError, cli_words
+from .options import (_add_output, _add_progress, _add_stack_options, _check_input,
+                      _check_output_dir, _check_writable, _command_parser, _registration_kwargs,
+                      _stack_kwargs)
 
 __all__ = []
 
 HELP = "register images onto a reference and combine them"
 
-DESCRIPTION = (
-    "Register each image onto the reference (-r, default the first image) and combine "
-    "them into OUT.fits: sky levels normalised, outliers (cosmic rays, satellite trails) "
-    "clipped, weighted by their uncertainty. The frames are assumed calibrated (bias, dark, "
-    "flat). The header lists every frame combined and every frame left out, and why. "
-    "Interrupted (Ctrl-C, SIGTERM), it writes the partial stack of the frames registered "
-    "so far (a HISTORY line says so). Exit "
-    "code: 0 success, 1 some frames left out, 2 usage error, 3 no frame could be "
-    "registered (or the reference was refused).")
+DESCRIPTION = """
+Register each image onto the reference (-r, default the first image) and combine them into
+OUT.fits: sky levels normalised, outliers (cosmic rays, satellite trails) clipped, weighted by
+their uncertainty. The frames are assumed calibrated (bias, dark, flat). The header lists every
+frame combined and every frame left out, and why. Interrupted (Ctrl-C, SIGTERM), it writes the
+partial stack of the frames registered so far (a HISTORY line says so). Exit code: 0 success, 1
+some frames left out, 2 usage error, 3 no frame could be registered (or the reference was
+refused)."""
 
 
 def add_parser(sub, reg_opts):
     """Add the ``stack`` subcommand to the subparsers ``sub``."""
-    p = sub.add_parser("stack", parents=[reg_opts], help=HELP,
-                       description=DESCRIPTION, epilog=exit_codes_text(),
-                       formatter_class=HelpFormatter)
-    p.set_defaults(func=_cmd_stack)
+    p = _command_parser(sub, "stack", _cmd_stack, HELP, DESCRIPTION, [reg_opts])
     p.add_argument("images", metavar="IMAGES", nargs="+", help="FITS images to stack")
     p.add_argument("-r", "--reference", metavar="REF", default=None,
                    help="the image whose grid the stack is on (default: the first image)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.fits", help="the stack")
-    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    _add_output(p, "the stack")
     p.add_argument("--aligned-dir", metavar="DIR", default=None,
                    help="keep the registered frames in DIR (default: a temporary folder)")
     p.add_argument("--workers", type=int, default=0, metavar="N",
                    help="register in N local worker processes")
-    p.add_argument("--progress", dest="progress", action="store_true", default=None,
-                   help="show a progress bar (default: when standard error is a terminal)")
-    p.add_argument("--no-progress", dest="progress", action="store_false",
-                   help="never show a progress bar")
+    _add_progress(p)
     _add_stack_options(p, "stack")
     return p
 

@@ -5,35 +5,30 @@ import contextlib
 import os
 import sys
 
-from .errors import (_PROG, EXIT_FRAMES_FAILED, EXIT_REFUSED, HelpFormatter, _CLIError, cli_words,
-                     exit_codes_text)
-from .options import (_add_stack_options, _check_input, _check_writable, _registration_kwargs,
-                      _stack_kwargs)
+from .errors import _PROG, EXIT_FRAMES_FAILED, EXIT_REFUSED, _CLIError, cli_words
+from .options import (_add_output, _add_stack_options, _check_input, _check_writable,
+                      _command_parser, _registration_kwargs, _stack_kwargs)
 
 __all__ = []
 
 HELP = "live stacking: stack the FITS frames that appear in a folder"
 
-DESCRIPTION = (
-    "Watch FOLDER (polling every --interval seconds) and add each new FITS frame, once "
-    "completely written, to a running stack on the reference's grid, with clipping against "
-    "the running stack; OUT.fits is rewritten atomically after each frame (a reader never "
-    "sees part of a file). Stops on Ctrl-C (exit 130), SIGTERM (143; Ctrl-Break on "
-    "Windows), after --max-frames frames or --timeout seconds without a new frame. Exit "
-    "code 1 if some frames failed (they are listed, and the watch goes on).")
+DESCRIPTION = """
+Watch FOLDER (polling every --interval seconds) and add each new FITS frame, once completely
+written, to a running stack on the reference's grid, with clipping against the running stack;
+OUT.fits is rewritten atomically after each frame (a reader never sees part of a file). Stops
+on Ctrl-C (exit 130), SIGTERM (143; Ctrl-Break on Windows), after --max-frames frames or
+--timeout seconds without a new frame. Exit code 1 if some frames failed (they are listed, and
+the watch goes on)."""
 
 
 def add_parser(sub, reg_opts):
     """Add the ``watch`` subcommand to the subparsers ``sub``."""
-    w = sub.add_parser("watch", parents=[reg_opts], help=HELP,
-                       description=DESCRIPTION, epilog=exit_codes_text(),
-                       formatter_class=HelpFormatter)
-    w.set_defaults(func=_cmd_watch)
+    w = _command_parser(sub, "watch", _cmd_watch, HELP, DESCRIPTION, [reg_opts])
     w.add_argument("folder", metavar="FOLDER", help="folder to watch for new FITS frames")
     w.add_argument("-r", "--reference", metavar="REF", required=True,
                    help="reference image: the stack's grid and first frame")
-    w.add_argument("--stack", required=True, metavar="OUT.fits", help="the running stack")
-    w.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    _add_output(w, "the running stack", flags=["--stack"])
     w.add_argument("--interval", type=float, default=2.0, help="seconds between polls (default 2)")
     w.add_argument("--max-frames", type=int, default=None, help="stop after N new frames")
     w.add_argument("--timeout", type=float, default=None,

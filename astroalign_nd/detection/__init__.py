@@ -50,18 +50,15 @@ options class (`DetectionConfig`) does not import the stage.
 
 from .._lazy import attach
 
-# name -> submodule that defines it
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    "find_sources": "daofind",
-    "estimate_noise": "background",
-    "estimate_fwhm": "fwhm",
-    "SourceFinderBase": "base",
-    "DAOSourceFinder": "daofind",
-    "SegmentationFinder": "segmentation",
-    "DetectionConfig": "options",
+    ".daofind": ["find_sources", "DAOSourceFinder"],
+    ".background": ["estimate_noise"],
+    ".fwhm": ["estimate_fwhm"],
+    ".base": ["SourceFinderBase"],
+    ".segmentation": ["SegmentationFinder"],
+    ".options": ["DetectionConfig"],
 }
 
-__all__ = list(_LAZY)
-
-__getattr__, __dir__ = attach(__name__, _LAZY)
+__getattr__, __dir__, __all__ = attach(__name__, _LAZY)
 del attach

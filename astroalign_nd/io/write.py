@@ -59,6 +59,27 @@ class _PrivateFolder:
     the write.  On Windows, which has no such calls, names are used.
     """
 
+    @classmethod
+    @contextlib.contextmanager
+    def publishing(cls, path, overwrite):
+        """
+        A new private folder beside ``path`` (refused first if ``path`` exists and not
+        ``overwrite``): its file, once the block has written and checked it, is moved onto
+        ``path``; the folder is removed in any case.  A failed write is one clear `OSError`.
+        """
+        path = os.fspath(path)
+        if not overwrite and os.path.lexists(path):
+            raise FileExistsError(
+                f"{path} exists; pass overwrite=True (or --overwrite) to replace it.")
+        with _clear_write_errors(path):
+            private = cls(path)
+        try:
+            with _clear_write_errors(path):
+                yield private
+                private.publish(path, overwrite)
+        finally:
+            private.close()
+
     def __init__(self, path):
         folder, base = os.path.split(os.path.abspath(path))
         if not os.path.isdir(folder):
@@ -220,12 +241,6 @@ def _clear_write_errors(path):
         raise clear from exc
 
 
-def _refuse_existing(path, overwrite):
-    if not overwrite and os.path.lexists(path):
-        raise FileExistsError(
-            f"{path} exists; pass overwrite=True (or --overwrite) to replace it.")
-
-
 @contextlib.contextmanager
 def atomic_write(path, overwrite=False):
     """
@@ -275,17 +290,9 @@ def atomic_write(path, overwrite=False):
     ...         print(f.read(), os.listdir(folder))
     complete ['notes.txt']
     """
-    path = os.fspath(path)
-    _refuse_existing(path, overwrite)
-    with _clear_write_errors(path):
-        private = _PrivateFolder(path)
-    try:
-        with _clear_write_errors(path):
-            yield private.temp
-            private.check()
-            private.publish(path, overwrite)
-    finally:
-        private.close()
+    with _PrivateFolder.publishing(path, overwrite) as private:
+        yield private.temp
+        private.check()
 
 
 @contextlib.contextmanager
@@ -321,19 +328,11 @@ def atomic_open(path, overwrite=False):
     ...         print(f.read(), os.listdir(folder))
     b'complete' ['notes.bin']
     """
-    path = os.fspath(path)
-    _refuse_existing(path, overwrite)
-    with _clear_write_errors(path):
-        private = _PrivateFolder(path)
-    try:
-        with _clear_write_errors(path):
-            with private.open() as f:
-                opened = os.fstat(f.fileno())
-                yield f
-            private.check(opened)
-            private.publish(path, overwrite)
-    finally:
-        private.close()
+    with _PrivateFolder.publishing(path, overwrite) as private:
+        with private.open() as f:
+            opened = os.fstat(f.fileno())
+            yield f
+        private.check(opened)
 
 
 def write_ccddata(ccd, path, *, overwrite=False, extra_hdus=(), **kwargs):

@@ -128,17 +128,23 @@ class FITSWriter(Writer):
 
     Examples
     --------
+    The mask goes to its own extension; `read_done` reads the primary header:
+
     >>> import os, tempfile
     >>> import numpy as np
+    >>> from astropy.io import fits
     >>> from astropy.nddata import CCDData
     >>> from astroalign_nd.io import FITSWriter
-    >>> ccd = CCDData(np.ones((4, 5)), unit="adu", meta={"AATTYPE": "translation"})
+    >>> mask = np.zeros((4, 5), dtype=bool)
+    >>> ccd = CCDData(np.ones((4, 5)), unit="adu", mask=mask, meta={"AATTYPE": "affine"})
     >>> with tempfile.TemporaryDirectory() as folder:
     ...     path = os.path.join(folder, "frame.fits")
     ...     FITSWriter().write(ccd, path)
+    ...     with fits.open(path) as hdul:
+    ...         extensions = [hdu.name for hdu in hdul]
     ...     header, shape = FITSWriter().read_done(path)
-    >>> header["AATTYPE"], shape
-    ('translation', (4, 5))
+    >>> extensions, header["AATTYPE"], shape
+    (['PRIMARY', 'MASK'], 'affine', (4, 5))
     """
 
     name = "fits"

@@ -28,27 +28,16 @@ options class (`MatchingConfig`) does not import the stage.
 
 from .._lazy import attach
 
-# name -> submodule that defines it
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    "MatchResult": "result",
-    "match_points": "search",
-    "search_tolerance": "search",
-    "bounding_frame": "geometry",
-    "overlap_counts": "geometry",
-    "chance_pairs_log10": "geometry",
-    "match_triangles": "triangles",
-    "hypothesis_matrices": "triangles",
-    "Asterisms": "asterisms",
-    "build_asterisms": "asterisms",
-    "check_triangle_budget": "asterisms",
-    "fit_nonlinear": "grow",
-    "extend_match": "grow",
-    "MatchingConfig": "options",
-    "DEFAULT_TOLERANCE": "options",
-    "DEFAULT_NEIGHBORS": "options",
+    ".result": ["MatchResult"],
+    ".search": ["match_points", "search_tolerance"],
+    ".geometry": ["bounding_frame", "overlap_counts", "chance_pairs_log10"],
+    ".triangles": ["match_triangles", "hypothesis_matrices"],
+    ".asterisms": ["Asterisms", "build_asterisms", "check_triangle_budget"],
+    ".grow": ["fit_nonlinear", "extend_match"],
+    ".options": ["MatchingConfig", "DEFAULT_TOLERANCE", "DEFAULT_NEIGHBORS"],
 }
 
-__all__ = list(_LAZY)
-
-__getattr__, __dir__ = attach(__name__, _LAZY)
+__getattr__, __dir__, __all__ = attach(__name__, _LAZY)
 del attach

@@ -109,19 +109,13 @@ options class (`ResampleConfig`) does not import the stage.
 
 from .._lazy import attach
 
-# name -> submodule that defines it
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    "ORDERS": "options",
-    "METHODS": "options",
-    "order_index": "options",
-    "ResampleConfig": "options",
-    "resample": "core",
-    "resample_exact": "exact",
-    "apply_transform": "nddata",
-    "working_dtype": "core",
+    ".options": ["ORDERS", "METHODS", "order_index", "ResampleConfig"],
+    ".core": ["resample", "working_dtype"],
+    ".exact": ["resample_exact"],
+    ".nddata": ["apply_transform"],
 }
 
-__all__ = list(_LAZY)
-
-__getattr__, __dir__ = attach(__name__, _LAZY)
+__getattr__, __dir__, __all__ = attach(__name__, _LAZY)
 del attach

@@ -232,15 +232,6 @@ _ACCEPTED = (", ".join(f.name for f in fields(ResampleConfig))
              + ", unit, quality, hdu and target_name")
 
 
-def _check_options(unexpected, order, method):
-    """`apply_transform`'s keywords: none unknown, a known order and method (`ResampleConfig`)."""
-    if unexpected:
-        raise TypeError(
-            f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
-            f"accepts {_ACCEPTED}.{astroalign_advice(unexpected)}")
-    ResampleConfig(order=order, method=method)
-
-
 def _target_grid(target, hdu):
     """``(shape_out, parsed target)``; the target is None when given as an ``(ny, nx)`` shape."""
     if isinstance(target, tuple) and len(target) == 2 and all(
@@ -345,16 +336,6 @@ def _output_header(src, dst, transform, m, quality, add_keyword, target_name=Non
     return _nonlinear_provenance(header, transform, m, quality, names)
 
 
-def _output_wcs(src, dst, m, shape_out):
-    """The target's WCS, else the source's carried onto the target grid, else None."""
-    if dst is not None and dst.wcs is not None:
-        return dst.wcs.deepcopy()
-    if src.wcs is not None and not isinstance(m, _CoordinateMap):
-        # (A non-linear map cannot be carried into a WCS here: the output has none.)
-        return _carry_wcs(src.wcs, m, shape_out)
-    return None
-
-
 def apply_transform(transform: Any, source: Any, target: Any, *,
                     order: str | int = "bilinear", conserve_flux: bool = False,
                     fill_value: float = np.nan, method: str = "interpolate", unit: Any = None,
@@ -452,7 +433,11 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     >>> bool(abs(x - 3 + ix - star["x_target"]) <= 1 and abs(y - 3 + iy - star["y_target"]) <= 1)
     True
     """
-    _check_options(unexpected, order, method)
+    if unexpected:
+        raise TypeError(
+            f"apply_transform got unexpected keyword argument(s) {sorted(unexpected)}; it "
+            f"accepts {_ACCEPTED}.{astroalign_advice(unexpected)}")
+    ResampleConfig(order=order, method=method)  # checks the order and the method
     if quality is None and isinstance(getattr(transform, "meta", None), dict):
         quality = transform.meta.get("quality")
     quality = check_quality(quality)  # before the work, not after it
@@ -495,8 +480,15 @@ def apply_transform(transform: Any, source: Any, target: Any, *,
     if src.channels_first:  # written back in the caller's layout, (nchan, ny, nx)
         out, full_mask, flags, uncertainty = _channels_first(out, full_mask, flags,
                                                              uncertainty)
+    # The target's WCS, else the source's carried onto the target grid (a non-linear map
+    # cannot be carried into a WCS here: the output has none).
+    wcs = None
+    if dst is not None and dst.wcs is not None:
+        wcs = dst.wcs.deepcopy()
+    elif src.wcs is not None and not isinstance(m, _CoordinateMap):
+        wcs = _carry_wcs(src.wcs, m, shape_out)
     return CCDData(out, unit=out_unit, mask=full_mask, uncertainty=uncertainty, meta=header,
-                   wcs=_output_wcs(src, dst, m, shape_out), flags=flags)
+                   wcs=wcs, flags=flags)
 
 
 def _channels_first(data, mask, flags, uncertainty):

@@ -16,10 +16,11 @@ The names are imported on first use (``astroalign_nd._lazy``).
 
 from .._lazy import attach
 
-# name -> submodule that defines it
-_LAZY = {"solve_sequence": "solve", "SequenceSolution": "solve", "Link": "links"}
+# submodule (relative, as in an import) -> the public names it defines
+_LAZY = {
+    ".solve": ["solve_sequence", "SequenceSolution"],
+    ".links": ["Link"],
+}
 
-__all__ = list(_LAZY)
-
-__getattr__, __dir__ = attach(__name__, _LAZY)
+__getattr__, __dir__, __all__ = attach(__name__, _LAZY)
 del attach

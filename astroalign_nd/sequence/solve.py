@@ -31,6 +31,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .._pools import task_pool
+from .._results import status_list
 from ..io.read import batch_frames, display_names
 from ..config import RegistrationConfig
 from ..exceptions import AstroalignError, warn
@@ -119,15 +120,9 @@ class SequenceSolution:
     attempts: list = dataclasses.field(default_factory=list)
     seconds: dict = dataclasses.field(default_factory=dict)
 
-    @property
-    def accepted(self):
-        """The links used by the solution."""
-        return [k for k in self.links if k.status == "accepted"]
-
-    @property
-    def rejected(self):
-        """The links rejected for disagreeing with the rest."""
-        return [k for k in self.links if k.status == "rejected"]
+    accepted = status_list("links", "accepted", "The links used by the solution.")
+    rejected = status_list("links", "rejected", "The links rejected for disagreeing with the "
+                           "rest.")
 
     def to_table(self):
         """
@@ -327,7 +322,17 @@ def solve_sequence(frames: Any, reference: Any = None, *, transform_type: str = 
                               f"{unsolved[ref]}")
     solution = _solve(graph, refs, shapes, names, ref, kind, link_tolerance, unsolved,
                       (config.n_sources, n_stars))
-    _share(solution, repeats)
+    # Each repeated frame gets the solution of the frame it repeats, with a warning.
+    for j, i in repeats.items():
+        del solution.unsolved[j]
+        if solution.transforms[i] is None:
+            solution.unsolved[j] = f"the same frame as {solution.names[i]}, which is unsolved"
+        else:
+            solution.transforms[j] = solution.transforms[i].copy()
+            solution.covariances[j] = solution.covariances[i]
+            solution.predicted_errors[j] = solution.predicted_errors[i]
+        warn(f"{solution.names[j]} is the same frame as {solution.names[i]} (identical "
+             "detections); it is solved once, so that its stars do not count twice.")
     seconds["solve"] = time.perf_counter() - t0
     solution.seconds = seconds
     solution.attempts = [(a, b, why) for (a, b), why in sorted(graph.failures.items())]
@@ -425,20 +430,6 @@ def _repeats(refs, n_sources, ref):
         else:
             seen[keys[j]] = j
     return repeats
-
-
-def _share(solution, repeats):
-    """Each repeated frame gets the solution of the frame it repeats, with a warning."""
-    for j, i in repeats.items():
-        del solution.unsolved[j]
-        if solution.transforms[i] is None:
-            solution.unsolved[j] = f"the same frame as {solution.names[i]}, which is unsolved"
-        else:
-            solution.transforms[j] = solution.transforms[i].copy()
-            solution.covariances[j] = solution.covariances[i]
-            solution.predicted_errors[j] = solution.predicted_errors[i]
-        warn(f"{solution.names[j]} is the same frame as {solution.names[i]} (identical "
-             "detections); it is solved once, so that its stars do not count twice.")
 
 
 def _shape(ref):

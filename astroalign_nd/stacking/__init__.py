@@ -22,11 +22,13 @@ line builds its flags from `StackConfig` without importing the stages.
 
 from .._lazy import attach
 
-# name -> submodule that defines it
-_LAZY = {"stack": "core", "LiveStack": "live", "watch_folder": "live",
-         "StackConfig": "options", "frame_quality": "quality"}
+# submodule (relative, as in an import) -> the public names it defines
+_LAZY = {
+    ".core": ["stack"],
+    ".live": ["LiveStack", "watch_folder"],
+    ".options": ["StackConfig"],
+    ".quality": ["frame_quality"],
+}
 
-__all__ = list(_LAZY)
-
-__getattr__, __dir__ = attach(__name__, _LAZY)
+__getattr__, __dir__, __all__ = attach(__name__, _LAZY)
 del attach

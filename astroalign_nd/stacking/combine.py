@@ -171,6 +171,8 @@ def array_stats(data, var, valid):
     Returns
     -------
     stats : `FrameStats`
+        Its ``unit`` unset (the arrays do not say it), ``n_valid`` counted
+        in ``valid``.
 
     Raises
     ------
@@ -263,16 +265,6 @@ def _sigma_clip(x, var, valid, opts):
     return keep
 
 
-def _minmax_clip(x, valid, opts):
-    """Drop the ``nlow`` lowest and ``nhigh`` highest valid values of each pixel."""
-    n_valid = valid.sum(axis=0)
-    order = np.argsort(np.where(valid, x, np.inf), axis=0, kind="stable")
-    rank = np.empty_like(order)
-    np.put_along_axis(rank, order, np.arange(x.shape[0])[:, None, None], axis=0)
-    keep = valid & (rank >= opts.nlow) & (rank < n_valid - opts.nhigh)
-    return keep
-
-
 def reject(x, var, valid, opts):
     """
     The values kept at each pixel by ``opts.clip``.
@@ -292,8 +284,11 @@ def reject(x, var, valid, opts):
     """
     if opts.clip == "sigma":
         keep = _sigma_clip(x, var, valid, opts)
-    elif opts.clip == "minmax":
-        keep = _minmax_clip(x, valid, opts)
+    elif opts.clip == "minmax":  # the nlow lowest and nhigh highest valid values dropped
+        order = np.argsort(np.where(valid, x, np.inf), axis=0, kind="stable")
+        rank = np.empty_like(order)
+        np.put_along_axis(rank, order, np.arange(x.shape[0])[:, None, None], axis=0)
+        keep = valid & (rank >= opts.nlow) & (rank < valid.sum(axis=0) - opts.nhigh)
     else:
         return valid
     lost = ~keep.any(axis=0) & valid.any(axis=0)

@@ -269,8 +269,8 @@ class StackConfig:
     Raises
     ------
     TypeError, ValueError
-        For a value out of its range: the message names the option and the
-        accepted values.
+        For a value out of its range (``maxiters=0`` below), with a message
+        that names the option and its accepted values.
 
     Examples
     --------

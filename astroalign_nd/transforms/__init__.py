@@ -51,41 +51,24 @@ The modules, bottom up: ``_matrix`` (matrix and point helpers, a leaf),
 
 from .._lazy import attach
 
-# name -> submodule that defines it
+# submodule (relative, as in an import) -> the public names it defines
 _LAZY = {
-    'LinearTransform2D': 'linear',
-    'TranslationTransform': 'linear',
-    'EuclideanTransform': 'linear',
-    'SimilarityTransform': 'linear',
-    'AffineTransform': 'linear',
-    'ProjectiveTransform': 'projective',
-    'PolynomialTransform': 'polynomial',
-    'TransformType': 'registry',
-    'HeaderHooks': 'registry',
-    'TRANSFORM_REGISTRY': 'registry',
-    'ModelConfig': 'options',
-    'TRANSFORM_TYPES': 'registry',
-    'LINEAR_TYPES': 'registry',
-    'NONLINEAR_TYPES': 'registry',
-    'register_transform_type': 'registry',
-    'unregister_transform_type': 'registry',
-    'transform_class': 'registry',
-    'transform_type_of': 'registry',
-    'fit_transform': 'fitting',
-    'checked_weights': 'fitting',
-    'as_matrix': 'convert',
-    'from_matrix': 'convert',
-    'to_skimage': 'convert',
-    'from_skimage': 'convert',
-    'to_astropy_affine': 'convert',
-    'from_astropy_affine': 'convert',
-    'apply_matrix': '_matrix',
-    'check_degree': 'registry',
-    'DistortionFit': 'selection',
-    'ParameterLayer': 'layers',
+    ".linear": ["LinearTransform2D", "TranslationTransform", "EuclideanTransform",
+                "SimilarityTransform", "AffineTransform"],
+    ".projective": ["ProjectiveTransform"],
+    ".polynomial": ["PolynomialTransform"],
+    ".registry": ["TransformType", "HeaderHooks", "TRANSFORM_REGISTRY", "TRANSFORM_TYPES",
+                  "LINEAR_TYPES", "NONLINEAR_TYPES", "register_transform_type",
+                  "unregister_transform_type", "transform_class", "transform_type_of",
+                  "check_degree"],
+    ".options": ["ModelConfig"],
+    ".fitting": ["fit_transform", "checked_weights"],
+    ".convert": ["as_matrix", "from_matrix", "to_skimage", "from_skimage", "to_astropy_affine",
+                 "from_astropy_affine"],
+    "._matrix": ["apply_matrix"],
+    ".selection": ["DistortionFit"],
+    ".layers": ["ParameterLayer"],
 }
 
-__all__ = list(_LAZY)
-
-__getattr__, __dir__ = attach(__name__, _LAZY)
+__getattr__, __dir__, __all__ = attach(__name__, _LAZY)
 del attach

@@ -314,22 +314,17 @@ def register_transform_type(name: str, cls: type | str, **fields: Any) -> Transf
         raise ValueError(f"transform type {name!r} is registered already (as "
                          f"{_ENTRIES[name].class_path}); unregister it first.")
     entry = TransformType(name, cls, **fields)
-    if not isinstance(cls, str):
-        _check_model_class(entry)
+    if not isinstance(cls, str):  # a class given by its path is checked when imported
+        from astropy.modeling import Model  # (this module stays light: see its docstring)
+
+        if not (issubclass(cls, Model) and cls.n_inputs == 2 and cls.n_outputs == 2):
+            raise ValueError(f"a transform type's class must be an astropy Model with 2 inputs "
+                             f"and 2 outputs; {cls.__name__} is not.")
+        if _entry_of_class(cls, exact=True) is not None:
+            raise ValueError(f"{cls.__name__} is registered already, as "
+                             f"{_entry_of_class(cls, exact=True).name!r}.")
     _ENTRIES[name] = entry
     return entry
-
-
-def _check_model_class(entry):
-    from astropy.modeling import Model  # (this module stays light: see its docstring)
-
-    cls = entry.cls
-    if not (issubclass(cls, Model) and cls.n_inputs == 2 and cls.n_outputs == 2):
-        raise ValueError(f"a transform type's class must be an astropy Model with 2 inputs and "
-                         f"2 outputs; {cls.__name__} is not.")
-    if _entry_of_class(cls, exact=True) is not None:
-        raise ValueError(f"{cls.__name__} is registered already, as "
-                         f"{_entry_of_class(cls, exact=True).name!r}.")
 
 
 def unregister_transform_type(name: str) -> None:

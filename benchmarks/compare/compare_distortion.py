@@ -161,7 +161,7 @@ def _given_pairs():
 
 
 def _real_frames(data):
-    from bench_distortion_real import Truth, distort
+    from bench_distortion_real import RadialTruth, distort
     from bench_real import load
 
     frames = [("M6707HH", data / "real" / "singles" / "M6707HH.fits", None),
@@ -173,7 +173,7 @@ def _real_frames(data):
         img, dtype = load(path)
         if crop is not None:
             img = np.ascontiguousarray(img[crop])
-        truth = Truth(img.shape, -4.0 if i == 0 else 6.0, rotation=15.0, shift=(7.0, -5.0))
+        truth = RadialTruth(img.shape, -4.0 if i == 0 else 6.0, rotation=15.0, shift=(7.0, -5.0))
         yield name, distort(img, dtype, truth, seed=i), img
     j, h = data / "field" / "gc_2MASS_j.fits.gz", data / "field" / "gc_2MASS_h.fits.gz"
     if j.exists() and h.exists():

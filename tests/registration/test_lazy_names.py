@@ -8,17 +8,19 @@ import sys
 import pytest
 
 import astroalign_nd
-from astroalign_nd import transforms
+from astroalign_nd import detection, matching, resample, sequence, stacking, transforms
+from astroalign_nd._lazy import attach
 
-PACKAGES = [astroalign_nd, transforms]
+PACKAGES = [astroalign_nd, detection, matching, resample, sequence, stacking, transforms]
 
 
 @pytest.mark.parametrize("package", PACKAGES, ids=lambda p: p.__name__)
 def test_every_public_name_is_its_modules_object(package):
-    for name, module in package._LAZY.items():
-        defined = getattr(importlib.import_module(f"{package.__name__}.{module}"), name)
-        assert getattr(package, name) is defined, name
-    assert set(package._LAZY) <= set(package.__all__)
+    for module, names in package._LAZY.items():
+        for name in names:
+            defined = getattr(importlib.import_module(module, package.__name__), name)
+            assert getattr(package, name) is defined, name
+            assert name in package.__all__
 
 
 @pytest.mark.parametrize("package", PACKAGES, ids=lambda p: p.__name__)
@@ -45,3 +47,10 @@ def test_import_loads_no_stage():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, timeout=60)
     assert out.stdout.strip() == "[]"
+
+
+def test_a_name_under_two_submodules_is_refused():
+    with pytest.raises(ValueError, match="listed under two submodules"):
+        attach("astroalign_nd", {".registration": ["register"], ".batch": ["register"]})
+    with pytest.raises(ValueError, match="relative"):
+        attach("astroalign_nd", {"registration": ["register"]})

@@ -32,18 +32,16 @@ def _version(stem):
     return tuple(int(v) for v in stem.split("-")[-1].split("."))
 
 
-def _manifest_uris():
-    """The manifests shipped in ``resources/manifests``, newest version first."""
-    folder = importlib.resources.files(__package__) / "resources" / "manifests"
-    stems = [f.name[:-len(".yaml")] for f in folder.iterdir()
-             if f.name.startswith("astroalign_nd-") and f.name.endswith(".yaml")]
-    return [f"{_URI_BASE}/manifests/{stem}" for stem in sorted(stems, key=_version, reverse=True)]
-
-
 #: Manifests of the extension, newest first (asdf writes with the first; files
 #: written with an older one, 1.0.0 without the non-linear models, still read).
-#: Read from the package's manifest files: a new manifest needs no edit here.
-ASTROALIGN_ND_MANIFEST_URIS = _manifest_uris()
+#: Read from the package's manifest files (``resources/manifests``): a new
+#: manifest needs no edit here.
+ASTROALIGN_ND_MANIFEST_URIS = [
+    f"{_URI_BASE}/manifests/{stem}" for stem in sorted(
+        (f.name[:-len(".yaml")]
+         for f in (importlib.resources.files(__package__) / "resources" / "manifests").iterdir()
+         if f.name.startswith("astroalign_nd-") and f.name.endswith(".yaml")),
+        key=_version, reverse=True)]
 
 #: Tag of each transform class in the current manifest (the built-in types of
 #: the registry; a test checks them against the manifest).
