@@ -6,7 +6,7 @@ from scipy.special import betainc
 from .._kernels import median as _median
 from ..transforms.linear import AffineTransform
 from ..transforms import apply_matrix
-from ..transforms.fitting import _covariance_of, checked_weights
+from ..transforms.fitting import parameter_covariance, checked_weights
 from ..transforms.registry import transform_class, transform_type_of
 from .geometry import _frame_area_fraction, bounding_frame, overlap_counts
 from .pairing import mutual_matches
@@ -274,7 +274,7 @@ def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
         fit = _Fitted(cls, matrix)
     except ValueError:  # collinear or coincident stars: no transform to trust
         return None
-    cov = _covariance_of(cls, fit.matrix, fit.free, design, resid, w)
+    cov = parameter_covariance(cls, fit.matrix, fit.free, design, resid, w)
     return fit, si, dj, resid, cov, used_tol
 
 

@@ -266,14 +266,34 @@ def _covariance(model, design, resid, weights):
     free = [n for n in model.param_names if not fixed[n]]
     # (Only a similarity's parameters need its matrix; a polynomial has none.)
     matrix = model.matrix if isinstance(model, SimilarityTransform) else None
-    return _covariance_of(type(model), matrix, free, design, resid, weights)
+    return parameter_covariance(type(model), matrix, free, design, resid, weights)
 
 
-def _covariance_of(cls, matrix, free, design, resid, weights):
+def parameter_covariance(cls, matrix, free, design, resid, weights):
     """
-    `_covariance` of a model of type ``cls`` whose `matrix` is ``matrix`` (used
-    for a similarity only) and free parameters ``free``, without the model
-    (the matching's fit loop).
+    The covariance of the free parameters of a linear fit, without a model.
+
+    Parameters
+    ----------
+    cls : type
+        The model class fitted (a `~astroalign_nd.transforms.linear.LinearTransform2D`
+        subclass).
+    matrix : (3, 3) ndarray or None
+        The fitted matrix; used for a similarity only (its scale and rotation
+        are not linear parameters).
+    free : list of str
+        Names of the model's free parameters, in order.
+    design : (2N, P) ndarray
+        The linear design matrix of the fit.
+    resid : (N, 2) ndarray
+        The fit's residuals.
+    weights : (N,) ndarray or None
+        Per-point weights of the fit.
+
+    Returns
+    -------
+    cov : (len(free), len(free)) ndarray
+        NaN where the fit leaves no degree of freedom or is singular.
     """
     n_obs, n_lin = design.shape
     dof = n_obs - n_lin
