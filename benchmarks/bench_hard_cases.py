@@ -385,7 +385,7 @@ def main(argv=None):
                     rows[m].append((verdict, err, dt, note))
                     if args.verbose:
                         print(f"    {name} seed {seed} {m:14s} {verdict:5s} err {err:8.3f} px "
-                              f"{dt:6.2f} s  {note}", flush=True)
+                              f"{dt:7.3f} s  {note}", flush=True)
             summary[name] = rows
             print_category(name, rows, len(seeds))
         print_summary(summary, args.methods, len(seeds))

@@ -431,7 +431,7 @@ def main(argv=None):
             rows.append((kind, name, m, status, err, dt, note, verdict, truth is not None))
             if args.verbose:
                 print(f"  {kind:5s} {name:42s} {m:14s} {verdict:8s} err={err:8.3f} "
-                      f"t={dt:6.2f}s {note}", flush=True)
+                      f"t={dt:7.3f}s {note}", flush=True)
 
     if "warp" not in args.skip:
         cases, _ = build_cases(args.data, args.warps, args.only)

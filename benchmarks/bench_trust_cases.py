@@ -92,7 +92,7 @@ def main(argv=None):
                     note = f"error {err:.3f} px, {note}"
                 row[outcome] += 1
                 if args.verbose:
-                    print(f"{case:15s} seed {seed:4d} {method:14s} {outcome:8s} {dt:6.2f} s "
+                    print(f"{case:15s} seed {seed:4d} {method:14s} {outcome:8s} {dt:7.3f} s "
                           f"{note}", flush=True)
     print(f"\n{args.n} pairs per case (seeds {args.first_seed}-{args.first_seed + args.n - 1}); "
           f"solved: error <= {args.wrong:g} px over the overlap, wrong: larger, "
