@@ -429,12 +429,17 @@ def _convolved_near(data, kernel, xy):
     y = np.asarray(xy[:, 1], int)
     # Data around each output window: (n, ky + 2 ry, kx + 2 rx), output centre at its middle.
     win = np.lib.stride_tricks.sliding_window_view(pad, (ky + 2 * ry, kx + 2 * rx))[y, x]
-    acc = np.zeros((len(x), ky, kx))
+    # The positions last (contiguous): each step is one long vector operation.
+    win = np.ascontiguousarray(win.transpose(1, 2, 0))
+    acc = np.zeros((ky, kx, len(x)))
+    tmp = np.empty_like(acc)
     eps = np.finfo(float).eps
     for dy in range(ky):
         for dx in range(kx):
             if abs(w[dy, dx]) > eps:
-                acc += win[:, dy:dy + ky, dx:dx + kx] * w[dy, dx]
+                np.multiply(win[dy:dy + ky, dx:dx + kx], w[dy, dx], out=tmp)
+                acc += tmp
+    acc = acc.transpose(2, 0, 1)
     out = np.zeros(data.shape)
     # Window pixels inside the frame (positions near its edge lose some).
     oy = y[:, None] + np.arange(-ry, ry + 1)[None, :]
