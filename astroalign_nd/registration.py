@@ -71,7 +71,9 @@ class Reference:
     made so far serves every smaller number of control points (its
     brightest stars), so the frame is detected again only when a search
     needs more stars than any before it, and never when its detection
-    already measured every candidate it has.  Pass it wherever a
+    already measured every candidate it has; that detection reuses the
+    full-frame passes and the measurements of the first, and measures only
+    the candidates it adds.  Pass it wherever a
     ``target`` (or ``source``) is accepted.
 
     Parameters
@@ -127,6 +129,9 @@ class Reference:
         self._stars = {}
         # (control points it was made for, table, threshold) of the largest detection.
         self._detected = None
+        # Per detection FWHM option: what detection computed, for a detection of
+        # more stars (`~astroalign_nd.detection.daofind.control_sources`' cache).
+        self._detection_caches = {}
         self._asterisms = {}
         self._fwhms = {}
         self.fwhm = None
@@ -264,9 +269,12 @@ class Reference:
             # not by photutils' per-frame warning.
             warnings.simplefilter("ignore", _no_detections_warning())
             # (More than it can return: the confident ones are never kept alone here.)
+            # A search that asks for more stars measures only the candidates
+            # the larger detection adds (the cache of this FWHM option).
             return control_sources(parsed.detection_image, mask=parsed.mask,
                                    n_sources=2 * n_sources, n_enough=2 * n_sources + 1,
-                                   config=config)
+                                   config=config,
+                                   cache=self._detection_caches.setdefault(config.fwhm, {}))
 
     def detection_fwhm(self, n_sources: int) -> float | None:
         """The FWHM (pixels) the detection of `stars` ``(n_sources)`` used; None

@@ -157,7 +157,8 @@ def _as_image(data, mask, caller="find_sources"):
 def _binned_candidates(data, mask, b, noise, nsigma, n_candidates, lines=None,
                        check_lines=False):
     """
-    Stage 1: candidate peaks on the binned, background-subtracted image.
+    Stage 1: candidate peaks on the binned, background-subtracted image
+    (`_binned_residual`, then `_binned_peaks`).
 
     Binning drops each block's brightest pixel (hot pixels and cosmic rays
     go), and candidates are ranked by the flux around the peak.  Positions
@@ -169,6 +170,19 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates, lines=None,
     that the noise peaks of a band or a bad column are not candidates.
     With ``check_lines``, None is returned instead when the binned image
     has bright or noisy rows or columns (the caller then measures them).
+    """
+    residual = _binned_residual(data, mask, b, noise, lines, check_lines)
+    if residual is None:
+        return None
+    return _binned_peaks(residual, nsigma, n_candidates)
+
+
+def _binned_residual(data, mask, b, noise, lines=None, check_lines=False):
+    """
+    The full-frame part of `_binned_candidates`: the binned image less its
+    coarse sky, with what `_binned_peaks` needs to read its peaks (the
+    same for any number of candidates: a detection of more sources picks
+    more of its peaks).  None as `_binned_candidates` returns it.
     """
     fill = 0.0
     if mask is not None or not np.all(np.isfinite(data[:: max(1, data.shape[0] // 64)])):
@@ -194,6 +208,17 @@ def _binned_candidates(data, mask, b, noise, nsigma, n_candidates, lines=None,
         factor = lines.binned_factor(resid.shape, b) if b > 1 else lines.factor(
             np.arange(resid.shape[0])[:, None], np.arange(resid.shape[1])[None, :])
         resid = resid / factor
+    return {"resid": resid, "bkg_map": bkg_map, "factor": factor, "noise_b": noise_b, "b": b}
+
+
+def _binned_peaks(residual, nsigma, n_candidates):
+    """
+    The ``n_candidates`` brightest peaks of a `_binned_residual` above
+    ``nsigma``: those of a detection of fewer candidates come first, in the
+    same order (`~astroalign_nd._kernels.peak_candidates` ranks them all).
+    """
+    resid, bkg_map, factor = residual["resid"], residual["bkg_map"], residual["factor"]
+    noise_b, b = residual["noise_b"], residual["b"]
     y, x, score = peak_candidates(resid, nsigma * noise_b, n_candidates)
     if factor is not None:  # fluxes in counts again (ranking stays local)
         score = score * factor[y, x]

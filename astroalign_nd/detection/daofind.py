@@ -13,8 +13,8 @@ from .._kernels import mirrored_windowed_centroid as _mirrored_windowed_centroid
 from .._kernels import windowed_centroid as _windowed_centroid
 from ..options import Int, convert
 from .fwhm import _MAX_FULL_RES_FWHM, _estimate_fwhm
-from .candidates import (_DESPIKE_MIN_FWHM, _as_image, _auto_bin, _binned_candidates, _despike,
-                         _extract_cutouts, _recenter)
+from .candidates import (_DESPIKE_MIN_FWHM, _as_image, _auto_bin, _binned_peaks,
+                         _binned_residual, _despike, _extract_cutouts, _recenter)
 from .background import (_bin_mean, _correlated_noise_factor, _local_background,
                          estimate_noise)
 from .lines import line_background
@@ -128,8 +128,17 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     return _detect(image, mask, n_sources, config, threshold)
 
 
-def _detect(image, mask, n_sources, config, nsigma):
-    """`find_sources` on checked options: ``config``, at threshold ``nsigma``."""
+def _detect(image, mask, n_sources, config, nsigma, cache=None):
+    """
+    `find_sources` on checked options: ``config``, at threshold ``nsigma``.
+
+    ``cache`` (a dict, optional) keeps what the detection computed for a
+    later detection of the same image with the same ``config`` and
+    ``nsigma``, of more or fewer sources: the full-frame stage 1, the FWHM
+    estimate and every candidate's measurement at each width tried
+    (`_per_candidate`).  That detection then measures only the candidates
+    it adds, and returns what a detection without the cache returns.
+    """
     fwhm, bin_factor = config.fwhm, config.bin_factor
     # Paths, NDData, HDUs, (array, header) tuples, masked arrays: their own
     # mask is combined with ``mask``.
@@ -144,42 +153,37 @@ def _detect(image, mask, n_sources, config, nsigma):
             bin_factor=config.bin_factor, refine_centroids=config.refine_centroids))
     opts = dict(n_sources=n_sources, nsigma=nsigma, sharpness_range=config.sharpness_range,
                 roundness_range=config.roundness_range, peak_max=config.peak_max,
-                refine_centroids=config.refine_centroids)
+                refine_centroids=config.refine_centroids, cache=cache)
 
     # Stage 1: noise, then candidate peaks on a binned copy.
-    noise = estimate_noise(data, mask)
-    if not np.isfinite(noise) or noise <= 0:
+    stage1 = None if cache is None else cache.get("stage 1")
+    if stage1 is None:
+        stage1 = _stage1(data, mask, bin_factor, nsigma)
+        if cache is not None:
+            cache["stage 1"] = stage1
+    noise, b, residual = stage1["noise"], stage1["b"], stage1["residual"]
+    if residual is None:  # no noise to judge anything by
         return _empty_table(fwhm or 0.0, noise, 1)
-    # Correlated noise (resampled frames): the matched filter's S/N is
-    # judged against the noise it really sees.
-    opts["noise_corr"] = _correlated_noise_factor(data, mask, noise)
-    b = _auto_bin(data.shape) if bin_factor is None else bin_factor
-    b = min(b, max(1, min(data.shape) // 8))  # a few binned pixels across at least
+    opts["noise_corr"] = stage1["noise_corr"]
+    if "lines" in stage1:
+        lines = opts["lines"] = stage1["lines"]
+        if lines is not None:
+            data = lines.subtract(data)
     # Spare candidates for what stage 2 rejects (binning already removed
     # most hot pixels and cosmic rays).
     n_cand = n_sources + n_sources // 2 + 30
-    cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand, check_lines=True)
-    if cand is None:
-        # Bright or noisy rows or columns (an edge band, a bad column):
-        # their excess is subtracted and candidates on them are judged
-        # against their own noise (`lines`).
-        lines = line_background(data, mask, noise)
-        if lines is not None:
-            data = lines.subtract(data)
-        opts["lines"] = lines
-        cand = _binned_candidates(data, mask, b, noise, nsigma, n_cand, lines=lines)
+    cand = _binned_peaks(residual, nsigma, n_cand)
     if len(cand["x"]) == 0:
         return _empty_table(fwhm or 0.0, noise, b)
     coarse = cand
-    cand = _recenter(data, mask, coarse, b, fwhm)
+    cand = _recentered(data, mask, coarse, b, fwhm, cache)
     trails = find_trails(cand["x"], cand["y"], data, mask, noise)
     if trails:
         # A trail's pieces (`trails`) are not stars, and took the places of
         # faint ones among the candidates: more candidates, less the pieces.
         n_pieces = int(trail_pieces(data, mask, cand["x"], cand["y"], trails, noise).sum())
-        coarse = _binned_candidates(data, mask, b, noise, nsigma, n_cand + n_pieces,
-                                    lines=opts.get("lines"))
-        cand = _recenter(data, mask, coarse, b, fwhm)
+        coarse = _binned_peaks(residual, nsigma, n_cand + n_pieces)
+        cand = _recentered(data, mask, coarse, b, fwhm, cache)
         keep = ~trail_pieces(data, mask, cand["x"], cand["y"], trails, noise)
         coarse = {k: v[keep] for k, v in coarse.items()}
         cand = {k: v[keep] for k, v in cand.items()}
@@ -191,17 +195,17 @@ def _detect(image, mask, n_sources, config, nsigma):
     spike_fwhm = fwhm if fwhm is not None and fwhm >= _DESPIKE_MIN_FWHM else None
     if fwhm is not None:
         if spike_fwhm is not None:
-            cand = _recenter(data, mask, coarse, b, fwhm, noise, spike_fwhm)
+            cand = _recentered(data, mask, coarse, b, fwhm, cache, noise, spike_fwhm)
         opts["spike_fwhm"] = spike_fwhm
         tab = _measure(data, mask, cand, fwhm, noise, b, opts)
         tab.meta["fwhm_source"] = "user"
     else:
         # Stage 2: the FWHM of the population of compact sources.
-        est = _estimate_fwhm(data, mask, cand, noise)
+        est = _fwhm_estimate(data, mask, cand, noise, cache)
         if not est.doubtful and est.fwhm >= _DESPIKE_MIN_FWHM:
             # (The estimate, a mode, stays: hot pixels by a few stars do not move it.)
             spike_fwhm = est.fwhm
-            cand = _recenter(data, mask, coarse, b, None, noise, spike_fwhm)
+            cand = _recentered(data, mask, coarse, b, None, cache, noise, spike_fwhm)
         opts["spike_fwhm"] = spike_fwhm
         tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
         tab.meta["fwhm_source"] = "estimate"
@@ -214,6 +218,90 @@ def _detect(image, mask, n_sources, config, nsigma):
     # more sources finds the same (registration does not detect again).
     tab.meta["all_candidates"] = len(cand["x"]) <= n_sources
     return tab
+
+
+def _stage1(data, mask, bin_factor, nsigma):
+    """
+    The full-frame passes of `_detect`, the same for any number of sources:
+    the noise, its correlation factor, the binning and the binned residual
+    whose peaks are the candidates (with the frame's bright lines, when
+    its rows or columns stand out).  ``residual`` is None when the noise
+    cannot be measured.
+    """
+    noise = estimate_noise(data, mask)
+    if not np.isfinite(noise) or noise <= 0:
+        return {"noise": noise, "b": 1, "residual": None}
+    # Correlated noise (resampled frames): the matched filter's S/N is
+    # judged against the noise it really sees.
+    out = {"noise": noise, "noise_corr": _correlated_noise_factor(data, mask, noise)}
+    b = _auto_bin(data.shape) if bin_factor is None else bin_factor
+    b = out["b"] = min(b, max(1, min(data.shape) // 8))  # a few binned pixels across at least
+    residual = _binned_residual(data, mask, b, noise, check_lines=True)
+    if residual is None:
+        # Bright or noisy rows or columns (an edge band, a bad column):
+        # their excess is subtracted and candidates on them are judged
+        # against their own noise (`lines`).
+        lines = out["lines"] = line_background(data, mask, noise)
+        if lines is not None:
+            data = lines.subtract(data)
+        residual = _binned_residual(data, mask, b, noise, lines=lines)
+    out["residual"] = residual
+    return out
+
+
+def _per_candidate(cache, key, ident, compute):
+    """
+    ``compute(rows)``, a dict of per-candidate arrays for the candidates
+    ``rows`` (a slice), over every candidate, from ``cache`` for those an
+    earlier call with the same ``key`` computed.
+
+    ``ident`` (one row per candidate) identifies the candidates: the cached
+    rows serve when they are the first rows of ``ident`` (a detection of
+    more sources has the candidates of one of fewer first, `_binned_peaks`),
+    or ``ident`` is their first rows.  Each candidate's values depend on it
+    alone, so that they are the values a call without the cache computes.
+    """
+    n = len(ident)
+    old = None if cache is None else cache.get(key)
+    if old is not None:
+        m = len(old["ident"])
+        if m >= n and np.array_equal(old["ident"][:n], ident):
+            return {k: v[:n] for k, v in old["rows"].items()}
+        if m < n and np.array_equal(old["ident"], ident[:m]):
+            new = compute(slice(m, n))
+            rows = {k: np.concatenate([old["rows"][k], new[k]]) for k in new}
+            cache[key] = {"ident": ident, "rows": rows}
+            return rows
+    rows = compute(slice(0, n))
+    if cache is not None:
+        cache[key] = {"ident": ident, "rows": rows}
+    return rows
+
+
+def _recentered(data, mask, coarse, b, fwhm, cache, noise=None, spike_fwhm=None):
+    """`_recenter` of the coarse candidates (each one's position depends on it alone)."""
+    ident = np.column_stack([coarse["x"], coarse["y"], coarse["bkg"]])
+
+    def compute(rows):
+        out = _recenter(data, mask, {k: v[rows] for k, v in coarse.items()}, b, fwhm, noise,
+                        spike_fwhm)
+        return {"x": out["x"], "y": out["y"]}
+
+    pos = _per_candidate(cache, ("recenter", fwhm, spike_fwhm), ident, compute)
+    return {**coarse, "x": pos["x"], "y": pos["y"]}
+
+
+def _fwhm_estimate(data, mask, cand, noise, cache):
+    """`_estimate_fwhm`, from ``cache`` when its candidates were the same."""
+    # (It reads the first 80 candidates only: `_estimate_fwhm`'s n_max.)
+    ident = np.column_stack([cand["x"], cand["y"], cand["bkg"]])[:80]
+    old = None if cache is None else cache.get("fwhm estimate")
+    if old is not None and np.array_equal(old[0], ident):
+        return old[1]
+    est = _estimate_fwhm(data, mask, cand, noise)
+    if cache is not None:
+        cache["fwhm estimate"] = (ident, est)
+    return est
 
 
 def _too_few(tab, cand, n_sources):
@@ -275,11 +363,14 @@ def _daofind(finder, data, mask):
     from its catalog: `~photutils.detection.DAOStarFinder` builds its output
     table with metadata that imports matplotlib, scikit-image and more on
     first use (a tenth of a second in a fresh process) and costs a table per
-    call.  Falls back to the public call if photutils' internals change.
+    call.  Given positions (``xycoords``), the convolved image is computed
+    only where the catalog reads it (`_convolved_near`), not over the
+    whole mosaic.  Falls back to the public call if photutils' internals
+    change.
     """
     if hasattr(finder, "_get_raw_catalog"):
         try:
-            cat = finder._get_raw_catalog(data, mask=mask)
+            cat = _raw_catalog(finder, data, mask)
             if cat is not None:
                 cat = cat.apply_all_filters()
             if cat is None:
@@ -291,6 +382,73 @@ def _daofind(finder, data, mask):
     if tab is None:
         return None
     return {c: np.asarray(tab[c], float) for c in _DAO_COLUMNS}
+
+
+def _raw_catalog(finder, data, mask):
+    """
+    DAOStarFinder's raw catalog of ``data``; at given positions, from the
+    convolved image near them only (what ``finder._get_raw_catalog`` gives).
+    """
+    xy = getattr(finder, "xycoords", None)
+    if xy is None or len(xy) == 0:
+        return finder._get_raw_catalog(data, mask=mask)
+    try:
+        from photutils.detection.daofinder import _DAOStarFinderCatalog
+
+        kernel = finder.kernel
+        conv = _convolved_near(data, kernel.data, np.asarray(xy))
+        return _DAOStarFinderCatalog(data, conv, xy, finder.threshold, kernel,
+                                     sharpness_range=finder.sharpness_range,
+                                     roundness_range=finder.roundness_range,
+                                     n_brightest=finder.n_brightest, peak_max=finder.peak_max,
+                                     scale_threshold=finder.scale_threshold)
+    except (ImportError, AttributeError, TypeError):  # another photutils: its own convolution
+        return finder._get_raw_catalog(data, mask=mask)
+
+
+def _convolved_near(data, kernel, xy):
+    """
+    ``scipy.ndimage.convolve(data, kernel, mode='constant', cval=0)`` (what
+    DAOStarFinder convolves with) in a kernel-sized window around each
+    integer position ``xy`` (x, y), zero elsewhere.
+
+    DAOStarFinder given positions reads the convolved image only there
+    (the centre's value and its neighbours for the roundness), and the
+    mosaic of cutouts is mostly pixels it never reads.  Each value is
+    summed as `scipy.ndimage.correlate` sums it (the flipped kernel's
+    weights above DBL_EPSILON, in raster order, in float64), so that the
+    values are the same, bit for bit.
+    """
+    ky, kx = kernel.shape
+    ry, rx = ky // 2, kx // 2
+    w = np.asarray(kernel, float)[::-1, ::-1]  # convolution: the flipped kernel correlated
+    # Zeros beyond the frame (mode 'constant'), so that every window fits.
+    pad = np.zeros((data.shape[0] + 4 * ry, data.shape[1] + 4 * rx))
+    pad[2 * ry:2 * ry + data.shape[0], 2 * rx:2 * rx + data.shape[1]] = data
+    x = np.asarray(xy[:, 0], int)
+    y = np.asarray(xy[:, 1], int)
+    # Data around each output window: (n, ky + 2 ry, kx + 2 rx), output centre at its middle.
+    win = np.lib.stride_tricks.sliding_window_view(pad, (ky + 2 * ry, kx + 2 * rx))[y, x]
+    # The positions last (contiguous): each step is one long vector operation.
+    win = np.ascontiguousarray(win.transpose(1, 2, 0))
+    acc = np.zeros((ky, kx, len(x)))
+    tmp = np.empty_like(acc)
+    eps = np.finfo(float).eps
+    for dy in range(ky):
+        for dx in range(kx):
+            if abs(w[dy, dx]) > eps:
+                np.multiply(win[dy:dy + ky, dx:dx + kx], w[dy, dx], out=tmp)
+                acc += tmp
+    acc = acc.transpose(2, 0, 1)
+    out = np.zeros(data.shape)
+    # Window pixels inside the frame (positions near its edge lose some).
+    oy = y[:, None] + np.arange(-ry, ry + 1)[None, :]
+    ox = x[:, None] + np.arange(-rx, rx + 1)[None, :]
+    inside = (((oy >= 0) & (oy < data.shape[0]))[:, :, None]
+              & ((ox >= 0) & (ox < data.shape[1]))[:, None, :])
+    k, iy, ix = np.nonzero(inside)
+    out[oy[k, iy], ox[k, ix]] = acc[k, iy, ix]
+    return out
 
 
 #: DAOStarFinder's roundness limits by default (those of `find_sources`).
@@ -339,15 +497,76 @@ def _measure_at(data, mask, cand, fwhm, noise, b, opts):
     or duplicate sources dropped (`_filtered_table`).  Wide stars are
     measured on a binned copy (as well, at a fraction of the cost: the
     mosaic of cutouts grows with the FWHM squared).
+
+    Each candidate is measured on its own (`_measure_rows`), and once per
+    width with ``opts['cache']``: a later detection of more sources
+    measures only the candidates it adds (`_per_candidate`).  Saturation
+    plateaus are found at the tiles' common largest value, which the rows
+    are measured for (it is part of their key).
     """
     if fwhm > _MAX_FULL_RES_FWHM:
         k = int(fwhm // (_MAX_FULL_RES_FWHM / 2))
         return _find_on_binned(data, mask, k, fwhm / k, opts)
     half = int(np.ceil(max(3.0 * fwhm, 6)))
-    xc = np.clip(np.round(cand["x"]).astype(int), 0, data.shape[1] - 1)
-    yc = np.clip(np.round(cand["y"]).astype(int), 0, data.shape[0] - 1)
-    cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
-    sat = _saturated_pixels(cut, bad)
+    cache = opts.get("cache")
+    ident = np.column_stack([cand["x"], cand["y"]])
+
+    cutouts = {}  # (first row, last row) -> tiles: cut once for both steps
+
+    def tiles(rows):
+        if (rows.start, rows.stop) not in cutouts:
+            xc, yc = _tile_centres(data, cand, rows)
+            cutouts[rows.start, rows.stop] = _extract_cutouts(data, mask, xc, yc, half, 0.0)
+        return cutouts[rows.start, rows.stop]
+
+    def tile_peaks(rows):
+        cut, bad = tiles(rows)
+        good = ~bad
+        top = np.where(good, cut, -np.inf).max(axis=(1, 2))
+        return {"top": top, "n_top": (good & (cut >= top[:, None, None])).sum(axis=(1, 2))}
+
+    # The tiles' largest value is a saturation level when enough pixels
+    # share it (over every tile: a plateau of 3 x 3 or more, `_MIN_PLATEAU`).
+    peaks = _per_candidate(cache, ("tile peaks", half), ident, tile_peaks)
+    level = None
+    if np.isfinite(peaks["top"]).any():
+        top = peaks["top"].max()
+        if peaks["n_top"][peaks["top"] == top].sum() >= _MIN_PLATEAU:
+            level = top
+    rr = opts["roundness_range"]
+    key = ("measure", fwhm, None if rr is None else tuple(rr), opts.get("spike_fwhm"), level)
+    rows = _per_candidate(cache, key, ident, lambda r: _measure_rows(
+        data, {k: v[r] for k, v in cand.items()}, tiles(r), fwhm, noise, opts, half, level))
+    return _filtered_table(rows, fwhm, noise, b, opts)
+
+
+def _tile_centres(data, cand, rows=slice(None)):
+    """The candidates' integer pixels (the centres of their tiles)."""
+    xc = np.clip(np.round(cand["x"][rows]).astype(int), 0, data.shape[1] - 1)
+    yc = np.clip(np.round(cand["y"][rows]).astype(int), 0, data.shape[0] - 1)
+    return xc, yc
+
+
+#: The per-candidate measurements of `_measure_rows`.
+_ROW_COLUMNS = ("x", "y", "flux", "position_error", "snr", "peak", "sharpness", "roundness1",
+                "roundness2", "own_fwhm")
+
+
+def _measure_rows(data, cand, tiles, fwhm, noise, opts, half, level):
+    """
+    Each candidate's measurement at ``fwhm`` (`_measure_at` before the
+    population's filters): ``found`` (False for a tile DAOStarFinder finds
+    nothing near the centre of), the position, aperture flux and error,
+    signal-to-noise, DAOStarFinder's shape figures and the source's own
+    FWHM (NaN where not found).  ``level``: the saturation level of the
+    tiles (None for none).  Each row depends on its candidate alone.
+    """
+    n = len(cand["x"])
+    out = {c: np.full(n, np.nan) for c in _ROW_COLUMNS}
+    out["found"] = np.zeros(n, bool)
+    xc, yc = _tile_centres(data, cand)
+    cut, bad = tiles  # (`_extract_cutouts` of the candidates, ``half`` pixels around)
+    sat = None if level is None else (~bad & (cut >= level))
     # Local sky from the tile's outskirts (beyond 2 FWHM): the coarse map
     # of stage 1 is only good to a fraction of the noise, and any pedestal
     # biases fluxes and pulls centroids towards the tile centre.
@@ -357,23 +576,35 @@ def _measure_at(data, mask, cand, fwhm, noise, b, opts):
         cut = _despike(cut, bad, noise, min(fwhm, opts["spike_fwhm"]))
     tab, ncol = _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts)
     if tab is None or len(tab["flux"]) == 0:
-        return _empty_table(fwhm, noise, b)
-    sel, kk, lx, ly = _brightest_per_tile(tab, len(cand["x"]), ncol, half, fwhm)
+        return out
+    sel, kk, lx, ly = _brightest_per_tile(tab, n, ncol, half, fwhm)
     if sel.size == 0:
-        return _empty_table(fwhm, noise, b)
-    xs, ys = _refined_positions(cut[kk], bad[kk], lx[sel], ly[sel], fwhm, opts)
-    tab = {c: np.asarray(tab[c], float)[sel] for c in ("peak", "sharpness", "roundness1",
-                                                       "roundness2")}
+        return out
+    cut, bad = cut[kk], bad[kk]
+    xs, ys = _refined_positions(cut, bad, lx[sel], ly[sel], fwhm, opts)
+    noise_factor = None
     lines = opts.get("lines")
     if lines is not None:  # each tile pixel's noise, in units of the frame's
         offs = np.arange(-half, half + 1)
-        tab["noise_factor"] = lines.factor((yc[kk, None] + offs)[:, :, None],
-                                           (xc[kk, None] + offs)[:, None, :])
-    tab["plateau_error"] = np.full(len(xs), np.nan)
+        noise_factor = lines.factor((yc[kk, None] + offs)[:, :, None],
+                                    (xc[kk, None] + offs)[:, None, :])
+    plateau_error = np.full(len(xs), np.nan)
     if sat is not None and opts["refine_centroids"]:
-        xs, ys, tab["plateau_error"] = _plateau_centroids(sat[kk], bad[kk], xs, ys, fwhm)
-    return _filtered_table(cut[kk], bad[kk], xc[kk] - half + xs, yc[kk] - half + ys, xs, ys,
-                           tab, half, fwhm, noise, b, opts)
+        xs, ys, plateau_error = _plateau_centroids(sat[kk], bad, xs, ys, fwhm)
+    aflux, perr, snr = _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise, noise_factor)
+    # A saturated star's (clipped) flux says nothing of its centroid: its plateau does.
+    perr = np.where(np.isfinite(plateau_error), np.hypot(plateau_error, 0.005), perr)
+    out["found"][kk] = True
+    out["x"][kk], out["y"][kk] = xc[kk] - half + xs, yc[kk] - half + ys
+    out["flux"][kk], out["position_error"][kk] = aflux, perr
+    out["snr"][kk] = snr / opts.get("noise_corr", 1.0)
+    for c in ("peak", "sharpness", "roundness1", "roundness2"):
+        out[c][kk] = np.asarray(tab[c], float)[sel]
+    # Hot pixels and cosmic rays that got this far (a bright hit can pass
+    # DAOFIND's sharpness limit) are much narrower than the stars.
+    out["own_fwhm"][kk] = _adaptive_fwhm(cut, bad, xs - half, ys - half,
+                                         sigma0=fwhm / _GAUSS_SIGMA_TO_FWHM, n_iter=4)
+    return out
 
 
 def _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts):
@@ -472,43 +703,27 @@ def _refined_positions(cut, bad, x0, y0, fwhm, opts):
     return np.where(moved, x0, xs), np.where(moved, y0, ys)
 
 
-def _filtered_table(cut, bad, gx, gy, xs, ys, dao, half, fwhm, noise, b, opts):
+def _filtered_table(rows, fwhm, noise, b, opts):
     """
-    The output table: fluxes and errors, without hot pixels, cosmic rays,
-    faint sources and duplicates, brightest first.
-
-    ``cut`` and ``bad`` are the kept stars' tiles, ``gx, gy`` their image
-    positions, ``xs, ys`` their positions in the tiles, ``dao`` their
-    DAOStarFinder measurements.
+    The output table from the candidates' `_measure_rows`: without hot
+    pixels, cosmic rays, faint sources and duplicates, brightest first.
     """
-    nsigma = opts["nsigma"]
-    aflux, perr, snr = _aperture_flux_and_error(cut, bad, xs, ys, fwhm, noise,
-                                                dao.get("noise_factor"))
-    snr = snr / opts.get("noise_corr", 1.0)
-    # A saturated star's (clipped) flux says nothing of its centroid: its plateau does.
-    perr = np.where(np.isfinite(dao["plateau_error"]), np.hypot(dao["plateau_error"], 0.005),
-                    perr)
-
-    # Hot pixels and cosmic rays that got this far (a bright hit can pass
-    # DAOFIND's sharpness limit) are much narrower than the stars.
-    own_fwhm = _adaptive_fwhm(cut, bad, xs - half, ys - half,
-                              sigma0=fwhm / _GAUSS_SIGMA_TO_FWHM, n_iter=4)
+    found = np.flatnonzero(rows["found"])
+    if found.size == 0:
+        return _empty_table(fwhm, noise, b)
+    m = {c: rows[c][found] for c in _ROW_COLUMNS}
+    gx, gy, aflux, snr, own_fwhm = m["x"], m["y"], m["flux"], m["snr"], m["own_fwhm"]
     real = ~(own_fwhm < 0.6 * fwhm) if fwhm >= 1.5 else np.ones(len(gx), bool)
-    sharp, round1, round2 = dao["sharpness"], dao["roundness1"], dao["roundness2"]
+    sharp, round1, round2 = m["sharpness"], m["roundness1"], m["roundness2"]
     # Given positions, DAOStarFinder does not apply its threshold: apply
     # it as a matched-filter signal-to-noise.
-    real &= snr >= nsigma
+    real &= snr >= opts["nsigma"]
     real &= _population_inliers(sharp, round1, round2, real)
 
     # The same star can sit in two overlapping candidate tiles.
     keep = _dedupe(gx, gy, np.where(real, aflux, -np.inf), max(1.0, 0.5 * fwhm))
     keep = keep[real[keep]]
-    cols = {
-        "x": gx[keep], "y": gy[keep], "flux": aflux[keep], "position_error": perr[keep],
-        "snr": snr[keep],
-        "peak": dao["peak"][keep], "sharpness": sharp[keep],
-        "roundness1": round1[keep], "roundness2": round2[keep],
-    }
+    cols = {c: m[c][keep] for c in _ROW_COLUMNS if c != "own_fwhm"}
     order = np.argsort(-cols["flux"], kind="stable")[:opts["n_sources"]]
     out = Table({k: v[order] for k, v in cols.items()}, copy=False)
     # The sources' own widths, from the strong ones when there are enough:
@@ -530,21 +745,6 @@ _MIN_PLATEAU = 9
 
 #: A windowed centroid this many plateau errors from the plateau's is replaced.
 _PLATEAU_K = 2.0
-
-
-def _saturated_pixels(cut, bad):
-    """
-    The tiles' pixels at their largest value (a saturation level), or None.
-
-    None when fewer than `_MIN_PLATEAU` pixels share it: the brightest
-    pixel of an unsaturated frame, not a plateau.
-    """
-    good = ~bad
-    if not good.any():
-        return None
-    level = cut[good].max()
-    sat = good & (cut >= level)
-    return sat if sat.sum() >= _MIN_PLATEAU else None
 
 
 def _plateau_centroids(sat, bad, x0, y0, fwhm):
@@ -695,7 +895,7 @@ def _find_on_binned(data, mask, k, fwhm, opts):
     binned, bmask = _bin_mean(data, mask, k)
     tab = find_sources(binned, mask=bmask, fwhm=fwhm,
                        **{k: v for k, v in opts.items()
-                          if k not in ("lines", "noise_corr", "spike_fwhm")})
+                          if k not in ("lines", "noise_corr", "spike_fwhm", "cache")})
     tab["x"] = tab["x"] * k + (k - 1) / 2.0
     tab["y"] = tab["y"] * k + (k - 1) / 2.0
     tab["position_error"] = tab["position_error"] * k
@@ -875,7 +1075,7 @@ _CONFIDENT_NSIGMA = find_sources.__kwdefaults__["nsigma"]
 _UNKNOWN_POSITION_ERROR = 0.1
 
 
-def control_sources(image, *, mask, n_sources, n_enough, config):
+def control_sources(image, *, mask, n_sources, n_enough, config, cache=None):
     """
     The sources registration uses: the detection thresholds' one home.
 
@@ -894,6 +1094,13 @@ def control_sources(image, *, mask, n_sources, n_enough, config):
         unnecessary.
     config : `~astroalign_nd.detection.DetectionConfig`
         The detection options, already checked.
+    cache : dict, optional
+        Kept by the caller between detections of one image with one
+        ``config`` (start with an empty dict): a detection of more sources
+        then reuses the work of the earlier ones (the full-frame passes,
+        the FWHM estimate, every candidate's measurement) and measures only
+        the candidates it adds.  The table is the one a detection without
+        the cache gives.
 
     Returns
     -------
@@ -923,7 +1130,7 @@ def control_sources(image, *, mask, n_sources, n_enough, config):
         return table, float(table.meta.get("nsigma", getattr(config.finder, "nsigma", np.nan)))
     threshold = _DEEP_NSIGMA if nsigma is None else nsigma
     table = _detect(image, mask, convert("n_sources", Int(1, None), n_sources), config,
-                    threshold)
+                    threshold, cache)
     return keep_confident(table, n_enough, config), threshold
 
 

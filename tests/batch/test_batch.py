@@ -283,9 +283,9 @@ def test_reference_detection_options_reach_the_frames(night, monkeypatch):
     calls = []
     real = detection._detect  # the detection of checked options (a config)
 
-    def spy(image, mask, n_sources, config, nsigma):
+    def spy(image, mask, n_sources, config, nsigma, *cache):
         calls.append(config.fwhm)
-        return real(image, mask, n_sources, config, nsigma)
+        return real(image, mask, n_sources, config, nsigma, *cache)
 
     monkeypatch.setattr(detection, "_detect", spy)
     result = register_batch(paths, Reference(ref, fwhm=3.2))

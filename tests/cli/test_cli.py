@@ -133,9 +133,9 @@ def test_detection_options_are_forwarded(files, tmp_path, monkeypatch, capsys):
     calls = []
     real = detection._detect  # the detection of checked options (a config)
 
-    def spy(image, mask, n_sources, config, nsigma):
+    def spy(image, mask, n_sources, config, nsigma, *cache):
         calls.append(dict(dataclasses.asdict(config), nsigma=nsigma))
-        return real(image, mask, n_sources, config, nsigma)
+        return real(image, mask, n_sources, config, nsigma, *cache)
 
     monkeypatch.setattr(detection, "_detect", spy)
     assert main(["register", srcs[0], ref, "-o", str(tmp_path / "a.fits"), "--fwhm", "3.1",

@@ -437,3 +437,52 @@ def test_star_cut_by_an_edge_or_a_mask_is_not_pulled_inwards(masked):
         s = side[keep[:n]][near]
         inward = np.where(s == 0, err[:, 0], err[:, 1])
     assert abs(np.mean(inward)) < 0.03, np.mean(inward)  # px; was +0.12
+
+
+@pytest.mark.parametrize("fwhm", [1.2, 3.0, 7.0, 10.0])
+def test_convolution_near_the_positions_is_scipys(fwhm):
+    # DAOStarFinder's convolution, computed only around given positions (some
+    # at the array's edges), has scipy's values there, bit for bit.
+    from photutils.detection import DAOStarFinder
+    from scipy import ndimage
+
+    from astroalign_nd.detection.daofind import _convolved_near
+
+    rng = np.random.default_rng(3)
+    kernel = DAOStarFinder(threshold=1.0, fwhm=fwhm).kernel.data
+    data = rng.normal(size=(120, 97)) * 50.0
+    xy = np.vstack([np.column_stack([rng.integers(0, 97, 30), rng.integers(0, 120, 30)]),
+                    [[0, 0], [96, 119], [0, 119]]])
+    near = _convolved_near(data, kernel, xy)
+    full = ndimage.convolve(data, kernel, mode="constant", cval=0.0)
+    ry, rx = kernel.shape[0] // 2, kernel.shape[1] // 2
+    for x, y in xy:
+        win = np.s_[max(y - ry, 0):y + ry + 1, max(x - rx, 0):x + rx + 1]
+        np.testing.assert_array_equal(near[win], full[win])
+
+
+def test_a_larger_detection_from_the_cache_is_a_fresh_one():
+    # A cache kept between detections of one frame: the second, for more
+    # sources, measures only the candidates it adds and returns the table a
+    # detection without the cache returns; a smaller one after it too.
+    from astroalign_nd.detection import DetectionConfig
+    from astroalign_nd.detection import daofind
+
+    image = simulate_field((320, 320), n_stars=500, seed=4)[0]
+    config = DetectionConfig()
+    cache = {}
+
+    def sources(n, cache=None):
+        return daofind.control_sources(image, mask=None, n_sources=n, n_enough=n + 1,
+                                       config=config, cache=cache)[0]
+
+    first = sources(60, cache)
+    n_measured = len(cache[next(k for k in cache if k[0] == "measure")]["ident"])
+    larger, smaller = sources(300, cache), sources(60, cache)
+    n_larger = len(cache[next(k for k in cache if k[0] == "measure")]["ident"])
+    assert n_larger > n_measured  # more candidates, measured on top of the first ones
+    for cached, fresh in ((larger, sources(300)), (smaller, first)):
+        assert len(cached) == len(fresh) and len(fresh) >= 60
+        assert cached.meta == fresh.meta
+        for c in fresh.colnames:
+            np.testing.assert_allclose(cached[c], fresh[c], rtol=1e-12, atol=1e-9)

@@ -91,7 +91,8 @@ def test_later_attempts_detect_once_more_at_the_largest_count(detections):
     # A small overlap: the 10 brightest stars of each frame are mostly
     # outside it, so the first attempt fails and later ones need more stars.
     # Each frame is detected again once, at the largest count of the search
-    # (2 x max_sources stars), which serves every later attempt.
+    # (2 x max_sources stars), which serves every later attempt (and measures
+    # only the candidates the first detection did not: see below).
     pair = simulate_pair((384, 384), n_stars=400, rotation=10.0, translation=(250.0, 200.0),
                          seed=0)
     t, _ = find_transform(pair.source, pair.target, n_sources=10, max_sources=40)
@@ -125,3 +126,53 @@ def test_no_warning_when_the_numpy_kernels_are_chosen(monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("error", SlowKernelsWarning)
         find_transform(pair.source, pair.target)
+
+
+@pytest.fixture
+def detection_work(monkeypatch):
+    """
+    Per frame (a key of its pixels): the full-frame passes of detection run,
+    and every candidate measured, with the width it was measured at.
+    """
+    from astroalign_nd.detection import daofind
+
+    passes, measured = [], []
+
+    def frame(data):
+        return hash(np.ascontiguousarray(data[::7, ::5]).tobytes())
+
+    stage1, rows = daofind._stage1, daofind._measure_rows
+
+    def counted_stage1(data, *args):
+        passes.append(frame(data))
+        return stage1(data, *args)
+
+    def counted_rows(data, cand, tiles, fwhm, *args):
+        measured.extend((frame(data), fwhm, x, y) for x, y in zip(cand["x"], cand["y"]))
+        return rows(data, cand, tiles, fwhm, *args)
+
+    monkeypatch.setattr(daofind, "_stage1", counted_stage1)
+    monkeypatch.setattr(daofind, "_measure_rows", counted_rows)
+    return passes, measured
+
+
+def test_escalating_refusal_measures_each_frame_once(detections, detection_work):
+    # Two unrelated fields of 400 stars: every attempt fails, and the later
+    # ones ask for 4 times as many stars of each frame as the first.
+    a = simulate_pair((384, 384), n_stars=400, seed=21)
+    b = simulate_pair((384, 384), n_stars=400, seed=22)
+    src, dst = Reference(a.source), Reference(b.target)
+    with pytest.raises(TransformNotFoundError, match="no trustworthy transform"):
+        find_transform(src, dst)
+    # Each frame asked twice: for the first attempt, then for the largest count.
+    assert sorted(detections) == [100, 100, 400, 400]
+    passes, measured = detection_work
+    # ... but its full-frame passes ran once, and no candidate was measured
+    # twice at one width: the second detection measured the ones it added.
+    assert len(passes) == 2 and len(set(passes)) == 2
+    assert len(measured) == len(set(measured))
+    assert len({m[0] for m in measured}) == 2
+    # And the stars are those of a detection made for the largest count at once.
+    for ref, image in ((src, a.source), (dst, b.target)):
+        fresh = Reference(image).stars(200)[0]
+        np.testing.assert_allclose(ref.stars(200)[0], fresh, rtol=0, atol=1e-9)
