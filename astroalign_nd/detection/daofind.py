@@ -201,7 +201,15 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None):
         tab.meta["fwhm_source"] = "user"
     else:
         # Stage 2: the FWHM of the population of compact sources.
-        est = _fwhm_estimate(data, mask, cand, noise, cache)
+        # (Cached while the first 80 candidates, all `_estimate_fwhm` reads, are the same.)
+        ident = np.column_stack([cand["x"], cand["y"], cand["bkg"]])[:80]
+        old = None if cache is None else cache.get("fwhm estimate")
+        if old is not None and np.array_equal(old[0], ident):
+            est = old[1]
+        else:
+            est = _estimate_fwhm(data, mask, cand, noise)
+            if cache is not None:
+                cache["fwhm estimate"] = (ident, est)
         if not est.doubtful and est.fwhm >= _DESPIKE_MIN_FWHM:
             # (The estimate, a mode, stays: hot pixels by a few stars do not move it.)
             spike_fwhm = est.fwhm
@@ -291,19 +299,6 @@ def _recentered(data, mask, coarse, b, fwhm, cache, noise=None, spike_fwhm=None)
     return {**coarse, "x": pos["x"], "y": pos["y"]}
 
 
-def _fwhm_estimate(data, mask, cand, noise, cache):
-    """`_estimate_fwhm`, from ``cache`` when its candidates were the same."""
-    # (It reads the first 80 candidates only: `_estimate_fwhm`'s n_max.)
-    ident = np.column_stack([cand["x"], cand["y"], cand["bkg"]])[:80]
-    old = None if cache is None else cache.get("fwhm estimate")
-    if old is not None and np.array_equal(old[0], ident):
-        return old[1]
-    est = _estimate_fwhm(data, mask, cand, noise)
-    if cache is not None:
-        cache["fwhm estimate"] = (ident, est)
-    return est
-
-
 def _too_few(tab, cand, n_sources):
     """Did the measurement keep too few of the candidates to be trusted?"""
     wanted = min(n_sources, len(cand["x"]))
@@ -370,7 +365,20 @@ def _daofind(finder, data, mask):
     """
     if hasattr(finder, "_get_raw_catalog"):
         try:
-            cat = _raw_catalog(finder, data, mask)
+            xy = getattr(finder, "xycoords", None)
+            try:
+                from photutils.detection.daofinder import _DAOStarFinderCatalog
+            except ImportError:  # another photutils: its own convolution
+                xy = None
+            if xy is None or len(xy) == 0:
+                cat = finder._get_raw_catalog(data, mask=mask)
+            else:
+                k = finder.kernel
+                cat = _DAOStarFinderCatalog(
+                    data, _convolved_near(data, k.data, np.asarray(xy)), xy, finder.threshold,
+                    k, sharpness_range=finder.sharpness_range,
+                    roundness_range=finder.roundness_range, n_brightest=finder.n_brightest,
+                    peak_max=finder.peak_max, scale_threshold=finder.scale_threshold)
             if cat is not None:
                 cat = cat.apply_all_filters()
             if cat is None:
@@ -382,28 +390,6 @@ def _daofind(finder, data, mask):
     if tab is None:
         return None
     return {c: np.asarray(tab[c], float) for c in _DAO_COLUMNS}
-
-
-def _raw_catalog(finder, data, mask):
-    """
-    DAOStarFinder's raw catalog of ``data``; at given positions, from the
-    convolved image near them only (what ``finder._get_raw_catalog`` gives).
-    """
-    xy = getattr(finder, "xycoords", None)
-    if xy is None or len(xy) == 0:
-        return finder._get_raw_catalog(data, mask=mask)
-    try:
-        from photutils.detection.daofinder import _DAOStarFinderCatalog
-
-        kernel = finder.kernel
-        conv = _convolved_near(data, kernel.data, np.asarray(xy))
-        return _DAOStarFinderCatalog(data, conv, xy, finder.threshold, kernel,
-                                     sharpness_range=finder.sharpness_range,
-                                     roundness_range=finder.roundness_range,
-                                     n_brightest=finder.n_brightest, peak_max=finder.peak_max,
-                                     scale_threshold=finder.scale_threshold)
-    except (ImportError, AttributeError, TypeError):  # another photutils: its own convolution
-        return finder._get_raw_catalog(data, mask=mask)
 
 
 def _convolved_near(data, kernel, xy):
