@@ -24,9 +24,19 @@ stars take green's width and position, so the atmospheric dispersion of
 the frames (about 0.15 px) disappears from its colour offsets; bilinear
 keeps each colour's own.
 
+A star's colour offset is noisy (its blue has the fewest photons), so the
+per-star agreement of the two stacks is set against what their noise alone
+gives (``--halves``): the even and the odd frames are stacked apart by each
+path, each star's drizzle-minus-demosaic offset measured in both halves, and
+half the spread of its change between the halves is the spread that noise
+alone gives the full stack's per-star differences (they are independent
+frames); the correlation of the two halves' differences says whether a
+star's difference is its own (a systematic) or noise.
+
 Usage::
 
     python benchmarks/bench_bayer.py [--pixfrac 1.0] [--frames 12] [--demosaic bilinear]
+                                     [--halves]
 """
 
 import argparse
@@ -107,9 +117,52 @@ def _saturated(files):
     return np.kron(sat, np.ones((SCALE, SCALE), bool))
 
 
-def _table(fits_, method, t_dem, arcsec):
+def _offset(fits_, c, axis, good):
+    """Each good star's offset of colour ``c`` from green along ``axis``, in input pixels."""
+    return (fits_[c][good, axis] - fits_[1][good, axis]) / SCALE
+
+
+def _on_half(xy, files, k):
+    """Output positions ``xy`` of a stack on ``files[0]`` seen on a stack on ``files[k]``."""
+    if k == 0:
+        return xy
+    from astroalign_nd.stacking.colour import find_bayer_transform
+    from astroalign_nd.transforms import as_matrix
+
+    m = np.asarray(as_matrix(find_bayer_transform(files[0], files[k])), float)  # raw -> raw
+    raw = (xy + 0.5) / SCALE - 0.5
+    x = m[0, 0] * raw[:, 0] + m[0, 1] * raw[:, 1] + m[0, 2]
+    y = m[1, 0] * raw[:, 0] + m[1, 1] * raw[:, 1] + m[1, 2]
+    return np.column_stack([SCALE * (x + 0.5) - 0.5, SCALE * (y + 0.5) - 0.5])
+
+
+def _noise_lines(fits_, halves, good):
+    """Per-star drizzle - demosaic offsets against the spread noise alone gives them."""
+    from scipy.special import erf
+
+    print(f"{'drizzle - demosaic, per star':30s}{'median':>9s}{'sd':>7s}{'<=0.1':>7s}"
+          f"{'| noise sd':>11s}{'<=0.1':>7s}{'corr(halves)':>14s}")
+    for c, colour in ((0, "R"), (2, "B")):
+        for axis, name in ((0, "x"), (1, "y")):
+            d = (_offset(fits_["drizzle"], c, axis, good)
+                 - _offset(fits_["demosaic"], c, axis, good))
+            line = (f"{colour + '-G ' + name:30s}{np.median(d):+9.3f}{np.std(d):7.3f}"
+                    f"{np.mean(np.abs(d) <= 0.1):7.0%}")
+            if halves is not None:
+                dh = [_offset(h["drizzle"], c, axis, good) - _offset(h["demosaic"], c, axis, good)
+                      for h in halves]
+                # Independent halves: the full stack's per-star noise is half their change.
+                sd = np.std(dh[0] - dh[1]) / 2
+                line += (f"{sd:11.3f}{erf(0.1 / (sd * np.sqrt(2))):7.0%}"
+                         f"{np.corrcoef(dh[0], dh[1])[0, 1]:+14.2f}")
+            print(line)
+
+
+def _table(fits_, method, t_dem, arcsec, halves=None):
     """The FWHM and colour-offset table of one demosaicing method against the drizzle."""
     good = np.all([np.isfinite(f[:, 2]) for fs in fits_.values() for f in fs], axis=0)
+    for h in halves or ():
+        good &= np.all([np.isfinite(f[:, 2]) for fs in h.values() for f in fs], axis=0)
     print()
     print(f"demosaic ({method}) then stack, up-sampled x{SCALE}: {t_dem:.0f} s; "
           f"{int(good.sum())} stars fitted in every plane of both")
@@ -129,6 +182,7 @@ def _table(fits_, method, t_dem, arcsec):
                   f"{np.median(off['demosaic']):16.3f}{np.median(off['drizzle']):16.3f}"
                   f"{np.median(diff):12.3f}{np.percentile(diff, 90):8.3f}"
                   f"{np.mean(diff <= 0.1):8.0%}")
+    _noise_lines(fits_, halves, good)
 
 
 def main(argv=None):
@@ -137,6 +191,9 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--demosaic", nargs="+", default=["bilinear", "Menon2007"],
                     help="demosaicing methods compared (default: bilinear Menon2007)")
+    ap.add_argument("--halves", action="store_true",
+                    help="also stack the even and the odd frames apart: the per-star "
+                         "agreement that noise alone gives")
     args = ap.parse_args(argv)
     files = sorted(glob.glob(os.path.join(DATA, "*.fit*")))[:args.frames]
     if not files:
@@ -156,6 +213,15 @@ def main(argv=None):
     drz_data = np.where(drz.mask, np.nan, drz.data)
     xy = _stars(drz_data[1], _saturated(files))
     fit_drz = [_fit(drz_data[c], xy) for c in range(3)]
+    halves, parts, xy_half = None, [], []
+    if args.halves:  # each half on its first frame's grid, the stars moved there
+        parts = [files[k::2] for k in (0, 1)]
+        xy_half = [_on_half(xy, files, k) for k in (0, 1)]
+        halves = []
+        for part, pos in zip(parts, xy_half):
+            d = stack(part, bayer="auto", drizzle=SCALE, pixfrac=args.pixfrac)
+            d = np.where(d.mask, np.nan, d.data)
+            halves.append({"drizzle": [_fit(d[c], pos) for c in range(3)]})
     print(f"{len(files)} raw Seestar subs (GRBG), {arcsec:.3f}\"/input px; output scale "
           f"{SCALE} ({arcsec / SCALE:.3f}\"/px); Bayer drizzle pixfrac {args.pixfrac}: "
           f"{t_drz:.0f} s, empty output pixels (R, G, B): "
@@ -166,8 +232,12 @@ def main(argv=None):
         t_dem = time.perf_counter() - t0
         dem_up = np.stack([_upsample(np.where(dem.mask[c], np.nan, dem.data[c]), SCALE)
                            for c in range(3)])
+        for h, part, pos in zip(halves or (), parts, xy_half):
+            d = stack(part, bayer="auto", demosaic=method)
+            h["demosaic"] = [_fit(_upsample(np.where(d.mask[c], np.nan, d.data[c]), SCALE), pos)
+                             for c in range(3)]
         _table({"demosaic": [_fit(dem_up[c], xy) for c in range(3)], "drizzle": fit_drz},
-               method, t_dem, arcsec)
+               method, t_dem, arcsec, halves)
     return 0
 
 
