@@ -45,6 +45,9 @@ Usage::
 
     python benchmarks/bench_bayer.py [--pixfrac 1.0] [--frames 12] [--demosaic bilinear]
                                      [--halves] [--simulate]
+
+(``--simulate --halves`` also checks the halves' noise estimate against the
+simulated frames' error from the truth.)
 """
 
 import argparse
@@ -253,11 +256,50 @@ def _simulated(matrices, shape, seed=37):
     return frames, np.column_stack([x, y])
 
 
-def _simulate(files, pixfrac):
-    """Both paths on simulated frames with the real frames' transforms: against the truth."""
+def _both_paths(frames, pixfrac):
+    """The Bayer drizzle and the bilinear demosaic-then-stack (up-sampled) of ``frames``."""
+    from astroalign_nd import stack
+
+    drz = stack(frames, bayer="auto", drizzle=SCALE, pixfrac=pixfrac)
+    dem = stack(frames, bayer="auto", demosaic="bilinear")
+    dem = np.stack([_upsample(np.where(dem.mask[c], np.nan, dem.data[c]), SCALE)
+                    for c in range(3)])
+    return np.where(drz.mask, np.nan, drz.data), dem
+
+
+def _check_halves(raws, matrices, xy, fits_, good, pixfrac):
+    """On simulated frames: the halves' noise estimate against the error from the truth."""
+    inv = np.linalg.inv(matrices[1])  # reference raw -> the odd half's reference raw
+    raw = (xy + 0.5) / SCALE - 0.5
+    odd = np.column_stack([inv[0, 0] * raw[:, 0] + inv[0, 1] * raw[:, 1] + inv[0, 2],
+                           inv[1, 0] * raw[:, 0] + inv[1, 1] * raw[:, 1] + inv[1, 2]])
+    halves = []
+    for part, pos in ((raws[0::2], xy), (raws[1::2], SCALE * (odd + 0.5) - 0.5)):
+        cubes = _both_paths(part, pixfrac)
+        halves.append({n: [_fit(cube[c], pos) for c in range(3)]
+                       for n, cube in zip(("drizzle", "demosaic"), cubes)})
+    for h in halves:
+        good = good & np.all([np.isfinite(f[:, 2]) for fs in h.values() for f in fs], axis=0)
+    print(f"  the halves' noise (--halves) against the error from the truth, {int(good.sum())} "
+          "stars, per-star sd in input px:")
+    for c in (0, 2):
+        truth = SIM_DX[c] - SIM_DX[1]
+        line = f"    {'RGB'[c]}-G x"
+        for n in ("drizzle", "demosaic"):
+            err = np.std(_offset(fits_[n], c, 0, good) - truth)
+            est = np.std(_offset(halves[0][n], c, 0, good) - _offset(halves[1][n], c, 0, good))
+            line += f"; {n} error {err:.3f}, halves {est / 2:.3f}"
+        d = [_offset(f["drizzle"], c, 0, good) - _offset(f["demosaic"], c, 0, good)
+             for f in (fits_, *halves)]
+        print(line + f"; drizzle - demosaic {np.std(d[0]):.3f}, halves "
+              f"{np.std(d[1] - d[2]) / 2:.3f}")
+
+
+def _simulate(files, pixfrac, halves=False):
+    """Both paths on simulated frames with the real frames' transforms: against the truth
+    (and the halves' noise estimate against the error from the truth)."""
     from astropy.io import fits
 
-    from astroalign_nd import stack
     from astroalign_nd.stacking.colour import find_bayer_transform
     from astroalign_nd.transforms import as_matrix
 
@@ -271,11 +313,7 @@ def _simulate(files, pixfrac):
           f"{SIM_DX[0] - SIM_DX[1]:+.3f}, B-G x {SIM_DX[2] - SIM_DX[1]:+.3f} (frame x)")
     for label, matrices in (("real transforms", real), ("shifts only", shifted)):
         raws, truth = _simulated(matrices, shape)
-        drz = stack(raws, bayer="auto", drizzle=SCALE, pixfrac=pixfrac)
-        dem = stack(raws, bayer="auto", demosaic="bilinear")
-        drz = np.where(drz.mask, np.nan, drz.data)
-        dem = np.stack([_upsample(np.where(dem.mask[c], np.nan, dem.data[c]), SCALE)
-                        for c in range(3)])
+        drz, dem = _both_paths(raws, pixfrac)
         xy = _stars(drz[1], np.zeros(drz[1].shape, bool), n_max=1000)
         out = SCALE * (truth + 0.5) - 0.5
         d = np.hypot(xy[:, :1] - out[None, :, 0], xy[:, 1:] - out[None, :, 1])
@@ -299,6 +337,8 @@ def _simulate(files, pixfrac):
             dd = _offset(fits_["drizzle"], c, 0, good) - _offset(fits_["demosaic"], c, 0, good)
             print(f"  drizzle - demosaic {'RGB'[c]}-G x per star: median {np.median(dd):+.3f}, "
                   f"sd {dd.std():.3f}, {np.mean(np.abs(dd) <= 0.1):.0%} <= 0.1")
+        if halves and matrices is real:
+            _check_halves(raws, matrices, xy, fits_, good, pixfrac)
     return 0
 
 
@@ -322,7 +362,7 @@ def main(argv=None):
         return 0
     warnings.filterwarnings("ignore")
     if args.simulate:
-        return _simulate(files, args.pixfrac)
+        return _simulate(files, args.pixfrac, args.halves)
     from astropy.io import fits
 
     from astroalign_nd import stack
