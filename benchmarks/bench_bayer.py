@@ -24,9 +24,30 @@ stars take green's width and position, so the atmospheric dispersion of
 the frames (about 0.15 px) disappears from its colour offsets; bilinear
 keeps each colour's own.
 
+A star's colour offset is noisy (its blue has the fewest photons), so the
+per-star agreement of the two stacks is set against what their noise alone
+gives (``--halves``): the even and the odd frames are stacked apart by each
+path, each star's drizzle-minus-demosaic offset measured in both halves, and
+half the spread of its change between the halves is the spread that noise
+alone gives the full stack's per-star differences (they are independent
+frames); the correlation of the two halves' differences says whether a
+star's difference is its own (a systematic) or noise.
+
+``--simulate`` measures both paths instead on simulated raw GRBG frames with a
+known truth, made like the real ones: the real frames' transforms (their drift
+and field rotation, found on them; then the same shifts without rotation),
+their sky and noise per colour, their stars' widths per colour (2.35 raw px in
+green, 2.5 in blue, 3.5 in red: the drizzled widths come out as the real
+ones), blue 0.6 and red 0.78 of green's flux, and a dispersion along the
+frames' x (red 0.15 raw px left of green, blue 0.2 right).
+
 Usage::
 
     python benchmarks/bench_bayer.py [--pixfrac 1.0] [--frames 12] [--demosaic bilinear]
+                                     [--halves] [--simulate]
+
+(``--simulate --halves`` also checks the halves' noise estimate against the
+simulated frames' error from the truth.)
 """
 
 import argparse
@@ -107,9 +128,58 @@ def _saturated(files):
     return np.kron(sat, np.ones((SCALE, SCALE), bool))
 
 
-def _table(fits_, method, t_dem, arcsec):
+def _offset(fits_, c, axis, good):
+    """Each good star's offset of colour ``c`` from green along ``axis``, in input pixels."""
+    return (fits_[c][good, axis] - fits_[1][good, axis]) / SCALE
+
+
+def _on_half(xy, files, k):
+    """Output positions ``xy`` of a stack on ``files[0]`` seen on a stack on ``files[k]``."""
+    if k == 0:
+        return xy
+    from astroalign_nd.stacking.colour import find_bayer_transform
+    from astroalign_nd.transforms import as_matrix
+
+    m = np.asarray(as_matrix(find_bayer_transform(files[0], files[k])), float)  # raw -> raw
+    raw = (xy + 0.5) / SCALE - 0.5
+    x = m[0, 0] * raw[:, 0] + m[0, 1] * raw[:, 1] + m[0, 2]
+    y = m[1, 0] * raw[:, 0] + m[1, 1] * raw[:, 1] + m[1, 2]
+    return np.column_stack([SCALE * (x + 0.5) - 0.5, SCALE * (y + 0.5) - 0.5])
+
+
+def _noise_lines(fits_, halves, good):
+    """Per-star drizzle - demosaic offsets against the spread noise alone gives them."""
+    from scipy.special import erf
+
+    print(f"{'drizzle - demosaic, per star':30s}{'median':>9s}{'sd':>7s}{'<=0.1':>7s}"
+          f"{'| noise sd':>11s}{'<=0.1':>7s}{'corr(halves)':>14s}{'noise drz, dem':>16s}")
+    for c, colour in ((0, "R"), (2, "B")):
+        for axis, name in ((0, "x"), (1, "y")):
+            d = (_offset(fits_["drizzle"], c, axis, good)
+                 - _offset(fits_["demosaic"], c, axis, good))
+            line = (f"{colour + '-G ' + name:30s}{np.median(d):+9.3f}{np.std(d):7.3f}"
+                    f"{np.mean(np.abs(d) <= 0.1):7.0%}")
+            if halves is not None:
+                dh = [_offset(h["drizzle"], c, axis, good) - _offset(h["demosaic"], c, axis, good)
+                      for h in halves]
+                # Independent halves: the full stack's per-star noise is half their change.
+                sd = np.std(dh[0] - dh[1]) / 2
+                line += (f"{sd:11.3f}{erf(0.1 / (sd * np.sqrt(2))):7.0%}"
+                         f"{np.corrcoef(dh[0], dh[1])[0, 1]:+14.2f}")
+                # Each path's own per-star noise of the offset (full stack), alike.
+                own = [np.std(_offset(halves[0][n], c, axis, good)
+                              - _offset(halves[1][n], c, axis, good)) / 2
+                       for n in ("drizzle", "demosaic")]
+                line += f"{own[0]:10.3f},{own[1]:6.3f}"
+            print(line)
+
+
+def _table(fits_, method, t_dem, arcsec, halves=None):
     """The FWHM and colour-offset table of one demosaicing method against the drizzle."""
     good = np.all([np.isfinite(f[:, 2]) for fs in fits_.values() for f in fs], axis=0)
+    in_halves = good.copy()  # the stars also fitted in both halves: the noise lines'
+    for h in halves or ():
+        in_halves &= np.all([np.isfinite(f[:, 2]) for fs in h.values() for f in fs], axis=0)
     print()
     print(f"demosaic ({method}) then stack, up-sampled x{SCALE}: {t_dem:.0f} s; "
           f"{int(good.sum())} stars fitted in every plane of both")
@@ -129,6 +199,147 @@ def _table(fits_, method, t_dem, arcsec):
                   f"{np.median(off['demosaic']):16.3f}{np.median(off['drizzle']):16.3f}"
                   f"{np.median(diff):12.3f}{np.percentile(diff, 90):8.3f}"
                   f"{np.mean(diff <= 0.1):8.0%}")
+    if halves is not None:
+        print(f"per star, on the {int(in_halves.sum())} stars also fitted in both halves "
+              "(even, odd frames); noise: the spread noise alone gives")
+    _noise_lines(fits_, halves, in_halves)
+
+
+#: Simulated frames: sky and its noise (R, G, B; ADU, as the real frames'), e-/ADU of the
+#: stars' photon noise, stars' FWHM (raw px), flux and x offset relative to green's.
+SIM_SKY, SIM_NOISE, SIM_GAIN = (842.0, 995.0, 794.0), (77.0, 90.0, 71.0), 0.1
+SIM_FWHM, SIM_FLUX, SIM_DX = (3.5, 2.35, 2.5), (0.78, 1.0, 0.6), (-0.15, 0.0, 0.2)
+
+
+def _render(shape, x, y, flux, fwhm):
+    """Pixel-integrated circular Gaussians."""
+    from scipy.special import erf
+
+    img = np.zeros(shape)
+    s = fwhm / 2.3548
+    h = int(np.ceil(4 * s)) + 2
+    for xi, yi, fi in zip(x, y, flux):
+        ix, iy = int(round(xi)), int(round(yi))
+        x0, x1 = max(ix - h, 0), min(ix + h + 1, shape[1])
+        y0, y1 = max(iy - h, 0), min(iy + h + 1, shape[0])
+        if x0 < x1 and y0 < y1:
+            px = np.diff(0.5 * erf((np.arange(x0, x1 + 1) - 0.5 - xi) / (np.sqrt(2) * s)))
+            py = np.diff(0.5 * erf((np.arange(y0, y1 + 1) - 0.5 - yi) / (np.sqrt(2) * s)))
+            img[y0:y1, x0:x1] += fi * py[:, None] * px[None, :]
+    return img
+
+
+def _simulated(matrices, shape, seed=37):
+    """Raw GRBG frames of one field seen through ``matrices`` (frame -> reference) and
+    its stars' true reference positions."""
+    from astroalign_nd.simulate import bayer_mosaic
+
+    rng = np.random.default_rng(seed)
+    pts = []
+    while len(pts) < 600:  # isolated stars, 25 px apart at least
+        p = rng.uniform([60, 60], [shape[1] - 60, shape[0] - 60])
+        if not pts or np.min(np.hypot(*(np.array(pts) - p).T)) > 25:
+            pts.append(p)
+    x, y = np.array(pts).T
+    flux = np.exp(rng.uniform(np.log(3e3), np.log(8e4), x.size))
+    frames = []
+    for m in matrices:
+        inv = np.linalg.inv(m)
+        fx = inv[0, 0] * x + inv[0, 1] * y + inv[0, 2]
+        fy = inv[1, 0] * x + inv[1, 1] * y + inv[1, 2]
+        planes = []
+        for c in range(3):
+            star = _render(shape, fx + SIM_DX[c], fy, flux * SIM_FLUX[c], SIM_FWHM[c])
+            sd = np.sqrt(SIM_NOISE[c] ** 2 + star / SIM_GAIN)
+            planes.append(SIM_SKY[c] + star + sd * rng.normal(size=shape))
+        frames.append(bayer_mosaic(np.stack(planes), "GRBG"))
+    return frames, np.column_stack([x, y])
+
+
+def _both_paths(frames, pixfrac):
+    """The Bayer drizzle and the bilinear demosaic-then-stack (up-sampled) of ``frames``."""
+    from astroalign_nd import stack
+
+    drz = stack(frames, bayer="auto", drizzle=SCALE, pixfrac=pixfrac)
+    dem = stack(frames, bayer="auto", demosaic="bilinear")
+    dem = np.stack([_upsample(np.where(dem.mask[c], np.nan, dem.data[c]), SCALE)
+                    for c in range(3)])
+    return np.where(drz.mask, np.nan, drz.data), dem
+
+
+def _check_halves(raws, matrices, xy, fits_, good, pixfrac):
+    """On simulated frames: the halves' noise estimate against the error from the truth."""
+    inv = np.linalg.inv(matrices[1])  # reference raw -> the odd half's reference raw
+    raw = (xy + 0.5) / SCALE - 0.5
+    odd = np.column_stack([inv[0, 0] * raw[:, 0] + inv[0, 1] * raw[:, 1] + inv[0, 2],
+                           inv[1, 0] * raw[:, 0] + inv[1, 1] * raw[:, 1] + inv[1, 2]])
+    halves = []
+    for part, pos in ((raws[0::2], xy), (raws[1::2], SCALE * (odd + 0.5) - 0.5)):
+        cubes = _both_paths(part, pixfrac)
+        halves.append({n: [_fit(cube[c], pos) for c in range(3)]
+                       for n, cube in zip(("drizzle", "demosaic"), cubes)})
+    for h in halves:
+        good = good & np.all([np.isfinite(f[:, 2]) for fs in h.values() for f in fs], axis=0)
+    print(f"  the halves' noise (--halves) against the error from the truth, {int(good.sum())} "
+          "stars, per-star sd in input px:")
+    for c in (0, 2):
+        truth = SIM_DX[c] - SIM_DX[1]
+        line = f"    {'RGB'[c]}-G x"
+        for n in ("drizzle", "demosaic"):
+            err = np.std(_offset(fits_[n], c, 0, good) - truth)
+            est = np.std(_offset(halves[0][n], c, 0, good) - _offset(halves[1][n], c, 0, good))
+            line += f"; {n} error {err:.3f}, halves {est / 2:.3f}"
+        d = [_offset(f["drizzle"], c, 0, good) - _offset(f["demosaic"], c, 0, good)
+             for f in (fits_, *halves)]
+        print(line + f"; drizzle - demosaic {np.std(d[0]):.3f}, halves "
+              f"{np.std(d[1] - d[2]) / 2:.3f}")
+
+
+def _simulate(files, pixfrac, halves=False):
+    """Both paths on simulated frames with the real frames' transforms: against the truth
+    (and the halves' noise estimate against the error from the truth)."""
+    from astropy.io import fits
+
+    from astroalign_nd.stacking.colour import find_bayer_transform
+    from astroalign_nd.transforms import as_matrix
+
+    shape = fits.getdata(files[0]).shape
+    real = [np.eye(3)] + [np.asarray(as_matrix(find_bayer_transform(f, files[0])), float)
+                          for f in files[1:]]
+    rot = max(abs(np.degrees(np.arctan2(m[1, 0], m[0, 0]))) for m in real)
+    shifted = [np.array([[1, 0, m[0, 2]], [0, 1, m[1, 2]], [0, 0, 1.0]]) for m in real]
+    print(f"simulated raw GRBG frames {shape[1]} x {shape[0]}, 600 stars, the real frames' "
+          f"{len(files)} transforms (field rotation up to {rot:.3f} deg); truth R-G x "
+          f"{SIM_DX[0] - SIM_DX[1]:+.3f}, B-G x {SIM_DX[2] - SIM_DX[1]:+.3f} (frame x)")
+    for label, matrices in (("real transforms", real), ("shifts only", shifted)):
+        raws, truth = _simulated(matrices, shape)
+        drz, dem = _both_paths(raws, pixfrac)
+        xy = _stars(drz[1], np.zeros(drz[1].shape, bool), n_max=1000)
+        out = SCALE * (truth + 0.5) - 0.5
+        d = np.hypot(xy[:, :1] - out[None, :, 0], xy[:, 1:] - out[None, :, 1])
+        near = d.argmin(axis=1)
+        keep = d[np.arange(len(xy)), near] < 1.5
+        xy, out = xy[keep], out[near[keep]]
+        fits_ = {n: [_fit(cube[c], xy) for c in range(3)] for n, cube in
+                 (("drizzle", drz), ("demosaic", dem))}
+        good = np.all([np.isfinite(f[:, 2]) for fs in fits_.values() for f in fs], axis=0)
+        print(f"{label}: {int(good.sum())} stars; median (mean +- its error) in input px")
+        for n in ("drizzle", "demosaic"):
+            g = (fits_[n][1][good, 0] - out[good, 0]) / SCALE
+            line = f"  {n:9s} G x - truth {np.median(g):+.3f}"
+            for c in (0, 2):
+                o = _offset(fits_[n], c, 0, good)
+                line += (f"; {'RGB'[c]}-G x {np.median(o):+.3f} ({o.mean():+.3f} +- "
+                         f"{o.std() / np.sqrt(o.size):.3f})")
+            fw = ", ".join(f"{np.median(fits_[n][c][good, 2]):.2f}" for c in range(3))
+            print(line + f"; FWHM R, G, B {fw} output px")
+        for c in (0, 2):
+            dd = _offset(fits_["drizzle"], c, 0, good) - _offset(fits_["demosaic"], c, 0, good)
+            print(f"  drizzle - demosaic {'RGB'[c]}-G x per star: median {np.median(dd):+.3f}, "
+                  f"sd {dd.std():.3f}, {np.mean(np.abs(dd) <= 0.1):.0%} <= 0.1")
+        if halves and matrices is real:
+            _check_halves(raws, matrices, xy, fits_, good, pixfrac)
+    return 0
 
 
 def main(argv=None):
@@ -137,6 +348,12 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--demosaic", nargs="+", default=["bilinear", "Menon2007"],
                     help="demosaicing methods compared (default: bilinear Menon2007)")
+    ap.add_argument("--halves", action="store_true",
+                    help="also stack the even and the odd frames apart: the per-star "
+                         "agreement that noise alone gives")
+    ap.add_argument("--simulate", action="store_true",
+                    help="measure both paths on simulated frames made like the real ones "
+                         "(their transforms, sky, noise, star widths) with a known truth")
     args = ap.parse_args(argv)
     files = sorted(glob.glob(os.path.join(DATA, "*.fit*")))[:args.frames]
     if not files:
@@ -144,6 +361,8 @@ def main(argv=None):
               "nothing measured.")
         return 0
     warnings.filterwarnings("ignore")
+    if args.simulate:
+        return _simulate(files, args.pixfrac, args.halves)
     from astropy.io import fits
 
     from astroalign_nd import stack
@@ -156,6 +375,15 @@ def main(argv=None):
     drz_data = np.where(drz.mask, np.nan, drz.data)
     xy = _stars(drz_data[1], _saturated(files))
     fit_drz = [_fit(drz_data[c], xy) for c in range(3)]
+    halves, parts, xy_half = None, [], []
+    if args.halves:  # each half on its first frame's grid, the stars moved there
+        parts = [files[k::2] for k in (0, 1)]
+        xy_half = [_on_half(xy, files, k) for k in (0, 1)]
+        halves = []
+        for part, pos in zip(parts, xy_half):
+            d = stack(part, bayer="auto", drizzle=SCALE, pixfrac=args.pixfrac)
+            d = np.where(d.mask, np.nan, d.data)
+            halves.append({"drizzle": [_fit(d[c], pos) for c in range(3)]})
     print(f"{len(files)} raw Seestar subs (GRBG), {arcsec:.3f}\"/input px; output scale "
           f"{SCALE} ({arcsec / SCALE:.3f}\"/px); Bayer drizzle pixfrac {args.pixfrac}: "
           f"{t_drz:.0f} s, empty output pixels (R, G, B): "
@@ -166,8 +394,12 @@ def main(argv=None):
         t_dem = time.perf_counter() - t0
         dem_up = np.stack([_upsample(np.where(dem.mask[c], np.nan, dem.data[c]), SCALE)
                            for c in range(3)])
+        for h, part, pos in zip(halves or (), parts, xy_half):
+            d = stack(part, bayer="auto", demosaic=method)
+            h["demosaic"] = [_fit(_upsample(np.where(d.mask[c], np.nan, d.data[c]), SCALE), pos)
+                             for c in range(3)]
         _table({"demosaic": [_fit(dem_up[c], xy) for c in range(3)], "drizzle": fit_drz},
-               method, t_dem, arcsec)
+               method, t_dem, arcsec, halves)
     return 0
 
 
