@@ -383,13 +383,8 @@ def _jackknife_error(model, src, dst, w, corners, n_max=60):
         return 0.0
     parity = 1 if np.linalg.det(model.matrix[:2, :2]) > 0 else -1
     pre = apply_matrix(np.linalg.inv(model.matrix), corners)  # corners in source pixels
-    preds = np.empty((n, len(corners), 2))
-    keep = np.ones(n, bool)
-    for i in range(n):
-        keep[i] = False
-        m_i, _ = cls.fit_matrix(src[keep], dst[keep], w[keep], parity)
-        preds[i] = apply_matrix(m_i, pre)
-        keep[i] = True
+    preds = np.array([apply_matrix(m_i, pre)
+                      for m_i in cls._leave_one_out(src, dst, w, parity)])
     dev = preds - preds.mean(axis=0)
     var = (n - 1) / n * np.einsum("ikj,ikj->k", dev, dev)
     return float(np.sqrt(np.max(var)))
