@@ -397,18 +397,23 @@ class LinearTransform2D(Model):
         n = len(src)
         rest = np.nonzero(~np.eye(n, dtype=bool))[1].reshape(n, n - 1)  # row i: all but i
         solver = getattr(getattr(np.linalg, "_umath_linalg", None), "lstsq", None)
-        if cls._linear_fit.__func__ is not LinearTransform2D._linear_fit.__func__ or solver is None:
-            return np.array([cls.fit_matrix(src[r], dst[r], w[r], parity)[0] for r in rest])
-        if "parity" in cls.param_names:
-            _check_parity(parity)
-        layer = cls.layer(parity)
-        design = layer.design(src)[rest].reshape(n, 2 * (n - 1), layer.k)
-        sw = np.sqrt(np.repeat(w[rest], 2, axis=1))
-        rcond = np.finfo(float).eps * max(2 * (n - 1), layer.k)  # lstsq's default
-        with np.errstate(invalid="raise", over="ignore", divide="ignore", under="ignore"):
-            theta = solver(design * sw[..., None], (dst[rest].reshape(n, -1) * sw)[..., None],
-                           rcond, signature="ddd->ddid")[0][..., 0]
-        return np.array([layer.to_matrix(t) for t in theta])
+        if cls._linear_fit.__func__ is LinearTransform2D._linear_fit.__func__ and solver:
+            if "parity" in cls.param_names:
+                _check_parity(parity)
+            layer = cls.layer(parity)
+            design = layer.design(src)[rest].reshape(n, 2 * (n - 1), layer.k)
+            sw = np.sqrt(np.repeat(w[rest], 2, axis=1))
+            rcond = np.finfo(float).eps * max(2 * (n - 1), layer.k)  # lstsq's default
+            try:
+                with np.errstate(invalid="raise", over="ignore", divide="ignore",
+                                 under="ignore"):
+                    theta = solver(design * sw[..., None],
+                                   (dst[rest].reshape(n, -1) * sw)[..., None], rcond,
+                                   signature="ddd->ddid")[0][..., 0]
+                return np.array([layer.to_matrix(t) for t in theta])
+            except FloatingPointError:
+                pass  # (an SVD did not converge) the fits one at a time raise lstsq's error
+        return np.array([cls.fit_matrix(src[r], dst[r], w[r], parity)[0] for r in rest])
 
 
 class TranslationTransform(LinearTransform2D):
