@@ -15,8 +15,9 @@ from ..transforms.layers import layer_of
 from ..transforms.registry import transform_class, transform_type_of
 from .result import MatchResult
 from .geometry import _overlap_box, bounding_frame
-from .verify import (MAX_ERROR_BOUND, WARN_ERROR_BOUND, _degenerate, _log10_false_alarm,
-                     _model_misfit, _on_line, _predicted_error, _refine)
+from .verify import (MAX_ERROR_BOUND, WARN_ERROR_BOUND, _degenerate, _densest_line,
+                     _log10_false_alarm, _model_misfit, _on_line, _predicted_error, _refine,
+                     _strip_halfwidth)
 from .triangles import hypothesis_matrices, match_triangles
 
 __all__ = ['match_points', 'search_tolerance']
@@ -446,12 +447,17 @@ def _evaluate(s, hyp, h, n_scored):
     if res is None:
         return None
     model, si, dj, resid, cov, tol = res
+    # The matched target stars' densest line, which both the local chance
+    # and the degeneracy test look at (found once).
+    line = _densest_line(s.dst_pts[dj], _strip_halfwidth(tol)) if len(si) >= 4 else None
     lfa = _log10_false_alarm(model.matrix, s.src_pts, s.dst_pts, len(si), tol, s.src_frame,
                              s.dst_frame, n_scored + s.prior_trials, hyp.tri_rms[h],
-                             hyp.tri_size[h], s.invariant_radius, s.n_dof, matched=(si, dj))
+                             hyp.tri_size[h], s.invariant_radius, s.n_dof, matched=(si, dj),
+                             dst_line=line)
     # Stars along one line (a band of detections on a raw frame's edge) fix
     # no 2-D transform, however many: refused, and the search goes on.
-    degenerate = _degenerate(s.src_pts[si], s.dst_pts[dj], s.src_frame, s.dst_frame, tol)
+    degenerate = _degenerate(s.src_pts[si], s.dst_pts[dj], s.src_frame, s.dst_frame, tol,
+                             dst_line=line)
     if degenerate is not None:  # (an affine fit of collinear stars is singular)
         return _Candidate(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h,
                           pred=0.0, bound=0.0, inconsistent=None, degenerate=degenerate,

@@ -15,7 +15,8 @@ __all__ = []
 
 
 def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame,
-                       n_trials, tri_rms, tri_size, inv_radius, n_dof=4, matched=None):
+                       n_trials, tri_rms, tri_size, inv_radius, n_dof=4, matched=None,
+                       dst_line=None):
     """
     log10 probability that ``n_matched`` stars agree by chance.
 
@@ -32,7 +33,8 @@ def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame
     matched stars are, over the area they actually span
     (`_local_log_tail`), and the larger of the two figures is returned: a
     match along a row of detections is not credited with the frame's
-    average density.
+    average density.  ``dst_line``: the matched target stars' `_densest_line`
+    at `_strip_halfwidth` of ``tol``, when the caller has it already.
     """
     frac, area = _frame_area_fraction(m, src_frame, dst_frame)
     if area <= 0:
@@ -49,7 +51,7 @@ def _log10_false_alarm(m, src_pts, dst_pts, n_matched, tol, src_frame, dst_frame
     else:
         log_tail = 0.0
     if matched is not None and len(matched[0]) >= 4:
-        log_tail = max(log_tail, _local_log_tail(m, src_pts, dst_pts, matched, tol))
+        log_tail = max(log_tail, _local_log_tail(m, src_pts, dst_pts, matched, tol, dst_line))
     # Chance that a random triangle pair within the invariant radius fits
     # its own three vertices as well as this one does: the 6 coordinates of
     # the 3 vertex pairs less the model's free parameters (2 spare for a
@@ -383,13 +385,8 @@ def _jackknife_error(model, src, dst, w, corners, n_max=60):
         return 0.0
     parity = 1 if np.linalg.det(model.matrix[:2, :2]) > 0 else -1
     pre = apply_matrix(np.linalg.inv(model.matrix), corners)  # corners in source pixels
-    preds = np.empty((n, len(corners), 2))
-    keep = np.ones(n, bool)
-    for i in range(n):
-        keep[i] = False
-        m_i, _ = cls.fit_matrix(src[keep], dst[keep], w[keep], parity)
-        preds[i] = apply_matrix(m_i, pre)
-        keep[i] = True
+    preds = np.array([apply_matrix(m_i, pre)
+                      for m_i in cls._leave_one_out(src, dst, w, parity)])
     dev = preds - preds.mean(axis=0)
     var = (n - 1) / n * np.einsum("ikj,ikj->k", dev, dev)
     return float(np.sqrt(np.max(var)))
@@ -466,11 +463,21 @@ def _densest_line(pts, half_width, n_lines=600):
     starts, dirs = starts[ok], dirs[ok] / length[ok, None]
     normals = np.column_stack([-dirs[:, 1], dirs[:, 0]])
     # (lines, points) perpendicular distances, written out: einsum does not vectorise this
-    # two-term sum and took most of a 300-star match's verification (the same values).
-    dist = np.abs(normals[:, :1] * (pts[None, :, 0] - starts[:, :1])
-                  + normals[:, 1:] * (pts[None, :, 1] - starts[:, 1:]))
-    best = int(np.argmax((dist <= half_width).sum(axis=1)))
-    mask = dist[best] <= half_width
+    # two-term sum and took most of a 300-star match's verification (the same values);
+    # in place, in blocks of lines of about 32,000 distances, which stay in the CPU's caches.
+    counts = np.empty(len(starts), int)
+    block = max(128, 32768 // n)
+    for k in range(0, len(starts), block):
+        part = slice(k, k + block)
+        dist = pts[None, :, 0] - starts[part, :1]
+        dist *= normals[part, :1]
+        other = pts[None, :, 1] - starts[part, 1:]
+        other *= normals[part, 1:]
+        dist += other
+        counts[part] = np.count_nonzero(np.abs(dist, out=dist) <= half_width, axis=1)
+    best = int(np.argmax(counts))
+    mask = np.abs(normals[best, 0] * (pts[:, 0] - starts[best, 0])
+                  + normals[best, 1] * (pts[:, 1] - starts[best, 1])) <= half_width
     # The line through its own stars (principal axis), then its stars again.
     on = pts[mask]
     c = on.mean(axis=0)
@@ -504,7 +511,7 @@ def _in_box(pts, box):
     return (a >= a0) & (a <= a1) & (b >= b0) & (b <= b1)
 
 
-def _local_log_tail(m, src_pts, dst_pts, matched, tol):
+def _local_log_tail(m, src_pts, dst_pts, matched, tol, line=None):
     """
     log10 chance of the matched pairs, from the density of detections where
     they are, not over the whole frame.
@@ -517,13 +524,14 @@ def _local_log_tail(m, src_pts, dst_pts, matched, tol):
     area)``.  A row of detections along a frame's edge thus counts with
     the density along that row, where chance pairs are likely.  The 3 stars
     of the proposing triangle match by construction and are not counted.
+    ``line``: that densest line, when the caller has it already.
     """
     si, dj = matched
     d = dst_pts[dj]
     mapped = apply_matrix(m, src_pts)
     groups = [np.ones(len(dj), bool)]
     if len(dj) >= 4:
-        on, c, u = _densest_line(d, _strip_halfwidth(tol))
+        on, c, u = line if line is not None else _densest_line(d, _strip_halfwidth(tol))
         if on.sum() >= MIN_ON_LINE:
             groups = [~on, on] if (~on).any() else [on]
     log_tail, spare = 0.0, 3  # the triangle's stars, taken off the largest group first
@@ -555,7 +563,7 @@ def _local_log_tail(m, src_pts, dst_pts, matched, tol):
     return log_tail
 
 
-def _degenerate(src, dst, src_frame, dst_frame, tol):
+def _degenerate(src, dst, src_frame, dst_frame, tol, dst_line=None):
     """
     Why the matched stars cannot pin a 2-D transform, or None.
 
@@ -564,18 +572,20 @@ def _degenerate(src, dst, src_frame, dst_frame, tol):
     a thin strip), or all lie within a few pixels of one edge (a band of
     detections along a raw frame's first rows).  Along a line, a transform
     is fixed only along that line, and a row of detections makes chance
-    pairs along it likely.
+    pairs along it likely.  ``dst_line``: the target stars' `_densest_line`
+    (at `_strip_halfwidth` of ``tol``), when the caller has it already.
     """
     n = len(src)
     if n < 4:
         return None
     half = _strip_halfwidth(tol)
-    for name, pts, frame in (("source", src, src_frame), ("target", dst, dst_frame)):
+    for name, pts, frame, line in (("source", src, src_frame, None),
+                                   ("target", dst, dst_frame, dst_line)):
         x0, x1, y0, y1 = frame
         near = max(3.0 * tol, 0.02 * min(x1 - x0, y1 - y0))
         edges = {"left": pts[:, 0] - x0, "right": x1 - pts[:, 0],
                  "bottom": pts[:, 1] - y0, "top": y1 - pts[:, 1]}
-        on, c, u = _densest_line(pts, half)
+        on, c, u = line if line is not None else _densest_line(pts, half)
         k = int(on.sum())
         if k >= max(MIN_ON_LINE, n // 2) and n - k < MIN_OFF_LINE:
             across = np.abs((pts[on] - c) @ np.array([-u[1], u[0]]))

@@ -213,22 +213,22 @@ def _floor_fraction(rows, resid, claimed):
     d = d / np.maximum(np.linalg.norm(d, axis=0), 1e-300)  # conditioning only
     r0 = resid.reshape(2 * n)
     dof = 2 * n - k
+    # Every floor of the grid at once (the stacked products and solves are
+    # those of one floor at a time, slice by slice: the same numbers).
+    v = (1.0 - _MIX_GRID[:, None]) * claimed + _MIX_GRID[:, None]
+    w = np.repeat(1.0 / v, 2, axis=1)
+    a = d.T @ (d * w[:, :, None])
+    sign, logdet = np.linalg.slogdet(a)
+    ok = np.flatnonzero(sign > 0)
+    rhs = np.matmul(d.T, (w[ok] * r0)[..., None])
+    r = r0 - np.matmul(d, np.linalg.solve(a[ok], rhs))[..., 0]
+    s = np.sum(w[ok] * r * r, axis=1) / dof
+    ok, s = ok[s > 0], s[s > 0]
     nll = np.full(len(_MIX_GRID), np.inf)
     scales = np.ones(len(_MIX_GRID))
-    for i, f in enumerate(_MIX_GRID):
-        v = (1.0 - f) * claimed + f
-        w = np.repeat(1.0 / v, 2)
-        a = d.T @ (d * w[:, None])
-        sign, logdet = np.linalg.slogdet(a)
-        if sign <= 0:
-            continue
-        r = r0 - d @ np.linalg.solve(a, d.T @ (w * r0))
-        s = float(np.sum(w * r * r)) / dof
-        if s <= 0:
-            continue
-        # -2 log L_R up to a constant: dof log s + log|V| + log|D' V^-1 D|.
-        nll[i] = dof * np.log(s) + 2.0 * np.sum(np.log(v)) + logdet
-        scales[i] = s
+    # -2 log L_R up to a constant: dof log s + log|V| + log|D' V^-1 D|.
+    nll[ok] = dof * np.log(s) + 2.0 * np.sum(np.log(v[ok]), axis=1) + logdet[ok]
+    scales[ok] = s
     if not np.isfinite(nll[-1]):
         return 1.0, 1.0
     # The most even weights within 1 sigma of the best (the upper end of

@@ -385,6 +385,36 @@ class LinearTransform2D(Model):
         theta, *_ = np.linalg.lstsq(design * sw[:, None], dst.ravel() * sw, rcond=None)
         return layer.to_matrix(theta), design, theta
 
+    @classmethod
+    def _leave_one_out(cls, src, dst, w, parity):
+        """
+        The matrices `fit_matrix` gives with each pair left out in turn,
+        ``(N, 3, 3)``: for the jackknife.  The types linear in their layer's
+        parameters solve the N problems in one stacked call of the
+        least-squares kernel `numpy.linalg.lstsq` runs one at a time (the
+        same numbers, without its per-call overhead).
+        """
+        n = len(src)
+        rest = np.nonzero(~np.eye(n, dtype=bool))[1].reshape(n, n - 1)  # row i: all but i
+        solver = getattr(getattr(np.linalg, "_umath_linalg", None), "lstsq", None)
+        if cls._linear_fit.__func__ is LinearTransform2D._linear_fit.__func__ and solver:
+            if "parity" in cls.param_names:
+                _check_parity(parity)
+            layer = cls.layer(parity)
+            design = layer.design(src)[rest].reshape(n, 2 * (n - 1), layer.k)
+            sw = np.sqrt(np.repeat(w[rest], 2, axis=1))
+            rcond = np.finfo(float).eps * max(2 * (n - 1), layer.k)  # lstsq's default
+            try:
+                with np.errstate(invalid="raise", over="ignore", divide="ignore",
+                                 under="ignore"):
+                    theta = solver(design * sw[..., None],
+                                   (dst[rest].reshape(n, -1) * sw)[..., None], rcond,
+                                   signature="ddd->ddid")[0][..., 0]
+                return np.array([layer.to_matrix(t) for t in theta])
+            except FloatingPointError:
+                pass  # (an SVD did not converge) the fits one at a time raise lstsq's error
+        return np.array([cls.fit_matrix(src[r], dst[r], w[r], parity)[0] for r in rest])
+
 
 class TranslationTransform(LinearTransform2D):
     """
