@@ -646,12 +646,14 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
         k = np.flatnonzero(active)
         if not len(k):
             break
-        my = 2.0 * y[k, None] - gy
-        mx = 2.0 * x[k, None] - gx
-        val = _bilinear_zero(img[k], my, mx, size)
+        # Only the bad pixels are filled: their mirror images alone are read.
+        kb, pb = np.nonzero(bad_flat[k])
+        my = 2.0 * y[k][kb] - gy[pb]
+        mx = 2.0 * x[k][kb] - gx[pb]
+        val, cover = _bilinear_zero((img, good), k[kb], my, mx, size)
+        filled = img[k]
         # A mirror image that touches a bad pixel is not the star's.
-        ok = _bilinear_zero(good[k], my, mx, size) > 0.999
-        filled = np.where(bad_flat[k], np.where(ok, val, 0.0), img[k])
+        filled[kb, pb] = np.where(cover > 0.999, val, 0.0)
         # One step of the windowed centroid on the stars made whole.
         x1, y1 = windowed_centroid(filled.reshape(len(k), size, size),
                                    np.broadcast_to(none_bad, (len(k), size, size)),
@@ -662,24 +664,29 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
     return x, y
 
 
-def _bilinear_zero(planes, my, mx, size):
+def _bilinear_zero(planes, rows, my, mx, size):
     """
-    Bilinear values of the flattened square ``planes`` (one row each) at
-    ``(my, mx)``, zero outside ``[0, size - 1]`` (as
-    `scipy.ndimage.map_coordinates` with order 1 and ``cval=0`` gives them).
+    Bilinear values of each of the stacks ``planes`` (flattened square
+    planes, one row each) at ``(my, mx)`` of plane ``rows``, zero outside
+    ``[0, size - 1]`` (as `scipy.ndimage.map_coordinates` with order 1 and
+    ``cval=0`` gives them); the taps and weights are shared by the stacks.
     """
     inside = (my >= 0.0) & (my <= size - 1.0) & (mx >= 0.0) & (mx <= size - 1.0)
     my, mx = np.where(inside, my, 0.0), np.where(inside, mx, 0.0)
     # The last interval is [size - 2, size - 1]: its far tap then stays inside.
-    fy = np.clip(np.floor(my), 0, max(size - 2, 0))
-    fx = np.clip(np.floor(mx), 0, max(size - 2, 0))
+    # (minimum/maximum: np.clip's overhead dominates on these small arrays.)
+    last = max(size - 2, 0)
+    fy = np.minimum(np.maximum(np.floor(my), 0), last)
+    fx = np.minimum(np.maximum(np.floor(mx), 0), last)
     ty, tx = my - fy, mx - fx
-    i00 = (fy * size + fx).astype(np.intp) + (np.arange(len(planes)) * size * size)[:, None]
+    i00 = (fy * size + fx).astype(np.intp) + rows * (size * size)
     sx, sy = (1, size) if size > 1 else (0, 0)
-    flat = planes.ravel()
-    v = ((1.0 - ty) * ((1.0 - tx) * flat.take(i00) + tx * flat.take(i00 + sx))
-         + ty * ((1.0 - tx) * flat.take(i00 + sy) + tx * flat.take(i00 + sy + sx)))
-    return np.where(inside, v, 0.0)
+    out = []
+    for flat in (p.ravel() for p in planes):
+        v = ((1.0 - ty) * ((1.0 - tx) * flat.take(i00) + tx * flat.take(i00 + sx))
+             + ty * ((1.0 - tx) * flat.take(i00 + sy) + tx * flat.take(i00 + sy + sx)))
+        out.append(np.where(inside, v, 0.0))
+    return out
 
 
 def adaptive_fwhm(cut, bad, dx, dy, sigma0=1.5, n_iter=8):
