@@ -458,8 +458,9 @@ def median(a, axis=None):
     return np.mean(np.stack([lo, hi]), axis=0)
 
 
-#: 1-D samples at least this long are narrowed before selection (`_middle_pair`).
-_BRACKET_MIN = 16384
+#: 1-D samples at least this long are narrowed before selection (`_middle_pair`:
+#: from about 4000 values on it is the faster, 3x at 16,000).
+_BRACKET_MIN = 4096
 
 
 def _middle_pair(x, k):
@@ -636,40 +637,49 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
         return x, y
     # All stars at once (a loop over stars cost 0.2 ms each, most of a
     # detection's time on a frame with many stars near its edges).
-    img = np.where(bad, 0.0, cut).reshape(n, -1)
-    good = (~bad).astype(float).reshape(n, -1)
-    bad_flat = bad.reshape(n, -1)
-    gy, gx = np.divmod(np.arange(size * size), size)
+    img = np.where(bad, 0.0, cut).astype(float, copy=False).reshape(n, -1)
+    # Each pixel's value and whether it is good, side by side: one lookup
+    # reads both at a mirror image.
+    pairs = np.stack([img, (~bad).astype(float).reshape(n, -1)], axis=-1)
+    # Only the bad pixels are filled: their mirror images alone are read.
+    kb, pb = np.nonzero(bad.reshape(n, -1))
+    gy, gx = np.divmod(pb, size)
+    fast = _compiled()  # (read once: the loop's steps are small)
     none_bad = np.zeros((1, 1, 1), bool)
-    active = np.ones(n, bool)
+    k = np.arange(n)
     for _ in range(n_iter):
-        k = np.flatnonzero(active)
-        if not len(k):
-            break
-        # Only the bad pixels are filled: their mirror images alone are read.
-        kb, pb = np.nonzero(bad_flat[k])
-        my = 2.0 * y[k][kb] - gy[pb]
-        mx = 2.0 * x[k][kb] - gx[pb]
-        val, cover = _bilinear_zero((img, good), k[kb], my, mx, size)
+        my = 2.0 * y[kb] - gy
+        mx = 2.0 * x[kb] - gx
+        val = _bilinear_zero(pairs, kb, my, mx, size)
         filled = img[k]
         # A mirror image that touches a bad pixel is not the star's.
-        filled[kb, pb] = np.where(cover > 0.999, val, 0.0)
+        filled[np.searchsorted(k, kb), pb] = np.where(val[:, 1] > 0.999, val[:, 0], 0.0)
         # One step of the windowed centroid on the stars made whole.
-        x1, y1 = windowed_centroid(filled.reshape(len(k), size, size),
-                                   np.broadcast_to(none_bad, (len(k), size, size)),
-                                   x[k], y[k], sigma[k], n_iter=1)
+        x1, y1 = x[k], y[k]
+        if fast:
+            _ckernels.windowed_centroid(filled.reshape(len(k), size, size), x1, y1,
+                                        sigma[k], 1)
+        else:
+            x1, y1 = windowed_centroid(filled.reshape(len(k), size, size),
+                                       np.broadcast_to(none_bad, (len(k), size, size)),
+                                       x1, y1, sigma[k], n_iter=1)
         moved = np.maximum(np.abs(x1 - x[k]), np.abs(y1 - y[k]))
         x[k], y[k] = x1, y1
-        active[k[moved < 1e-4]] = False
+        if (moved < 1e-4).any():  # those stop; the others go on
+            k = k[moved >= 1e-4]
+            if not len(k):
+                break
+            on = np.isin(kb, k)
+            kb, pb, gy, gx = kb[on], pb[on], gy[on], gx[on]
     return x, y
 
 
 def _bilinear_zero(planes, rows, my, mx, size):
     """
-    Bilinear values of each of the stacks ``planes`` (flattened square
-    planes, one row each) at ``(my, mx)`` of plane ``rows``, zero outside
-    ``[0, size - 1]`` (as `scipy.ndimage.map_coordinates` with order 1 and
-    ``cval=0`` gives them); the taps and weights are shared by the stacks.
+    Bilinear values of the flattened square ``planes`` (one row each, the
+    values along their last axis) at ``(my, mx)`` of plane ``rows``, zero
+    outside ``[0, size - 1]`` (as `scipy.ndimage.map_coordinates` with
+    order 1 and ``cval=0`` gives them).
     """
     inside = (my >= 0.0) & (my <= size - 1.0) & (mx >= 0.0) & (mx <= size - 1.0)
     my, mx = np.where(inside, my, 0.0), np.where(inside, mx, 0.0)
@@ -678,15 +688,13 @@ def _bilinear_zero(planes, rows, my, mx, size):
     last = max(size - 2, 0)
     fy = np.minimum(np.maximum(np.floor(my), 0), last)
     fx = np.minimum(np.maximum(np.floor(mx), 0), last)
-    ty, tx = my - fy, mx - fx
+    ty, tx = (my - fy)[:, None], (mx - fx)[:, None]
     i00 = (fy * size + fx).astype(np.intp) + rows * (size * size)
     sx, sy = (1, size) if size > 1 else (0, 0)
-    out = []
-    for flat in (p.ravel() for p in planes):
-        v = ((1.0 - ty) * ((1.0 - tx) * flat.take(i00) + tx * flat.take(i00 + sx))
-             + ty * ((1.0 - tx) * flat.take(i00 + sy) + tx * flat.take(i00 + sy + sx)))
-        out.append(np.where(inside, v, 0.0))
-    return out
+    flat = planes.reshape(-1, planes.shape[-1])
+    v = ((1.0 - ty) * ((1.0 - tx) * flat[i00] + tx * flat[i00 + sx])
+         + ty * ((1.0 - tx) * flat[i00 + sy] + tx * flat[i00 + sy + sx]))
+    return np.where(inside[:, None], v, 0.0)
 
 
 def adaptive_fwhm(cut, bad, dx, dy, sigma0=1.5, n_iter=8):

@@ -58,7 +58,8 @@ def _diff_sigma(rows, mrows, lag):
     good = np.isfinite(diff)
     if mrows is not None:
         good &= ~(mrows[:, lag:] | mrows[:, :-lag]).ravel()
-    diff = diff[good]
+    if not good.all():  # (most frames: no copy)
+        diff = diff[good]
     if diff.size < 10:
         return float("nan")
     med = _median(diff)
