@@ -640,7 +640,7 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
     img = np.where(bad, 0.0, cut).astype(float, copy=False).reshape(n, -1)
     # Each pixel's value and whether it is good, side by side: one lookup
     # reads both at a mirror image.
-    pairs = np.stack([img, (~bad).astype(float).reshape(n, -1)], axis=-1)
+    pairs = np.stack([img.ravel(), (~bad).astype(float).ravel()])
     # Only the bad pixels are filled: their mirror images alone are read.
     kb, pb = np.nonzero(bad.reshape(n, -1))
     gy, gx = np.divmod(pb, size)
@@ -653,7 +653,7 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
         val = _bilinear_zero(pairs, kb, my, mx, size)
         filled = img[k]
         # A mirror image that touches a bad pixel is not the star's.
-        filled[np.searchsorted(k, kb), pb] = np.where(val[:, 1] > 0.999, val[:, 0], 0.0)
+        filled[np.searchsorted(k, kb), pb] = np.where(val[1] > 0.999, val[0], 0.0)
         # One step of the windowed centroid on the stars made whole.
         x1, y1 = x[k], y[k]
         if fast:
@@ -676,10 +676,11 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
 
 def _bilinear_zero(planes, rows, my, mx, size):
     """
-    Bilinear values of the flattened square ``planes`` (one row each, the
-    values along their last axis) at ``(my, mx)`` of plane ``rows``, zero
-    outside ``[0, size - 1]`` (as `scipy.ndimage.map_coordinates` with
-    order 1 and ``cval=0`` gives them).
+    Bilinear values of the square planes (``size`` x ``size``, flattened
+    and laid end to end along the last axis of ``planes``, one set of them
+    per leading row) at ``(my, mx)`` of plane ``rows``, zero outside
+    ``[0, size - 1]`` (as `scipy.ndimage.map_coordinates` with order 1 and
+    ``cval=0`` gives them).
     """
     inside = (my >= 0.0) & (my <= size - 1.0) & (mx >= 0.0) & (mx <= size - 1.0)
     my, mx = np.where(inside, my, 0.0), np.where(inside, mx, 0.0)
@@ -688,13 +689,13 @@ def _bilinear_zero(planes, rows, my, mx, size):
     last = max(size - 2, 0)
     fy = np.minimum(np.maximum(np.floor(my), 0), last)
     fx = np.minimum(np.maximum(np.floor(mx), 0), last)
-    ty, tx = (my - fy)[:, None], (mx - fx)[:, None]
+    ty, tx = my - fy, mx - fx
     i00 = (fy * size + fx).astype(np.intp) + rows * (size * size)
     sx, sy = (1, size) if size > 1 else (0, 0)
-    flat = planes.reshape(-1, planes.shape[-1])
-    v = ((1.0 - ty) * ((1.0 - tx) * flat[i00] + tx * flat[i00 + sx])
-         + ty * ((1.0 - tx) * flat[i00 + sy] + tx * flat[i00 + sy + sx]))
-    return np.where(inside[:, None], v, 0.0)
+    v = ((1.0 - ty) * ((1.0 - tx) * planes.take(i00, axis=-1) + tx * planes.take(i00 + sx, axis=-1))
+         + ty * ((1.0 - tx) * planes.take(i00 + sy, axis=-1)
+                 + tx * planes.take(i00 + sy + sx, axis=-1)))
+    return np.where(inside, v, 0.0)
 
 
 def adaptive_fwhm(cut, bad, dx, dy, sigma0=1.5, n_iter=8):
