@@ -426,87 +426,31 @@ def median(a, axis=None):
     `numpy.median`, the same values, several times faster.
 
     numpy's median partitions around two elements for even lengths, which
-    is slow along an axis (~8 ms for 1500 cutouts of 300 pixels); one
-    partition plus the maximum of the lower half gives the same values.
-    Long 1-D samples (a whole-image noise sample, a masked frame's fill
-    value) are first narrowed to a bracket around the middle
-    (`_middle_pair`).  In 1-D a NaN makes the median NaN, as in numpy;
-    along an axis, callers pass finite values only.
+    is slow (~8 ms along an axis for 1500 cutouts of 300 pixels; in 1-D
+    several times slower than around one, which NumPy selects with SIMD
+    code); one partition plus the maximum of the lower half gives the same
+    values.  In 1-D a NaN makes the median NaN, as in numpy; along an axis,
+    callers pass finite values only.
     """
     a = np.asarray(a)
     if axis is None:
         a, axis = a.ravel(), 0
     n = a.shape[axis]
     k = n // 2
-    if a.ndim == 1:
-        if n >= _BRACKET_MIN and a.dtype.kind == "f":
-            lo, hi = _middle_pair(a, k)
-        else:
-            # NaN sorts last: the largest value says whether there is one.
-            part = np.partition(a, (k, n - 1) if n % 2 else (k - 1, k, n - 1))
-            if a.dtype.kind == "f" and np.isnan(part[-1]):
-                return a.dtype.type(np.nan)
-            lo, hi = part[k - 1], part[k]
-        # (lo + hi) / 2 in the array's type, as np.mean of the two.
-        return hi if n % 2 else (lo + hi) / 2
     part = np.partition(a, k, axis=axis)
+    if a.ndim == 1:
+        hi = part[k]
+        # NaN sorts last: the largest value from the middle on says whether there is one.
+        if a.dtype.kind == "f" and np.isnan(np.max(part[k:])):
+            return a.dtype.type(np.nan)
+        # (lo + hi) / 2 in the array's type, as np.mean of the two.
+        return hi if n % 2 else (np.max(part[:k]) + hi) / 2
     hi = part.take(k, axis=axis)
     if n % 2:
         return hi
     lower = (slice(None),) * axis + (slice(0, k),)  # a view, not a copy
     lo = np.max(part[lower], axis=axis)
     return np.mean(np.stack([lo, hi]), axis=0)
-
-
-#: 1-D samples at least this long are narrowed before selection (`_middle_pair`:
-#: from about 4000 values on it is the faster, 3x at 16,000).
-_BRACKET_MIN = 4096
-
-
-def _middle_pair(x, k):
-    """
-    The (k-1)-th and k-th smallest values of a 1-D float array, exactly
-    (both NaN if it holds a NaN).
-
-    A sorted subsample brackets them (with a margin of about 5 sigma of the
-    subsample's rank scatter), and only the values inside the bracket,
-    a sixth of the sample or less, are partitioned.  If the bracket misses
-    (strongly clustered values), the whole sample is.  The values returned
-    are the order statistics themselves: the same as a full partition's.
-    """
-    n = x.size
-    # A larger subsample for a larger sample: a narrower bracket to partition.
-    sample = np.sort(x[:: max(1, n // int(np.clip(n // 64, 1024, 16384)))])
-    ns = sample.size
-    centre = k / n * (ns - 1)
-    margin = int(2.5 * np.sqrt(ns)) + 2  # 5 sigma: sqrt(ns / 4) per sigma
-    i0 = max(0, int(np.floor(centre)) - margin)
-    i1 = min(ns - 1, int(np.ceil(centre)) + margin)
-    below, inside, n_nan = _bracket(x, sample[i0], sample[i1], n * (i1 - i0 + 1) / ns)
-    if n_nan:
-        nan = x.dtype.type(np.nan)
-        return nan, nan
-    if below <= k - 1 and below + inside.size > k:
-        j = k - below
-        part = np.partition(inside, (j - 1, j))
-        return part[j - 1], part[j]
-    part = np.partition(x, (k - 1, k))
-    return part[k - 1], part[k]
-
-
-def _bracket(x, lo, hi, expected):
-    """
-    (number of values of ``x`` below ``lo``, the values in ``[lo, hi]`` in
-    order, number of NaNs); ``expected`` is about how many are in ``[lo, hi]``.
-    """
-    if _compiled() and x.dtype in (np.float32, np.float64):
-        x = np.ascontiguousarray(x)
-        inside = np.empty(min(x.size, 2 * int(expected) + 1024), x.dtype)
-        below, k, n_nan = _ckernels.bracket(x, float(lo), float(hi), inside)
-        if k < inside.size:  # all of them fitted
-            return int(below), inside[:k], int(n_nan)
-    return (int(np.count_nonzero(x < lo)), x[(x >= lo) & (x <= hi)],
-            int(np.count_nonzero(np.isnan(x))))
 
 
 def finite_sample(data, mask, step):
