@@ -127,7 +127,7 @@ def _local_background(cut, bad, r_in):
     bkg = _median(vals, axis=1)  # right for every cutout without bad pixels
     for i in np.flatnonzero(badv.any(axis=1)):  # the few at edges or masks
         good = vals[i][~badv[i]]
-        bkg[i] = np.median(good) if good.size else 0.0
+        bkg[i] = _median(good) if good.size else 0.0  # np.median's values
     return bkg
 
 
