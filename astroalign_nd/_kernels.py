@@ -587,19 +587,36 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
     pairs = np.stack([img.ravel(), (~bad).astype(float).ravel()])
     # Only the bad pixels are filled: their mirror images alone are read.
     kb, pb = np.nonzero(bad.reshape(n, -1))
-    gy, gx = np.divmod(pb, size)
+    g = np.stack(np.divmod(pb, size)).astype(float)  # their (y, x)
     fast = _compiled()  # (read once: the loop's steps are small)
     none_bad = np.zeros((1, 1, 1), bool)
     k = np.arange(n)
+    yx = np.stack([y, x])
+    last = max(size - 2, 0)
+    sx, sy = (1, size) if size > 1 else (0, 0)
     for _ in range(n_iter):
-        my = 2.0 * y[kb] - gy
-        mx = 2.0 * x[kb] - gx
-        val = _bilinear_zero(pairs, kb, my, mx, size)
+        # Bilinear values at the mirror images (y then x in each array's two
+        # rows), zero beyond [0, size - 1] (as `scipy.ndimage.map_coordinates`
+        # with order 1 and ``cval=0`` gives them).
+        c = 2.0 * yx.take(kb, axis=1) - g
+        within = (c >= 0.0) & (c <= size - 1.0)
+        inside = within[0] & within[1]
+        c = np.where(inside, c, 0.0)
+        # The last interval is [size - 2, size - 1]: its far tap then stays
+        # inside.  (minimum/maximum: np.clip's overhead dominates here.)
+        f = np.minimum(np.maximum(np.floor(c), 0), last)
+        t = c - f
+        u = 1.0 - t
+        i00 = (f[0] * size + f[1]).astype(np.intp) + kb * (size * size)
+        val = (u[0] * (u[1] * pairs.take(i00, axis=-1) + t[1] * pairs.take(i00 + sx, axis=-1))
+               + t[0] * (u[1] * pairs.take(i00 + sy, axis=-1)
+                         + t[1] * pairs.take(i00 + sy + sx, axis=-1)))
+        val = np.where(inside, val, 0.0)
         filled = img[k]
         # A mirror image that touches a bad pixel is not the star's.
         filled[np.searchsorted(k, kb), pb] = np.where(val[1] > 0.999, val[0], 0.0)
         # One step of the windowed centroid on the stars made whole.
-        x1, y1 = x[k], y[k]
+        y1, x1 = yx.take(k, axis=1)
         if fast:
             _ckernels.windowed_centroid(filled.reshape(len(k), size, size), x1, y1,
                                         sigma[k], 1)
@@ -607,39 +624,15 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
             x1, y1 = windowed_centroid(filled.reshape(len(k), size, size),
                                        np.broadcast_to(none_bad, (len(k), size, size)),
                                        x1, y1, sigma[k], n_iter=1)
-        moved = np.maximum(np.abs(x1 - x[k]), np.abs(y1 - y[k]))
-        x[k], y[k] = x1, y1
+        moved = np.maximum(np.abs(x1 - yx[1, k]), np.abs(y1 - yx[0, k]))
+        yx[0, k], yx[1, k] = y1, x1
         if (moved < 1e-4).any():  # those stop; the others go on
             k = k[moved >= 1e-4]
             if not len(k):
                 break
             on = np.isin(kb, k)
-            kb, pb, gy, gx = kb[on], pb[on], gy[on], gx[on]
-    return x, y
-
-
-def _bilinear_zero(planes, rows, my, mx, size):
-    """
-    Bilinear values of the square planes (``size`` x ``size``, flattened
-    and laid end to end along the last axis of ``planes``, one set of them
-    per leading row) at ``(my, mx)`` of plane ``rows``, zero outside
-    ``[0, size - 1]`` (as `scipy.ndimage.map_coordinates` with order 1 and
-    ``cval=0`` gives them).
-    """
-    inside = (my >= 0.0) & (my <= size - 1.0) & (mx >= 0.0) & (mx <= size - 1.0)
-    my, mx = np.where(inside, my, 0.0), np.where(inside, mx, 0.0)
-    # The last interval is [size - 2, size - 1]: its far tap then stays inside.
-    # (minimum/maximum: np.clip's overhead dominates on these small arrays.)
-    last = max(size - 2, 0)
-    fy = np.minimum(np.maximum(np.floor(my), 0), last)
-    fx = np.minimum(np.maximum(np.floor(mx), 0), last)
-    ty, tx = my - fy, mx - fx
-    i00 = (fy * size + fx).astype(np.intp) + rows * (size * size)
-    sx, sy = (1, size) if size > 1 else (0, 0)
-    v = ((1.0 - ty) * ((1.0 - tx) * planes.take(i00, axis=-1) + tx * planes.take(i00 + sx, axis=-1))
-         + ty * ((1.0 - tx) * planes.take(i00 + sy, axis=-1)
-                 + tx * planes.take(i00 + sy + sx, axis=-1)))
-    return np.where(inside, v, 0.0)
+            kb, pb, g = kb[on], pb[on], g[:, on]
+    return yx[1].copy(), yx[0].copy()
 
 
 def adaptive_fwhm(cut, bad, dx, dy, sigma0=1.5, n_iter=8):
