@@ -99,14 +99,13 @@ def _despike(cut, bad, noise, fwhm):
     if k.size == 0:
         return cut
     _, ny, nx = cut.shape
-    nbs = np.full((8, k.size), -np.inf)
-    for j, (dy, dx) in enumerate((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
-                                 if dy or dx):
-        y, x = iy + dy, ix + dx
-        inside = (y >= 0) & (y < ny) & (x >= 0) & (x < nx)
-        y, x = np.clip(y, 0, ny - 1), np.clip(x, 0, nx - 1)
-        good = inside & ~bad[k, y, x]
-        nbs[j, good] = cut[k[good], y[good], x[good]]
+    # The eight neighbours of every such pixel at once, from a copy with a
+    # border: bad pixels and those beyond the tile read -inf.
+    framed = np.full((len(cut), ny + 2, nx + 2), -np.inf)
+    framed[:, 1:-1, 1:-1] = np.where(bad, -np.inf, cut)
+    dy, dx = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]).T
+    nbs = framed.reshape(-1)[(k * (ny + 2) + iy + 1) * (nx + 2) + ix + 1
+                             + (dy * (nx + 2) + dx)[:, None]]
     top = nbs.max(axis=0)
     # (A pixel with no good neighbour is not judged.)
     spike = np.isfinite(top) & (cut[k, iy, ix] > allow * np.maximum(top, 0.0)
