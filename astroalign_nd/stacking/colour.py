@@ -8,7 +8,9 @@ so a colour frame registers like a grey one, in raw pixels, and all its
 colours share one transform.  Then each frame is demosaiced (``colour-demosaicing``, the
 ``[colour]`` extra) and each colour is registered and combined as
 `~astroalign_nd.stack` combines grey frames (sky normalisation, rejection,
-weights, the combined uncertainty, within ``memory_limit``).
+weights, the combined uncertainty, within ``memory_limit``), or each
+colour's raw pixels are drizzled (`drizzle_bayer`) after the stack's
+rejection on the frames' grey versions.
 
 The stack is an RGB `~astropy.nddata.CCDData` cube ``(3, ny, nx)``
 (red, green, blue planes) with an uncertainty, mask and coverage per
