@@ -8,7 +8,9 @@ so a colour frame registers like a grey one, in raw pixels, and all its
 colours share one transform.  Then each frame is demosaiced (``colour-demosaicing``, the
 ``[colour]`` extra) and each colour is registered and combined as
 `~astroalign_nd.stack` combines grey frames (sky normalisation, rejection,
-weights, the combined uncertainty, within ``memory_limit``).
+weights, the combined uncertainty, within ``memory_limit``), or each
+colour's raw pixels are drizzled (`drizzle_bayer`) after the stack's
+rejection on the frames' grey versions.
 
 The stack is an RGB `~astropy.nddata.CCDData` cube ``(3, ny, nx)``
 (red, green, blue planes) with an uncertainty, mask and coverage per
@@ -37,8 +39,9 @@ from ..io.bayer import (balanced_grey, bayer_channels, bayer_pattern, superpixel
                         superpixel_to_raw)
 from ..registration import Reference, find_transform
 from ..resample import apply_transform
-from .combine import array_stats, frame_variance, frame_weights, normalise
-from .drizzle import DrizzleAccumulator, output_shape, pixel_map, weight_map
+from .combine import (array_stats, combine_files, frame_stats, frame_variance, frame_weights,
+                      normalise)
+from .drizzle import DrizzleAccumulator, blot_mask, output_shape, pixel_map, weight_map
 from .header import stack_ccddata, stack_header
 from .options import DEMOSAIC_METHODS
 
@@ -341,7 +344,8 @@ def register_bayer(ref_item, others, folder, *, bayer, method, hdu, unit, order,
 
 
 def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize, weights,
-                  gain, read_noise, hdu, unit, options, saturation=None, callback=None):
+                  gain, read_noise, hdu, unit, options, saturation=None, callback=None,
+                  reject=None, folder=None, order="bilinear"):
     """
     Bayer drizzle: each colour's raw pixels dropped at their true positions.
 
@@ -349,8 +353,13 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
     its colours' skies brought to the reference's (``normalize``), and each
     colour drizzled (``astroalign_nd.stacking.drizzle``)
     with the frame's one pixel map and a weight map that is zero on the
-    other colours' pixels: no demosaicing, no interpolation.  One frame at a
-    time.
+    other colours' pixels: no demosaicing, no interpolation.  With
+    ``reject``, the outliers (cosmic rays, trails, hot pixels) are found
+    first as `~astroalign_nd.stack` finds them: the frames' grey versions
+    are resampled onto the reference's grid (files in ``folder``) and
+    combined with the stack's clipping; each frame's rejected pixels are
+    carried back onto its raw pixels (`~astroalign_nd.stacking.drizzle.blot_mask`)
+    and weigh nothing in any colour.  One frame in memory at a time.
 
     Parameters
     ----------
@@ -366,41 +375,116 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
         The frames' variance model (else each colour's measured sky noise).
     saturation : float, optional
         Raw values at or above weigh nothing.
+    reject : `~astroalign_nd.stacking.StackConfig`, optional
+        The stack's options whose clipping (``clip``...) finds the outliers
+        (default None: no rejection).
+    folder : str, optional
+        With ``reject``: where the grey versions on the reference's grid go.
+    order : str or int, optional
+        With ``reject``: their resampling's interpolation.
 
     Returns
     -------
     channels : list of 3 tuples
         ``(value, variance, coverage, names, stats)`` for red, green, blue,
-        as `colour_ccddata` takes them (counts per output pixel).
+        as `colour_ccddata` takes them (counts per output pixel; each
+        colour's stats count its raw pixels rejected).
     rejected : list of (name, reason)
     reference : ``ParsedInput``
     pattern : str
     """
+    def planes():  # (value, variance, coverage, names, stats) of each colour
+        return [(pl.value, pl.variance, pl.count, names, st)
+                for pl, st in zip((acc.planes() for acc in accs), stats)]
+
     ref_name = ref_item[2] or "reference"
     ref, pattern = _raw_frame(ref_item[0], bayer, hdu, unit, ref_name)
     shape = ref.data.shape
     out_shape = output_shape(shape, scale)
     accs = [DrizzleAccumulator(out_shape, scale, pixfrac, kernel) for _ in range(3)]
     names, stats, rejected = [], [[], [], []], []
-    frames = [(0, ref_item[2], ref, pattern, None, None)]
-    found = _find_raw_transforms(others, ref, pattern, bayer, hdu, unit, options, callback)
+    frames = itertools.chain([(0, ref_item[2], ref, pattern, None, None)],
+                             _find_raw_transforms(others, ref, pattern, bayer, hdu, unit,
+                                                  options, callback))
+    interrupt = None
+    if reject is not None:
+        try:  # the outliers first: each frame's rejection map on the reference's grid
+            frames, interrupt = _outliers(frames, shape, reject, folder, order), None
+        except KeyboardInterrupt as exc:  # the frames registered so far are drizzled
+            frames, interrupt = exc.partial_result, exc
+        items = {k: item for (item, _), k in others}
+        # Each frame read again, its rejected pixels blotted back onto it.
+        frames = ((k, label, ref if transform is None else _raw_frame(
+            items[k], bayer, hdu, unit, label or f"frame{k}")[0], pat, transform, error,
+            None if flags is None else blot_mask(flags, pixel_map(transform, shape)))
+            for k, label, pat, transform, error, flags in frames)
     try:
-        _drizzle_frames(itertools.chain(frames, found), ref_item, accs, names, stats, rejected,
-                        weights, gain, read_noise, normalize, scale, saturation)
+        _drizzle_frames(frames, ref_item, accs, names, stats, rejected, weights, gain,
+                        read_noise, normalize, scale, saturation)
     except KeyboardInterrupt as exc:
         # Ctrl-C (SIGTERM on the command line): the frames drizzled so far can be stacked
         # (a frame stopped half-way is left out of the stack and of its accounts).
-        exc.not_registered = len(others) + 1 - len(names) - len(rejected)
-        exc.partial_result = _drizzled_channels(accs, stats, names), rejected, ref, pattern
-        raise
-    return _drizzled_channels(accs, stats, names), rejected, ref, pattern
+        interrupt = exc
+    if interrupt is not None:
+        interrupt.not_registered = len(others) + 1 - len(names) - len(rejected)
+        interrupt.partial_result = planes(), rejected, ref, pattern
+        raise interrupt
+    return planes(), rejected, ref, pattern
+
+
+def _outliers(frames, shape, opts, folder, order):
+    """
+    `drizzle_bayer`'s rejection: each frame's grey version resampled onto the reference's
+    grid and written to ``folder`` (one frame at a time), then the stack's clipped
+    combination of them.  Returns the frames as ``(index, label, pattern, transform,
+    error, rejection map)`` (a failed one's map None), the maps a memory map in ``folder``.
+    On Ctrl-C, the exception carries the frames registered so far, with their maps.
+    """
+    done, paths, stats, interrupt = [], [], [], None
+    try:
+        for k, label, p, pat, transform, error in frames:
+            done.append([k, label, pat, transform, error, None])
+            if error is not None:
+                continue
+            grey = _grey(p, pat)[0]
+            if transform is not None:
+                grey = apply_transform(transform, grey, shape, order=order, add_keyword=False)
+            paths.append(os.path.join(folder, f"grey{len(paths):05d}.fits"))
+            write_ccddata(grey, paths[-1], overwrite=True)
+            del p, grey
+            try:
+                st = frame_stats(paths[-1], opts.memory_limit)
+            except ValueError:  # nothing on the reference's grid: the drizzle says why
+                paths.pop()
+                continue
+            normalise(st, st.sky if not stats else stats[0].sky, opts.normalize)
+            stats.append(st)
+            done[-1][5] = len(paths) - 1
+    except KeyboardInterrupt as exc:
+        interrupt = exc
+        while done and done[-1][4] is None and done[-1][5] is None:
+            del done[-1]  # stopped between its registration and its grey version
+    flags = np.lib.format.open_memmap(os.path.join(folder, ".rejected.npy"), mode="w+",
+                                      dtype=np.bool_, shape=(max(len(paths), 1),) + shape)
+    if paths:
+        frame_weights(stats, None, opts.gain, opts.read_noise)
+        combine_files(paths, stats, shape, opts, gain=opts.gain, read_noise=opts.read_noise,
+                      memory_limit=opts.memory_limit, rejected=flags)
+    done = [tuple(f[:5]) + (None if f[5] is None else flags[f[5]],) for f in done]
+    if interrupt is not None:
+        interrupt.partial_result = done
+        raise interrupt
+    return done
 
 
 def _drizzle_frames(frames, ref_item, accs, names, stats, rejected, weights, gain, read_noise,
                     normalize, scale, saturation):
-    """`drizzle_bayer`'s frames drizzled one at a time into ``accs`` (and the accounts)."""
+    """
+    `drizzle_bayer`'s frames drizzled one at a time into ``accs`` (and the accounts);
+    a frame's optional seventh item marks its rejected raw pixels.
+    """
     ref_stats = None
-    for k, label, p, pat, transform, error in frames:
+    for k, label, p, pat, transform, error, *bad in frames:
         k = ref_item[1] if transform is None and error is None else k
         name = os.path.basename(label) if label else f"frame{k}"
         if error is not None:
@@ -409,6 +493,7 @@ def _drizzle_frames(frames, ref_item, accs, names, stats, rejected, weights, gai
         data = np.asarray(p.data, dtype=np.float64)
         channels = bayer_channels(data.shape, pat)
         valid = weight_map(data, p.mask, saturation=saturation) > 0
+        bad = bad[0] if bad and bad[0] is not None else np.zeros(data.shape, bool)
         # The frame's weight: given, 1 without weights, None ('variance') from its noise.
         w = 1.0 if weights is None else None if isinstance(weights, str) else weights[k]
         try:  # each colour's sky, noise, normalisation (to the reference's skies) and weight
@@ -431,20 +516,13 @@ def _drizzle_frames(frames, ref_item, accs, names, stats, rejected, weights, gai
         with interrupts_held():  # a frame is in every colour and the accounts, or in none
             for c in range(3):
                 sel = valid & (channels == c)
+                st[c].n_rejected = int((sel & bad).sum())
                 var = frame_variance(data, None, st[c], gain, read_noise) * st[c].scale ** 2
                 accs[c].add(data * st[c].scale - st[c].offset, pm,
-                            np.where(sel, np.float32(st[c].weight), np.float32(0.0)), var)
+                            np.where(sel & ~bad, np.float32(st[c].weight), np.float32(0.0)),
+                            var)
                 stats[c].append(st[c])
             names.append(name if transform is not None else f"{name} (reference)")
-
-
-def _drizzled_channels(accs, stats, names):
-    """``(value, variance, coverage, names, stats)`` of each colour's accumulator."""
-    channels = []
-    for acc, st in zip(accs, stats):
-        pl = acc.planes()
-        channels.append((pl.value, pl.variance, pl.count, names, st))
-    return channels
 
 
 def colour_ccddata(channels, *, meta, wcs, unit, dtype, rejected, settings):
@@ -480,7 +558,10 @@ def colour_ccddata(channels, *, meta, wcs, unit, dtype, rejected, settings):
     planes = [stack_ccddata(value, variance, coverage, meta={}, names=names, stats=stats,
                             rejected=[], settings={}, wcs=None, unit=unit, dtype=dtype)
               for value, variance, coverage, names, stats in channels]
-    header = stack_header(meta, [{"name": n} for n in channels[1][3]], rejected, settings)
+    # Each frame's pixels rejected: its three colours'.
+    header = stack_header(meta, [{"name": n, "n_rejected": sum(ch[4][k].n_rejected
+                                                               for ch in channels)}
+                                 for k, n in enumerate(channels[1][3])], rejected, settings)
     header["AACHANS"] = ("R,G,B", "colour of each plane of the cube")
     for colour, (_, _, _, names, stats) in zip("RGB", channels):
         for name, st in zip(names, stats):

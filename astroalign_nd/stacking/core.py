@@ -322,7 +322,8 @@ def _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, u
     try:
         if opts.drizzle is not None:
             ccd = _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options,
-                                 bayer=bayer, callback=callback)
+                                 bayer=bayer, callback=callback, temp_dir=temp_dir,
+                                 order=order)
         else:
             _demosaicing()  # the [colour] extra's ImportError before any work
             ccd = _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu,
@@ -388,32 +389,45 @@ def _stack_bayer(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, un
 
 
 def _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options, *, bayer,
-                   callback):
-    """Raw colour frames registered on their grey versions and Bayer-drizzled."""
+                   callback, temp_dir, order):
+    """
+    Raw colour frames registered on their grey versions and Bayer-drizzled, after the
+    stack's rejection on the grey versions (unless ``clip`` is None).
+    """
     interrupt = None
-    try:
-        channels, rejected, ref, pattern = drizzle_bayer(
-            ref_item, others, bayer=bayer, scale=opts.drizzle, pixfrac=opts.pixfrac,
-            kernel=opts.kernel, normalize=opts.normalize, weights=weights, gain=opts.gain,
-            read_noise=opts.read_noise, hdu=hdu, unit=unit, options=options,
-            saturation=opts.saturation, callback=callback)
-    except KeyboardInterrupt as exc:
-        partial = getattr(exc, "partial_result", None)
-        if partial is None or len(partial[0][0][3]) < 2:
-            raise  # no frame but the reference drizzled: nothing to stack
-        (channels, rejected, ref, pattern), interrupt = partial, exc
+    opts = _feasible_clip(opts, len(others) + 1)
+    if opts.clip == "sigma" and opts.star_tolerance is None:
+        # No frame's FWHM is measured here: `_star_clip`'s allowance for a night of equal
+        # seeing (the registration and normalisation errors' 0.3), or star cores go.
+        opts = dataclasses.replace(opts, star_tolerance=0.3)
+    with _aligned_folder(None, temp_dir) as folder:
+        try:
+            channels, rejected, ref, pattern = drizzle_bayer(
+                ref_item, others, bayer=bayer, scale=opts.drizzle, pixfrac=opts.pixfrac,
+                kernel=opts.kernel, normalize=opts.normalize, weights=weights, gain=opts.gain,
+                read_noise=opts.read_noise, hdu=hdu, unit=unit, options=options,
+                saturation=opts.saturation, callback=callback,
+                reject=opts if opts.clip else None, folder=folder, order=order)
+        except KeyboardInterrupt as exc:
+            partial = getattr(exc, "partial_result", None)
+            if partial is None or len(partial[0][0][3]) < 2:
+                raise  # no frame but the reference drizzled: nothing to stack
+            (channels, rejected, ref, pattern), interrupt = partial, exc
     _check_registered(others, len(channels[0][3]) - 1, rejected)
     for name, why in rejected:
         warn(f"{name} was left out of the stack: {why}")
-    settings = {"AASTKMTH": ("drizzle", "astroalign_nd stack: combination"),
-                "AASTKNRM": (opts.normalize or "none", "sky normalisation"),
-                "AADRIZ": (opts.drizzle, "drizzle: output pixels per reference pixel"),
-                "AADZPFR": (opts.pixfrac, "drizzle: pixfrac"),
-                "AADZKERN": (opts.kernel, "drizzle: kernel"),
-                "AABAYER": (pattern, "Bayer pattern of the reference's first cell")}
+    settings = _settings(opts, len(channels[0][3]))
+    settings.update({"AASTKMTH": ("drizzle", "astroalign_nd stack: combination"),
+                     "AADRIZ": (opts.drizzle, "drizzle: output pixels per reference pixel"),
+                     "AADZPFR": (opts.pixfrac, "drizzle: pixfrac"),
+                     "AADZKERN": (opts.kernel, "drizzle: kernel"),
+                     "AABAYER": (pattern, "Bayer pattern of the reference's first cell")})
     wcs = scaled_wcs(ref.wcs, opts.drizzle, channels[0][0].shape)
     ccd = colour_ccddata(channels, meta=ref.meta, wcs=wcs, unit=ref.unit or "adu",
                          dtype=dtype, rejected=rejected, settings=settings)
+    ccd.meta.add_history("astroalign_nd stack: Bayer drizzle, " + (
+        "outliers rejected on the grey versions and blotted back" if opts.clip
+        else "no rejection"))
     if interrupt is not None:
         raise _interrupted(ccd, interrupt, len(channels[0][3]), others)
     return ccd

@@ -226,7 +226,9 @@ class StackConfig:
         version (each colour scaled to green's response), then demosaiced
         and each colour stacked with the frame's one transform, or with
         ``drizzle`` Bayer-drizzled (each colour's raw pixels dropped at
-        their true positions, no rejection;
+        their true positions, after the stack's rejection found on the
+        frames' grey versions on the reference's grid and carried back
+        onto each raw frame;
         `astroalign_nd.stacking.colour.drizzle_bayer`; ``pixfrac`` toward 1,
         each colour having a quarter or half of the pixels).  The stack is
         an RGB cube ``(3, ny, nx)``, each plane with its uncertainty, mask

@@ -207,3 +207,45 @@ def test_the_reference_header_comments_are_kept(raws):
     cube = stack(frames, bayer="auto", drizzle=2)
     assert list(cube.meta["COMMENT"]) == ["taken automatically"]
     assert cube.meta["OBJECT"] == "field" and "BAYERPAT" not in cube.meta
+
+
+def _with_trail_and_cosmics(raw):
+    """``raw`` with a satellite trail (a line of +2000 adu) and 12 cosmic rays (+5000)."""
+    data = np.array(raw.data, dtype=float)
+    yy, xx = np.mgrid[0:SHAPE[0], 0:SHAPE[1]]
+    data[np.abs(0.45 * xx - yy + 40.0) / np.hypot(0.45, 1.0) < 0.8] += 2000.0
+    rng = np.random.default_rng(5)
+    data[rng.integers(5, SHAPE[0] - 5, 12), rng.integers(5, SHAPE[1] - 5, 12)] += 5000.0
+    return CCDData(data, unit=raw.unit, meta=raw.meta), int((data - raw.data > 0).sum())
+
+
+@pytest.mark.parametrize("clip", ["sigma", None])
+def test_bayer_drizzle_rejects_a_trail_and_cosmic_rays(raws, clip):
+    """
+    A satellite trail and cosmic rays in one of six frames: with the stack's rejection
+    (found on the grey versions, blotted back onto the raw frame) nothing of them is
+    left above 5 sigma of the stack of the clean frames on the sky that every frame
+    covers; with ``clip=None`` hundreds of pixels are.
+    """
+    frames = list(raws[:6])
+    frames[3], n_hit = _with_trail_and_cosmics(frames[3])
+    kw = dict(bayer="auto", drizzle=2, pixfrac=1.0, clip=clip)
+    clean, cube = stack(raws[:6], **kw), stack(frames, **kw)
+    inner = np.zeros(clean.shape, bool)
+    inner[:, 20:-20, 20:-20] = True  # 10 raw px in: every frame there (dithers up to 8 px)
+    sigma = clean.uncertainty.array
+    sky = np.nanmedian(np.where(inner & ~clean.mask, clean.data, np.nan), axis=(1, 2))
+    on_sky = inner & ~(clean.mask | cube.mask) & (clean.data < sky[:, None, None] + 5 * sigma)
+    excess = (cube.data - clean.data)[on_sky] / sigma[on_sky]
+    history = " ".join(cube.meta["HISTORY"])
+    n_rejected = [cube.meta[f"AANRJ{k:03d}"] for k in range(1, 7)]
+    if clip is None:
+        assert excess.max() > 50 and (excess > 5).sum() > 500
+        assert "no rejection" in history and n_rejected == [0] * 6
+    else:
+        assert excess.max() < 5, excess.max()
+        assert "outliers rejected" in history and cube.meta["AASTKCLP"] == "sigma"
+        # The defects' raw pixels (and their neighbours that blot back) weigh nothing,
+        # beyond what the clean frames lose (noise and star-core outliers).
+        extra = n_rejected[3] - np.median(n_rejected[:3] + n_rejected[4:])
+        assert n_hit <= extra < 5 * n_hit, (n_hit, n_rejected)
