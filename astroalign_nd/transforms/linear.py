@@ -148,6 +148,16 @@ class LinearTransform2D(Model):
         return m
 
     @classmethod
+    def _from_matrix(cls, m):
+        """The model of this type whose `matrix` is ``m`` (raises ValueError when
+        none is); a type says its parameters in ``_values_from_matrix``."""
+        own = next(k for k in cls.__mro__ if "_values_from_matrix" in vars(k))
+        if own is LinearTransform2D:  # (that one builds the model with this method)
+            raise NotImplementedError(f"{cls.__name__} defines neither _from_matrix nor "
+                                      "_values_from_matrix")
+        return cls(**cls._values_from_matrix(m))
+
+    @classmethod
     def _values_from_matrix(cls, m):
         """
         The parameter values (``{name: float}``, every parameter) of
@@ -457,10 +467,6 @@ class TranslationTransform(LinearTransform2D):
         return 0.0
 
     @classmethod
-    def _from_matrix(cls, m):
-        return cls(**cls._values_from_matrix(m))
-
-    @classmethod
     def _values_from_matrix(cls, m):
         if not np.allclose(m[:2, :2], np.eye(2), rtol=0.0, atol=1e-9):
             raise ValueError(
@@ -521,10 +527,6 @@ class EuclideanTransform(LinearTransform2D):
     def scale(self):
         """Always 1."""
         return 1.0
-
-    @classmethod
-    def _from_matrix(cls, m):
-        return cls(**cls._values_from_matrix(m))
 
     @classmethod
     def _values_from_matrix(cls, m):
@@ -602,10 +604,6 @@ class SimilarityTransform(LinearTransform2D):
                              translation_y, parity)
 
     @classmethod
-    def _from_matrix(cls, m):
-        return cls(**cls._values_from_matrix(m))
-
-    @classmethod
     def _values_from_matrix(cls, m):
         lin = m[:2, :2]
         det = np.linalg.det(lin)
@@ -678,10 +676,6 @@ class AffineTransform(LinearTransform2D):
         """Shear angle in degrees (scikit-image's definition, in degrees)."""
         lin = self.matrix[:2, :2]
         return float(np.degrees(np.arctan2(-lin[0, 1], lin[1, 1]))) - self.rotation
-
-    @classmethod
-    def _from_matrix(cls, m):
-        return cls(**cls._values_from_matrix(m))
 
     @classmethod
     def _values_from_matrix(cls, m):
