@@ -234,14 +234,14 @@ class Reference:
                     self._detected = (n_sources, *self._detect(p, self.config, n_sources))
                 det = self.config
                 _, table, nsigma = self._detected
-            table = _brightest(table, n_sources, det)
-            if len(table) < 3:
+            rows = _brightest(table, n_sources, det)
+            if len(rows) < 3:
                 raise TooFewSourcesError(_too_few_advice(
-                    self._role, len(table), table.meta, nsigma, det.fwhm is not None))
+                    self._role, len(rows), table.meta, nsigma, det.fwhm is not None))
             ny, nx = p.shape
-            pts = np.column_stack([np.asarray(table["x"], float),
-                                   np.asarray(table["y"], float)])
-            self._stars[key] = (pts, np.asarray(table["position_error"], float),
+            pts = np.column_stack([np.asarray(table["x"], float)[rows],
+                                   np.asarray(table["y"], float)[rows]])
+            self._stars[key] = (pts, np.asarray(table["position_error"], float)[rows],
                                 (-0.5, nx - 0.5, -0.5, ny - 0.5))
             self._fwhms[key] = table.meta.get("fwhm")
             if not fixed:
@@ -292,13 +292,13 @@ class Reference:
 
 def _brightest(table, n_sources, config):
     """
-    The stars for ``n_sources`` control points from a detection for as many
-    or more: the ``2 * n_sources`` brightest, of the confident ones only when
+    The stars (rows of ``table``) for ``n_sources`` control points from a
+    detection for as many or more: the ``2 * n_sources`` brightest, of the confident ones only when
     there are ``n_sources`` of them (`~astroalign_nd.detection.daofind.keep_confident`,
     `~astroalign_nd.detection.daofind.control_sources`' rule, so that the list is the
     one a detection for ``n_sources`` gives).
     """
-    return keep_confident(table, n_sources, config)[:2 * n_sources]
+    return keep_confident(table, n_sources, config, rows=True)[:2 * n_sources]
 
 
 def _no_detections_warning():

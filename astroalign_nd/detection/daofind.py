@@ -226,7 +226,7 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None):
     # Every candidate was measured, and all could be kept: a detection for
     # more sources finds the same (registration does not detect again).
     tab.meta["all_candidates"] = len(cand["x"]) <= n_sources
-    return tab
+    return tab.table() if isinstance(tab, _Rows) else tab
 
 
 def _stage1(data, mask, bin_factor, nsigma):
@@ -712,7 +712,7 @@ def _filtered_table(rows, fwhm, noise, b, opts):
     keep = keep[real[keep]]
     cols = {c: m[c][keep] for c in _ROW_COLUMNS if c != "own_fwhm"}
     order = np.argsort(-cols["flux"], kind="stable")[:opts["n_sources"]]
-    out = Table({k: v[order] for k, v in cols.items()}, copy=False)
+    out = _Rows({k: v[order] for k, v in cols.items()})
     # The sources' own widths, from the strong ones when there are enough:
     # faint ones are often noise peaks, as wide as the noise's correlation.
     own = own_fwhm[keep][order]
@@ -933,6 +933,25 @@ def _dedupe(x, y, flux, radius):
     return np.flatnonzero(~drop)
 
 
+class _Rows(dict):
+    """
+    A measured list as NumPy columns (name -> array) with a ``meta`` dict:
+    the trials of a detection are judged on these, and only the list kept
+    becomes a `~astropy.table.Table` (`table`), astropy's costs paid once.
+    """
+
+    def __init__(self, columns):
+        super().__init__(columns)
+        self.meta = {}
+
+    def __len__(self):
+        return len(self["x"])
+
+    def table(self):
+        """The list as the `~astropy.table.Table` `find_sources` returns."""
+        return Table(dict(self), meta=self.meta, copy=False)
+
+
 def _empty_table(fwhm, noise, b):
     t = Table(names=["x", "y", "flux", "position_error", "snr", "peak", "sharpness",
                      "roundness1", "roundness2"], dtype=[float] * 9)
@@ -1121,12 +1140,13 @@ def control_sources(image, *, mask, n_sources, n_enough, config, cache=None):
     return keep_confident(table, n_enough, config), threshold
 
 
-def keep_confident(table, n_enough, config):
+def keep_confident(table, n_enough, config, rows=False):
     """
     The sources of a `control_sources` table at the confident threshold
     (`find_sources`' default ``nsigma``) when there are ``n_enough`` of
     them; all of them otherwise, or when ``config`` sets the threshold or
-    the finder.
+    the finder.  With ``rows``, their row numbers instead (a table is not
+    sliced).
 
     Registration applies it again to a detection made for more sources,
     so that each attempt's list is the one a detection for its count gives.
@@ -1142,7 +1162,7 @@ def keep_confident(table, n_enough, config):
     (2, 3)
     """
     if config.nsigma is None and config.finder is None:
-        strong = table[np.asarray(table["snr"]) >= _CONFIDENT_NSIGMA]
+        strong = np.flatnonzero(np.asarray(table["snr"]) >= _CONFIDENT_NSIGMA)
         if len(strong) >= n_enough:
-            return strong
-    return table
+            return strong if rows else table[strong]
+    return np.arange(len(table)) if rows else table
