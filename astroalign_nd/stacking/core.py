@@ -398,8 +398,8 @@ def _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options, *
     opts = _feasible_clip(opts, len(others) + 1)
     if opts.clip == "sigma" and opts.star_tolerance is None:
         # No frame's FWHM is measured here: `_star_clip`'s allowance for a night of equal
-        # seeing (the registration and normalisation errors' 0.3), or star cores go.
-        opts = dataclasses.replace(opts, star_tolerance=0.3)
+        # seeing, or the undersampled stars' cores are clipped.
+        opts = dataclasses.replace(opts, star_tolerance=STAR_TOLERANCE_FLOOR)
     with _aligned_folder(None, temp_dir) as folder:
         try:
             channels, rejected, ref, pattern = drizzle_bayer(
@@ -631,19 +631,25 @@ def _quality(frames, ref_item, others, result, rejected, hdu, unit, opts):
     return kept, measured
 
 
+#: The star allowance's part for registration and normalisation errors: all of it for a
+#: night of equal seeing.
+STAR_TOLERANCE_FLOOR = 0.3
+
+
 def _star_clip(opts, stats):
     """
     The clipping's allowance for the stars' own signal (``star_tolerance``), unless
     given: the largest ratio of a frame's star peak to the median frame's (peaks scale
-    as the inverse FWHM squared), minus 1, plus 0.3 for registration and normalisation
-    errors.
+    as the inverse FWHM squared), minus 1, plus ``STAR_TOLERANCE_FLOOR`` for registration
+    and normalisation errors.
     """
     fwhm = np.array([st.quality["fwhm"] for st in stats if st.quality], float)
     fwhm = fwhm[np.isfinite(fwhm) & (fwhm > 0)]
     if opts.clip != "sigma" or opts.star_tolerance is not None or fwhm.size < 2:
         return opts
     ratio = (np.median(fwhm) / fwhm) ** 2
-    return dataclasses.replace(opts, star_tolerance=float(np.max(np.abs(ratio - 1.0)) + 0.3))
+    tolerance = float(np.max(np.abs(ratio - 1.0))) + STAR_TOLERANCE_FLOOR
+    return dataclasses.replace(opts, star_tolerance=tolerance)
 
 
 def _feasible_clip(opts, n_used):
