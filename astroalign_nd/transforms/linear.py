@@ -421,8 +421,10 @@ class LinearTransform2D(Model):
                                    (dst[rest].reshape(n, -1) * sw)[..., None], rcond,
                                    signature="ddd->ddid")[0][..., 0]
                 return np.array([layer.to_matrix(t) for t in theta])
-            except FloatingPointError:
-                pass  # (an SVD did not converge) the fits one at a time raise lstsq's error
+            except (FloatingPointError, TypeError, ValueError):
+                # An SVD that did not converge, or a NumPy whose private gufunc differs:
+                # the fits one at a time (which raise lstsq's own errors).
+                pass
         return np.array([cls.fit_matrix(src[r], dst[r], w[r], parity)[0] for r in rest])
 
 
