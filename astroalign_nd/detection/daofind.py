@@ -385,7 +385,7 @@ def _daofind(finder, data, mask):
             if cat is None:
                 return None
             return {c: np.asarray(getattr(cat, c), float) for c in _DAO_COLUMNS}
-        except (AttributeError, TypeError):  # internals changed: use the public call
+        except (AttributeError, TypeError, ValueError):  # internals changed: the public call
             pass
     tab = finder(data, mask=mask)
     if tab is None:
