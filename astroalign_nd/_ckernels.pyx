@@ -344,28 +344,6 @@ def finite_sample(const real[:, :] data, const unsigned char[:, :] mask, bint us
     return k
 
 
-def bracket(const real[::1] x, double lo, double hi, real[::1] inside):
-    """
-    One pass of an exact median: the number of values of ``x`` below
-    ``lo``, and the values in ``[lo, hi]`` copied, in order, to the start
-    of ``inside``; returns ``(below, n_inside, n_nan)``.  If there are more
-    than ``inside`` holds, its contents are unusable (the counts are still right).
-    """
-    cdef Py_ssize_t i, below = 0, k = 0, n_nan = 0, last = inside.shape[0] - 1
-    cdef real v
-    if last < 0:
-        raise ValueError("inside must hold at least one value.")
-    with nogil:
-        for i in range(x.shape[0]):
-            # Without branches: half the values are below, at random.
-            v = x[i]
-            below += v < lo
-            inside[k if k < last else last] = v
-            k += (v >= lo) & (v <= hi)
-            n_nan += v != v
-    return below, k, n_nan
-
-
 # -- matching --------------------------------------------------------------------
 
 def count_inliers_range(const double[:, :, ::1] mats, const double[:, ::1] src,
