@@ -104,7 +104,8 @@ def _stars(green, saturated, n_max=400):
 
 
 def _fit(plane, xy):
-    """(x, y, fwhm) of a circular Gaussian fitted at each position (NaN where it failed)."""
+    """(x, y, fwhm, x_err, y_err) of a circular Gaussian fitted at each position (NaN where
+    it failed); the errors are the fit's, from its covariance scaled by its residuals."""
     from photutils.psf import fit_2dgaussian
 
     data, _ = _sky_subtracted(plane)
@@ -112,7 +113,8 @@ def _fit(plane, xy):
         warnings.simplefilter("ignore")
         res = fit_2dgaussian(np.nan_to_num(data), xypos=xy, fwhm=4.0, fix_fwhm=False,
                              fit_shape=(11, 11), mask=~np.isfinite(data)).results
-    out = np.column_stack([res["x_fit"], res["y_fit"], res["fwhm_fit"]]).astype(float)
+    out = np.column_stack([res[c] for c in ("x_fit", "y_fit", "fwhm_fit", "x_err", "y_err")]
+                          ).astype(float)
     bad = (res["flags"] != 0) | ~np.isfinite(out).all(axis=1)
     out[np.asarray(bad)] = np.nan
     return out
@@ -174,6 +176,73 @@ def _noise_lines(fits_, halves, good):
             print(line)
 
 
+def _offset_err(fits_, c, axis, good):
+    """Each good star's fit error of its colour offset (colour and green independent)."""
+    return np.hypot(fits_[c][good, 3 + axis], fits_[1][good, 3 + axis]) / SCALE
+
+
+def _diff_err(fits_, c, axis, good):
+    """A star's drizzle - demosaic offset and its predicted noise from the four fits'
+    errors (taken as independent: the two stacks share their photons, which the halves'
+    check of the scale below measures)."""
+    d = (_offset(fits_["drizzle"], c, axis, good)
+         - _offset(fits_["demosaic"], c, axis, good))
+    return d, np.hypot(_offset_err(fits_["drizzle"], c, axis, good),
+                       _offset_err(fits_["demosaic"], c, axis, good))
+
+
+#: Predicted noise at which noise alone puts 99.7 % of the stars within 0.1 px (3 sigma).
+BRIGHT_ERR = 0.1 / 3
+
+
+def _err_lines(fits_, halves, good, in_halves):
+    """Per-star drizzle - demosaic offsets against each star's own predicted noise."""
+    from scipy.special import erf
+
+    print(f"per star against its predicted noise (fit errors): err <= {BRIGHT_ERR:.3f} px: "
+          "stars, within 0.1; chi2/N, sd and mean (in sd) of diff/err over all stars"
+          + ("; halves: sd of their change/its err for the difference, drizzle, demosaic"
+             if halves is not None else ""))
+    scales = []
+    for c, colour in ((0, "R"), (2, "B")):
+        for axis, name in ((0, "x"), (1, "y")):
+            d, e = _diff_err(fits_, c, axis, good)
+            z = d / e
+            w = 1 / e ** 2
+            mean = np.sum(w * d) / np.sum(w)
+            bright = e <= BRIGHT_ERR
+            line = (f"  {colour}-G {name}: {int(bright.sum())} stars, "
+                    f"{np.mean(np.abs(d[bright]) <= 0.1):.0%} within 0.1 (noise alone "
+                    f"{np.mean(erf(0.1 / (e[bright] * np.sqrt(2)))):.1%}); "
+                    f"chi2/N {np.mean(z ** 2):.2f}, sd {np.std(z):.2f}, "
+                    f"mean {mean:+.3f} px = {mean * np.sqrt(np.sum(w)):+.1f} sd")
+            if halves is not None:
+                # Noise alone: each star's change between independent halves, against the
+                # error predicted for that change by the halves' own fits.
+                dh, eh = zip(*(_diff_err(h, c, axis, in_halves) for h in halves))
+                k = np.std((dh[0] - dh[1]) / np.hypot(*eh))
+                own = [np.std((_offset(halves[0][n], c, axis, in_halves)
+                               - _offset(halves[1][n], c, axis, in_halves))
+                              / np.hypot(_offset_err(halves[0][n], c, axis, in_halves),
+                                         _offset_err(halves[1][n], c, axis, in_halves)))
+                       for n in ("drizzle", "demosaic")]
+                scales.append(k)
+                line += f"; halves {k:.2f}, {own[0]:.2f}, {own[1]:.2f}"
+            print(line)
+    if scales:
+        # The errors rescaled by the halves' pooled scale: the same figures, if it is not 1.
+        k = float(np.sqrt(np.mean(np.square(scales))))
+        print(f"  with the errors times the halves' scale {k:.2f}:")
+        for c, colour in ((0, "R"), (2, "B")):
+            for axis, name in ((0, "x"), (1, "y")):
+                d, e = _diff_err(fits_, c, axis, good)
+                e = k * e
+                bright = e <= BRIGHT_ERR
+                print(f"    {colour}-G {name}: {int(bright.sum())} stars, "
+                      f"{np.mean(np.abs(d[bright]) <= 0.1):.0%} within 0.1; "
+                      f"chi2/N {np.mean((d / e) ** 2):.2f}")
+
+
 def _table(fits_, method, t_dem, arcsec, halves=None):
     """The FWHM and colour-offset table of one demosaicing method against the drizzle."""
     good = np.all([np.isfinite(f[:, 2]) for fs in fits_.values() for f in fs], axis=0)
@@ -203,6 +272,7 @@ def _table(fits_, method, t_dem, arcsec, halves=None):
         print(f"per star, on the {int(in_halves.sum())} stars also fitted in both halves "
               "(even, odd frames); noise: the spread noise alone gives")
     _noise_lines(fits_, halves, in_halves)
+    _err_lines(fits_, halves, good, in_halves)
 
 
 #: Simulated frames: sky and its noise (R, G, B; ADU, as the real frames'), e-/ADU of the
