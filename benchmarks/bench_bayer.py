@@ -458,6 +458,11 @@ def main(argv=None):
           f"{SCALE} ({arcsec / SCALE:.3f}\"/px); Bayer drizzle pixfrac {args.pixfrac}: "
           f"{t_drz:.0f} s, empty output pixels (R, G, B): "
           + ", ".join(f"{m:.2%}" for m in drz.mask.mean(axis=(1, 2))))
+    rej = [drz.meta.get(f"AANRJ{k:03d}") for k in range(1, len(files) + 1)]
+    rej = np.array([r for r in rej if r is not None], float) / np.prod(drz.shape[1:])
+    if rej.size:  # (raw pixels: the output's per input pixel, SCALE**2)
+        print(f"raw pixels rejected per frame: {np.min(rej) * SCALE ** 2:.2%} to "
+              f"{np.max(rej) * SCALE ** 2:.2%} (median {np.median(rej) * SCALE ** 2:.2%})")
     for method in args.demosaic:
         t0 = time.perf_counter()
         dem = stack(files, bayer="auto", demosaic=method)
