@@ -82,7 +82,10 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         Replace ``output`` (and files in ``aligned_dir``) if they exist.
     aligned_dir : str or path, optional
         Keep the registered frames in this folder (default: a temporary
-        folder, removed at the end).
+        folder, removed at the end); raw colour frames demosaiced: each
+        frame's registered red, green and blue planes.  Not with ``bayer``
+        and ``drizzle`` (ValueError): the Bayer drizzle makes no registered
+        frame.
     temp_dir : str, optional
         Where the temporary folder goes (default: the system's).
     workers, progress, hdu, unit, order
@@ -316,6 +319,13 @@ def _not_done(frame):
 def _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit, order,
                   dtype, options, *, output, overwrite, callback):
     """Raw colour frames: demosaiced and combined per colour, or Bayer-drizzled (and written)."""
+    if opts.drizzle is not None and aligned_dir is not None:
+        # Not silently ignored: the user expects the registered frames there.
+        raise ValueError("aligned_dir cannot be kept with bayer and drizzle: the Bayer "
+                         "drizzle drops each frame's raw pixels onto the output directly "
+                         "and makes no registered frame; leave aligned_dir out, or "
+                         "demosaic (drizzle=None) to keep each frame's registered colour "
+                         "planes there.")
     bayer = opts.bayer if opts.bayer == "auto" else bayer_pattern(pattern=opts.bayer)
     # Resampling's options (the command line passes them): the demosaiced planes' only.
     resampling = {k: options.pop(k) for k in ("conserve_flux", "fill_value") if k in options}
