@@ -195,52 +195,67 @@ def _diff_err(fits_, c, axis, good):
 BRIGHT_ERR = 0.1 / 3
 
 
-def _err_lines(fits_, halves, good, in_halves):
-    """Per-star drizzle - demosaic offsets against each star's own predicted noise."""
+def _agreement(d, e, label):
+    """One line: the stars of predicted noise ``e`` at most `BRIGHT_ERR` (and 0.05 px)
+    within 0.1 px, against what noise alone gives them; chi2/N and the weighted mean of
+    all the stars' differences ``d``."""
     from scipy.special import erf
 
-    print(f"per star against its predicted noise (fit errors): err <= {BRIGHT_ERR:.3f} px: "
-          "stars, within 0.1; chi2/N, sd and mean (in sd) of diff/err over all stars"
-          + ("; halves: sd of their change/its err for the difference, drizzle, demosaic"
-             if halves is not None else ""))
-    scales = []
+    line = f"  {label}:"
+    for cut in (BRIGHT_ERR, 0.05):
+        sel = e <= cut
+        line += (f" err<={cut:.3f}: {int(sel.sum()):2d} stars, "
+                 + (f"{np.mean(np.abs(d[sel]) <= 0.1):4.0%} within 0.1 (noise "
+                    f"{np.mean(erf(0.1 / (e[sel] * np.sqrt(2)))):4.0%});" if sel.any()
+                    else "     -                   ;"))
+    w = 1 / e ** 2
+    mean = np.sum(w * d) / np.sum(w)
+    print(line + f" all {d.size}: chi2/N {np.mean((d / e) ** 2):.2f}, weighted mean "
+          f"{mean:+.3f} px = {mean * np.sqrt(np.sum(w)):+.1f} sd")
+
+
+def _err_lines(fits_, halves, good, in_halves):
+    """
+    Per-star drizzle - demosaic offsets against each star's own predicted noise: the
+    four fits' errors, in scale as they come, then (with ``halves``) times the scale that
+    the halves measure per colour.
+
+    The fits' errors (covariance scaled by the residuals) take the pixels' noise as
+    independent; in both stacks it is not (drizzle drops and the up-sampling spread
+    each input pixel over several output pixels), which makes them too small, and the
+    two stacks share their photons, which makes the sum of their errors too large.
+    Between two independent halves of the frames a star's difference changes by noise
+    alone (a systematic cancels): its spread over the error predicted for it is that
+    scale.
+    """
+    print(f"per star against its predicted noise (fit errors; {int(good.sum())} stars, "
+          f"{int(in_halves.sum())} in the halves)"
+          + (": sd of the halves' change / its predicted error, for the difference and "
+             "for each path's offset (drizzle, demosaic)" if halves is not None else ""))
+    scales = {}
     for c, colour in ((0, "R"), (2, "B")):
         for axis, name in ((0, "x"), (1, "y")):
+            _agreement(*_diff_err(fits_, c, axis, good), f"{colour}-G {name}")
+            if halves is None:
+                continue
+            dh, eh = zip(*(_diff_err(h, c, axis, in_halves) for h in halves))
+            k = np.std((dh[0] - dh[1]) / np.hypot(*eh))
+            own = [np.std((_offset(halves[0][n], c, axis, in_halves)
+                           - _offset(halves[1][n], c, axis, in_halves))
+                          / np.hypot(_offset_err(halves[0][n], c, axis, in_halves),
+                                     _offset_err(halves[1][n], c, axis, in_halves)))
+                   for n in ("drizzle", "demosaic")]
+            scales.setdefault(c, []).append(k)
+            print(f"    halves: {k:.2f}; {own[0]:.2f}, {own[1]:.2f}")
+    if not scales:
+        return
+    print("  the errors times the halves' scale for the difference (per colour, x and y "
+          "pooled):")
+    for c, colour in ((0, "R"), (2, "B")):
+        k = float(np.sqrt(np.mean(np.square(scales[c]))))
+        for axis, name in ((0, "x"), (1, "y")):
             d, e = _diff_err(fits_, c, axis, good)
-            z = d / e
-            w = 1 / e ** 2
-            mean = np.sum(w * d) / np.sum(w)
-            bright = e <= BRIGHT_ERR
-            line = (f"  {colour}-G {name}: {int(bright.sum())} stars, "
-                    f"{np.mean(np.abs(d[bright]) <= 0.1):.0%} within 0.1 (noise alone "
-                    f"{np.mean(erf(0.1 / (e[bright] * np.sqrt(2)))):.1%}); "
-                    f"chi2/N {np.mean(z ** 2):.2f}, sd {np.std(z):.2f}, "
-                    f"mean {mean:+.3f} px = {mean * np.sqrt(np.sum(w)):+.1f} sd")
-            if halves is not None:
-                # Noise alone: each star's change between independent halves, against the
-                # error predicted for that change by the halves' own fits.
-                dh, eh = zip(*(_diff_err(h, c, axis, in_halves) for h in halves))
-                k = np.std((dh[0] - dh[1]) / np.hypot(*eh))
-                own = [np.std((_offset(halves[0][n], c, axis, in_halves)
-                               - _offset(halves[1][n], c, axis, in_halves))
-                              / np.hypot(_offset_err(halves[0][n], c, axis, in_halves),
-                                         _offset_err(halves[1][n], c, axis, in_halves)))
-                       for n in ("drizzle", "demosaic")]
-                scales.append(k)
-                line += f"; halves {k:.2f}, {own[0]:.2f}, {own[1]:.2f}"
-            print(line)
-    if scales:
-        # The errors rescaled by the halves' pooled scale: the same figures, if it is not 1.
-        k = float(np.sqrt(np.mean(np.square(scales))))
-        print(f"  with the errors times the halves' scale {k:.2f}:")
-        for c, colour in ((0, "R"), (2, "B")):
-            for axis, name in ((0, "x"), (1, "y")):
-                d, e = _diff_err(fits_, c, axis, good)
-                e = k * e
-                bright = e <= BRIGHT_ERR
-                print(f"    {colour}-G {name}: {int(bright.sum())} stars, "
-                      f"{np.mean(np.abs(d[bright]) <= 0.1):.0%} within 0.1; "
-                      f"chi2/N {np.mean((d / e) ** 2):.2f}")
+            _agreement(d, k * e, f"{colour}-G {name} (x{k:.2f})")
 
 
 def _table(fits_, method, t_dem, arcsec, halves=None):
