@@ -214,6 +214,35 @@ def _agreement(d, e, label):
           f"{mean:+.3f} px = {mean * np.sqrt(np.sum(w)):+.1f} sd")
 
 
+def _phase_lines(fits_, good, scales):
+    """
+    The difference's weighted mean, and each path's median offset, by the star's pixel
+    phase along the axis in the raw frame (its green x or y in raw pixels, modulo the 2 px
+    period of the red and blue pixels): an undersampled colour interpolated or dropped
+    with a bias that depends on where the star falls between that colour's pixels
+    averages out over the field, not per star.
+    """
+    print("  by the star's raw pixel phase (modulo 2 px): drizzle - demosaic (weighted mean "
+          "+- its error, errors times the scale above) [drizzle, demosaic medians]")
+    for c, colour in ((0, "R"), (2, "B")):
+        for axis, name in ((0, "x"), (1, "y")):
+            d, e = _diff_err(fits_, c, axis, good)
+            e = scales.get(c, 1.0) * e
+            phase = ((fits_["drizzle"][1][good, axis] + 0.5) / SCALE - 0.5) % 2
+            line = f"    {colour}-G {name}:"
+            for lo in (0.0, 0.5, 1.0, 1.5):
+                sel = (phase >= lo) & (phase < lo + 0.5)
+                if not sel.any():
+                    continue
+                w = 1 / e[sel] ** 2
+                meds = [np.median(_offset(fits_[n], c, axis, good)[sel])
+                        for n in ("drizzle", "demosaic")]
+                line += (f" {lo:.1f}-{lo + 0.5:.1f} ({int(sel.sum())}): "
+                         f"{np.sum(w * d[sel]) / np.sum(w):+.3f}+-{1 / np.sqrt(np.sum(w)):.3f}"
+                         f" [{meds[0]:+.2f},{meds[1]:+.2f}];")
+            print(line)
+
+
 def _err_lines(fits_, halves, good, in_halves):
     """
     Per-star drizzle - demosaic offsets against each star's own predicted noise: the
@@ -247,15 +276,15 @@ def _err_lines(fits_, halves, good, in_halves):
                    for n in ("drizzle", "demosaic")]
             scales.setdefault(c, []).append(k)
             print(f"    halves: {k:.2f}; {own[0]:.2f}, {own[1]:.2f}")
-    if not scales:
-        return
-    print("  the errors times the halves' scale for the difference (per colour, x and y "
-          "pooled):")
-    for c, colour in ((0, "R"), (2, "B")):
-        k = float(np.sqrt(np.mean(np.square(scales[c]))))
-        for axis, name in ((0, "x"), (1, "y")):
-            d, e = _diff_err(fits_, c, axis, good)
-            _agreement(d, k * e, f"{colour}-G {name} (x{k:.2f})")
+    scales = {c: float(np.sqrt(np.mean(np.square(k)))) for c, k in scales.items()}
+    if scales:
+        print("  the errors times the halves' scale for the difference (per colour, x and y "
+              "pooled):")
+        for c, colour in ((0, "R"), (2, "B")):
+            for axis, name in ((0, "x"), (1, "y")):
+                d, e = _diff_err(fits_, c, axis, good)
+                _agreement(d, scales[c] * e, f"{colour}-G {name} (x{scales[c]:.2f})")
+    _phase_lines(fits_, good, scales)
 
 
 def _table(fits_, method, t_dem, arcsec, halves=None):
@@ -436,6 +465,9 @@ def main(argv=None):
     ap.add_argument("--halves", action="store_true",
                     help="also stack the even and the odd frames apart: the per-star "
                          "agreement that noise alone gives")
+    ap.add_argument("--save", metavar="NPZ", default=None,
+                    help="also write each star's fits (x, y, fwhm, x_err, y_err per plane, "
+                         "stack and half) to this .npz, for a closer look")
     ap.add_argument("--simulate", action="store_true",
                     help="measure both paths on simulated frames made like the real ones "
                          "(their transforms, sky, noise, star widths) with a known truth")
@@ -488,8 +520,14 @@ def main(argv=None):
             d = stack(part, bayer="auto", demosaic=method)
             h["demosaic"] = [_fit(_upsample(np.where(d.mask[c], np.nan, d.data[c]), SCALE), pos)
                              for c in range(3)]
-        _table({"demosaic": [_fit(dem_up[c], xy) for c in range(3)], "drizzle": fit_drz},
-               method, t_dem, arcsec, halves)
+        fits_ = {"demosaic": [_fit(dem_up[c], xy) for c in range(3)], "drizzle": fit_drz}
+        _table(fits_, method, t_dem, arcsec, halves)
+        if args.save:
+            arrays = {f"{n}": np.stack(f) for n, f in fits_.items()}
+            for i, h in enumerate(halves or ()):
+                arrays.update({f"{n}_half{i}": np.stack(f) for n, f in h.items()})
+            root, ext = os.path.splitext(args.save)
+            np.savez(f"{root}_{method}{ext or '.npz'}", xy=xy, **arrays)
     return 0
 
 
