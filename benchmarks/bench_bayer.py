@@ -447,6 +447,17 @@ def _simulate(files, pixfrac, halves=False):
                          f"{o.std() / np.sqrt(o.size):.3f})")
             fw = ", ".join(f"{np.median(fits_[n][c][good, 2]):.2f}" for c in range(3))
             print(line + f"; FWHM R, G, B {fw} output px")
+        phase = ((out[good, 0] + 0.5) / SCALE - 0.5) % 2  # the true raw x, modulo 2 px
+        for c in (0, 2):
+            line = f"  {'RGB'[c]}-G x - truth by the raw pixel phase (modulo 2 px; drizzle, " \
+                   "demosaic medians):"
+            for lo in (0.0, 0.5, 1.0, 1.5):
+                sel = (phase >= lo) & (phase < lo + 0.5)
+                err = [np.median(_offset(fits_[n], c, 0, good)[sel]) - (SIM_DX[c] - SIM_DX[1])
+                       for n in ("drizzle", "demosaic")]
+                line += (f" {lo:.1f}-{lo + 0.5:.1f} ({int(sel.sum())}): "
+                         f"{err[0]:+.3f}, {err[1]:+.3f};")
+            print(line)
         for c in (0, 2):
             dd = _offset(fits_["drizzle"], c, 0, good) - _offset(fits_["demosaic"], c, 0, good)
             print(f"  drizzle - demosaic {'RGB'[c]}-G x per star: median {np.median(dd):+.3f}, "
