@@ -33,6 +33,17 @@ alone gives the full stack's per-star differences (they are independent
 frames); the correlation of the two halves' differences says whether a
 star's difference is its own (a systematic) or noise.
 
+Each star's difference is also set against its own predicted noise: the
+four fits' position errors (``x_err``, ``y_err``), whose scale ``--halves``
+checks (the spread of a star's change between the halves over the error
+predicted for it: 1 if they are right) and, per colour, corrects; printed are
+the fraction within 0.1 px of the stars whose predicted noise is at most
+0.033 px (noise alone puts 99.7 % of them there) and at most 0.05 px, the
+chi-square per star and the weighted mean difference in its sd over all the
+stars (a colour fringe of either path shows as chi2/N >> 1 or a mean of many
+sd), and the difference by the star's raw pixel phase (modulo the 2 px
+period of the red and blue pixels).  ``--save`` writes the fits.
+
 ``--simulate`` measures both paths instead on simulated raw GRBG frames with a
 known truth, made like the real ones: the real frames' transforms (their drift
 and field rotation, found on them; then the same shifts without rotation),
@@ -44,7 +55,7 @@ frames' x (red 0.15 raw px left of green, blue 0.2 right).
 Usage::
 
     python benchmarks/bench_bayer.py [--pixfrac 1.0] [--frames 12] [--demosaic bilinear]
-                                     [--halves] [--simulate]
+                                     [--halves] [--save FITS.npz] [--simulate]
 
 (``--simulate --halves`` also checks the halves' noise estimate against the
 simulated frames' error from the truth.)
@@ -104,7 +115,8 @@ def _stars(green, saturated, n_max=400):
 
 
 def _fit(plane, xy):
-    """(x, y, fwhm) of a circular Gaussian fitted at each position (NaN where it failed)."""
+    """(x, y, fwhm, x_err, y_err) of a circular Gaussian fitted at each position (NaN where
+    it failed); the errors are the fit's, from its covariance scaled by its residuals."""
     from photutils.psf import fit_2dgaussian
 
     data, _ = _sky_subtracted(plane)
@@ -112,7 +124,8 @@ def _fit(plane, xy):
         warnings.simplefilter("ignore")
         res = fit_2dgaussian(np.nan_to_num(data), xypos=xy, fwhm=4.0, fix_fwhm=False,
                              fit_shape=(11, 11), mask=~np.isfinite(data)).results
-    out = np.column_stack([res["x_fit"], res["y_fit"], res["fwhm_fit"]]).astype(float)
+    out = np.column_stack([res[c] for c in ("x_fit", "y_fit", "fwhm_fit", "x_err", "y_err")]
+                          ).astype(float)
     bad = (res["flags"] != 0) | ~np.isfinite(out).all(axis=1)
     out[np.asarray(bad)] = np.nan
     return out
@@ -174,6 +187,117 @@ def _noise_lines(fits_, halves, good):
             print(line)
 
 
+def _offset_err(fits_, c, axis, good):
+    """Each good star's fit error of its colour offset (colour and green independent)."""
+    return np.hypot(fits_[c][good, 3 + axis], fits_[1][good, 3 + axis]) / SCALE
+
+
+def _diff_err(fits_, c, axis, good):
+    """A star's drizzle - demosaic offset and its predicted noise from the four fits'
+    errors (taken as independent: the two stacks share their photons, which the halves'
+    check of the scale below measures)."""
+    d = (_offset(fits_["drizzle"], c, axis, good)
+         - _offset(fits_["demosaic"], c, axis, good))
+    return d, np.hypot(_offset_err(fits_["drizzle"], c, axis, good),
+                       _offset_err(fits_["demosaic"], c, axis, good))
+
+
+#: Predicted noise at which noise alone puts 99.7 % of the stars within 0.1 px (3 sigma).
+BRIGHT_ERR = 0.1 / 3
+
+
+def _agreement(d, e, label):
+    """One line: the stars of predicted noise ``e`` at most `BRIGHT_ERR` (and 0.05 px)
+    within 0.1 px, against what noise alone gives them; chi2/N and the weighted mean of
+    all the stars' differences ``d``."""
+    from scipy.special import erf
+
+    line = f"  {label}:"
+    for cut in (BRIGHT_ERR, 0.05):
+        sel = e <= cut
+        line += (f" err<={cut:.3f}: {int(sel.sum()):2d} stars, "
+                 + (f"{np.mean(np.abs(d[sel]) <= 0.1):4.0%} within 0.1 (noise "
+                    f"{np.mean(erf(0.1 / (e[sel] * np.sqrt(2)))):4.0%});" if sel.any()
+                    else "     -                   ;"))
+    w = 1 / e ** 2
+    mean = np.sum(w * d) / np.sum(w)
+    print(line + f" all {d.size}: chi2/N {np.mean((d / e) ** 2):.2f}, weighted mean "
+          f"{mean:+.3f} px = {mean * np.sqrt(np.sum(w)):+.1f} sd")
+
+
+def _phase_lines(fits_, good, scales):
+    """
+    The difference's weighted mean, and each path's median offset, by the star's pixel
+    phase along the axis in the raw frame (its green x or y in raw pixels, modulo the 2 px
+    period of the red and blue pixels): an undersampled colour interpolated or dropped
+    with a bias that depends on where the star falls between that colour's pixels
+    averages out over the field, not per star.
+    """
+    print("  by the star's raw pixel phase (modulo 2 px): drizzle - demosaic (weighted mean "
+          "+- its error, errors times the scale above) [drizzle, demosaic medians]")
+    for c, colour in ((0, "R"), (2, "B")):
+        for axis, name in ((0, "x"), (1, "y")):
+            d, e = _diff_err(fits_, c, axis, good)
+            e = scales.get(c, 1.0) * e
+            phase = ((fits_["drizzle"][1][good, axis] + 0.5) / SCALE - 0.5) % 2
+            line = f"    {colour}-G {name}:"
+            for lo in (0.0, 0.5, 1.0, 1.5):
+                sel = (phase >= lo) & (phase < lo + 0.5)
+                if not sel.any():
+                    continue
+                w = 1 / e[sel] ** 2
+                meds = [np.median(_offset(fits_[n], c, axis, good)[sel])
+                        for n in ("drizzle", "demosaic")]
+                line += (f" {lo:.1f}-{lo + 0.5:.1f} ({int(sel.sum())}): "
+                         f"{np.sum(w * d[sel]) / np.sum(w):+.3f}+-{1 / np.sqrt(np.sum(w)):.3f}"
+                         f" [{meds[0]:+.2f},{meds[1]:+.2f}];")
+            print(line)
+
+
+def _err_lines(fits_, halves, good, in_halves):
+    """
+    Per-star drizzle - demosaic offsets against each star's own predicted noise: the
+    four fits' errors, in scale as they come, then (with ``halves``) times the scale that
+    the halves measure per colour.
+
+    The fits' errors (covariance scaled by the residuals) take the pixels' noise as
+    independent; in both stacks it is not (drizzle drops and the up-sampling spread
+    each input pixel over several output pixels), which makes them too small, and the
+    two stacks share their photons, which makes the sum of their errors too large.
+    Between two independent halves of the frames a star's difference changes by noise
+    alone (a systematic cancels): its spread over the error predicted for it is that
+    scale.
+    """
+    print(f"per star against its predicted noise (fit errors; {int(good.sum())} stars, "
+          f"{int(in_halves.sum())} in the halves)"
+          + (": sd of the halves' change / its predicted error, for the difference and "
+             "for each path's offset (drizzle, demosaic)" if halves is not None else ""))
+    scales = {}
+    for c, colour in ((0, "R"), (2, "B")):
+        for axis, name in ((0, "x"), (1, "y")):
+            _agreement(*_diff_err(fits_, c, axis, good), f"{colour}-G {name}")
+            if halves is None:
+                continue
+            dh, eh = zip(*(_diff_err(h, c, axis, in_halves) for h in halves))
+            k = np.std((dh[0] - dh[1]) / np.hypot(*eh))
+            own = [np.std((_offset(halves[0][n], c, axis, in_halves)
+                           - _offset(halves[1][n], c, axis, in_halves))
+                          / np.hypot(_offset_err(halves[0][n], c, axis, in_halves),
+                                     _offset_err(halves[1][n], c, axis, in_halves)))
+                   for n in ("drizzle", "demosaic")]
+            scales.setdefault(c, []).append(k)
+            print(f"    halves: {k:.2f}; {own[0]:.2f}, {own[1]:.2f}")
+    scales = {c: float(np.sqrt(np.mean(np.square(k)))) for c, k in scales.items()}
+    if scales:
+        print("  the errors times the halves' scale for the difference (per colour, x and y "
+              "pooled):")
+        for c, colour in ((0, "R"), (2, "B")):
+            for axis, name in ((0, "x"), (1, "y")):
+                d, e = _diff_err(fits_, c, axis, good)
+                _agreement(d, scales[c] * e, f"{colour}-G {name} (x{scales[c]:.2f})")
+    _phase_lines(fits_, good, scales)
+
+
 def _table(fits_, method, t_dem, arcsec, halves=None):
     """The FWHM and colour-offset table of one demosaicing method against the drizzle."""
     good = np.all([np.isfinite(f[:, 2]) for fs in fits_.values() for f in fs], axis=0)
@@ -203,6 +327,7 @@ def _table(fits_, method, t_dem, arcsec, halves=None):
         print(f"per star, on the {int(in_halves.sum())} stars also fitted in both halves "
               "(even, odd frames); noise: the spread noise alone gives")
     _noise_lines(fits_, halves, in_halves)
+    _err_lines(fits_, halves, good, in_halves)
 
 
 #: Simulated frames: sky and its noise (R, G, B; ADU, as the real frames'), e-/ADU of the
@@ -333,6 +458,17 @@ def _simulate(files, pixfrac, halves=False):
                          f"{o.std() / np.sqrt(o.size):.3f})")
             fw = ", ".join(f"{np.median(fits_[n][c][good, 2]):.2f}" for c in range(3))
             print(line + f"; FWHM R, G, B {fw} output px")
+        phase = ((out[good, 0] + 0.5) / SCALE - 0.5) % 2  # the true raw x, modulo 2 px
+        for c in (0, 2):
+            line = f"  {'RGB'[c]}-G x - truth by the raw pixel phase (modulo 2 px; drizzle, " \
+                   "demosaic medians):"
+            for lo in (0.0, 0.5, 1.0, 1.5):
+                sel = (phase >= lo) & (phase < lo + 0.5)
+                err = [np.median(_offset(fits_[n], c, 0, good)[sel]) - (SIM_DX[c] - SIM_DX[1])
+                       for n in ("drizzle", "demosaic")]
+                line += (f" {lo:.1f}-{lo + 0.5:.1f} ({int(sel.sum())}): "
+                         f"{err[0]:+.3f}, {err[1]:+.3f};")
+            print(line)
         for c in (0, 2):
             dd = _offset(fits_["drizzle"], c, 0, good) - _offset(fits_["demosaic"], c, 0, good)
             print(f"  drizzle - demosaic {'RGB'[c]}-G x per star: median {np.median(dd):+.3f}, "
@@ -351,6 +487,9 @@ def main(argv=None):
     ap.add_argument("--halves", action="store_true",
                     help="also stack the even and the odd frames apart: the per-star "
                          "agreement that noise alone gives")
+    ap.add_argument("--save", metavar="NPZ", default=None,
+                    help="also write each star's fits (x, y, fwhm, x_err, y_err per plane, "
+                         "stack and half) to this .npz, for a closer look")
     ap.add_argument("--simulate", action="store_true",
                     help="measure both paths on simulated frames made like the real ones "
                          "(their transforms, sky, noise, star widths) with a known truth")
@@ -388,6 +527,11 @@ def main(argv=None):
           f"{SCALE} ({arcsec / SCALE:.3f}\"/px); Bayer drizzle pixfrac {args.pixfrac}: "
           f"{t_drz:.0f} s, empty output pixels (R, G, B): "
           + ", ".join(f"{m:.2%}" for m in drz.mask.mean(axis=(1, 2))))
+    rej = [drz.meta.get(f"AANRJ{k:03d}") for k in range(1, len(files) + 1)]
+    rej = np.array([r for r in rej if r is not None], float) / np.prod(drz.shape[1:])
+    if rej.size:  # (raw pixels: the output's per input pixel, SCALE**2)
+        print(f"raw pixels rejected per frame: {np.min(rej) * SCALE ** 2:.2%} to "
+              f"{np.max(rej) * SCALE ** 2:.2%} (median {np.median(rej) * SCALE ** 2:.2%})")
     for method in args.demosaic:
         t0 = time.perf_counter()
         dem = stack(files, bayer="auto", demosaic=method)
@@ -398,8 +542,14 @@ def main(argv=None):
             d = stack(part, bayer="auto", demosaic=method)
             h["demosaic"] = [_fit(_upsample(np.where(d.mask[c], np.nan, d.data[c]), SCALE), pos)
                              for c in range(3)]
-        _table({"demosaic": [_fit(dem_up[c], xy) for c in range(3)], "drizzle": fit_drz},
-               method, t_dem, arcsec, halves)
+        fits_ = {"demosaic": [_fit(dem_up[c], xy) for c in range(3)], "drizzle": fit_drz}
+        _table(fits_, method, t_dem, arcsec, halves)
+        if args.save:
+            arrays = {f"{n}": np.stack(f) for n, f in fits_.items()}
+            for i, h in enumerate(halves or ()):
+                arrays.update({f"{n}_half{i}": np.stack(f) for n, f in h.items()})
+            root, ext = os.path.splitext(args.save)
+            np.savez(f"{root}_{method}{ext or '.npz'}", xy=xy, **arrays)
     return 0
 
 

@@ -20,6 +20,7 @@ as a three-plane colour image.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import os
 import time
@@ -30,6 +31,7 @@ from astropy.nddata import CCDData, StdDevUncertainty
 from scipy import ndimage
 
 from ..batch.results import FrameResult
+from ..detection.options import DetectionConfig
 from ..io.read import parse_input
 from ..exceptions import AstroalignError
 from ..io import write_ccddata
@@ -39,8 +41,8 @@ from ..io.bayer import (balanced_grey, bayer_channels, bayer_pattern, superpixel
                         superpixel_to_raw)
 from ..registration import Reference, find_transform
 from ..resample import apply_transform
-from .combine import (array_stats, combine_files, frame_stats, frame_variance, frame_weights,
-                      normalise)
+from .combine import (STAR_TOLERANCE_FLOOR, array_stats, combine_files, frame_stats,
+                      frame_variance, frame_weights, normalise, star_tolerance)
 from .drizzle import DrizzleAccumulator, blot_mask, output_shape, pixel_map, weight_map
 from .header import stack_ccddata, stack_header
 from .options import DEMOSAIC_METHODS
@@ -49,6 +51,9 @@ __all__ = ["find_bayer_transform", "GREY_VERSIONS", "demosaic",
            "register_bayer",
            "drizzle_bayer",
            "colour_ccddata"]
+
+#: The options of a frame's detection (the others are the matching's).
+_DETECTION_KEYS = tuple(f.name for f in dataclasses.fields(DetectionConfig))
 
 #: A raw colour frame's keywords that no longer describe the stack (it is not a mosaic).
 _BAYER_KEYS = ("BAYERPAT", "XBAYROFF", "YBAYROFF", "ROWORDER")
@@ -243,20 +248,28 @@ def find_bayer_transform(source, target, *, bayer="auto", grey="balanced", hdu=N
     return to_raw(t)
 
 
-def _find_raw_transforms(others, ref, ref_pattern, bayer, hdu, unit, options, callback=None):
+def _find_raw_transforms(others, ref, ref_pattern, bayer, hdu, unit, options, callback=None,
+                         fwhms=None):
     """
     Each frame's transform onto the reference, found on grey versions, in raw pixels.
 
     Yields ``(index, label, ParsedInput, pattern, transform, error)`` one frame at a
     time (its ParsedInput, pattern and transform None when it failed, and the error
     then says why), after giving ``callback`` its `~astroalign_nd.batch.FrameResult`.
+    ``fwhms``, a dict, gets the stars' FWHM (grey pixels) that each frame's detection
+    used, by index (the reference's by None), as it is found.
     """
     target = Reference(_grey(ref, ref_pattern)[0])
+    # The source's detection, as `find_transform` would make it, kept for its FWHM.
+    detect = {k: v for k, v in options.items() if k in _DETECTION_KEYS}
     for (item, label), k in others:
         start = time.perf_counter()
         try:
             p, pattern = _raw_frame(item, bayer, hdu, unit, label or f"frame{k}")
-            t, _ = find_transform(_grey(p, pattern)[0], target, **options)
+            source = Reference(_grey(p, pattern)[0], _role="source", **detect)
+            t, _ = find_transform(source, target, **options)
+            if fwhms is not None:
+                fwhms[k], fwhms[None] = source.fwhm, target.fwhm
         except (AstroalignError, ValueError, OSError) as exc:
             p = pattern = t = None
             error = f"{type(exc).__name__}: {exc}"
@@ -377,7 +390,9 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
         Raw values at or above weigh nothing.
     reject : `~astroalign_nd.stacking.StackConfig`, optional
         The stack's options whose clipping (``clip``...) finds the outliers
-        (default None: no rejection).
+        (default None: no rejection); a ``star_tolerance`` of None is derived, as
+        `~astroalign_nd.stack` derives it, from the stars' FWHMs that the
+        grey versions' detection found.
     folder : str, optional
         With ``reject``: where the grey versions on the reference's grid go.
     order : str or int, optional
@@ -402,14 +417,14 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
     shape = ref.data.shape
     out_shape = output_shape(shape, scale)
     accs = [DrizzleAccumulator(out_shape, scale, pixfrac, kernel) for _ in range(3)]
-    names, stats, rejected = [], [[], [], []], []
+    names, stats, rejected, fwhms = [], [[], [], []], [], {}
     frames = itertools.chain([(0, ref_item[2], ref, pattern, None, None)],
                              _find_raw_transforms(others, ref, pattern, bayer, hdu, unit,
-                                                  options, callback))
+                                                  options, callback, fwhms))
     interrupt = None
     if reject is not None:
         try:  # the outliers first: each frame's rejection map on the reference's grid
-            frames, interrupt = _outliers(frames, shape, reject, folder, order), None
+            frames, interrupt = _outliers(frames, shape, reject, folder, order, fwhms), None
         except KeyboardInterrupt as exc:  # the frames registered so far are drizzled
             frames, interrupt = exc.partial_result, exc
         items = {k: item for (item, _), k in others}
@@ -432,15 +447,18 @@ def drizzle_bayer(ref_item, others, *, bayer, scale, pixfrac, kernel, normalize,
     return planes(), rejected, ref, pattern
 
 
-def _outliers(frames, shape, opts, folder, order):
+def _outliers(frames, shape, opts, folder, order, fwhms):
     """
     `drizzle_bayer`'s rejection: each frame's grey version resampled onto the reference's
     grid and written to ``folder`` (one frame at a time), then the stack's clipped
-    combination of them.  Returns the frames as ``(index, label, pattern, transform,
-    error, rejection map)`` (a failed one's map None), the maps a memory map in ``folder``.
+    combination of them, its star allowance (``star_tolerance``), unless given, from
+    ``fwhms`` (`_find_raw_transforms`', filled as the frames are registered) as
+    `~astroalign_nd.stack` derives it, else ``STAR_TOLERANCE_FLOOR``.  Returns the frames
+    as ``(index, label, pattern, transform, error, rejection map)`` (a failed one's map
+    None), the maps a memory map in ``folder``.
     On Ctrl-C, the exception carries the frames registered so far, with their maps.
     """
-    done, paths, stats, interrupt = [], [], [], None
+    done, paths, stats, keys, interrupt = [], [], [], [], None
     try:
         for k, label, p, pat, transform, error in frames:
             done.append([k, label, pat, transform, error, None])
@@ -459,6 +477,7 @@ def _outliers(frames, shape, opts, folder, order):
                 continue
             normalise(st, st.sky if not stats else stats[0].sky, opts.normalize)
             stats.append(st)
+            keys.append(None if transform is None else k)  # (the reference's: None)
             done[-1][5] = len(paths) - 1
     except KeyboardInterrupt as exc:
         interrupt = exc
@@ -466,6 +485,13 @@ def _outliers(frames, shape, opts, folder, order):
             del done[-1]  # stopped between its registration and its grey version
     flags = np.lib.format.open_memmap(os.path.join(folder, ".rejected.npy"), mode="w+",
                                       dtype=np.bool_, shape=(max(len(paths), 1),) + shape)
+    if opts.clip == "sigma" and opts.star_tolerance is None:
+        # Undersampled stars' cores are clipped without an allowance; with fewer than two
+        # FWHMs, the allowance for a night of equal seeing.
+        # (The reference's FWHM is known once a frame has been registered onto it.)
+        tolerance = star_tolerance([fwhms.get(key) for key in keys])
+        opts = dataclasses.replace(opts, star_tolerance=STAR_TOLERANCE_FLOOR
+                                   if tolerance is None else tolerance)
     if paths:
         frame_weights(stats, None, opts.gain, opts.read_noise)
         combine_files(paths, stats, shape, opts, gain=opts.gain, read_noise=opts.read_noise,

@@ -232,6 +232,27 @@ def _nanmedian(a):
     return np.where(k > 0, med, np.nan)
 
 
+#: The star allowance's part for registration and normalisation errors: all of it for a
+#: night of equal seeing.
+STAR_TOLERANCE_FLOOR = 0.3
+
+
+def star_tolerance(fwhm):
+    """
+    The clipping's allowance for the stars' own signal (``star_tolerance``) from the
+    frames' star FWHMs: the largest ratio of a frame's star peak to the median frame's
+    (peaks scale as the inverse FWHM squared), minus 1, plus ``STAR_TOLERANCE_FLOOR`` for
+    registration and normalisation errors; None with fewer than two FWHMs (the
+    non-finite and non-positive ones left out).
+    """
+    fwhm = np.array([f for f in fwhm if f is not None], float)
+    fwhm = fwhm[np.isfinite(fwhm) & (fwhm > 0)]
+    if fwhm.size < 2:
+        return None
+    ratio = (np.median(fwhm) / fwhm) ** 2
+    return float(np.max(np.abs(ratio - 1.0))) + STAR_TOLERANCE_FLOOR
+
+
 def _sigma_clip(x, var, valid, opts):
     """
     Reject values beyond ``sigma_low``/``sigma_high`` times the spread about the

@@ -25,7 +25,8 @@ from ..io.bayer import bayer_pattern
 from ..io.header import fits_text
 from ..io.write import check_not_input, check_output_path, make_output_dir, remove_empty_dirs
 from ..io.writers import output_suffixes
-from .combine import combine_files, frame_stats, frame_variance, frame_weights, normalise
+from .combine import (combine_files, frame_stats, frame_variance, frame_weights, normalise,
+                      star_tolerance)
 from .drizzle import (DrizzleAccumulator, blot_mask, coverage_report, output_shape, pixel_map,
                       scaled_wcs, weight_map)
 from .colour import _demosaicing, colour_ccddata, drizzle_bayer, register_bayer
@@ -81,7 +82,10 @@ def stack(frames: Any, reference: Any = None, *, output: str | os.PathLike | Non
         Replace ``output`` (and files in ``aligned_dir``) if they exist.
     aligned_dir : str or path, optional
         Keep the registered frames in this folder (default: a temporary
-        folder, removed at the end).
+        folder, removed at the end); raw colour frames demosaiced: each
+        frame's registered red, green and blue planes.  Not with ``bayer``
+        and ``drizzle`` (ValueError): the Bayer drizzle makes no registered
+        frame.
     temp_dir : str, optional
         Where the temporary folder goes (default: the system's).
     workers, progress, hdu, unit, order
@@ -315,6 +319,13 @@ def _not_done(frame):
 def _stack_colour(ref_item, others, opts, weights, aligned_dir, temp_dir, hdu, unit, order,
                   dtype, options, *, output, overwrite, callback):
     """Raw colour frames: demosaiced and combined per colour, or Bayer-drizzled (and written)."""
+    if opts.drizzle is not None and aligned_dir is not None:
+        # Not silently ignored: the user expects the registered frames there.
+        raise ValueError("aligned_dir cannot be kept with bayer and drizzle: the Bayer "
+                         "drizzle drops each frame's raw pixels onto the output directly "
+                         "and makes no registered frame; leave aligned_dir out, or "
+                         "demosaic (drizzle=None) to keep each frame's registered colour "
+                         "planes there.")
     bayer = opts.bayer if opts.bayer == "auto" else bayer_pattern(pattern=opts.bayer)
     # Resampling's options (the command line passes them): the demosaiced planes' only.
     resampling = {k: options.pop(k) for k in ("conserve_flux", "fill_value") if k in options}
@@ -395,11 +406,9 @@ def _drizzle_bayer(ref_item, others, opts, weights, hdu, unit, dtype, options, *
     stack's rejection on the grey versions (unless ``clip`` is None).
     """
     interrupt = None
+    # (The star allowance, unless given, from the FWHMs that the grey versions' detection
+    # found: `drizzle_bayer`'s rejection.)
     opts = _feasible_clip(opts, len(others) + 1)
-    if opts.clip == "sigma" and opts.star_tolerance is None:
-        # No frame's FWHM is measured here: `_star_clip`'s allowance for a night of equal
-        # seeing, or the undersampled stars' cores are clipped.
-        opts = dataclasses.replace(opts, star_tolerance=STAR_TOLERANCE_FLOOR)
     with _aligned_folder(None, temp_dir) as folder:
         try:
             channels, rejected, ref, pattern = drizzle_bayer(
@@ -631,25 +640,16 @@ def _quality(frames, ref_item, others, result, rejected, hdu, unit, opts):
     return kept, measured
 
 
-#: The star allowance's part for registration and normalisation errors: all of it for a
-#: night of equal seeing.
-STAR_TOLERANCE_FLOOR = 0.3
-
-
 def _star_clip(opts, stats):
     """
     The clipping's allowance for the stars' own signal (``star_tolerance``), unless
-    given: the largest ratio of a frame's star peak to the median frame's (peaks scale
-    as the inverse FWHM squared), minus 1, plus ``STAR_TOLERANCE_FLOOR`` for registration
-    and normalisation errors.
+    given: `~astroalign_nd.stacking.combine.star_tolerance` of the frames' measured FWHMs
+    (none with fewer than two).
     """
-    fwhm = np.array([st.quality["fwhm"] for st in stats if st.quality], float)
-    fwhm = fwhm[np.isfinite(fwhm) & (fwhm > 0)]
-    if opts.clip != "sigma" or opts.star_tolerance is not None or fwhm.size < 2:
+    if opts.clip != "sigma" or opts.star_tolerance is not None:
         return opts
-    ratio = (np.median(fwhm) / fwhm) ** 2
-    tolerance = float(np.max(np.abs(ratio - 1.0))) + STAR_TOLERANCE_FLOOR
-    return dataclasses.replace(opts, star_tolerance=tolerance)
+    tolerance = star_tolerance([st.quality["fwhm"] for st in stats if st.quality])
+    return opts if tolerance is None else dataclasses.replace(opts, star_tolerance=tolerance)
 
 
 def _feasible_clip(opts, n_used):

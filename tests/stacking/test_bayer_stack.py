@@ -149,6 +149,31 @@ def test_bayer_options_are_checked(raws):
         stack(raws[:2], bayer="auto", drizzle=2, pixfrac=1.5)
 
 
+def test_aligned_dir_with_raw_colour_frames(raws, tmp_path):
+    """
+    Demosaiced, each frame's registered red, green and blue planes are kept in
+    ``aligned_dir``; the Bayer drizzle, which makes no registered frame, refuses it
+    before any work instead of ignoring it (and leaves no folder behind).
+    """
+    kept = tmp_path / "aligned"
+    cube = stack(raws[:3], bayer="auto", demosaic="bilinear", aligned_dir=kept)
+    names = sorted(p.name for p in kept.iterdir())
+    assert names == ["frame00001_B.fits", "frame00001_G.fits", "frame00001_R.fits",
+                     "frame00002_B.fits", "frame00002_G.fits", "frame00002_R.fits",
+                     "reference_B.fits", "reference_G.fits", "reference_R.fits"]
+    # The reference's green plane, not resampled, keeps its raw green pixels (GRBG; the
+    # edge rows and columns aside, where the demosaicing's kernel meets the border).
+    green = CCDData.read(kept / "reference_G.fits")
+    assert green.shape == cube.shape[1:]
+    raw = np.asarray(raws[0].data, float)
+    for r0, c0 in ((2, 2), (1, 1)):
+        np.testing.assert_allclose(green.data[r0:-2:2, c0:-2:2], raw[r0:-2:2, c0:-2:2],
+                                   rtol=1e-6)
+    with pytest.raises(ValueError, match="aligned_dir cannot be kept with bayer and drizzle"):
+        stack(raws[:3], bayer="auto", drizzle=2, aligned_dir=tmp_path / "none")
+    assert not (tmp_path / "none").exists()
+
+
 def test_command_line_bayer_drizzle(raws, tmp_path):
     """``astroalign-nd stack --bayer GRBG --drizzle 2``: an RGB cube at twice the size."""
     paths = []
