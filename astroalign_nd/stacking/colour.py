@@ -259,9 +259,10 @@ def _find_raw_transforms(others, ref, ref_pattern, bayer, hdu, unit, options, ca
     ``fwhms``, a dict, gets the stars' FWHM (grey pixels) that each frame's detection
     used, by index (the reference's by None), as it is found.
     """
-    target = Reference(_grey(ref, ref_pattern)[0])
-    # The source's detection, as `find_transform` would make it, kept for its FWHM.
+    # Each frame's detection, as `find_transform` would make it (the user's
+    # detection options on both sides), kept for its FWHM.
     detect = {k: v for k, v in options.items() if k in _DETECTION_KEYS}
+    target = Reference(_grey(ref, ref_pattern)[0], _role="target", **detect)
     for (item, label), k in others:
         start = time.perf_counter()
         try:

@@ -274,3 +274,14 @@ def test_bayer_drizzle_rejects_a_trail_and_cosmic_rays(raws, clip):
         # beyond what the clean frames lose (noise and star-core outliers).
         extra = n_rejected[3] - np.median(n_rejected[:3] + n_rejected[4:])
         assert n_hit <= extra < 5 * n_hit, (n_hit, n_rejected)
+
+
+def test_detection_options_reach_the_reference_too(raws):
+    """The user's detection options detect the reference's grey version as well as
+    each frame's: with a fixed ``fwhm`` both detections report that width."""
+    ref, pattern = colour._raw_frame(raws[0], "GRBG", None, None, "reference")
+    fwhms = {}
+    found = list(colour._find_raw_transforms([((raws[1], "one"), 1)], ref, pattern, "GRBG",
+                                             None, None, {"fwhm": 3.7}, fwhms=fwhms))
+    assert found[0][5] is None  # registered
+    assert fwhms == {1: pytest.approx(3.7), None: pytest.approx(3.7)}
