@@ -149,8 +149,9 @@ def _candidate_fwhms(data, mask, cand, n_max, half, noise=None):
     yc = np.round(y).astype(int)
     cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
     # A local sky: any pedestal left would inflate the moments.
-    cut = cut - _local_background(cut - bkg[:, None, None], bad, 0.75 * half)[
-        :, None, None] - bkg[:, None, None]
+    sky = _local_background(cut, bad, 0.75 * half, offset=bkg)
+    cut -= sky[:, None, None]  # (in place: the cutouts are this call's own)
+    cut -= bkg[:, None, None]
     cut[bad] = 0.0
     fwhm = _adaptive_fwhm(cut, bad, x - xc, y - yc, sigma0=max(1.5, half / 10.0), n_iter=6)
     peak = cut.reshape(len(x), -1).max(axis=1)
