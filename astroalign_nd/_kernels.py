@@ -597,7 +597,16 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
     yx = np.stack([y, x])
     last = max(size - 2, 0)
     sx, sy = (1, size) if size > 1 else (0, 0)
+    # The four bilinear taps of a pixel, from its lower corner's index.
+    taps = np.array([0, sx, sy, sy + sx])[:, None]
+    filled = None
     for _ in range(n_iter):
+        if filled is None:  # (again when stars stop)
+            # The moving stars' images, their good pixels as they are, and
+            # where their bad pixels are in them (refilled at every step).
+            filled = img[k]
+            at = (np.searchsorted(k, kb), pb)
+            first = kb * (size * size)
         # Bilinear values at the mirror images (y then x in each array's two
         # rows), zero beyond [0, size - 1] (as `scipy.ndimage.map_coordinates`
         # with order 1 and ``cval=0`` gives them).
@@ -610,14 +619,12 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
         f = np.minimum(np.maximum(np.floor(c), 0), last)
         t = c - f
         u = 1.0 - t
-        i00 = (f[0] * size + f[1]).astype(np.intp) + kb * (size * size)
-        val = (u[0] * (u[1] * pairs.take(i00, axis=-1) + t[1] * pairs.take(i00 + sx, axis=-1))
-               + t[0] * (u[1] * pairs.take(i00 + sy, axis=-1)
-                         + t[1] * pairs.take(i00 + sy + sx, axis=-1)))
+        i00 = (f[0] * size + f[1]).astype(np.intp) + first
+        p00, p01, p10, p11 = pairs.take(i00 + taps, axis=-1).transpose(1, 0, 2)
+        val = u[0] * (u[1] * p00 + t[1] * p01) + t[0] * (u[1] * p10 + t[1] * p11)
         val = np.where(inside, val, 0.0)
-        filled = img[k]
         # A mirror image that touches a bad pixel is not the star's.
-        filled[np.searchsorted(k, kb), pb] = np.where(val[1] > 0.999, val[0], 0.0)
+        filled[at] = np.where(val[1] > 0.999, val[0], 0.0)
         # One step of the windowed centroid on the stars made whole.
         y1, x1 = yx.take(k, axis=1)
         if fast:
@@ -635,6 +642,7 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
                 break
             on = np.isin(kb, k)
             kb, pb, g = kb[on], pb[on], g[:, on]
+            filled = None
     return yx[1].copy(), yx[0].copy()
 
 
