@@ -127,8 +127,29 @@ def _despike(cut, bad, noise, fwhm):
     nbs = neighbours(k, iy, ix) if nbs is None else nbs[:, spike]
     nbs[~np.isfinite(nbs)] = np.nan
     out = np.array(cut)
-    out[k, iy, ix] = np.nanmedian(nbs, axis=0)  # one at least is good
+    out[k, iy, ix] = _nanmedian_columns(nbs)  # one at least is good
     return out
+
+
+def _nanmedian_columns(a):
+    """
+    ``np.nanmedian(a, axis=0)`` of a few rows whose every column has a
+    value, without its masked-array path for small arrays (a tenth of a
+    millisecond a call): the same sort, and the mean of the middle two.
+    """
+    good = ~np.isnan(a)
+    srt = np.sort(np.where(good, a, np.inf), axis=0)  # (NaN last, as masked values)
+    count = good.sum(axis=0)
+    hi = count // 2
+    lo = np.where(count % 2 == 1, hi, hi - 1)
+    cols = np.arange(a.shape[1])
+    low, high = srt[lo, cols], srt[hi, cols]
+    med = (low + high) / 2.0
+    # Which zero (+0 or -0) a sort leaves in the middle is its own.
+    zero = (low == 0) | (high == 0)
+    if zero.any():
+        med[zero] = np.nanmedian(a[:, zero], axis=0)
+    return med
 
 
 #: A pixel's eight neighbours (dy, dx), in raster order.

@@ -241,6 +241,21 @@ def test_despike_paths_agree(monkeypatch):
         assert np.all(np.abs(out[0][changed] - level) < 6 * noise)
 
 
+def test_spike_replacement_is_numpys_nanmedian():
+    # A spike's replacement, the median of its good neighbours: np.nanmedian's
+    # values, bit for bit (zeros of either sign, odd and even counts).
+    from astroalign_nd.detection.candidates import _nanmedian_columns
+
+    rng = np.random.default_rng(7)
+    for trial in range(200):
+        a = np.round(rng.normal(0, 4, (8, 25)) / (2 if trial % 2 else 0.01))
+        a[rng.random(a.shape) < 0.2] = -0.0
+        a[rng.random(a.shape) < rng.uniform(0, 0.9)] = np.nan
+        a[rng.integers(0, 8, 25), np.arange(25)] = rng.normal(0, 4, 25)  # one good at least
+        want, got = np.nanmedian(a, axis=0), _nanmedian_columns(a)
+        assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+
+
 def test_undersampled_frame_is_not_despiked(monkeypatch):
     # Stars of 1.2 px FWHM are nearly spikes themselves: such a frame is
     # measured without despiking, and its stars are all found.
