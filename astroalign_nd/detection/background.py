@@ -63,7 +63,8 @@ def _diff_sigma(rows, mrows, lag):
     if diff.size < 10:
         return float("nan")
     med = _median(diff)
-    sigma = 1.4826 * _median(np.abs(diff - med)) / np.sqrt(2.0)
+    dev = diff - med
+    sigma = 1.4826 * _median(np.abs(dev, out=dev)) / np.sqrt(2.0)
     if sigma <= 0:
         # Quantised or noiseless images: fall back to the standard deviation.
         sigma = np.std(diff) / np.sqrt(2.0)

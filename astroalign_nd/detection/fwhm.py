@@ -160,7 +160,7 @@ def _candidate_fwhms(data, mask, cand, n_max, half, noise=None):
     # wrong one (overscan strips, frame edges).
     inner = ~bad[:, half - 3:half + 4, half - 3:half + 4].any(axis=(1, 2))
     ok = np.isfinite(fwhm) & (fwhm > 0.7) & (fwhm < half / 1.5) & inner
-    ok &= bad.mean(axis=(1, 2)) < 0.25
+    ok &= bad.sum(axis=(1, 2)) / bad[0].size < 0.25  # (np.mean's values, without its casts)
     if ok.sum() >= 3:
         sat = peak >= 0.98 * np.max(peak[ok])
         if (sat & ok).sum() >= 2:  # several equal peaks: a saturation plateau
