@@ -93,6 +93,29 @@ def test_bin_despike_mask_is_fill(threads, dtype, b):
                        k.bin_despike(filled, b, fill=-7.5))
 
 
+def test_bin_despike_splits_only_large_frames(monkeypatch):
+    # A small frame is binned in the calling thread (waking another costs
+    # more); split over threads, a frame gives the same values, bit for bit.
+    if not k.HAVE_COMPILED:
+        pytest.skip("the NumPy binning runs in one thread")
+    img = np.random.default_rng(4).normal(100, 10, (600, 400)).astype(np.float32)
+    monkeypatch.setattr(conf, "num_threads", 2)
+    chunks = []
+    real = k.run_split
+
+    def recorded(fn, n, args, min_per_thread=1, **kw):
+        out = real(fn, n, args, min_per_thread=min_per_thread, **kw)
+        chunks.append(len(out))
+        return out
+
+    monkeypatch.setattr(k, "run_split", recorded)
+    alone = k.bin_despike(img, 2)
+    monkeypatch.setattr(k, "_BIN_PIXELS_PER_THREAD", 1)
+    split = k.bin_despike(img, 2)
+    assert chunks == [1, 2]
+    assert_array_equal(alone, split)
+
+
 def test_bin_despike_read_only_and_strided_input():
     img = np.arange(64 * 64, dtype=np.float64).reshape(64, 64)
     view = img[::2, ::2]  # not contiguous
