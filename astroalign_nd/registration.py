@@ -28,7 +28,7 @@ from .matching.options import DEFAULT_NEIGHBORS, MatchingConfig
 from .resample.options import ResampleConfig
 from .detection.daofind import control_sources, keep_confident
 from .exceptions import TooFewSourcesError, TransformNotFoundError
-from ._kernels import num_threads, side_pool, warn_if_slow
+from ._kernels import core_to_spare, num_threads, side_pool, threads_chosen, warn_if_slow
 from ._validate import check_points
 from .matching.asterisms import build_asterisms, check_triangle_budget
 from .matching.search import match_control_points, search_tolerance
@@ -424,12 +424,17 @@ def _detect_both(src, ns, dst, nd):
 
     Detection is most of a small frame's registration, and much of it runs
     in NumPy and compiled code that releases the GIL: two frames at once
-    take about 0.8 of the time of one after the other.  The results are the
-    same (each frame is detected alone, from its own data); errors are
-    raised in the sequential order (the source's first).
+    take about 0.8 of the time of one after the other, on a core of their
+    own.  On busy cores they only take turns: with the default thread
+    count they are then detected one after the other (`core_to_spare`);
+    a thread count the user set is followed.  The results are the same
+    (each frame is detected alone, from its own data); errors are raised
+    in the sequential order (the source's first).
     """
     todo = [ref for ref, n in ((src, ns), (dst, nd)) if ref._needs_detection(n)]
     if len(todo) < 2 or src is dst or num_threads() < 2:
+        return
+    if not threads_chosen() and not core_to_spare():
         return
     # The warning filters are one global list, and ``catch_warnings`` blocks
     # in two threads restore each other's lists in any order (photutils

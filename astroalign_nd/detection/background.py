@@ -63,7 +63,8 @@ def _diff_sigma(rows, mrows, lag):
     if diff.size < 10:
         return float("nan")
     med = _median(diff)
-    sigma = 1.4826 * _median(np.abs(diff - med)) / np.sqrt(2.0)
+    dev = diff - med
+    sigma = 1.4826 * _median(np.abs(dev, out=dev)) / np.sqrt(2.0)
     if sigma <= 0:
         # Quantised or noiseless images: fall back to the standard deviation.
         sigma = np.std(diff) / np.sqrt(2.0)
@@ -116,19 +117,52 @@ def _background_map(binned, box):
     return full.astype(np.float32), bkg
 
 
-def _local_background(cut, bad, r_in):
-    """Median of each cutout's pixels at least ``r_in`` from its centre."""
+def _local_background(cut, bad, r_in, offset=None):
+    """
+    Median of each cutout's pixels at least ``r_in`` from its centre (less
+    ``offset``, one value per cutout, when given: ``cut - offset`` is not
+    formed for the pixels the median does not read).
+    """
     n, size, _ = cut.shape
     g = np.arange(size) - size // 2
     outer = (g[:, None] ** 2 + g[None, :] ** 2) >= r_in**2
     sel = outer.ravel()
     vals = cut.reshape(n, -1)[:, sel]
+    if offset is not None:
+        vals = vals - offset[:, None]
     badv = bad.reshape(n, -1)[:, sel]
     bkg = _median(vals, axis=1)  # right for every cutout without bad pixels
-    for i in np.flatnonzero(badv.any(axis=1)):  # the few at edges or masks
-        good = vals[i][~badv[i]]
-        bkg[i] = _median(good) if good.size else 0.0  # np.median's values
+    edge = np.flatnonzero(badv.any(axis=1))  # the few at edges or masks
+    if edge.size:
+        bkg[edge] = _median_of_good(vals[edge], badv[edge])
     return bkg
+
+
+def _median_of_good(vals, bad):
+    """
+    Each row's median of its good values (0 for none): ``_median`` of each
+    row's good values, np.median's, bit for bit, from one sort of every row.
+    """
+    def one_by_one(rows):
+        return [_median(vals[i][~bad[i]]) if n_good[i] else 0.0 for i in rows]
+
+    n_good = vals.shape[1] - bad.sum(axis=1)
+    if not np.isfinite(vals[~bad]).all():  # (NaN is the median of a row with one)
+        return np.array(one_by_one(range(len(vals))), vals.dtype)
+    # Bad values sort last: the good ones are each row's first.
+    srt = np.sort(np.where(bad, np.inf, vals), axis=1)
+    rows = np.arange(len(vals))
+    k = n_good // 2
+    hi = srt[rows, k.clip(max=vals.shape[1] - 1)]
+    lo = srt[rows, (k - 1).clip(min=0)]
+    # (lo + hi) / 2 in the array's type, as `_median` (np.mean of the two).
+    out = np.where(n_good % 2 == 1, hi, (lo + hi) / 2)
+    out[n_good == 0] = 0.0
+    # Which zero (+0 or -0) a partition leaves in the middle is its own.
+    zero = np.flatnonzero(((hi == 0) | (lo == 0)) & (n_good > 0))
+    if zero.size:
+        out[zero] = one_by_one(zero)
+    return out
 
 
 def _bin_mean(data, mask, k):

@@ -93,30 +93,78 @@ def _despike(cut, bad, noise, fwhm):
     pixels are neither spikes nor neighbours.
     """
     allow = 1.0 / _neighbour_ratio(_SPIKE_FWHM_MARGIN * fwhm)
-    # Only pixels above the noise margin can be spikes: their neighbours are
-    # gathered, not the whole stack's.
+    # Only pixels above the noise margin can be spikes.
     k, iy, ix = np.nonzero(~bad & (cut > _SPIKE_NSIGMA * noise))
     if k.size == 0:
         return cut
-    _, ny, nx = cut.shape
-    # The eight neighbours of every such pixel at once, from a copy with a
-    # border: bad pixels and those beyond the tile read -inf.
-    framed = np.full((len(cut), ny + 2, nx + 2), -np.inf)
+    n, ny, nx = cut.shape
+    # The eight neighbours of a pixel, from a copy with a border: bad
+    # pixels and those beyond the tile read -inf.
+    framed = np.full((n, ny + 2, nx + 2), -np.inf)
     framed[:, 1:-1, 1:-1] = np.where(bad, -np.inf, cut)
-    dy, dx = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]).T
-    nbs = framed.reshape(-1)[(k * (ny + 2) + iy + 1) * (nx + 2) + ix + 1
-                             + (dy * (nx + 2) + dx)[:, None]]
-    top = nbs.max(axis=0)
+
+    def neighbours(k, iy, ix):  # (8, len(k)): gathered for these pixels only
+        return framed.reshape(-1)[(k * (ny + 2) + iy + 1) * (nx + 2) + ix + 1
+                                  + _neighbour_steps(nx + 2)[:, None]]
+
+    nbs = None
+    if _WHOLE_STACK_FRACTION * k.size > cut.size:
+        # Most pixels stand above the margin (a bright plate): the shifted
+        # stacks' maximum, a few whole-array passes, beats gathering them.
+        top = framed[:, :ny, :nx].copy()
+        for dy, dx in _NEIGHBOURS[1:]:
+            np.maximum(top, framed[:, 1 + dy:ny + 1 + dy, 1 + dx:nx + 1 + dx], out=top)
+        top = top[k, iy, ix]
+    else:
+        nbs = neighbours(k, iy, ix)
+        top = nbs.max(axis=0)
     # (A pixel with no good neighbour is not judged.)
     spike = np.isfinite(top) & (cut[k, iy, ix] > allow * np.maximum(top, 0.0)
                                 + _SPIKE_NSIGMA * noise)
     if not spike.any():
         return cut
-    nbs = nbs[:, spike]
+    k, iy, ix = k[spike], iy[spike], ix[spike]
+    nbs = neighbours(k, iy, ix) if nbs is None else nbs[:, spike]
     nbs[~np.isfinite(nbs)] = np.nan
     out = np.array(cut)
-    out[k[spike], iy[spike], ix[spike]] = np.nanmedian(nbs, axis=0)  # one at least is good
+    out[k, iy, ix] = _nanmedian_columns(nbs)  # one at least is good
     return out
+
+
+def _nanmedian_columns(a):
+    """
+    ``np.nanmedian(a, axis=0)`` of a few rows whose every column has a
+    value, without its masked-array path for small arrays (a tenth of a
+    millisecond a call): the same sort, and the mean of the middle two.
+    """
+    good = ~np.isnan(a)
+    srt = np.sort(np.where(good, a, np.inf), axis=0)  # (NaN last, as masked values)
+    count = good.sum(axis=0)
+    hi = count // 2
+    lo = np.where(count % 2 == 1, hi, hi - 1)
+    cols = np.arange(a.shape[1])
+    low, high = srt[lo, cols], srt[hi, cols]
+    med = (low + high) / 2.0
+    # Which zero (+0 or -0) a sort leaves in the middle is its own.
+    zero = (low == 0) | (high == 0)
+    if zero.any():
+        med[zero] = np.nanmedian(a[:, zero], axis=0)
+    return med
+
+
+#: A pixel's eight neighbours (dy, dx), in raster order.
+_NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx)
+
+
+def _neighbour_steps(width):
+    """The neighbours' offsets in a raveled array of rows ``width`` long."""
+    return np.array([dy * width + dx for dy, dx in _NEIGHBOURS])
+
+
+#: `_despike` takes every neighbour's maximum over the whole stack when
+#: more than 1 / this of its pixels are above the noise margin (measured
+#: break-even: about a quarter to a third).
+_WHOLE_STACK_FRACTION = 4
 
 
 def _auto_bin(shape):

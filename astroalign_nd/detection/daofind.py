@@ -431,9 +431,11 @@ def _convolved_near(data, kernel, xy):
     # Window pixels inside the frame (positions near its edge lose some).
     oy = y[:, None] + np.arange(-ry, ry + 1)[None, :]
     ox = x[:, None] + np.arange(-rx, rx + 1)[None, :]
-    inside = (((oy >= 0) & (oy < data.shape[0]))[:, :, None]
-              & ((ox >= 0) & (ox < data.shape[1]))[:, None, :])
-    k, iy, ix = np.nonzero(inside)
+    iny, inx = (oy >= 0) & (oy < data.shape[0]), (ox >= 0) & (ox < data.shape[1])
+    if iny.all() and inx.all():  # (the tiles' centres: always) every window whole
+        out[oy[:, :, None], ox[:, None, :]] = acc  # (in the same order: the last write wins)
+        return out
+    k, iy, ix = np.nonzero(iny[:, :, None] & inx[:, None, :])
     out[oy[k, iy], ox[k, ix]] = acc[k, iy, ix]
     return out
 
@@ -605,17 +607,18 @@ def _dao_on_mosaic(cut, bad, cand, xc, yc, half, fwhm, noise, opts):
     n = len(cand["x"])
     ncol = int(np.ceil(np.sqrt(n)))
     nrow = int(np.ceil(n / ncol))
-    # (n, tile, tile) -> (nrow*tile, ncol*tile) without a Python loop.
-    pad = np.zeros((nrow * ncol, tile, tile))
-    pad[:n] = cut
-    mosaic = pad.reshape(nrow, ncol, tile, tile).swapaxes(1, 2).reshape(nrow * tile, ncol * tile)
-    padm = np.ones((nrow * ncol, tile, tile), dtype=bool)
-    padm[:n] = bad
-    mmask = padm.reshape(nrow, ncol, tile, tile).swapaxes(1, 2).reshape(nrow * tile, ncol * tile)
+    # (n, tile, tile) -> (nrow*tile, ncol*tile) without a Python loop: each
+    # tile written once into its place (the spare tiles empty and masked).
+    kk = np.arange(n)
+    mosaic = np.zeros((nrow, tile, ncol, tile))
+    mosaic.transpose(0, 2, 1, 3)[kk // ncol, kk % ncol] = cut
+    mosaic = mosaic.reshape(nrow * tile, ncol * tile)
+    mmask = np.ones((nrow, tile, ncol, tile), dtype=bool)
+    mmask.transpose(0, 2, 1, 3)[kk // ncol, kk % ncol] = bad
+    mmask = mmask.reshape(nrow * tile, ncol * tile)
     # Tile centres are given as xycoords, so DAOStarFinder skips its peak
     # search and only measures centroid, sharpness and roundness.
     centers = np.empty((n, 2))
-    kk = np.arange(n)
     centers[:, 0] = (kk % ncol) * tile + half + (cand["x"] - xc)
     centers[:, 1] = (kk // ncol) * tile + half + (cand["y"] - yc)
     # Imported here: photutils' import is the largest part of a fresh

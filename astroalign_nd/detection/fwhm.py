@@ -149,8 +149,9 @@ def _candidate_fwhms(data, mask, cand, n_max, half, noise=None):
     yc = np.round(y).astype(int)
     cut, bad = _extract_cutouts(data, mask, xc, yc, half, 0.0)
     # A local sky: any pedestal left would inflate the moments.
-    cut = cut - _local_background(cut - bkg[:, None, None], bad, 0.75 * half)[
-        :, None, None] - bkg[:, None, None]
+    sky = _local_background(cut, bad, 0.75 * half, offset=bkg)
+    cut -= sky[:, None, None]  # (in place: the cutouts are this call's own)
+    cut -= bkg[:, None, None]
     cut[bad] = 0.0
     fwhm = _adaptive_fwhm(cut, bad, x - xc, y - yc, sigma0=max(1.5, half / 10.0), n_iter=6)
     peak = cut.reshape(len(x), -1).max(axis=1)
@@ -159,7 +160,7 @@ def _candidate_fwhms(data, mask, cand, n_max, half, noise=None):
     # wrong one (overscan strips, frame edges).
     inner = ~bad[:, half - 3:half + 4, half - 3:half + 4].any(axis=(1, 2))
     ok = np.isfinite(fwhm) & (fwhm > 0.7) & (fwhm < half / 1.5) & inner
-    ok &= bad.mean(axis=(1, 2)) < 0.25
+    ok &= bad.sum(axis=(1, 2)) / bad[0].size < 0.25  # (np.mean's values, without its casts)
     if ok.sum() >= 3:
         sat = peak >= 0.98 * np.max(peak[ok])
         if (sat & ok).sum() >= 2:  # several equal peaks: a saturation plateau

@@ -453,12 +453,20 @@ def test_convolution_near_the_positions_is_scipys(fwhm):
     data = rng.normal(size=(120, 97)) * 50.0
     xy = np.vstack([np.column_stack([rng.integers(0, 97, 30), rng.integers(0, 120, 30)]),
                     [[0, 0], [96, 119], [0, 119]]])
-    near = _convolved_near(data, kernel, xy)
     full = ndimage.convolve(data, kernel, mode="constant", cval=0.0)
     ry, rx = kernel.shape[0] // 2, kernel.shape[1] // 2
-    for x, y in xy:
-        win = np.s_[max(y - ry, 0):y + ry + 1, max(x - rx, 0):x + rx + 1]
-        np.testing.assert_array_equal(near[win], full[win])
+    # With the edges, and without (every window whole: another path).
+    for pos in (xy, xy[(xy[:, 0] >= rx) & (xy[:, 0] < 97 - rx)
+                       & (xy[:, 1] >= ry) & (xy[:, 1] < 120 - ry)]):
+        near = _convolved_near(data, kernel, pos)
+        for x, y in pos:
+            win = np.s_[max(y - ry, 0):y + ry + 1, max(x - rx, 0):x + rx + 1]
+            np.testing.assert_array_equal(near[win], full[win])
+        # Zero elsewhere.
+        away = np.ones(data.shape, bool)
+        for x, y in pos:
+            away[max(y - ry, 0):y + ry + 1, max(x - rx, 0):x + rx + 1] = False
+        assert not near[away].any()
 
 
 def test_a_larger_detection_from_the_cache_is_a_fresh_one():

@@ -212,6 +212,50 @@ def test_despike_leaves_stars(fwhm):
     assert np.all(np.abs(out[faint, half, half + 3] - cut[faint, half, half + 3]) < 5 * noise)
 
 
+def test_despike_paths_agree(monkeypatch):
+    # The neighbours' maximum gathered per pixel (few pixels above the noise)
+    # and over the whole stack (a bright plate): the same cutouts, bit for
+    # bit, with spikes, bad pixels and the tiles' borders.
+    from astroalign_nd.detection import candidates
+
+    rng = np.random.default_rng(5)
+    noise = 10.0
+    for level in (0.0, 80.0):  # few pixels above 5 sigma, then most of them
+        cut = rng.normal(level, noise, (60, 15, 15))
+        bad = rng.random(cut.shape) < 0.02
+        spikes = rng.integers(0, cut.size, 40)
+        cut.flat[spikes] += 100 * noise
+        cut.flat[rng.integers(0, cut.size, 20)] = np.nan  # no good neighbour count
+        bad |= np.isnan(cut)
+        cut[bad] = 0.0
+        out = {}
+        for frac in (0, 10**9):
+            monkeypatch.setattr(candidates, "_WHOLE_STACK_FRACTION", frac)
+            out[frac] = candidates._despike(cut, bad, noise, 3.0)
+        assert np.array_equal(out[0], out[10**9])
+        changed = out[0] != cut
+        was_spike = np.zeros(cut.shape, bool)
+        was_spike.flat[spikes] = True
+        # The spikes are replaced (but those on bad pixels), and nothing else.
+        assert changed.sum() >= 30 and not (changed & ~was_spike).any()
+        assert np.all(np.abs(out[0][changed] - level) < 6 * noise)
+
+
+def test_spike_replacement_is_numpys_nanmedian():
+    # A spike's replacement, the median of its good neighbours: np.nanmedian's
+    # values, bit for bit (zeros of either sign, odd and even counts).
+    from astroalign_nd.detection.candidates import _nanmedian_columns
+
+    rng = np.random.default_rng(7)
+    for trial in range(200):
+        a = np.round(rng.normal(0, 4, (8, 25)) / (2 if trial % 2 else 0.01))
+        a[rng.random(a.shape) < 0.2] = -0.0
+        a[rng.random(a.shape) < rng.uniform(0, 0.9)] = np.nan
+        a[rng.integers(0, 8, 25), np.arange(25)] = rng.normal(0, 4, 25)  # one good at least
+        want, got = np.nanmedian(a, axis=0), _nanmedian_columns(a)
+        assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+
+
 def test_undersampled_frame_is_not_despiked(monkeypatch):
     # Stars of 1.2 px FWHM are nearly spikes themselves: such a frame is
     # measured without despiking, and its stars are all found.

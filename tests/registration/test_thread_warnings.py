@@ -57,3 +57,34 @@ def test_filters_restored_after_register():
     with conf.set_temp("num_threads", 2):
         find_transform(pair.source, pair.target)
     assert warnings.filters == before
+
+
+def test_busy_cores_detect_one_frame_after_the_other(monkeypatch):
+    # With the default thread count, both frames are detected at once only
+    # when a core is free (`core_to_spare`); a thread count the user set is
+    # followed.  The transform is the same either way, bit for bit.
+    from astroalign_nd import _kernels, registration
+
+    if _kernels.threads_chosen():
+        import pytest
+
+        pytest.skip("the environment sets the thread count")
+    pair = simulate_pair((200, 200), n_stars=40, rotation=10.0, seed=4)
+    with conf.set_temp("num_threads", 1):
+        alone, _ = find_transform(pair.source, pair.target)
+    used = []
+    real = registration.side_pool
+
+    def recorded():
+        used.append(True)
+        return real()
+
+    monkeypatch.setattr(registration, "side_pool", recorded)
+    monkeypatch.setattr(registration, "num_threads", lambda: 2)  # whatever this machine has
+    for spare, n_threads, side in ((False, 0, False), (True, 0, True), (False, 2, True)):
+        monkeypatch.setattr(registration, "core_to_spare", lambda spare=spare: spare)
+        used.clear()
+        with conf.set_temp("num_threads", n_threads):
+            t, _ = find_transform(pair.source, pair.target)
+        assert bool(used) is side, (spare, n_threads)
+        assert (t.matrix == alone.matrix).all()
