@@ -420,7 +420,7 @@ class LinearTransform2D(Model):
                     theta = solver(design * sw[..., None],
                                    (dst[rest].reshape(n, -1) * sw)[..., None], rcond,
                                    signature="ddd->ddid")[0][..., 0]
-                return np.array([layer.to_matrix(t) for t in theta])
+                return layer.to_matrices(theta)
             except (FloatingPointError, TypeError, ValueError):
                 # An SVD that did not converge, or a NumPy whose private gufunc differs:
                 # the fits one at a time (which raise lstsq's own errors).
@@ -724,6 +724,14 @@ def _unflip(lin, parity):
     return lin if parity == 1 else lin @ np.diag([1.0, float(parity)])
 
 
+def _stacked_matrices(lin, shift):
+    """(F, 3, 3) homogeneous matrices of the linear parts ``lin`` (F, 2, 2) and
+    shifts ``shift`` (F, 2): `ParameterLayer.to_matrix` of each."""
+    m = np.zeros((len(lin), 3, 3))
+    m[:, :2, :2], m[:, :2, 2], m[:, 2, 2] = lin, shift, 1.0
+    return m
+
+
 def _rotation_part(lin, parity):
     """``(a, b)`` of the scaled rotation ``[[a, -b], [b, a]]`` nearest to ``lin``
     (after its y axis is flipped, for ``parity`` -1)."""
@@ -750,6 +758,10 @@ class TranslationLayer(ParameterLayer):
 
     def to_parts(self, params):
         return np.eye(2), params[:2]
+
+    def to_matrices(self, params):
+        params = np.asarray(params)
+        return _stacked_matrices(np.broadcast_to(np.eye(2), (len(params), 2, 2)), params[:, :2])
 
     def from_parts(self, lin, shift):
         return np.array(shift, float)
@@ -817,6 +829,13 @@ class SimilarityLayer(ParameterLayer):
         a, b = params[0], params[1]
         return _unflip(np.array([[a, -b], [b, a]]), self.parity), params[2:]
 
+    def to_matrices(self, params):
+        params = np.asarray(params)
+        a, b = params[:, 0], params[:, 1]
+        lin = np.stack([np.stack([a, -b], axis=1), np.stack([b, a], axis=1)], axis=1)
+        # (The flip of a parity -1 is the same product, slice by slice.)
+        return _stacked_matrices(_unflip(lin, self.parity), params[:, 2:])
+
     def from_parts(self, lin, shift):
         return np.array([*_rotation_part(lin, self.parity), *shift])
 
@@ -848,6 +867,10 @@ class AffineLayer(ParameterLayer):
 
     def to_parts(self, params):
         return np.asarray(params[:4]).reshape(2, 2), params[4:]
+
+    def to_matrices(self, params):
+        params = np.asarray(params)
+        return _stacked_matrices(params[:, :4].reshape(-1, 2, 2), params[:, 4:])
 
     def from_parts(self, lin, shift):
         return np.array([*np.asarray(lin).ravel(), *shift])
