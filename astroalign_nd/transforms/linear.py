@@ -8,6 +8,7 @@ Each is an `astropy.modeling.Model` with two inputs and two outputs; see
 
 from __future__ import annotations
 
+import functools
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
@@ -21,6 +22,39 @@ from .registry import transform_type_of
 
 __all__ = ['LinearTransform2D', 'TranslationTransform', 'EuclideanTransform',
            'SimilarityTransform', 'AffineTransform']
+
+#: NumPy's least-squares kernel (the gufunc `numpy.linalg.lstsq` calls), if it has one.
+_LSTSQ = getattr(getattr(np.linalg, "_umath_linalg", None), "lstsq", None)
+_EPS = float(np.finfo(float).eps)
+
+
+@functools.lru_cache(maxsize=16)
+def _all_but_one(n):
+    """(n, n - 1) indices, row i all of ``range(n)`` but i (read-only, kept: the
+    jackknife of every match asks for it)."""
+    rest = np.nonzero(~np.eye(n, dtype=bool))[1].reshape(n, n - 1)
+    rest.flags.writeable = False
+    return rest
+
+
+def _lstsq(a, b):
+    """
+    ``np.linalg.lstsq(a, b, rcond=None)[0]`` of a float (M, K) ``a`` and (M,) ``b``.
+
+    Its kernel called as it calls it (the same numbers, without the checks and
+    conversions that cost a third of a small fit); `numpy.linalg.lstsq` itself
+    (which raises its own errors) for other inputs, or if the kernel fails or
+    is not the one this expects.
+    """
+    if (_LSTSQ is not None and a.ndim == 2 and b.ndim == 1 and len(a) > 0
+            and a.dtype == b.dtype == np.float64):
+        try:
+            with np.errstate(invalid="raise", over="ignore", divide="ignore", under="ignore"):
+                return _LSTSQ(a, b[:, None], _EPS * max(a.shape),
+                              signature="ddd->ddid")[0][:, 0]
+        except (FloatingPointError, TypeError, ValueError):
+            pass  # (an SVD that did not converge, or a NumPy whose private gufunc differs)
+    return np.linalg.lstsq(a, b, rcond=None)[0]
 
 
 class LinearTransform2D(Model):
@@ -392,7 +426,7 @@ class LinearTransform2D(Model):
         layer = cls.layer(parity)
         design = layer.design(src).reshape(2 * len(src), layer.k)
         sw = np.sqrt(np.repeat(w, design.shape[0] // len(w)))
-        theta, *_ = np.linalg.lstsq(design * sw[:, None], dst.ravel() * sw, rcond=None)
+        theta = _lstsq(design * sw[:, None], dst.ravel() * sw)
         return layer.to_matrix(theta), design, theta
 
     @classmethod
@@ -405,15 +439,15 @@ class LinearTransform2D(Model):
         same numbers, without its per-call overhead).
         """
         n = len(src)
-        rest = np.nonzero(~np.eye(n, dtype=bool))[1].reshape(n, n - 1)  # row i: all but i
-        solver = getattr(getattr(np.linalg, "_umath_linalg", None), "lstsq", None)
+        rest = _all_but_one(n)  # row i: all but i
+        solver = _LSTSQ
         if cls._linear_fit.__func__ is LinearTransform2D._linear_fit.__func__ and solver:
             if "parity" in cls.param_names:
                 _check_parity(parity)
             layer = cls.layer(parity)
             design = layer.design(src)[rest].reshape(n, 2 * (n - 1), layer.k)
             sw = np.sqrt(np.repeat(w[rest], 2, axis=1))
-            rcond = np.finfo(float).eps * max(2 * (n - 1), layer.k)  # lstsq's default
+            rcond = _EPS * max(2 * (n - 1), layer.k)  # lstsq's default
             try:
                 with np.errstate(invalid="raise", over="ignore", divide="ignore",
                                  under="ignore"):
