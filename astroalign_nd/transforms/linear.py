@@ -12,7 +12,7 @@ import functools
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
-from ._matrix import (apply_matrix, as_3x3, check_invertible, is_singular, _as_degrees,
+from ._matrix import (apply_matrix, as_3x3, check_invertible, is_singular, _as_degrees, _close,
                       _check_parity, _check_parity_value, _check_spread, _radians,
                       _rotate_shift, _rotation_matrix, _rotation_parameters,
                       _rotation_shift_parameters)
@@ -504,7 +504,7 @@ class TranslationTransform(LinearTransform2D):
 
     @classmethod
     def _values_from_matrix(cls, m):
-        if not np.allclose(m[:2, :2], np.eye(2), rtol=0.0, atol=1e-9):
+        if not _close(m[:2, :2], np.eye(2), 1e-9):
             raise ValueError(
                 "matrix has a rotation, scale or shear part; use SimilarityTransform or "
                 "AffineTransform instead of TranslationTransform."
