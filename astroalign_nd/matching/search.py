@@ -15,9 +15,9 @@ from ..transforms.layers import layer_of
 from ..transforms.registry import transform_class, transform_type_of
 from .result import MatchResult
 from .geometry import _overlap_box, bounding_frame
-from .verify import (MAX_ERROR_BOUND, WARN_ERROR_BOUND, _degenerate, _densest_line,
-                     _log10_false_alarm, _model_misfit, _on_line, _predicted_error, _refine,
-                     _strip_halfwidth)
+from .verify import (MAX_ERROR_BOUND, WARN_ERROR_BOUND, _affine_comparison, _degenerate,
+                     _densest_line, _log10_false_alarm, _model_misfit, _on_line,
+                     _predicted_error, _refine, _strip_halfwidth)
 from .triangles import hypothesis_matrices, match_triangles
 
 __all__ = ['match_points', 'search_tolerance']
@@ -418,6 +418,7 @@ class _Candidate:
     inconsistent: object  # why the stars do not support the model over the frame, or None
     ok: bool              # passes the false-alarm and self-consistency tests
     degenerate: object = None  # why the stars cannot pin a 2-D transform (a line), or None
+    affine: object = None      # its stars' `_affine_comparison` (for `_result`'s misfit)
 
     def rank(self):
         # A trustworthy candidate beats any other; then the less likely chance.
@@ -470,13 +471,18 @@ def _evaluate(s, hyp, h, n_scored):
     # The limit is the matching radius, but never above MAX_ERROR_BOUND: a
     # radius widened for trailed or bloated stars does not widen what is
     # trusted (an answer that can be 4 px off is refused, not returned).
+    src, dst = s.src_pts[si], s.dst_pts[dj]
+    src_err = None if s.src_err is None else s.src_err[si]
+    dst_err = None if s.dst_err is None else s.dst_err[dj]
+    # (Kept: an accepted candidate's misfit over the target frame, `_result`'s,
+    # compares it with the same affine fit.)
+    affine = _affine_comparison(model, src, dst, src_err, dst_err)
     _, bound, inconsistent = _model_misfit(
-        model, s.src_pts[si], s.dst_pts[dj], None if s.src_err is None else s.src_err[si],
-        None if s.dst_err is None else s.dst_err[dj], box, min(s.tolerance, MAX_ERROR_BOUND),
-        pred)
+        model, src, dst, src_err, dst_err, box, min(s.tolerance, MAX_ERROR_BOUND), pred,
+        affine=affine)
     return _Candidate(model=model, si=si, dj=dj, resid=resid, cov=cov, lfa=lfa, h=h,
                       pred=pred, bound=bound, inconsistent=inconsistent,
-                      ok=bool(lfa <= s.log_limit and inconsistent is None))
+                      ok=bool(lfa <= s.log_limit and inconsistent is None), affine=affine)
 
 
 @dataclass
@@ -606,7 +612,9 @@ def _result(c, s, n_tri, n_scored):
     rms = float(np.sqrt(np.mean(np.sum(resid**2, axis=1)))) if len(resid) else float("nan")
     si, dj = c.si, c.dj
     model = c.model.model()  # the one astropy model of the search: the answer's
-    predicted = _predicted_error(model, c.cov, dst_frame or bounding_frame(dst_pts[dj]))
+    # (Its figures from the plain numbers it was built from: the same values and
+    # matrix, without astropy's parameter access.)
+    predicted = _predicted_error(c.model, c.cov, dst_frame or bounding_frame(dst_pts[dj]))
     if predicted > 0.3:  # 3 sigma above 1 px somewhere in the frame
         warn(
             f"the transform is uncertain: its parameter covariance gives a 1-sigma position "
@@ -621,9 +629,10 @@ def _result(c, s, n_tri, n_scored):
             f"leave it uncertain by up to {c.bound:.2f} px over the overlap (3 sigma, by "
             "leaving one star out and by an affine fit of the same stars). Check it, or give "
             "more or brighter stars (n_sources, nsigma).", PoorFitWarning)
-    misfit, _, _ = _model_misfit(model, src_pts[si], dst_pts[dj],
+    misfit, _, _ = _model_misfit(c.model, src_pts[si], dst_pts[dj],
                                  None if src_err is None else src_err[si],
-                                 None if dst_err is None else dst_err[dj], dst_frame)
+                                 None if dst_err is None else dst_err[dj], dst_frame,
+                                 affine=c.affine)
     if misfit > 0.5:
         name = type(model).__name__
         warn(

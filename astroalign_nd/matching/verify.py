@@ -1,6 +1,7 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """Verification of a hypothesis: its false-alarm probability, growth, refit and misfit checks."""
 
+import functools
 import numpy as np
 from scipy.special import betainc
 from .._kernels import median as _median
@@ -290,7 +291,46 @@ MAX_ERROR_BOUND = 3.0
 WARN_ERROR_BOUND = 1.0
 
 
-def _model_misfit(model, src, dst, src_err, dst_err, frame, tol=None, predicted=0.0):
+def _affine_comparison(model, src, dst, src_err, dst_err):
+    """
+    What `_model_misfit` compares the model with, on the matched stars
+    ``src``, ``dst``: ``(var, affine, significant)``.
+
+    ``var`` are the pairs' expected squared residuals (0.01 px^2 without
+    errors); ``affine`` the inverse of the matrix of an affine fit of the
+    stars (None when the model is already affine or too few stars leave
+    residuals to test it); ``significant``, whether that fit is a
+    significant improvement (F-test, p < 1e-6).  It does not depend on the
+    frame: the search judges a candidate over the overlap and returns it
+    over the target frame, from the one comparison.
+    """
+    n = len(src)
+    k_model, k_aff = _model_type(model).n_dof, 6
+    if src_err is not None and dst_err is not None:
+        s2 = abs(np.linalg.det(model.matrix[:2, :2]))
+        var = s2 * src_err**2 + dst_err**2
+    else:
+        var = np.full(n, 0.01)
+    if not (k_model < k_aff and 2 * n > k_aff + 2):
+        return var, None, False
+    aff, _ = AffineTransform.fit_matrix(src, dst, 1.0 / var, 1)
+    r_aff = apply_matrix(aff, src) - dst
+    r2_aff = np.einsum("ij,ij->i", r_aff, r_aff)
+    # Weights from the better (affine) model, with its own jitter.
+    var_j = var + _jitter(r2_aff / 2.0, var, n - k_aff / 2.0)
+    r_mod = apply_matrix(model.matrix, src) - dst
+    chi_mod = np.sum(np.einsum("ij,ij->i", r_mod, r_mod) / var_j)
+    chi_aff = np.sum(r2_aff / var_j)
+    dof_aff = 2 * n - k_aff
+    f_stat = ((chi_mod - chi_aff) / (k_aff - k_model)) / max(chi_aff / dof_aff, 1e-300)
+    # Survival function of F(d1, d2): I_x(d2/2, d1/2) with x = d2 / (d2 + d1 F).
+    d1, d2 = k_aff - k_model, dof_aff
+    significant = bool(f_stat > 0 and betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f_stat)) < 1e-6)
+    return var, np.linalg.inv(aff), significant
+
+
+def _model_misfit(model, src, dst, src_err, dst_err, frame, tol=None, predicted=0.0,
+                  affine=None):
     """
     Is the fitted model consistent with its own matched stars, over the frame?
 
@@ -311,6 +351,8 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame, tol=None, predicted=
 
     With ``tol`` (the matching radius), a match whose witnesses say that it
     can be off by more than ``tol`` somewhere in ``frame`` is inconsistent.
+    ``affine``: the stars' `_affine_comparison`, when the caller has it
+    already (it does not depend on ``frame``).
 
     Returns
     -------
@@ -325,28 +367,13 @@ def _model_misfit(model, src, dst, src_err, dst_err, frame, tol=None, predicted=
     k_model, k_aff = _model_type(model).n_dof, 6
     x0, x1, y0, y1 = frame if frame is not None else bounding_frame(dst)
     corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
-    if src_err is not None and dst_err is not None:
-        s2 = abs(np.linalg.det(model.matrix[:2, :2]))
-        var = s2 * src_err**2 + dst_err**2
-    else:
-        var = np.full(n, 0.01)
+    var, aff_inv, significant = (affine if affine is not None else
+                                 _affine_comparison(model, src, dst, src_err, dst_err))
     misfit = departure = 0.0
-    if k_model < k_aff and 2 * n > k_aff + 2:
-        aff, _ = AffineTransform.fit_matrix(src, dst, 1.0 / var, 1)
-        r_aff = apply_matrix(aff, src) - dst
-        r2_aff = np.einsum("ij,ij->i", r_aff, r_aff)
-        # Weights from the better (affine) model, with its own jitter.
-        var_j = var + _jitter(r2_aff / 2.0, var, n - k_aff / 2.0)
-        r_mod = apply_matrix(model.matrix, src) - dst
-        chi_mod = np.sum(np.einsum("ij,ij->i", r_mod, r_mod) / var_j)
-        chi_aff = np.sum(r2_aff / var_j)
-        dof_aff = 2 * n - k_aff
-        f_stat = ((chi_mod - chi_aff) / (k_aff - k_model)) / max(chi_aff / dof_aff, 1e-300)
-        # Survival function of F(d1, d2): I_x(d2/2, d1/2) with x = d2 / (d2 + d1 F).
-        d1, d2 = k_aff - k_model, dof_aff
-        pre = apply_matrix(np.linalg.inv(aff), corners)
+    if aff_inv is not None:
+        pre = apply_matrix(aff_inv, corners)
         departure = float(np.max(np.hypot(*(apply_matrix(model.matrix, pre) - corners).T)))
-        if f_stat > 0 and betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f_stat)) < 1e-6:
+        if significant:
             misfit, departure = departure, 0.0  # real stars, inadequate model: a warning
     if tol is None:
         return misfit, 0.0, None
@@ -385,8 +412,9 @@ def _jackknife_error(model, src, dst, w, corners, n_max=60):
         return 0.0
     parity = 1 if np.linalg.det(model.matrix[:2, :2]) > 0 else -1
     pre = apply_matrix(np.linalg.inv(model.matrix), corners)  # corners in source pixels
-    preds = np.array([apply_matrix(m_i, pre)
-                      for m_i in cls._leave_one_out(src, dst, w, parity)])
+    mats = cls._leave_one_out(src, dst, w, parity)
+    # `apply_matrix` of each matrix, stacked (the same products, slice by slice).
+    preds = pre @ mats[:, :2, :2].transpose(0, 2, 1) + mats[:, None, :2, 2]
     dev = preds - preds.mean(axis=0)
     var = (n - 1) / n * np.einsum("ikj,ikj->k", dev, dev)
     return float(np.sqrt(np.max(var)))
@@ -440,6 +468,21 @@ def _strip_halfwidth(tol):
     return max(2.0 * tol, 2.0)
 
 
+@functools.lru_cache(maxsize=64)
+def _line_pairs(n, n_lines):
+    """
+    The pairs of ``n`` points whose lines `_densest_line` tries: every pair
+    for a few points, a fixed sample of ``n_lines`` otherwise (read-only,
+    kept: a search asks for the same few sizes again and again).
+    """
+    i, j = np.triu_indices(n, 1)
+    if len(i) > n_lines:
+        pick = np.random.default_rng(0).choice(len(i), n_lines, replace=False)
+        i, j = i[pick], j[pick]
+    i.flags.writeable = j.flags.writeable = False
+    return i, j
+
+
 def _densest_line(pts, half_width, n_lines=600):
     """
     The line through the most of ``pts`` (within ``half_width``).
@@ -450,10 +493,7 @@ def _densest_line(pts, half_width, n_lines=600):
     direction)``: the points on the line, and the line.
     """
     n = len(pts)
-    i, j = np.triu_indices(n, 1)
-    if len(i) > n_lines:
-        pick = np.random.default_rng(0).choice(len(i), n_lines, replace=False)
-        i, j = i[pick], j[pick]
+    i, j = _line_pairs(n, n_lines)
     centre = pts.mean(axis=0)
     _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
     starts = np.vstack([pts[i], centre[None]])
@@ -462,19 +502,23 @@ def _densest_line(pts, half_width, n_lines=600):
     ok = length > 0
     starts, dirs = starts[ok], dirs[ok] / length[ok, None]
     normals = np.column_stack([-dirs[:, 1], dirs[:, 0]])
-    # (lines, points) perpendicular distances, written out: einsum does not vectorise this
+    # (points, lines) perpendicular distances, written out: einsum does not vectorise this
     # two-term sum and took most of a 300-star match's verification (the same values);
     # in place, in blocks of lines of about 32,000 distances, which stay in the CPU's caches.
+    # Points along the first axis: the counts add whole rows (a fast reduction).
+    px, py = pts[:, :1], pts[:, 1:]
+    sx, sy = np.ascontiguousarray(starts.T)
+    nx, ny = np.ascontiguousarray(normals.T)
     counts = np.empty(len(starts), int)
     block = max(128, 32768 // n)
     for k in range(0, len(starts), block):
         part = slice(k, k + block)
-        dist = pts[None, :, 0] - starts[part, :1]
-        dist *= normals[part, :1]
-        other = pts[None, :, 1] - starts[part, 1:]
-        other *= normals[part, 1:]
+        dist = px - sx[part]
+        dist *= nx[part]
+        other = py - sy[part]
+        other *= ny[part]
         dist += other
-        counts[part] = np.count_nonzero(np.abs(dist, out=dist) <= half_width, axis=1)
+        counts[part] = np.count_nonzero(np.abs(dist, out=dist) <= half_width, axis=0)
     best = int(np.argmax(counts))
     mask = np.abs(normals[best, 0] * (pts[:, 0] - starts[best, 0])
                   + normals[best, 1] * (pts[:, 1] - starts[best, 1])) <= half_width

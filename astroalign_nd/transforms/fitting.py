@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from astropy.modeling import Model
 from numpy.typing import ArrayLike
+from .._kernels import median as _median
 from .polynomial import PolynomialTransform
 from .linear import EuclideanTransform, SimilarityTransform
 from ._matrix import _check_parity, _check_spread, apply_matrix, check_invertible
@@ -188,7 +189,7 @@ def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
     if design.shape[0] != 2 * len(w0) or n < 2 * k:
         return w0.copy()  # too few spare residuals to judge the weights by
     claimed = 1.0 / w0[used]
-    claimed /= float(np.median(claimed))
+    claimed /= float(_median(claimed))  # (numpy.median's value, faster)
     f, scale = _floor_fraction(design.reshape(len(w0), 2, k)[used], resid[used], claimed)
     out = np.zeros(len(w0))
     out[used] = 1.0 / (scale * ((1.0 - f) * claimed + f))

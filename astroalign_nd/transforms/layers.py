@@ -93,6 +93,14 @@ class ParameterLayer:
         m[:2, :2], m[:2, 2] = lin, shift
         return m
 
+    def to_matrices(self, params):
+        """
+        The (F, 3, 3) matrices of parameters ``params`` (F, k): `to_matrix`
+        of each row (the built-in linear layers place them all at once, the
+        same numbers).
+        """
+        return np.array([self.to_matrix(p) for p in params]).reshape(len(params), 3, 3)
+
     def from_matrix(self, m):
         """The parameters of the nearest model of this type to the 3x3 matrix ``m``."""
         m = np.asarray(m, float)

@@ -8,10 +8,11 @@ Each is an `astropy.modeling.Model` with two inputs and two outputs; see
 
 from __future__ import annotations
 
+import functools
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
-from ._matrix import (apply_matrix, as_3x3, check_invertible, is_singular, _as_degrees,
+from ._matrix import (apply_matrix, as_3x3, check_invertible, is_singular, _as_degrees, _close,
                       _check_parity, _check_parity_value, _check_spread, _radians,
                       _rotate_shift, _rotation_matrix, _rotation_parameters,
                       _rotation_shift_parameters)
@@ -21,6 +22,39 @@ from .registry import transform_type_of
 
 __all__ = ['LinearTransform2D', 'TranslationTransform', 'EuclideanTransform',
            'SimilarityTransform', 'AffineTransform']
+
+#: NumPy's least-squares kernel (the gufunc `numpy.linalg.lstsq` calls), if it has one.
+_LSTSQ = getattr(getattr(np.linalg, "_umath_linalg", None), "lstsq", None)
+_EPS = float(np.finfo(float).eps)
+
+
+@functools.lru_cache(maxsize=16)
+def _all_but_one(n):
+    """(n, n - 1) indices, row i all of ``range(n)`` but i (read-only, kept: the
+    jackknife of every match asks for it)."""
+    rest = np.nonzero(~np.eye(n, dtype=bool))[1].reshape(n, n - 1)
+    rest.flags.writeable = False
+    return rest
+
+
+def _lstsq(a, b):
+    """
+    ``np.linalg.lstsq(a, b, rcond=None)[0]`` of a float (M, K) ``a`` and (M,) ``b``.
+
+    Its kernel called as it calls it (the same numbers, without the checks and
+    conversions that cost a third of a small fit); `numpy.linalg.lstsq` itself
+    (which raises its own errors) for other inputs, or if the kernel fails or
+    is not the one this expects.
+    """
+    if (_LSTSQ is not None and a.ndim == 2 and b.ndim == 1 and len(a) > 0
+            and a.dtype == b.dtype == np.float64):
+        try:
+            with np.errstate(invalid="raise", over="ignore", divide="ignore", under="ignore"):
+                return _LSTSQ(a, b[:, None], _EPS * max(a.shape),
+                              signature="ddd->ddid")[0][:, 0]
+        except (FloatingPointError, TypeError, ValueError):
+            pass  # (an SVD that did not converge, or a NumPy whose private gufunc differs)
+    return np.linalg.lstsq(a, b, rcond=None)[0]
 
 
 class LinearTransform2D(Model):
@@ -392,7 +426,7 @@ class LinearTransform2D(Model):
         layer = cls.layer(parity)
         design = layer.design(src).reshape(2 * len(src), layer.k)
         sw = np.sqrt(np.repeat(w, design.shape[0] // len(w)))
-        theta, *_ = np.linalg.lstsq(design * sw[:, None], dst.ravel() * sw, rcond=None)
+        theta = _lstsq(design * sw[:, None], dst.ravel() * sw)
         return layer.to_matrix(theta), design, theta
 
     @classmethod
@@ -405,22 +439,22 @@ class LinearTransform2D(Model):
         same numbers, without its per-call overhead).
         """
         n = len(src)
-        rest = np.nonzero(~np.eye(n, dtype=bool))[1].reshape(n, n - 1)  # row i: all but i
-        solver = getattr(getattr(np.linalg, "_umath_linalg", None), "lstsq", None)
+        rest = _all_but_one(n)  # row i: all but i
+        solver = _LSTSQ
         if cls._linear_fit.__func__ is LinearTransform2D._linear_fit.__func__ and solver:
             if "parity" in cls.param_names:
                 _check_parity(parity)
             layer = cls.layer(parity)
             design = layer.design(src)[rest].reshape(n, 2 * (n - 1), layer.k)
             sw = np.sqrt(np.repeat(w[rest], 2, axis=1))
-            rcond = np.finfo(float).eps * max(2 * (n - 1), layer.k)  # lstsq's default
+            rcond = _EPS * max(2 * (n - 1), layer.k)  # lstsq's default
             try:
                 with np.errstate(invalid="raise", over="ignore", divide="ignore",
                                  under="ignore"):
                     theta = solver(design * sw[..., None],
                                    (dst[rest].reshape(n, -1) * sw)[..., None], rcond,
                                    signature="ddd->ddid")[0][..., 0]
-                return np.array([layer.to_matrix(t) for t in theta])
+                return layer.to_matrices(theta)
             except (FloatingPointError, TypeError, ValueError):
                 # An SVD that did not converge, or a NumPy whose private gufunc differs:
                 # the fits one at a time (which raise lstsq's own errors).
@@ -470,7 +504,7 @@ class TranslationTransform(LinearTransform2D):
 
     @classmethod
     def _values_from_matrix(cls, m):
-        if not np.allclose(m[:2, :2], np.eye(2), rtol=0.0, atol=1e-9):
+        if not _close(m[:2, :2], np.eye(2), 1e-9):
             raise ValueError(
                 "matrix has a rotation, scale or shear part; use SimilarityTransform or "
                 "AffineTransform instead of TranslationTransform."
@@ -724,6 +758,14 @@ def _unflip(lin, parity):
     return lin if parity == 1 else lin @ np.diag([1.0, float(parity)])
 
 
+def _stacked_matrices(lin, shift):
+    """(F, 3, 3) homogeneous matrices of the linear parts ``lin`` (F, 2, 2) and
+    shifts ``shift`` (F, 2): `ParameterLayer.to_matrix` of each."""
+    m = np.zeros((len(lin), 3, 3))
+    m[:, :2, :2], m[:, :2, 2], m[:, 2, 2] = lin, shift, 1.0
+    return m
+
+
 def _rotation_part(lin, parity):
     """``(a, b)`` of the scaled rotation ``[[a, -b], [b, a]]`` nearest to ``lin``
     (after its y axis is flipped, for ``parity`` -1)."""
@@ -750,6 +792,10 @@ class TranslationLayer(ParameterLayer):
 
     def to_parts(self, params):
         return np.eye(2), params[:2]
+
+    def to_matrices(self, params):
+        params = np.asarray(params)
+        return _stacked_matrices(np.broadcast_to(np.eye(2), (len(params), 2, 2)), params[:, :2])
 
     def from_parts(self, lin, shift):
         return np.array(shift, float)
@@ -817,6 +863,13 @@ class SimilarityLayer(ParameterLayer):
         a, b = params[0], params[1]
         return _unflip(np.array([[a, -b], [b, a]]), self.parity), params[2:]
 
+    def to_matrices(self, params):
+        params = np.asarray(params)
+        a, b = params[:, 0], params[:, 1]
+        lin = np.stack([np.stack([a, -b], axis=1), np.stack([b, a], axis=1)], axis=1)
+        # (The flip of a parity -1 is the same product, slice by slice.)
+        return _stacked_matrices(_unflip(lin, self.parity), params[:, 2:])
+
     def from_parts(self, lin, shift):
         return np.array([*_rotation_part(lin, self.parity), *shift])
 
@@ -848,6 +901,10 @@ class AffineLayer(ParameterLayer):
 
     def to_parts(self, params):
         return np.asarray(params[:4]).reshape(2, 2), params[4:]
+
+    def to_matrices(self, params):
+        params = np.asarray(params)
+        return _stacked_matrices(params[:, :4].reshape(-1, 2, 2), params[:, 4:])
 
     def from_parts(self, lin, shift):
         return np.array([*np.asarray(lin).ravel(), *shift])

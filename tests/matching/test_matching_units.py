@@ -4,7 +4,8 @@
 import numpy as np
 import pytest
 
-from astroalign_nd.matching import build_asterisms
+from astroalign_nd.matching import build_asterisms, match_triangles
+from astroalign_nd.matching.triangles import _sorted_pairs
 from astroalign_nd.detection import estimate_fwhm
 from astroalign_nd.matching.verify import _log10_false_alarm, _model_misfit
 from astroalign_nd.simulate import simulate_field
@@ -62,6 +63,49 @@ def test_asterisms_drop_short_sides_and_tiny_lists():
     ast = build_asterisms(pts)
     assert all(not {0, 1} <= set(t) for t in ast.triangles.tolist())  # 0.5 px side dropped
     assert len(build_asterisms(pts[:2])) == 0
+
+
+# -- match_triangles ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("ties", [False, True])
+def test_triangle_pairs_come_by_distance_then_indices(ties):
+    # Pairs by distance, equal distances by source then target triangle: with or
+    # without ties (the fast sort serves only without), the order of a lexsort.
+    rng = np.random.default_rng(4)
+    i, j = rng.integers(0, 300, 2000), rng.integers(0, 300, 2000)
+    ij = np.unique(np.column_stack([i, j]), axis=0)
+    ij = ij[rng.permutation(len(ij))]
+    d = rng.uniform(0.0, 0.1, len(ij))
+    if ties:
+        d = np.round(d, 3)  # about 100 distinct values
+    pairs, dist = _sorted_pairs(ij[:, 0], ij[:, 1], d, 500)
+    order = np.lexsort((ij[:, 1], ij[:, 0], d))[:500]
+    assert np.array_equal(pairs, ij[order]) and np.array_equal(dist, d[order])
+
+
+def test_triangle_pairs_of_one_list_with_itself():
+    # Each triangle matches itself at distance 0 (ties, by index); a search that
+    # keeps 500 keeps the first 500 of the whole list, which holds every pair
+    # within the radius.
+    ast = build_asterisms(_stars(150))
+    assert 500 < len(ast) and 10_000 < len(ast) ** 2 <= 2_000_000  # (listed at once)
+    full, full_dist = match_triangles(ast, ast, 0.005)
+    sdm = ast.tree.sparse_distance_matrix(ast.tree, 0.005, output_type="ndarray")
+    assert len(full) == len(sdm) < 10_000 and np.all(np.diff(full_dist) >= 0)
+    assert np.array_equal(full[:len(ast)], np.repeat(np.arange(len(ast))[:, None], 2, axis=1))
+    pairs, dist = match_triangles(ast, ast, 0.005, max_matches=500)
+    assert np.array_equal(pairs, full[:500]) and np.array_equal(dist, full_dist[:500])
+    # Too many pairs within the radius for the budget (4 x 500, at least 10,000):
+    # the radius shrinks to the first of its steps that holds at most half of it.
+    many = ast.tree.sparse_distance_matrix(ast.tree, 0.5, output_type="ndarray")
+    assert len(many) > 10_000
+    steps = 0.5 * np.geomspace(1.0, 1e-6, 25)[1:]
+    shrunk = next(r for r in steps if np.sum(ast.tree.query_ball_point(
+        ast.invariants, r, return_length=True)) <= 5_000)
+    pairs, dist = match_triangles(ast, ast, 0.5, max_matches=500)
+    assert len(pairs) == 500 and dist.max() <= shrunk
+    direct, direct_dist = match_triangles(ast, ast, shrunk, max_matches=500)
+    assert np.array_equal(pairs, direct) and np.array_equal(dist, direct_dist)
 
 
 # -- _log10_false_alarm -------------------------------------------------------------------

@@ -129,3 +129,23 @@ def test_leave_one_out_fits_are_the_single_fits(name, parity):
         err = [float(np.max(np.hypot(*(apply_matrix(m, CORNERS)
                                        - apply_matrix(truth, CORNERS)).T))) for m in mats]
         assert err[4] < 0.5 < min(err[:4] + err[5:])
+
+
+def test_direct_least_squares_is_numpys():
+    # The fits' direct call of NumPy's least-squares kernel: its numbers bit for
+    # bit, a rank-deficient design included, and its errors on bad input.
+    from astroalign_nd.transforms.linear import _lstsq
+    rng = np.random.default_rng(5)
+    for shape in [(8, 4), (40, 6), (3, 3), (2, 4)]:
+        a, b = rng.normal(size=shape), rng.normal(size=shape[0])
+        assert np.array_equal(_lstsq(a, b), np.linalg.lstsq(a, b, rcond=None)[0])
+    a = rng.normal(size=(10, 4))
+    a[:, 3] = a[:, 0]  # rank 3
+    b = rng.normal(size=10)
+    assert np.array_equal(_lstsq(a, b), np.linalg.lstsq(a, b, rcond=None)[0])
+    ints = np.arange(12).reshape(6, 2)  # not float: NumPy's own call
+    assert np.array_equal(_lstsq(ints, np.arange(6)),
+                          np.linalg.lstsq(ints, np.arange(6), rcond=None)[0])
+    a[0, 0] = np.nan
+    with pytest.raises(np.linalg.LinAlgError):
+        _lstsq(a, b)

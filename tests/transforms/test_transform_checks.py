@@ -11,7 +11,7 @@ from astroalign_nd.resample import resample
 from astroalign_nd.transforms import (AffineTransform, PolynomialTransform, ProjectiveTransform,
                                       SimilarityTransform, check_degree)
 from astroalign_nd.transforms import selection
-from astroalign_nd.transforms._matrix import SINGULAR_RTOL, check_invertible, is_singular
+from astroalign_nd.transforms._matrix import SINGULAR_RTOL, _close, check_invertible, is_singular
 from astroalign_nd.transforms.layers import monomials, polynomial_terms
 from astroalign_nd.transforms.polynomial import DEGREES
 from astroalign_nd.transforms.projective import _homography_jacobian
@@ -111,3 +111,18 @@ def test_every_singular_check_uses_it():
     hdr["AATM10"], hdr["AATM10S"], hdr["AATM11"], hdr["AATM11S"] = 1.0, "1.0", 2.0, "2.0"
     with pytest.raises(ValueError, match="singular"):
         transform_from_header(hdr)
+
+
+def test_close_is_allclose_without_relative_tolerance():
+    # The conversions' tolerance test answers as np.allclose(rtol=0): equal
+    # infinities are close, NaN never is, and the tolerance is inclusive.
+    rng = np.random.default_rng(2)
+    base = rng.normal(size=(200, 2, 2))
+    other = base + rng.normal(scale=1e-9, size=base.shape) * rng.integers(0, 3, base.shape)
+    other[0, 0, 0], base[1, 1, 1], other[2, 1, 0] = np.nan, np.inf, -np.inf
+    base[3] = other[3] = np.inf
+    other[4] = base[4] + 1e-9 * np.array([[1.0, -1.0], [0.5, 0.0]])
+    for a, b in zip(base, other):
+        for atol in (0.0, 1e-9, 2e-9):
+            assert _close(a, b, atol) == np.allclose(a, b, rtol=0.0, atol=atol)
+    assert _close(base[3], other[3], 0.0) and not _close(base[0], other[0], 1.0)

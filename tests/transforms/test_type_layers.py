@@ -60,6 +60,26 @@ def test_each_layer_predicts_as_its_model_and_differentiates_it(name):
         assert np.allclose(design[:, :, j], num, rtol=0, atol=1e-7), j
 
 
+@pytest.mark.parametrize("name, parity", [("translation", 1), ("euclidean", 1),
+                                          ("euclidean", -1), ("similarity", 1),
+                                          ("similarity", -1), ("affine", 1)])
+def test_stacked_matrices_are_each_rows_matrix(name, parity):
+    # The jackknife turns its stacked fits into matrices at once: the same bits
+    # as one row at a time (a sign of zero included), and the model's matrix.
+    cls = TRANSFORM_REGISTRY[name].cls
+    layer = cls.layer(parity=parity)
+    theta = np.random.default_rng(3).normal(size=(7, layer.k))
+    theta[0, :] = 0.0  # zeros (and their negatives) keep their sign
+    mats = layer.to_matrices(theta)
+    single = np.array([layer.to_matrix(t) for t in theta])
+    assert mats.shape == (7, 3, 3)
+    assert np.array_equal(mats.view(np.int64), single.view(np.int64))
+    model, _ = _model_and_layer(name)
+    model_layer = cls.layer(parity=MODELS[name].get("parity", 1))
+    stacked = model_layer.to_matrices(model_layer.from_matrix(model.matrix)[None])
+    assert np.allclose(stacked[0], model.matrix, rtol=0, atol=1e-13)
+
+
 @pytest.mark.parametrize("degree", [1, 2, 3])
 def test_polynomial_layer_is_linear_in_its_coefficients(degree):
     layer = transform_class("polynomial").layer(degree=degree)
