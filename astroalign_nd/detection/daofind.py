@@ -129,7 +129,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     return _detect(image, mask, n_sources, config, threshold)
 
 
-def _detect(image, mask, n_sources, config, nsigma, cache=None):
+def _detect(image, mask, n_sources, config, nsigma, cache=None, grow=True):
     """
     `find_sources` on checked options: ``config``, at threshold ``nsigma``.
 
@@ -139,6 +139,8 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None):
     estimate and every candidate's measurement at each width tried
     (`_per_candidate`).  That detection then measures only the candidates
     it adds, and returns what a detection without the cache returns.
+    ``grow``: whether a list cut short by candidates that are not stars
+    may be made from more candidates (`_GROWTH`).
     """
     fwhm, bin_factor = config.fwhm, config.bin_factor
     # Paths, NDData, HDUs, (array, header) tuples, masked arrays: their own
@@ -218,6 +220,18 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None):
         opts["spike_fwhm"] = spike_fwhm
         tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
         tab.meta["fwhm_source"] = "estimate"
+        if (grow and not est.doubtful and len(coarse["x"]) >= n_cand
+                and _too_few(tab, cand, n_sources) and _inconsistency(tab) < _CONSISTENT):
+            # The width is right (the sources kept measure it themselves),
+            # but most of the brightest peaks were not stars (a bright band,
+            # the step at the edge of a resampled frame): more candidates,
+            # before other widths.
+            more = _detect(image, mask, _GROWTH * n_sources, config, nsigma, cache, grow=False)
+            if more.meta.get("fwhm_source") == "estimate" and not _too_few(more, cand, n_sources):
+                more = more[:n_sources]
+                more.meta["all_candidates"] = bool(more.meta["all_candidates"]
+                                                   and len(more) < n_sources)
+                return more
         if est.doubtful or _too_few(tab, cand, n_sources):
             tab = _best_scale(data, mask, cand, noise, b, opts, tab,
                               est.alternatives + _SCALE_LADDER)
@@ -305,6 +319,14 @@ def _too_few(tab, cand, n_sources):
     wanted = min(n_sources, len(cand["x"]))
     return len(tab) < max(3, min(12, wanted // 2)) or len(tab) < 0.2 * wanted
 
+
+#: A list whose sources' own median FWHM is within this (natural log) of
+#: the FWHM used measured them at the right width (`_inconsistency`).
+_CONSISTENT = 0.2
+
+#: Times the sources a detection left with too few stars by its candidates
+#: that were not stars tries again for, at the same width (`_detect`).
+_GROWTH = 4
 
 #: FWHMs (pixels) tried when the estimate is doubtful.
 _SCALE_LADDER = (1.6, 2.5, 4.0, 6.5, 10.0)

@@ -99,6 +99,12 @@ def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
             # unless the wide ones are stars too (checked below).
             compact = float(np.clip(mode, 1.0, half / 1.5))
     if wide.sum() >= max(3, 0.5 * max(1, ok.sum() + wide.sum())):
+        if compact is None:
+            # Stars of 7 to 14 px are too wide for these cutouts, yet
+            # compact in cutouts twice as large (their own mode there).
+            gap = _gap_fwhm(data, mask, cand, noise, n_max, half)
+            if gap is not None:
+                return _FwhmEstimate(gap, False)
         # Digitised plates and defocused frames: measure on a binned copy.
         broad = _wide_fwhm(data, mask, n_max, half)
         if compact is not None:
@@ -118,6 +124,26 @@ def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
     # dominated by something other than stars; let the scale search decide.
     doubtful = frac < 0.3 or vals.size < 5 or (vals.size < 8 and frac < 0.6)
     return _FwhmEstimate(np.clip(mode, 1.0, half / 1.5), doubtful)
+
+
+def _gap_fwhm(data, mask, cand, noise, n_max, half):
+    """
+    The stars' FWHM when it lies between the compact widths of
+    `_estimate_fwhm`'s cutouts (below ``half / 2``) and those of the binned
+    copies (`_wide_fwhm`): the mode of the candidates measured in cutouts
+    of ``2 * half``, when most of them (at least 5) share it; None
+    otherwise.  Without it such stars (a wide seeing, a target resampled
+    to a larger scale) send detection to the scale ladder, whose widest
+    trial fits them worse and measures most slowly.
+    """
+    fw, ok = _candidate_fwhms(data, mask, cand, n_max, 2 * half, noise)
+    vals = fw[ok]
+    if vals.size < 5:
+        return None
+    mode, frac = _log_mode(vals)
+    if frac >= 0.5 and frac * vals.size >= 5 and half / 2.0 <= mode < half:
+        return mode
+    return None
 
 
 def _wide_fwhm(data, mask, n_max, half):
