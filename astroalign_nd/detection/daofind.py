@@ -140,7 +140,8 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None, grow=True):
     (`_per_candidate`).  That detection then measures only the candidates
     it adds, and returns what a detection without the cache returns.
     ``grow``: whether a list cut short by candidates that are not stars
-    may be made from more candidates (`_GROWTH`).
+    may be made from more candidates (`_grown`); without, the list at the
+    estimated width, no other widths tried.
     """
     fwhm, bin_factor = config.fwhm, config.bin_factor
     # Paths, NDData, HDUs, (array, header) tuples, masked arrays: their own
@@ -213,34 +214,60 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None, grow=True):
             est = _estimate_fwhm(data, mask, cand, noise)
             if cache is not None:
                 cache["fwhm estimate"] = (ident, est)
+        plain = cand
         if not est.doubtful and est.fwhm >= _DESPIKE_MIN_FWHM:
             # (The estimate, a mode, stays: hot pixels by a few stars do not move it.)
             spike_fwhm = est.fwhm
             cand = _recentered(data, mask, coarse, b, None, cache, noise, spike_fwhm)
         opts["spike_fwhm"] = spike_fwhm
         tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
+        if est.from_gap and _inconsistency(tab) >= _CONSISTENT:
+            # The sources do not share the width the larger cutouts found
+            # (diffuse light, knots): the estimate without them.
+            est, cand, spike_fwhm = _estimate_fwhm(data, mask, plain, noise, gap=False), plain, None
+            if not est.doubtful and est.fwhm >= _DESPIKE_MIN_FWHM:
+                spike_fwhm = est.fwhm
+                cand = _recentered(data, mask, coarse, b, None, cache, noise, spike_fwhm)
+            opts["spike_fwhm"] = spike_fwhm
+            tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
         tab.meta["fwhm_source"] = "estimate"
-        if (grow and not est.doubtful and len(coarse["x"]) >= n_cand
+        if not grow:
+            pass  # (`_grown`'s probe: the list at the estimate only)
+        elif (not est.doubtful and not est.alternatives and len(coarse["x"]) >= n_cand
                 and _too_few(tab, cand, n_sources) and _inconsistency(tab) < _CONSISTENT):
-            # The width is right (the sources kept measure it themselves),
-            # but most of the brightest peaks were not stars (a bright band,
-            # the step at the edge of a resampled frame): more candidates,
-            # before other widths.
-            more = _detect(image, mask, _GROWTH * n_sources, config, nsigma, cache, grow=False)
-            if more.meta.get("fwhm_source") == "estimate" and not _too_few(more, cand, n_sources):
-                more = more[:n_sources]
-                more.meta["all_candidates"] = bool(more.meta["all_candidates"]
-                                                   and len(more) < n_sources)
+            more = _grown(image, mask, n_sources, config, nsigma, cache, cand)
+            if more is not None:
                 return more
-        if est.doubtful or _too_few(tab, cand, n_sources):
+        if grow and (est.doubtful or _too_few(tab, cand, n_sources)):
             tab = _best_scale(data, mask, cand, noise, b, opts, tab,
                               est.alternatives + _SCALE_LADDER)
-        elif est.alternatives:
+        elif grow and est.alternatives:
             tab = _best_scale(data, mask, cand, noise, b, opts, tab, est.alternatives)
     # Every candidate was measured, and all could be kept: a detection for
     # more sources finds the same (registration does not detect again).
     tab.meta["all_candidates"] = len(cand["x"]) <= n_sources
     return tab.table() if isinstance(tab, _Rows) else tab
+
+
+def _grown(image, mask, n_sources, config, nsigma, cache, cand):
+    """
+    The ``n_sources`` brightest of a detection for ``_GROWTH`` times as
+    many at the same (estimated) width, or None when that one too keeps
+    too few of ``cand``, the candidates of the detection for ``n_sources``.
+
+    For a list whose sources measure the width they were found at (the
+    width is right) yet are too few of the candidates: most of the
+    brightest peaks were not stars (a bright band, the step at the edge
+    of a resampled frame), and the stars are among the fainter peaks,
+    which other widths (the scale ladder) would not find.
+    """
+    more = _detect(image, mask, _GROWTH * n_sources, config, nsigma, cache, grow=False)
+    if _too_few(more, cand, n_sources):
+        return None
+    table = more[:n_sources]
+    # (All its candidates measured, and fewer sources than asked for.)
+    table.meta["all_candidates"] = bool(more.meta["all_candidates"] and len(more) < n_sources)
+    return table
 
 
 def _stage1(data, mask, bin_factor, nsigma):
