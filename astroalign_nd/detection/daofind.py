@@ -129,7 +129,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
     return _detect(image, mask, n_sources, config, threshold)
 
 
-def _detect(image, mask, n_sources, config, nsigma, cache=None):
+def _detect(image, mask, n_sources, config, nsigma, cache=None, grow=True, width=None):
     """
     `find_sources` on checked options: ``config``, at threshold ``nsigma``.
 
@@ -139,6 +139,9 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None):
     estimate and every candidate's measurement at each width tried
     (`_per_candidate`).  That detection then measures only the candidates
     it adds, and returns what a detection without the cache returns.
+    ``grow``: whether a list cut short by candidates that are not stars
+    may be made from more candidates (`_grown`); without, the list at the
+    estimated width (or ``width``), no other widths tried.
     """
     fwhm, bin_factor = config.fwhm, config.bin_factor
     # Paths, NDData, HDUs, (array, header) tuples, masked arrays: their own
@@ -211,22 +214,90 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None):
             est = _estimate_fwhm(data, mask, cand, noise)
             if cache is not None:
                 cache["fwhm estimate"] = (ident, est)
+        plain = cand
         if not est.doubtful and est.fwhm >= _DESPIKE_MIN_FWHM:
             # (The estimate, a mode, stays: hot pixels by a few stars do not move it.)
             spike_fwhm = est.fwhm
             cand = _recentered(data, mask, coarse, b, None, cache, noise, spike_fwhm)
         opts["spike_fwhm"] = spike_fwhm
-        tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
+        tab = _measure(data, mask, cand, est.fwhm if width is None else width, noise, b, opts)
+        if est.from_gap and width is None and _inconsistency(tab) >= _CONSISTENT:
+            # The sources do not share the width the larger cutouts found
+            # (diffuse light, knots): the estimate without them.
+            est, cand, spike_fwhm = _estimate_fwhm(data, mask, plain, noise, gap=False), plain, None
+            if not est.doubtful and est.fwhm >= _DESPIKE_MIN_FWHM:
+                spike_fwhm = est.fwhm
+                cand = _recentered(data, mask, coarse, b, None, cache, noise, spike_fwhm)
+            opts["spike_fwhm"] = spike_fwhm
+            tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
         tab.meta["fwhm_source"] = "estimate"
-        if est.doubtful or _too_few(tab, cand, n_sources):
+        if not grow:
+            pass  # (`_grown`'s probe: the list at the estimate only)
+        elif (not est.doubtful and not est.alternatives and len(coarse["x"]) >= n_cand
+                and _too_few(tab, cand, n_sources) and _inconsistency(tab) < _CONSISTENT):
+            more = _grown(image, mask, n_sources, config, nsigma, cache, cand)
+            if more is not None:
+                return more
+        if grow and (est.doubtful or _too_few(tab, cand, n_sources)):
+            trials = []
             tab = _best_scale(data, mask, cand, noise, b, opts, tab,
-                              est.alternatives + _SCALE_LADDER)
-        elif est.alternatives:
+                              est.alternatives + _SCALE_LADDER, trials)
+            if len(coarse["x"]) >= n_cand and _inconsistency(tab) >= _ASTRAY:
+                # No width explains the sources of the list kept (peaks that
+                # are not stars took most candidates): the width that
+                # explains its own, at more candidates.
+                more = _grown_at_consistent(image, mask, n_sources, config, nsigma, cache,
+                                            cand, trials, tab)
+                if more is not None:
+                    return more
+        elif grow and est.alternatives:
             tab = _best_scale(data, mask, cand, noise, b, opts, tab, est.alternatives)
     # Every candidate was measured, and all could be kept: a detection for
     # more sources finds the same (registration does not detect again).
     tab.meta["all_candidates"] = len(cand["x"]) <= n_sources
     return tab.table() if isinstance(tab, _Rows) else tab
+
+
+def _grown(image, mask, n_sources, config, nsigma, cache, cand, width=None):
+    """
+    The ``n_sources`` brightest of a detection for ``_GROWTH`` times as
+    many at the same (estimated) width, or None when that one too keeps
+    too few of ``cand``, the candidates of the detection for ``n_sources``.
+
+    For a list whose sources measure the width they were found at (the
+    width is right) yet are too few of the candidates: most of the
+    brightest peaks were not stars (a bright band, the step at the edge
+    of a resampled frame), and the stars are among the fainter peaks,
+    which other widths (the scale ladder) would not find.
+    """
+    more = _detect(image, mask, _GROWTH * n_sources, config, nsigma, cache, grow=False,
+                   width=width)
+    if _too_few(more, cand, n_sources):
+        return None
+    table = more[:n_sources]
+    # (All its candidates measured, and fewer sources than asked for.)
+    table.meta["all_candidates"] = bool(more.meta["all_candidates"] and len(more) < n_sources)
+    return table
+
+
+def _grown_at_consistent(image, mask, n_sources, config, nsigma, cache, cand, trials, best):
+    """
+    `_grown` at the width of the scale trials' most strong sources among
+    those whose sources measure it themselves, when that detection is
+    consistent too and has more strong sources than ``best``, the list the
+    trials kept; None otherwise.
+    """
+    strong = [int(np.sum(np.asarray(t["snr"]) >= 10.0)) if len(t) else 0 for t in trials]
+    fits = [i for i, t in enumerate(trials) if _inconsistency(t) < _CONSISTENT and strong[i]]
+    if not fits:
+        return None
+    width = trials[max(fits, key=lambda i: (strong[i], -i))].meta["fwhm"]
+    more = _grown(image, mask, n_sources, config, nsigma, cache, cand, width)
+    if (more is None or _inconsistency(more) >= _CONSISTENT
+            or np.sum(np.asarray(more["snr"]) >= 10.0) <= np.sum(np.asarray(best["snr"]) >= 10.0)):
+        return None
+    more.meta["fwhm_source"] = "scale search"
+    return more
 
 
 def _stage1(data, mask, bin_factor, nsigma):
@@ -306,11 +377,23 @@ def _too_few(tab, cand, n_sources):
     return len(tab) < max(3, min(12, wanted // 2)) or len(tab) < 0.2 * wanted
 
 
+#: A list whose sources' own median FWHM is within this (natural log) of
+#: the FWHM used measured them at the right width (`_inconsistency`).
+_CONSISTENT = 0.2
+
+#: A list whose sources' own median FWHM is this far (natural log) or
+#: further from the FWHM used was not measured at the stars' width.
+_ASTRAY = 0.5
+
+#: Times the sources a detection left with too few stars by its candidates
+#: that were not stars tries again for, at the same width (`_detect`).
+_GROWTH = 4
+
 #: FWHMs (pixels) tried when the estimate is doubtful.
 _SCALE_LADDER = (1.6, 2.5, 4.0, 6.5, 10.0)
 
 
-def _best_scale(data, mask, cand, noise, b, opts, first, alternatives=()):
+def _best_scale(data, mask, cand, noise, b, opts, first, alternatives=(), trials_out=None):
     """
     Stage 2b: try other widths (a ladder when the estimate is doubtful, or
     the wide population's width on a digitised plate).
@@ -318,9 +401,11 @@ def _best_scale(data, mask, cand, noise, b, opts, first, alternatives=()):
     Each trial FWHM gives a list of sources; a list is *consistent* when
     the median FWHM its sources measure on their own agrees with the trial
     value.  Among the lists with nearly the most strong sources, the most
-    consistent wins; the first attempt is kept on ties.
+    consistent wins; the first attempt is kept on ties.  ``trials_out``
+    (a list) receives every trial's list.
     """
-    trials = [first]
+    trials = [] if trials_out is None else trials_out
+    trials.append(first)
     for f in alternatives:
         if any(abs(np.log(f / t.meta["fwhm"])) < 0.15 for t in trials):
             continue

@@ -50,9 +50,11 @@ def estimate_fwhm(data, *, mask=None, n_stars=30):
 class _FwhmEstimate:
     """An FWHM estimate, whether it deserves a second opinion, and others to try."""
 
-    def __init__(self, fwhm, doubtful, alternatives=()):
+    def __init__(self, fwhm, doubtful, alternatives=(), from_gap=False):
         self.fwhm, self.doubtful = float(fwhm), bool(doubtful)
         self.alternatives = tuple(float(a) for a in alternatives)
+        # (`_gap_fwhm`'s: detection checks that the sources measure it too.)
+        self.from_gap = bool(from_gap)
 
 
 def _log_mode(values, width=0.1):
@@ -73,7 +75,7 @@ def _log_mode(values, width=0.1):
     return float(10 ** np.median(lv[close])), float(close.mean())
 
 
-def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
+def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14, gap=True):
     """
     Stage 2: FWHM from the population of compact candidates.
 
@@ -86,7 +88,8 @@ def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
     can measure are measured on a binned copy.  When both a compact and a
     wide population are large (digitised plates: faint stars of a few
     pixels, bright ones of tens), both widths are returned and the scale
-    search of `_best_scale` chooses.
+    search of `_best_scale` chooses.  With ``gap``, stars a little too
+    wide for the cutouts are measured in larger ones first (`_gap_fwhm`).
     """
     fw, ok = _candidate_fwhms(data, mask, cand, n_max, half, noise)
     vals = fw[ok]
@@ -99,6 +102,12 @@ def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
             # unless the wide ones are stars too (checked below).
             compact = float(np.clip(mode, 1.0, half / 1.5))
     if wide.sum() >= max(3, 0.5 * max(1, ok.sum() + wide.sum())):
+        if compact is None and gap:
+            # Stars of 7 to 10 px are too wide for these cutouts, yet
+            # compact in cutouts twice as large (their own mode there).
+            width = _gap_fwhm(data, mask, cand, noise, n_max, half)
+            if width is not None:
+                return _FwhmEstimate(width, False, from_gap=True)
         # Digitised plates and defocused frames: measure on a binned copy.
         broad = _wide_fwhm(data, mask, n_max, half)
         if compact is not None:
@@ -118,6 +127,26 @@ def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14):
     # dominated by something other than stars; let the scale search decide.
     doubtful = frac < 0.3 or vals.size < 5 or (vals.size < 8 and frac < 0.6)
     return _FwhmEstimate(np.clip(mode, 1.0, half / 1.5), doubtful)
+
+
+def _gap_fwhm(data, mask, cand, noise, n_max, half):
+    """
+    The stars' FWHM when it lies between the compact widths of
+    `_estimate_fwhm`'s cutouts (below ``half / 2``) and those measured on
+    binned copies (`_wide_fwhm`, from ``_MAX_FULL_RES_FWHM``): the mode of
+    the candidates measured in cutouts of ``2 * half``, when most of them
+    (at least 5) share it; None otherwise.  Without it such stars (a wide seeing, a target resampled
+    to a larger scale) send detection to the scale ladder, whose widest
+    trial fits them worse and measures most slowly.
+    """
+    fw, ok = _candidate_fwhms(data, mask, cand, n_max, 2 * half, noise)
+    vals = fw[ok]
+    if vals.size < 5:
+        return None
+    mode, frac = _log_mode(vals)
+    if frac >= 0.5 and frac * vals.size >= 5 and half / 2.0 <= mode < _MAX_FULL_RES_FWHM:
+        return mode
+    return None
 
 
 def _wide_fwhm(data, mask, n_max, half):
