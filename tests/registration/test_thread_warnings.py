@@ -59,9 +59,10 @@ def test_filters_restored_after_register():
     assert warnings.filters == before
 
 
-def test_busy_cores_detect_one_frame_after_the_other(monkeypatch):
+def test_busy_cores_or_small_frames_detect_one_frame_after_the_other(monkeypatch):
     # With the default thread count, both frames are detected at once only
-    # when a core is free (`core_to_spare`); a thread count the user set is
+    # when a core is free (`core_to_spare`) and the frames are large enough
+    # (`PARALLEL_DETECTION_PIXELS`); a thread count the user set is
     # followed.  The transform is the same either way, bit for bit.
     from astroalign_nd import _kernels, registration
 
@@ -81,8 +82,11 @@ def test_busy_cores_detect_one_frame_after_the_other(monkeypatch):
 
     monkeypatch.setattr(registration, "side_pool", recorded)
     monkeypatch.setattr(registration, "num_threads", lambda: 2)  # whatever this machine has
-    for spare, n_threads, side in ((False, 0, False), (True, 0, True), (False, 2, True)):
+    cases = ((False, 0, 1, False), (True, 0, 1, True), (False, 2, 1, True),
+             (True, 0, 200 * 200 + 1, False), (True, 2, 200 * 200 + 1, True))
+    for spare, n_threads, min_pixels, side in cases:
         monkeypatch.setattr(registration, "core_to_spare", lambda spare=spare: spare)
+        monkeypatch.setattr(registration, "PARALLEL_DETECTION_PIXELS", min_pixels)
         used.clear()
         with conf.set_temp("num_threads", n_threads):
             t, _ = find_transform(pair.source, pair.target)
