@@ -37,24 +37,31 @@ def _all_but_one(n):
     return rest
 
 
-def _lstsq(a, b):
+def _lstsq_kernel(a, b):
     """
-    ``np.linalg.lstsq(a, b, rcond=None)[0]`` of a float (M, K) ``a`` and (M,) ``b``.
+    ``np.linalg.lstsq(a, b, rcond=None)[0]`` of each float (..., M, K) ``a`` and
+    (..., M) ``b`` by NumPy's own kernel, all at once (the same numbers, without
+    the checks and conversions that cost a third of a small fit); None when
+    that kernel is missing, not the one this expects, or its SVD did not
+    converge: the caller then fits with `numpy.linalg.lstsq` (its own errors).
+    """
+    if _LSTSQ is None:
+        return None
+    try:
+        with np.errstate(invalid="raise", over="ignore", divide="ignore", under="ignore"):
+            return _LSTSQ(a, b[..., None], _EPS * max(a.shape[-2:]),  # lstsq's default rcond
+                          signature="ddd->ddid")[0][..., 0]
+    except (FloatingPointError, TypeError, ValueError):
+        return None
 
-    Its kernel called as it calls it (the same numbers, without the checks and
-    conversions that cost a third of a small fit); `numpy.linalg.lstsq` itself
-    (which raises its own errors) for other inputs, or if the kernel fails or
-    is not the one this expects.
-    """
-    if (_LSTSQ is not None and a.ndim == 2 and b.ndim == 1 and len(a) > 0
-            and a.dtype == b.dtype == np.float64):
-        try:
-            with np.errstate(invalid="raise", over="ignore", divide="ignore", under="ignore"):
-                return _LSTSQ(a, b[:, None], _EPS * max(a.shape),
-                              signature="ddd->ddid")[0][:, 0]
-        except (FloatingPointError, TypeError, ValueError):
-            pass  # (an SVD that did not converge, or a NumPy whose private gufunc differs)
-    return np.linalg.lstsq(a, b, rcond=None)[0]
+
+def _lstsq(a, b):
+    """``np.linalg.lstsq(a, b, rcond=None)[0]`` of a (M, K) ``a`` and (M,) ``b``,
+    through `_lstsq_kernel` for float64 inputs."""
+    theta = None
+    if a.ndim == 2 and b.ndim == 1 and len(a) > 0 and a.dtype == b.dtype == np.float64:
+        theta = _lstsq_kernel(a, b)
+    return np.linalg.lstsq(a, b, rcond=None)[0] if theta is None else theta
 
 
 class LinearTransform2D(Model):
@@ -440,25 +447,16 @@ class LinearTransform2D(Model):
         """
         n = len(src)
         rest = _all_but_one(n)  # row i: all but i
-        solver = _LSTSQ
-        if cls._linear_fit.__func__ is LinearTransform2D._linear_fit.__func__ and solver:
+        if cls._linear_fit.__func__ is LinearTransform2D._linear_fit.__func__:
             if "parity" in cls.param_names:
                 _check_parity(parity)
             layer = cls.layer(parity)
             design = layer.design(src)[rest].reshape(n, 2 * (n - 1), layer.k)
             sw = np.sqrt(np.repeat(w[rest], 2, axis=1))
-            rcond = _EPS * max(2 * (n - 1), layer.k)  # lstsq's default
-            try:
-                with np.errstate(invalid="raise", over="ignore", divide="ignore",
-                                 under="ignore"):
-                    theta = solver(design * sw[..., None],
-                                   (dst[rest].reshape(n, -1) * sw)[..., None], rcond,
-                                   signature="ddd->ddid")[0][..., 0]
+            theta = _lstsq_kernel(design * sw[..., None], dst[rest].reshape(n, -1) * sw)
+            if theta is not None:
                 return layer.to_matrices(theta)
-            except (FloatingPointError, TypeError, ValueError):
-                # An SVD that did not converge, or a NumPy whose private gufunc differs:
-                # the fits one at a time (which raise lstsq's own errors).
-                pass
+        # Another fit, or no kernel: the fits one at a time.
         return np.array([cls.fit_matrix(src[r], dst[r], w[r], parity)[0] for r in rest])
 
 

@@ -149,3 +149,18 @@ def test_direct_least_squares_is_numpys():
     a[0, 0] = np.nan
     with pytest.raises(np.linalg.LinAlgError):
         _lstsq(a, b)
+
+
+def test_leave_one_out_without_numpys_kernel(monkeypatch):
+    # A NumPy without the private least-squares kernel: the fits one at a time,
+    # the same matrices.
+    from astroalign_nd.transforms import linear
+    rng = np.random.default_rng(8)
+    src = rng.uniform(0, 1024, (10, 2))
+    dst = apply_matrix(TRUTH.matrix, src) + rng.normal(0, 0.05, (10, 2))
+    w = rng.uniform(1.0, 50.0, 10)
+    stacked = linear.SimilarityTransform._leave_one_out(src, dst, w, 1)
+    monkeypatch.setattr(linear, "_LSTSQ", None)
+    assert linear._lstsq_kernel(np.eye(2), np.ones(2)) is None
+    alone = linear.SimilarityTransform._leave_one_out(src, dst, w, 1)
+    assert np.array_equal(stacked, alone)
