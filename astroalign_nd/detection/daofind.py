@@ -207,34 +207,22 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None, grow=True, width
         # Stage 2: the FWHM of the population of compact sources.
         # (Cached while the first 80 candidates, all `_estimate_fwhm` reads, are the same.)
         ident = np.column_stack([cand["x"], cand["y"], cand["bkg"]])[:80]
-        old = None if cache is None else cache.get("fwhm estimate")
-        if old is not None and np.array_equal(old[0], ident):
-            est = old[1]
-        else:
-            est = _estimate_fwhm(data, mask, cand, noise)
-            if cache is not None:
-                cache["fwhm estimate"] = (ident, est)
+        old = (cache or {}).get("fwhm estimate")
+        est = (old[1] if old is not None and np.array_equal(old[0], ident)
+               else _estimate_fwhm(data, mask, cand, noise))
+        if cache is not None:
+            cache["fwhm estimate"] = (ident, est)
         plain = cand
-        if not est.doubtful and est.fwhm >= _DESPIKE_MIN_FWHM:
-            # (The estimate, a mode, stays: hot pixels by a few stars do not move it.)
-            spike_fwhm = est.fwhm
-            cand = _recentered(data, mask, coarse, b, None, cache, noise, spike_fwhm)
-        opts["spike_fwhm"] = spike_fwhm
-        tab = _measure(data, mask, cand, est.fwhm if width is None else width, noise, b, opts)
+        tab, cand = _measure_at_estimate(data, mask, coarse, plain, est, b, noise, opts, width)
         if est.from_gap and width is None and _inconsistency(tab) >= _CONSISTENT:
             # The sources do not share the width the larger cutouts found
             # (diffuse light, knots): the estimate without them.
-            est, cand, spike_fwhm = _estimate_fwhm(data, mask, plain, noise, gap=False), plain, None
-            if not est.doubtful and est.fwhm >= _DESPIKE_MIN_FWHM:
-                spike_fwhm = est.fwhm
-                cand = _recentered(data, mask, coarse, b, None, cache, noise, spike_fwhm)
-            opts["spike_fwhm"] = spike_fwhm
-            tab = _measure(data, mask, cand, est.fwhm, noise, b, opts)
+            est = _estimate_fwhm(data, mask, plain, noise, gap=False)
+            tab, cand = _measure_at_estimate(data, mask, coarse, plain, est, b, noise, opts)
         tab.meta["fwhm_source"] = "estimate"
-        if not grow:
-            pass  # (`_grown`'s probe: the list at the estimate only)
-        elif (not est.doubtful and not est.alternatives and len(coarse["x"]) >= n_cand
-                and _too_few(tab, cand, n_sources) and _inconsistency(tab) < _CONSISTENT):
+        # (Without ``grow``, `_grown`'s probe: the list at the estimate only.)
+        if grow and (not est.doubtful and not est.alternatives and len(coarse["x"]) >= n_cand
+                     and _too_few(tab, cand, n_sources) and _inconsistency(tab) < _CONSISTENT):
             more = _grown(image, mask, n_sources, config, nsigma, cache, cand)
             if more is not None:
                 return more
@@ -246,8 +234,7 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None, grow=True, width
                 # No width explains the sources of the list kept (peaks that
                 # are not stars took most candidates): the width that
                 # explains its own, at more candidates.
-                more = _grown_at_consistent(image, mask, n_sources, config, nsigma, cache,
-                                            cand, trials, tab)
+                more = _grown(image, mask, n_sources, config, nsigma, cache, cand, trials, tab)
                 if more is not None:
                     return more
         elif grow and est.alternatives:
@@ -258,7 +245,22 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None, grow=True, width
     return tab.table() if isinstance(tab, _Rows) else tab
 
 
-def _grown(image, mask, n_sources, config, nsigma, cache, cand, width=None):
+def _measure_at_estimate(data, mask, coarse, cand, est, b, noise, opts, width=None):
+    """
+    Stage 2's list: ``(table, candidates)`` measured at the estimate ``est``
+    (or ``width``), the candidates recentred without single-pixel spikes
+    when the estimate is sure and the stars wide enough not to be spikes.
+    """
+    spike_fwhm = None
+    if not est.doubtful and est.fwhm >= _DESPIKE_MIN_FWHM:
+        # (The estimate, a mode, stays: hot pixels by a few stars do not move it.)
+        spike_fwhm = est.fwhm
+        cand = _recentered(data, mask, coarse, b, None, opts["cache"], noise, spike_fwhm)
+    opts["spike_fwhm"] = spike_fwhm
+    return _measure(data, mask, cand, est.fwhm if width is None else width, noise, b, opts), cand
+
+
+def _grown(image, mask, n_sources, config, nsigma, cache, cand, trials=None, best=None):
     """
     The ``n_sources`` brightest of a detection for ``_GROWTH`` times as
     many at the same (estimated) width, or None when that one too keeps
@@ -269,7 +271,19 @@ def _grown(image, mask, n_sources, config, nsigma, cache, cand, width=None):
     brightest peaks were not stars (a bright band, the step at the edge
     of a resampled frame), and the stars are among the fainter peaks,
     which other widths (the scale ladder) would not find.
+
+    With the scale search's ``trials`` and the list it kept, ``best`` (no
+    width explained it): at the width of the trials' most strong sources
+    among those whose sources measure it themselves, kept only when that
+    detection is consistent too and has more strong sources than ``best``.
     """
+    width = None
+    if trials is not None:
+        strong = [int(np.sum(np.asarray(t["snr"]) >= 10.0)) if len(t) else 0 for t in trials]
+        fits = [i for i, t in enumerate(trials) if _inconsistency(t) < _CONSISTENT and strong[i]]
+        if not fits:
+            return None
+        width = trials[max(fits, key=lambda i: (strong[i], -i))].meta["fwhm"]
     more = _detect(image, mask, _GROWTH * n_sources, config, nsigma, cache, grow=False,
                    width=width)
     if _too_few(more, cand, n_sources):
@@ -277,27 +291,12 @@ def _grown(image, mask, n_sources, config, nsigma, cache, cand, width=None):
     table = more[:n_sources]
     # (All its candidates measured, and fewer sources than asked for.)
     table.meta["all_candidates"] = bool(more.meta["all_candidates"] and len(more) < n_sources)
+    if trials is not None:
+        if (_inconsistency(table) >= _CONSISTENT or np.sum(np.asarray(table["snr"]) >= 10.0)
+                <= np.sum(np.asarray(best["snr"]) >= 10.0)):
+            return None
+        table.meta["fwhm_source"] = "scale search"
     return table
-
-
-def _grown_at_consistent(image, mask, n_sources, config, nsigma, cache, cand, trials, best):
-    """
-    `_grown` at the width of the scale trials' most strong sources among
-    those whose sources measure it themselves, when that detection is
-    consistent too and has more strong sources than ``best``, the list the
-    trials kept; None otherwise.
-    """
-    strong = [int(np.sum(np.asarray(t["snr"]) >= 10.0)) if len(t) else 0 for t in trials]
-    fits = [i for i, t in enumerate(trials) if _inconsistency(t) < _CONSISTENT and strong[i]]
-    if not fits:
-        return None
-    width = trials[max(fits, key=lambda i: (strong[i], -i))].meta["fwhm"]
-    more = _grown(image, mask, n_sources, config, nsigma, cache, cand, width)
-    if (more is None or _inconsistency(more) >= _CONSISTENT
-            or np.sum(np.asarray(more["snr"]) >= 10.0) <= np.sum(np.asarray(best["snr"]) >= 10.0)):
-        return None
-    more.meta["fwhm_source"] = "scale search"
-    return more
 
 
 def _stage1(data, mask, bin_factor, nsigma):

@@ -8,7 +8,6 @@ Each is an `astropy.modeling.Model` with two inputs and two outputs; see
 
 from __future__ import annotations
 
-import functools
 import numpy as np
 from astropy.modeling import Model, Parameter
 from numpy.typing import ArrayLike
@@ -28,40 +27,28 @@ _LSTSQ = getattr(getattr(np.linalg, "_umath_linalg", None), "lstsq", None)
 _EPS = float(np.finfo(float).eps)
 
 
-@functools.lru_cache(maxsize=16)
-def _all_but_one(n):
-    """(n, n - 1) indices, row i all of ``range(n)`` but i (read-only, kept: the
-    jackknife of every match asks for it)."""
-    rest = np.nonzero(~np.eye(n, dtype=bool))[1].reshape(n, n - 1)
-    rest.flags.writeable = False
-    return rest
-
-
-def _lstsq_kernel(a, b):
-    """
-    ``np.linalg.lstsq(a, b, rcond=None)[0]`` of each float (..., M, K) ``a`` and
-    (..., M) ``b`` by NumPy's own kernel, all at once (the same numbers, without
-    the checks and conversions that cost a third of a small fit); None when
-    that kernel is missing, not the one this expects, or its SVD did not
-    converge: the caller then fits with `numpy.linalg.lstsq` (its own errors).
-    """
-    if _LSTSQ is None:
-        return None
-    try:
-        with np.errstate(invalid="raise", over="ignore", divide="ignore", under="ignore"):
-            return _LSTSQ(a, b[..., None], _EPS * max(a.shape[-2:]),  # lstsq's default rcond
-                          signature="ddd->ddid")[0][..., 0]
-    except (FloatingPointError, TypeError, ValueError):
-        return None
-
-
 def _lstsq(a, b):
-    """``np.linalg.lstsq(a, b, rcond=None)[0]`` of a (M, K) ``a`` and (M,) ``b``,
-    through `_lstsq_kernel` for float64 inputs."""
-    theta = None
-    if a.ndim == 2 and b.ndim == 1 and len(a) > 0 and a.dtype == b.dtype == np.float64:
-        theta = _lstsq_kernel(a, b)
-    return np.linalg.lstsq(a, b, rcond=None)[0] if theta is None else theta
+    """
+    ``np.linalg.lstsq(a, b, rcond=None)[0]`` of each (..., M, K) ``a`` and
+    (..., M) ``b``.
+
+    Float64 inputs go to its kernel as it calls it, all at once (the same
+    numbers, without the checks and conversions that cost a third of a small
+    fit); `numpy.linalg.lstsq` itself (which raises its own errors), one at a
+    time, for other inputs, or if the kernel fails or is not the one this
+    expects.
+    """
+    if (_LSTSQ is not None and a.ndim >= 2 and a.ndim == b.ndim + 1 and a.shape[-2] > 0
+            and a.dtype == b.dtype == np.float64):
+        try:
+            with np.errstate(invalid="raise", over="ignore", divide="ignore", under="ignore"):
+                return _LSTSQ(a, b[..., None], _EPS * max(a.shape[-2:]),  # lstsq's rcond
+                              signature="ddd->ddid")[0][..., 0]
+        except (FloatingPointError, TypeError, ValueError):
+            pass  # (an SVD that did not converge, or a NumPy whose private gufunc differs)
+    if a.ndim > 2:
+        return np.array([_lstsq(ai, bi) for ai, bi in zip(a, b)])
+    return np.linalg.lstsq(a, b, rcond=None)[0]
 
 
 class LinearTransform2D(Model):
@@ -446,17 +433,15 @@ class LinearTransform2D(Model):
         same numbers, without its per-call overhead).
         """
         n = len(src)
-        rest = _all_but_one(n)  # row i: all but i
+        rest = np.nonzero(~np.eye(n, dtype=bool))[1].reshape(n, n - 1)  # row i: all but i
         if cls._linear_fit.__func__ is LinearTransform2D._linear_fit.__func__:
             if "parity" in cls.param_names:
                 _check_parity(parity)
             layer = cls.layer(parity)
             design = layer.design(src)[rest].reshape(n, 2 * (n - 1), layer.k)
             sw = np.sqrt(np.repeat(w[rest], 2, axis=1))
-            theta = _lstsq_kernel(design * sw[..., None], dst[rest].reshape(n, -1) * sw)
-            if theta is not None:
-                return layer.to_matrices(theta)
-        # Another fit, or no kernel: the fits one at a time.
+            return layer.to_matrices(_lstsq(design * sw[..., None],
+                                            dst[rest].reshape(n, -1) * sw))
         return np.array([cls.fit_matrix(src[r], dst[r], w[r], parity)[0] for r in rest])
 
 
