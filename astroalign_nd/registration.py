@@ -273,7 +273,7 @@ class Reference:
             # the larger detection adds (the cache of this FWHM option).
             return control_sources(parsed.detection_image, mask=parsed.mask,
                                    n_sources=2 * n_sources, n_enough=2 * n_sources + 1,
-                                   config=config,
+                                   config=config, as_table=False,
                                    cache=self._detection_caches.setdefault(config.fwhm, {}))
 
     def detection_fwhm(self, n_sources: int) -> float | None:

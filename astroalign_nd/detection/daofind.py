@@ -126,7 +126,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
                              bin_factor=bin_factor, refine_centroids=refine_centroids,
                              finder=finder)
     threshold = _CONFIDENT_NSIGMA if config.nsigma is None else config.nsigma
-    return _detect(image, mask, n_sources, config, threshold)
+    return _as_table(_detect(image, mask, n_sources, config, threshold))
 
 
 def _detect(image, mask, n_sources, config, nsigma, cache=None, grow=True, width=None):
@@ -242,7 +242,7 @@ def _detect(image, mask, n_sources, config, nsigma, cache=None, grow=True, width
     # Every candidate was measured, and all could be kept: a detection for
     # more sources finds the same (registration does not detect again).
     tab.meta["all_candidates"] = len(cand["x"]) <= n_sources
-    return tab.table() if isinstance(tab, _Rows) else tab
+    return tab
 
 
 def _measure_at_estimate(data, mask, coarse, cand, est, b, noise, opts, width=None):
@@ -1022,21 +1022,35 @@ def _dedupe(x, y, flux, radius):
 
 class _Rows(dict):
     """
-    A measured list as NumPy columns (name -> array) with a ``meta`` dict:
-    the trials of a detection are judged on these, and only the list kept
-    becomes a `~astropy.table.Table` (`table`), astropy's costs paid once.
+    A measured list as NumPy columns (name -> array) with a ``meta`` dict,
+    read like a `~astropy.table.Table` (a column by name, rows by a slice
+    or an index array): detection's trials and registration's lists are
+    these, and only what `find_sources` returns becomes a Table
+    (`_as_table`), astropy's costs paid once.
     """
 
-    def __init__(self, columns):
+    def __init__(self, columns, meta=None):
         super().__init__(columns)
-        self.meta = {}
+        self.meta = {} if meta is None else dict(meta)
+
+    def __getitem__(self, key):
+        if isinstance(key, str):
+            return dict.__getitem__(self, key)
+        return _Rows({k: v[key] for k, v in self.items()}, self.meta)
 
     def __len__(self):
-        return len(self["x"])
+        return len(dict.__getitem__(self, "x"))
 
-    def table(self):
-        """The list as the `~astropy.table.Table` `find_sources` returns."""
-        return Table(dict(self), meta=self.meta, copy=False)
+    @property
+    def colnames(self):
+        return list(self)
+
+
+def _as_table(rows):
+    """A detection's list as the `~astropy.table.Table` `find_sources` returns."""
+    if isinstance(rows, _Rows):
+        return Table(dict(rows), meta=rows.meta, copy=False)
+    return rows
 
 
 def _empty_table(fwhm, noise, b):
@@ -1168,7 +1182,7 @@ _CONFIDENT_NSIGMA = find_sources.__kwdefaults__["nsigma"]
 _UNKNOWN_POSITION_ERROR = 0.1
 
 
-def control_sources(image, *, mask, n_sources, n_enough, config, cache=None):
+def control_sources(image, *, mask, n_sources, n_enough, config, cache=None, as_table=True):
     """
     The sources registration uses: the detection thresholds' one home.
 
@@ -1194,6 +1208,10 @@ def control_sources(image, *, mask, n_sources, n_enough, config, cache=None):
         the FWHM estimate, every candidate's measurement) and measures only
         the candidates it adds.  The table is the one a detection without
         the cache gives.
+    as_table : bool, optional
+        False: the list as NumPy columns, read like the table (a column by
+        name, ``meta``, rows by slices or index arrays), without the cost
+        of an astropy Table (registration reads a few columns).
 
     Returns
     -------
@@ -1224,7 +1242,8 @@ def control_sources(image, *, mask, n_sources, n_enough, config, cache=None):
     threshold = _DEEP_NSIGMA if nsigma is None else nsigma
     table = _detect(image, mask, convert("n_sources", Int(1, None), n_sources), config,
                     threshold, cache)
-    return keep_confident(table, n_enough, config), threshold
+    table = keep_confident(table, n_enough, config)
+    return (_as_table(table) if as_table else table), threshold
 
 
 def keep_confident(table, n_enough, config, rows=False):
