@@ -543,6 +543,8 @@ def _measure(data, mask, cand, fwhm, noise, b, opts):
     source, so that cosmic rays, which are not trailed like the stars, are
     still dropped.
     """
+    if opts.get("cache") is None:  # (the second look reuses the first's rows)
+        opts = {**opts, "cache": {}}
     tab = _measure_at(data, mask, cand, fwhm, noise, b, opts)
     if (opts["roundness_range"] is None
             or tuple(opts["roundness_range"]) != _DEFAULT_ROUNDNESS
@@ -606,10 +608,19 @@ def _measure_at(data, mask, cand, fwhm, noise, b, opts):
         top = peaks["top"].max()
         if peaks["n_top"][peaks["top"] == top].sum() >= _MIN_PLATEAU:
             level = top
-    rr = opts["roundness_range"]
-    key = ("measure", fwhm, None if rr is None else tuple(rr), opts.get("spike_fwhm"), level)
+    # Measured without the roundness limits, which are DAOStarFinder's last
+    # filter and are applied here: the second look for trailed stars
+    # (`_measure`, no limits) reuses the rows.
+    key = ("measure", fwhm, opts.get("spike_fwhm"), level)
     rows = _per_candidate(cache, key, ident, lambda r: _measure_rows(
-        data, {k: v[r] for k, v in cand.items()}, tiles(r), fwhm, noise, opts, half, level))
+        data, {k: v[r] for k, v in cand.items()}, tiles(r), fwhm, noise,
+        {**opts, "roundness_range": None}, half, level))
+    rr = opts["roundness_range"]
+    if rr is not None:
+        with np.errstate(invalid="ignore"):  # (NaN: not found anyway)
+            rows = {**rows, "found": rows["found"] & np.all(
+                [(rows[c] >= rr[0]) & (rows[c] <= rr[1]) for c in ("roundness1", "roundness2")],
+                axis=0)}
     return _filtered_table(rows, fwhm, noise, b, opts)
 
 
