@@ -15,7 +15,7 @@ This is plain C once compiled: there is no JIT, nothing to cache, and
 nothing heavy to import.
 """
 
-from libc.math cimport exp, fabs, isfinite, isnan, sqrt, sqrtf, INFINITY, NAN
+from libc.math cimport exp, fabs, floor, isfinite, isnan, sqrt, sqrtf, INFINITY, NAN
 from libc.string cimport memcpy
 
 import numpy as np
@@ -241,6 +241,30 @@ cdef inline void _gauss_weights(double* w, const double* e, Py_ssize_t size,
         r *= q
 
 
+cdef inline void _xwin_step(const double* im, Py_ssize_t size, double x, double y,
+                            double sigma, double* buf, double* sx, double* sy) noexcept nogil:
+    # One XWIN step of one cutout ``im`` (size x size) from (x, y): the
+    # unclipped shifts, 0 where the window holds no flux.  ``buf`` holds
+    # (7, size) doubles.
+    cdef Py_ssize_t j
+    cdef double s[4]
+    for j in range(size):
+        buf[2 * size + j] = j - x
+        buf[3 * size + j] = j - y
+    _gauss_weights(buf, buf + 2 * size, size, sigma)
+    _gauss_weights(buf + size, buf + 3 * size, size, sigma)
+    _window_sums(im, size, buf, buf + size, buf + 2 * size, buf + 3 * size, 1,
+                 buf + 4 * size, s)
+    # The factor 2 is the XWIN update for a Gaussian window.
+    sx[0] = 2.0 * s[1] / s[0] if s[0] > 0 else 0.0
+    sy[0] = 2.0 * s[2] / s[0] if s[0] > 0 else 0.0
+
+
+cdef inline double _clip1(double v) noexcept nogil:
+    # np.clip(v, -1, 1), NaN kept.
+    return -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
+
+
 def windowed_centroid(const double[:, :, ::1] img, double[::1] x, double[::1] y,
                       const double[::1] sigma, int n_iter):
     """
@@ -250,32 +274,97 @@ def windowed_centroid(const double[:, :, ::1] img, double[::1] x, double[::1] y,
     The iterations stop when no star moved by 1e-4 px or more, as in
     `astroalign_nd._kernels.windowed_centroid`'s NumPy version.
     """
-    cdef Py_ssize_t n = img.shape[0], size = img.shape[1], k, j, it
+    cdef Py_ssize_t n = img.shape[0], size = img.shape[1], k, it
     cdef double[:, ::1] buf = np.empty((7, size))
     cdef double[::1] sx = np.empty(n), sy = np.empty(n)
-    cdef double s[4]
     cdef bint moving
     with nogil:
         for it in range(n_iter):
             moving = False
             for k in range(n):
-                for j in range(size):
-                    buf[2, j] = j - x[k]
-                    buf[3, j] = j - y[k]
-                _gauss_weights(&buf[0, 0], &buf[2, 0], size, sigma[k])
-                _gauss_weights(&buf[1, 0], &buf[3, 0], size, sigma[k])
-                _window_sums(&img[k, 0, 0], size, &buf[0, 0], &buf[1, 0], &buf[2, 0],
-                             &buf[3, 0], 1, &buf[4, 0], s)
-                # The factor 2 is the XWIN update for a Gaussian window.
-                sx[k] = 2.0 * s[1] / s[0] if s[0] > 0 else 0.0
-                sy[k] = 2.0 * s[2] / s[0] if s[0] > 0 else 0.0
+                _xwin_step(&img[k, 0, 0], size, x[k], y[k], sigma[k], &buf[0, 0],
+                           &sx[k], &sy[k])
             for k in range(n):
                 if not (fabs(sx[k]) < 1e-4 and fabs(sy[k]) < 1e-4):
                     moving = True
-                x[k] += -1.0 if sx[k] < -1.0 else (1.0 if sx[k] > 1.0 else sx[k])
-                y[k] += -1.0 if sy[k] < -1.0 else (1.0 if sy[k] > 1.0 else sy[k])
+                x[k] += _clip1(sx[k])
+                y[k] += _clip1(sy[k])
             if not moving:
                 break
+
+
+def mirrored_windowed_centroid(const double[:, :, ::1] img, const unsigned char[:, :, ::1] bad,
+                               double[::1] x, double[::1] y, const double[::1] sigma,
+                               int n_iter):
+    """
+    Windowed centroids of stars cut by bad pixels, each bad pixel filled
+    from the star's mirror image through the current centre, updating
+    ``x`` and ``y`` in place; ``img`` has its bad pixels at zero.
+
+    `astroalign_nd._kernels.mirrored_windowed_centroid`'s NumPy version, one
+    star at a time: the same operations in the same order, so the same
+    floats.  A star stops once it moved less than 1e-4 px on both axes.
+    """
+    cdef Py_ssize_t n = img.shape[0], size = img.shape[1], npix = size * size
+    cdef Py_ssize_t k, q, m, nb, it, i
+    # The bilinear taps' strides (one pixel: all four taps on it).
+    cdef Py_ssize_t dx = 1 if size > 1 else 0, dy = size if size > 1 else 0
+    cdef double hi = size - 1.0, last = size - 2.0 if size > 1 else 0.0
+    cdef double[:, ::1] buf = np.empty((7, size))
+    cdef double[::1] filled = np.empty(max(npix, 1))
+    cdef Py_ssize_t[::1] at = np.empty(max(npix, 1), dtype=np.intp)
+    cdef const double* im
+    cdef const unsigned char* bd
+    cdef double cy, cx, fy, fx, ty, tx, uy, ux, v, w, sx, sy, x1, y1
+    with nogil:
+        for k in range(n):
+            im = &img[k, 0, 0]
+            bd = &bad[k, 0, 0]
+            nb = 0
+            for q in range(npix):
+                filled[q] = im[q]
+                if bd[q]:
+                    at[nb] = q
+                    nb += 1
+            for it in range(n_iter):
+                for m in range(nb):
+                    q = at[m]
+                    cy = 2.0 * y[k] - <double>(q // size)
+                    cx = 2.0 * x[k] - <double>(q % size)
+                    # Zero beyond [0, size - 1] (and at a NaN centre).
+                    if not (cy >= 0.0 and cy <= hi and cx >= 0.0 and cx <= hi):
+                        filled[q] = 0.0
+                        continue
+                    # floor, then np.maximum / np.minimum's selects (libm's
+                    # floor keeps -0.0 as NumPy's does).
+                    fy = floor(cy)
+                    fy = fy if fy >= 0.0 else 0.0
+                    fy = fy if fy <= last else last
+                    fx = floor(cx)
+                    fx = fx if fx >= 0.0 else 0.0
+                    fx = fx if fx <= last else last
+                    ty = cy - fy
+                    tx = cx - fx
+                    uy = 1.0 - ty
+                    ux = 1.0 - tx
+                    i = <Py_ssize_t>(fy * size + fx)
+                    v = (uy * (ux * im[i] + tx * im[i + dx])
+                         + ty * (ux * im[i + dy] + tx * im[i + dy + dx]))
+                    # The good-pixel weight at the mirror image: one that
+                    # touches a bad pixel is not the star's.
+                    w = (uy * (ux * (0.0 if bd[i] else 1.0) + tx * (0.0 if bd[i + dx] else 1.0))
+                         + ty * (ux * (0.0 if bd[i + dy] else 1.0)
+                                 + tx * (0.0 if bd[i + dy + dx] else 1.0)))
+                    filled[q] = v if w > 0.999 else 0.0
+                _xwin_step(&filled[0], size, x[k], y[k], sigma[k], &buf[0, 0], &sx, &sy)
+                x1 = x[k] + _clip1(sx)
+                y1 = y[k] + _clip1(sy)
+                cx = fabs(x1 - x[k])
+                cy = fabs(y1 - y[k])
+                x[k] = x1
+                y[k] = y1
+                if cx < 1e-4 and cy < 1e-4:
+                    break
 
 
 def adaptive_sigma(const double[:, :, ::1] img, const double[::1] dx, const double[::1] dy,

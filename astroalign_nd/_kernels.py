@@ -616,6 +616,21 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
     n, size, _ = cut.shape
     if not n:
         return x, y
+    if _compiled() and size:
+        # One star at a time, the same floats as below without NumPy's
+        # per-call overhead on a few small arrays (and without the GIL).
+        img = np.where(bad, 0.0, cut).astype(float, copy=False)
+        _ckernels.mirrored_windowed_centroid(
+            np.ascontiguousarray(img), np.ascontiguousarray(bad, dtype=bool).view(np.uint8),
+            x, y, np.ascontiguousarray(sigma), int(n_iter))
+        return x, y
+    return _mirrored_windowed_centroid_numpy(cut, bad, x, y, sigma, n_iter, _compiled())
+
+
+def _mirrored_windowed_centroid_numpy(cut, bad, x, y, sigma, n_iter, fast):
+    # `mirrored_windowed_centroid` in NumPy, updating x and y (float arrays)
+    # in place; ``fast``: its windowed step is the compiled one.
+    n, size, _ = cut.shape
     # All stars at once (a loop over stars cost 0.2 ms each, most of a
     # detection's time on a frame with many stars near its edges).
     img = np.where(bad, 0.0, cut).astype(float, copy=False).reshape(n, -1)
@@ -625,7 +640,6 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
     # Only the bad pixels are filled: their mirror images alone are read.
     kb, pb = np.nonzero(bad.reshape(n, -1))
     g = np.stack(np.divmod(pb, size)).astype(float)  # their (y, x)
-    fast = _compiled()  # (read once: the loop's steps are small)
     none_bad = np.zeros((1, 1, 1), bool)
     k = np.arange(n)
     yx = np.stack([y, x])
@@ -677,7 +691,8 @@ def mirrored_windowed_centroid(cut, bad, x0, y0, sigma, n_iter=10):
             on = np.isin(kb, k)
             kb, pb, g = kb[on], pb[on], g[:, on]
             filled = None
-    return yx[1].copy(), yx[0].copy()
+    x[:], y[:] = yx[1], yx[0]
+    return x, y
 
 
 def adaptive_fwhm(cut, bad, dx, dy, sigma0=1.5, n_iter=8):

@@ -778,7 +778,7 @@ def _refined_positions(cut, bad, x0, y0, fwhm, opts):
     sigma = np.full(len(x0), win / _GAUSS_SIGMA_TO_FWHM)
     xs, ys = _windowed_centroid(cut, bad, x0, y0, sigma)
     # A star cut by the frame's edge or a mask is pulled towards its good
-    # side: refine those from their mirror images (few stars: NumPy).
+    # side: refine those from their mirror images.
     cut_off = _lost_window_fraction(bad, xs, ys, sigma) > _LOST_WINDOW
     if cut_off.any():
         xs[cut_off], ys[cut_off] = _mirrored_windowed_centroid(
