@@ -186,9 +186,21 @@ def _as_image(data, mask, caller="find_sources"):
         raise TypeError(f"image data must be numeric; got dtype {arr.dtype}.")
     if min(arr.shape) < 8:
         raise ValueError(f"image is too small to detect stars in: shape {arr.shape}.")
-    if arr.dtype != np.float32 and (arr.dtype != np.float64 or _single_keeps(arr)):
+    single = arr.dtype != np.float64
+    if not single:
         # Detection reads single precision at half the memory traffic (most
-        # of a small frame's full-frame passes).
+        # of a small frame's full-frame passes) when float32 keeps the
+        # noise: its rounding of a sample of rows stays below a thousandth
+        # of their neighbouring-pixel scatter (not so for noiseless frames
+        # float32 cannot hold, or a faint signal on a large pedestal).
+        rows = arr[:: max(1, arr.shape[0] // 64)]
+        with np.errstate(invalid="ignore"):
+            err = np.abs(rows - rows.astype(np.float32))
+            scatter = np.abs(np.diff(rows, axis=1))
+        err, scatter = err[np.isfinite(err)], scatter[np.isfinite(scatter)]
+        single = not err.any() or (scatter.size > 0
+                                   and err.max() <= 1e-3 * _median(scatter))
+    if arr.dtype != np.float32 and single:
         arr = arr.astype(np.float32)
     # Non-finite pixels are not collected here (a full-frame pass): every
     # step that reads pixels (noise samples, binning, cutouts) skips them.
@@ -201,23 +213,6 @@ def _as_image(data, mask, caller="find_sources"):
         if not mask.any():
             mask = None
     return arr, mask
-
-
-def _single_keeps(arr):
-    """
-    Does float32 keep a float64 image's noise?  Its rounding of a sample
-    of rows stays below a thousandth of their neighbouring-pixel scatter
-    (false for noiseless frames, unless float32 holds them exactly, and
-    for a faint signal on a large pedestal).
-    """
-    rows = arr[:: max(1, arr.shape[0] // 64)]
-    with np.errstate(invalid="ignore"):
-        err = np.abs(rows - rows.astype(np.float32))
-        scatter = np.abs(np.diff(rows, axis=1))
-    err, scatter = err[np.isfinite(err)], scatter[np.isfinite(scatter)]
-    if not err.size or not err.any():
-        return True
-    return scatter.size > 0 and err.max() <= 1e-3 * _median(scatter)
 
 
 def _binned_candidates(data, mask, b, noise, nsigma, n_candidates, lines=None,

@@ -126,7 +126,7 @@ def find_sources(image, *, mask=None, n_sources=50, fwhm=None, nsigma=5.0,
                              bin_factor=bin_factor, refine_centroids=refine_centroids,
                              finder=finder)
     threshold = _CONFIDENT_NSIGMA if config.nsigma is None else config.nsigma
-    return _as_table(_detect(image, mask, n_sources, config, threshold))
+    return _Rows.as_table(_detect(image, mask, n_sources, config, threshold))
 
 
 def _detect(image, mask, n_sources, config, nsigma, cache=None, grow=True, width=None):
@@ -1037,7 +1037,7 @@ class _Rows(dict):
     read like a `~astropy.table.Table` (a column by name, rows by a slice
     or an index array): detection's trials and registration's lists are
     these, and only what `find_sources` returns becomes a Table
-    (`_as_table`), astropy's costs paid once.
+    (`as_table`), astropy's costs paid once.
     """
 
     def __init__(self, columns, meta=None):
@@ -1056,12 +1056,13 @@ class _Rows(dict):
     def colnames(self):
         return list(self)
 
-
-def _as_table(rows):
-    """A detection's list as the `~astropy.table.Table` `find_sources` returns."""
-    if isinstance(rows, _Rows):
-        return Table(dict(rows), meta=rows.meta, copy=False)
-    return rows
+    @staticmethod
+    def as_table(rows):
+        """A detection's list (these or a Table) as the `~astropy.table.Table`
+        `find_sources` returns."""
+        if isinstance(rows, _Rows):
+            return Table(dict(rows), meta=rows.meta, copy=False)
+        return rows
 
 
 def _empty_table(fwhm, noise, b):
@@ -1254,7 +1255,7 @@ def control_sources(image, *, mask, n_sources, n_enough, config, cache=None, as_
     table = _detect(image, mask, convert("n_sources", Int(1, None), n_sources), config,
                     threshold, cache)
     table = keep_confident(table, n_enough, config)
-    return (_as_table(table) if as_table else table), threshold
+    return (_Rows.as_table(table) if as_table else table), threshold
 
 
 def keep_confident(table, n_enough, config, rows=False):

@@ -494,3 +494,29 @@ def test_a_larger_detection_from_the_cache_is_a_fresh_one():
         assert cached.meta == fresh.meta
         for c in fresh.colnames:
             np.testing.assert_allclose(cached[c], fresh[c], rtol=1e-12, atol=1e-9)
+
+
+# -- precision ---------------------------------------------------------------------------
+
+def test_float64_frame_measured_as_its_float32_copy(frame3, sources3):
+    # A float64 image whose noise float32 keeps is measured in float32: the
+    # same stars, to a nanopixel, as the float32 copy.
+    img = np.asarray(frame3[0], np.float64)
+    tab32 = find_sources(img.astype(np.float32), n_sources=30)
+    tab64 = find_sources(img, n_sources=30)
+    assert len(tab64) == len(tab32) == 30
+    np.testing.assert_allclose(tab64["x"], tab32["x"], atol=1e-9)
+    np.testing.assert_allclose(tab64["y"], tab32["y"], atol=1e-9)
+
+
+def test_faint_signal_on_large_pedestal_keeps_float64(frame3):
+    # Noise of ~0.4 counts on a 1e9 pedestal: float32 would round the pixels
+    # to 64 counts (17 of 20 stars found, 0.055 px off the truth at the
+    # median); the frame is measured in float64 and finds its stars as
+    # without the pedestal (20 stars, 0.011 px).
+    img, x, y, _ = frame3
+    faint = np.asarray(img, np.float64) / 30.0
+    tab = find_sources(faint + 1e9, n_sources=20)
+    assert len(tab) >= 19
+    d, _ = _nearest(tab, x, y)
+    assert np.median(d) < 0.03
