@@ -357,8 +357,9 @@ class _Hypotheses:
     def __init__(self, src_ast, dst_ast, pairs, s):
         self.src_ast, self._dst_ast, self._all_pairs, self._s = src_ast, dst_ast, pairs, s
         self._used = 0  # triangle pairs turned into hypotheses so far
-        (self.mats, self.tri_rms, self.parity, self.pairs,
-         self.tri_size) = _filter_hypotheses(src_ast, dst_ast, pairs[:0], s)
+        # None yet: `_filter_hypotheses`' columns, empty.
+        self.mats, self.tri_rms, self.parity = np.empty((0, 3, 3)), np.empty(0), np.empty(0)
+        self.pairs, self.tri_size = pairs[:0], np.empty(0)
 
     @property
     def n_pairs(self):

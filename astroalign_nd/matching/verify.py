@@ -5,7 +5,7 @@ import functools
 import numpy as np
 from scipy.special import betainc
 from .._kernels import median as _median
-from ..transforms.linear import AffineTransform
+from ..transforms.linear import AffineTransform, LinearTransform2D
 from ..transforms import apply_matrix
 from ..transforms.fitting import parameter_covariance, checked_weights
 from ..transforms.registry import transform_class, transform_type_of
@@ -178,6 +178,7 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
     need = max(cls.min_points, 3)
     cur_tol = tol
     last = prev = None
+    own_design = cls._linear_fit.__func__ is LinearTransform2D._linear_fit.__func__
     for _ in range(n_iter):
         si, dj = mutual_matches(apply_matrix(m, src_pts), dst_tree, cur_tol)
         if len(si) < need:
@@ -196,7 +197,8 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
         # for the model's error.
         pv = 0.0
         if prev:
-            d_fit = cls._design(prev[0], prev[1], fit_parity)
+            # (The last fit's own design, when it is the type's `_design`.)
+            d_fit = prev[2] if own_design else cls._design(prev[0], prev[1], fit_parity)
             d_all = cls._design(src_pts[si], np.ones(len(si)), fit_parity)
             cov = np.linalg.pinv(d_fit.T @ (d_fit * np.repeat(prev[1], 2)[:, None]))
             rows = d_all.reshape(len(si), 2, -1)
@@ -206,8 +208,9 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
         if keep.sum() >= need:
             si, dj, total = si[keep], dj[keep], total[keep]
         # Matrix-level fit: building astropy models here would dominate.
-        m_new, _ = cls.fit_matrix(src_pts[si], dst_pts[dj], 1.0 / total, fit_parity)
-        prev = (src_pts[si], 1.0 / total)
+        s_in, w = src_pts[si], 1.0 / total
+        m_new, design = cls.fit_matrix(s_in, dst_pts[dj], w, fit_parity)
+        prev = (s_in, w, design)
         last = (si, dj, total, cur_tol)
         new_tol = float(min(max(5.0 * np.sqrt(_median(total)), min_tol), tol))  # (np.clip)
         converged = np.max(np.abs(m_new - m)) < 1e-10 and new_tol == cur_tol
@@ -236,6 +239,7 @@ class _Fitted:
     """
 
     __slots__ = ("cls", "values", "matrix")
+    _free = {}  # each class's free parameter names (class attributes: found once)
 
     def __init__(self, cls, matrix):
         self.cls = cls
@@ -249,7 +253,11 @@ class _Fitted:
     @property
     def free(self):
         """The names of the free (fitted) parameters, in the model's order."""
-        return [n for n in self.cls.param_names if not getattr(self.cls, n).fixed]
+        free = self._free.get(self.cls)
+        if free is None:
+            free = self._free[self.cls] = tuple(
+                n for n in self.cls.param_names if not getattr(self.cls, n).fixed)
+        return list(free)
 
     def model(self):
         """The astropy model of these values."""
@@ -272,8 +280,11 @@ def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
         # on faint frames they can be wrong, and a few stars claiming tiny
         # errors would pin the fit.
         w = checked_weights(src, dst, 1.0 / total, cls, parity=parity)
-        # fit_transform's fit, checks and covariance, on matrices.
-        matrix, design, resid = cls._fit_parts(src, dst, weights=w, parity=parity)
+        if not np.all(np.isfinite(w)):
+            return None
+        # fit_transform's fit, checks and covariance, on matrices (the pairs
+        # were checked by checked_weights' fit, and w is zero where its weights are).
+        matrix, design, resid = cls._fit_parts(src, dst, weights=w, parity=parity, checked=True)
         fit = _Fitted(cls, matrix)
     except ValueError:  # collinear or coincident stars: no transform to trust
         return None
@@ -496,22 +507,25 @@ def _densest_line(pts, half_width, n_lines=600):
     i, j = _line_pairs(n, n_lines)
     centre = pts.mean(axis=0)
     _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
-    starts = np.vstack([pts[i], centre[None]])
-    dirs = np.vstack([pts[j] - pts[i], vt[:1]])
-    length = np.hypot(*dirs.T)
+    # The lines' points and unit normals, coordinate by coordinate (fewer, smaller
+    # NumPy calls than (lines, 2) arrays; the same numbers).
+    x, y = pts[:, 0], pts[:, 1]
+    sx, sy = np.append(x[i], centre[0]), np.append(y[i], centre[1])
+    dx, dy = np.append(x[j] - x[i], vt[0, 0]), np.append(y[j] - y[i], vt[0, 1])
+    length = np.hypot(dx, dy)
     ok = length > 0
-    starts, dirs = starts[ok], dirs[ok] / length[ok, None]
-    normals = np.column_stack([-dirs[:, 1], dirs[:, 0]])
+    if not ok.all():
+        sx, sy, dx, dy, length = sx[ok], sy[ok], dx[ok], dy[ok], length[ok]
+    nx, ny = -(dy / length), dx / length
     # (points, lines) perpendicular distances, written out: einsum does not vectorise this
     # two-term sum and took most of a 300-star match's verification (the same values);
-    # in place, in blocks of lines of about 32,000 distances, which stay in the CPU's caches.
+    # in place, in blocks of lines of about 16,000 distances (blocks of 32,000 took 1.3-2
+    # times as long for 50-100 points, on busy cores; the counts do not depend on it).
     # Points along the first axis: the counts add whole rows (a fast reduction).
     px, py = pts[:, :1], pts[:, 1:]
-    sx, sy = np.ascontiguousarray(starts.T)
-    nx, ny = np.ascontiguousarray(normals.T)
-    counts = np.empty(len(starts), int)
-    block = max(128, 32768 // n)
-    for k in range(0, len(starts), block):
+    counts = np.empty(len(sx), int)
+    block = max(128, 16384 // n)
+    for k in range(0, len(sx), block):
         part = slice(k, k + block)
         dist = px - sx[part]
         dist *= nx[part]
@@ -520,8 +534,7 @@ def _densest_line(pts, half_width, n_lines=600):
         dist += other
         counts[part] = np.count_nonzero(np.abs(dist, out=dist) <= half_width, axis=0)
     best = int(np.argmax(counts))
-    mask = np.abs(normals[best, 0] * (pts[:, 0] - starts[best, 0])
-                  + normals[best, 1] * (pts[:, 1] - starts[best, 1])) <= half_width
+    mask = np.abs(nx[best] * (x - sx[best]) + ny[best] * (y - sy[best])) <= half_width
     # The line through its own stars (principal axis), then its stars again.
     on = pts[mask]
     c = on.mean(axis=0)
