@@ -388,13 +388,16 @@ class LinearTransform2D(Model):
         return cls._from_matrix(matrix), design, resid
 
     @classmethod
-    def _fit_parts(cls, src, dst, *, weights=None, parity=None, checked=False):
+    def _fit_parts(cls, src, dst, *, weights=None, parity=None, checked=False, fit=None):
         """
         `_fit`'s checks and fit, without the model: (matrix, design, residuals).
 
         ``checked``: ``src``, ``dst`` passed these checks already (another
         fit of the same pairs), and ``weights`` is a finite float array, zero
         where those checks' weights were: only the fitted matrix is checked.
+        ``fit``: ``(parity, matrix, design)`` of `fit_matrix` on these pairs
+        and weights, when the caller has it (that parity's fit is not made
+        again; the checks are).
         """
         if checked:
             w = weights
@@ -405,7 +408,10 @@ class LinearTransform2D(Model):
         parities = [parity] if parity is not None else cls._parities
         best = None
         for p in parities:
-            matrix, design, theta = cls._linear_fit(src, dst, w, p)
+            if fit is not None and fit[0] == p:
+                matrix, design = fit[1:]
+            else:
+                matrix, design, _ = cls._linear_fit(src, dst, w, p)
             resid = apply_matrix(matrix, src) - dst
             sse = float(np.sum(w * np.sum(resid**2, axis=1)))
             if best is None or sse < best[0] - 1e-12 * max(1.0, best[0]):
