@@ -371,16 +371,17 @@ class _Hypotheses:
 
     def grow(self, n):
         """Make hypotheses until ``n`` are held or every pair is used; return how many are."""
-        parts = [(self.mats, self.tri_rms, self.parity, self.pairs, self.tri_size)]
         have = len(self.mats)
+        parts = [(self.mats, self.tri_rms, self.parity, self.pairs, self.tri_size)] if have else []
         while have < n and self._used < len(self._all_pairs):
             chunk = self._all_pairs[self._used:self._used + max(n - have, 256)]
             self._used += len(chunk)
             parts.append(_filter_hypotheses(self.src_ast, self._dst_ast, chunk, self._s))
             have += len(parts[-1][0])
-        if len(parts) > 1:
+        if parts:  # (one part is held as it is: the first batch's, usually)
             (self.mats, self.tri_rms, self.parity, self.pairs,
-             self.tri_size) = (np.concatenate(col) for col in zip(*parts))
+             self.tri_size) = parts[0] if len(parts) == 1 else (
+                np.concatenate(col) for col in zip(*parts))
         return have
 
 
