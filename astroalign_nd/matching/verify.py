@@ -7,7 +7,7 @@ from scipy.special import betainc
 from .._kernels import median as _median
 from ..transforms.linear import AffineTransform, LinearTransform2D
 from ..transforms import apply_matrix
-from ..transforms.fitting import parameter_covariance, _floor_weights
+from ..transforms.fitting import parameter_covariance, checked_weights
 from ..transforms.registry import transform_class, transform_type_of
 from .geometry import _frame_area_fraction, bounding_frame, overlap_counts
 from .pairing import mutual_matches
@@ -173,7 +173,7 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
     Pairs whose chi-square, counting the current model's own prediction
     variance, is above 16 are rejected, and the matching radius shrinks to
     5 sigma.  Returns the last fit's ``(si, dj, total variance, radius,
-    (parity, matrix, design))`` (the fit, for `_final_fit`; None if the type's
+    (matrix, design))`` (the fit, for `_final_fit`; None if the type's
     `fit_matrix` is its own), or None when too few pairs matched.
     """
     need = max(cls.min_points, 3)
@@ -213,7 +213,7 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
         s_in, w = src_pts[si], 1.0 / total
         m_new, design = cls.fit_matrix(s_in, dst_pts[dj], w, fit_parity)
         prev = (s_in, w, design)
-        last = (si, dj, total, cur_tol, (fit_parity, m_new, design) if base_fit else None)
+        last = (si, dj, total, cur_tol, (m_new, design) if base_fit else None)
         new_tol = float(min(max(5.0 * np.sqrt(_median(total)), min_tol), tol))  # (np.clip)
         converged = np.max(np.abs(m_new - m)) < 1e-10 and new_tol == cur_tol
         m, cur_tol = m_new, new_tol
@@ -277,19 +277,17 @@ def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
     si, dj, total, used_tol = last[:4]
     parity = fit_parity if transform_type_of(cls).parity else None
     src, dst = src_pts[si], dst_pts[dj]
-    w = 1.0 / total
     try:
         # The detections' errors are checked against the residuals' scatter:
         # on faint frames they can be wrong, and a few stars claiming tiny
-        # errors would pin the fit (`~astroalign_nd.transforms.checked_weights`,
-        # with the last fit of these pairs and weights, when the caller has it).
-        _, design, resid = cls._fit_parts(src, dst, weights=w, parity=parity,
-                                          fit=last[4] if len(last) > 4 else None)
-        w = _floor_weights(w, design, resid)
+        # errors would pin the fit (with the refinement's last fit of these
+        # pairs and weights, when the caller has it: the same fit).
+        w = checked_weights(src, dst, 1.0 / total, cls, parity=parity,
+                            fit=last[4] if len(last) > 4 else None)
         if not np.all(np.isfinite(w)):
             return None
         # fit_transform's fit, checks and covariance, on matrices (the pairs
-        # were checked by the first fit, and w is zero where its weights are).
+        # were checked by checked_weights' fit, and w is zero where its weights are).
         matrix, design, resid = cls._fit_parts(src, dst, weights=w, parity=parity, checked=True)
         fit = _Fitted(cls, matrix)
     except ValueError:  # collinear or coincident stars: no transform to trust

@@ -112,7 +112,7 @@ _FLOOR_INTERVAL = 1.0
 def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
                     transform_type: str | type = "similarity", *, parity: int | None = None,
                     degree: int | None = None, crpix: ArrayLike | None = None,
-                    domain: ArrayLike | None = None) -> np.ndarray:
+                    domain: ArrayLike | None = None, fit: tuple | None = None) -> np.ndarray:
     """
     Weights checked against the scatter of the residuals they give.
 
@@ -144,6 +144,12 @@ def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
         stay out of the fit.
     transform_type, parity, degree, crpix, domain
         The model, as for `fit_transform`.
+    fit : tuple, optional
+        For the linear types: ``(matrix, design)`` of
+        `~astroalign_nd.transforms.LinearTransform2D.fit_matrix` on these
+        pairs and weights (at ``parity``, or 1 if it is None), when the caller
+        has made it (the matching's refinement): it is not made again (the
+        pairs are still checked).
 
     Returns
     -------
@@ -181,36 +187,39 @@ def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
     # fit_transform's own checks say what is wrong with bad input.
     if hasattr(cls, "_fit_parts") and degree is None and crpix is None and domain is None:
         # (The linear types: their design and residuals without building a model.)
-        _, design, resid = cls._fit_parts(src, dst, weights=weights, parity=parity)
+        made = None if fit is None else (1 if parity is None else parity, *fit)
+        _, design, resid = cls._fit_parts(src, dst, weights=weights, parity=parity, fit=made)
     else:
         _, design, resid = _fit_design(cls, src, dst, weights, parity, degree, crpix, domain)
-    return _floor_weights(w0, design, resid)
-
-
-def _floor_weights(w0, design, resid):
-    """
-    `checked_weights` of the claimed weights ``w0`` (a float array), from
-    the design (2N, k) and the residuals (N, 2) of the fit they weigh.
-
-    The variance of pair ``i`` is ``s ((1 - f) c_i + f)``: the error floor
-    ``f`` (a fraction of the median claimed variance) and the variance
-    scale ``s`` taken are the largest ``f`` within the 68% likelihood
-    interval of the best one, and its ``s``.  The model being linear in its
-    parameters (or nearly so), the residuals under other weights follow from
-    the fit's without a refit, and the restricted likelihood (REML: that of
-    the residuals, which the fitted parameters have already pulled towards
-    zero, most of all at the heavily weighted pairs) is maximised over a
-    grid of ``f``.
-    """
     used = w0 > 0
     n, k = int(used.sum()), design.shape[1]
     if design.shape[0] != 2 * len(w0) or n < 2 * k:
         return w0.copy()  # too few spare residuals to judge the weights by
     claimed = 1.0 / w0[used]
     claimed /= float(_median(claimed))  # (numpy.median's value, faster)
-    d = design.reshape(len(w0), 2, k)[used].reshape(2 * n, k)
+    f, scale = _floor_fraction(design.reshape(len(w0), 2, k)[used], resid[used], claimed)
+    out = np.zeros(len(w0))
+    out[used] = 1.0 / (scale * ((1.0 - f) * claimed + f))
+    return out
+
+
+def _floor_fraction(rows, resid, claimed):
+    """
+    The error floor ``f`` (a fraction of the median claimed variance) and the
+    variance scale ``s``: the largest ``f`` within the 68% likelihood
+    interval of the best one.
+
+    ``rows`` are the pairs' (2, k) rows of the design and ``resid`` their
+    residuals under one fit.  The model being linear in its parameters (or
+    nearly so), the residuals under other weights follow from these without
+    a refit, and the restricted likelihood (REML: that of the residuals,
+    which the fitted parameters have already pulled towards zero, most of
+    all at the heavily weighted pairs) is maximised over a grid of ``f``.
+    """
+    n, _, k = rows.shape
+    d = rows.reshape(2 * n, k)
     d = d / np.maximum(np.linalg.norm(d, axis=0), 1e-300)  # conditioning only
-    r0 = resid[used].reshape(2 * n)
+    r0 = resid.reshape(2 * n)
     dof = 2 * n - k
     # Every floor of the grid at once (the stacked products and solves are
     # those of one floor at a time, slice by slice: the same numbers).
@@ -228,17 +237,14 @@ def _floor_weights(w0, design, resid):
     # -2 log L_R up to a constant: dof log s + log|V| + log|D' V^-1 D|.
     nll[ok] = dof * np.log(s) + 2.0 * np.sum(np.log(v[ok]), axis=1) + logdet[ok]
     scales[ok] = s
-    f = scale = 1.0  # (equal weights, when even they give no likelihood)
-    if np.isfinite(nll[-1]):
-        # The most even weights within 1 sigma of the best (the upper end of
-        # the floor's likelihood interval): a floor estimated from few pairs is
-        # noisy, and erring towards the claims lets a few stars pin the fit,
-        # while erring towards equal weights costs little.
-        best = int(np.flatnonzero(nll <= np.min(nll) + _FLOOR_INTERVAL)[-1])
-        f, scale = float(_MIX_GRID[best]), float(scales[best])
-    out = np.zeros(len(w0))
-    out[used] = 1.0 / (scale * ((1.0 - f) * claimed + f))
-    return out
+    if not np.isfinite(nll[-1]):
+        return 1.0, 1.0
+    # The most even weights within 1 sigma of the best (the upper end of
+    # the floor's likelihood interval): a floor estimated from few pairs is
+    # noisy, and erring towards the claims lets a few stars pin the fit,
+    # while erring towards equal weights costs little.
+    best = int(np.flatnonzero(nll <= np.min(nll) + _FLOOR_INTERVAL)[-1])
+    return float(_MIX_GRID[best]), float(scales[best])
 
 
 def fit_from_matrix(transform_type, matrix, src, dst, parity=1):
