@@ -572,7 +572,8 @@ def _on_line(points, matched, tol):
 def _in_box(pts, box):
     centre, u, (a0, a1), (b0, b1) = box
     v = np.array([-u[1], u[0]])
-    a, b = (pts - centre) @ u, (pts - centre) @ v
+    d = pts - centre
+    a, b = d @ u, d @ v
     return (a >= a0) & (a <= a1) & (b >= b0) & (b <= b1)
 
 
@@ -607,13 +608,15 @@ def _local_log_tail(m, src_pts, dst_pts, matched, tol, line=None):
             continue
         if k >= 2:
             c = pts.mean(axis=0)
-            _, _, vt = np.linalg.svd(pts - c, full_matrices=False)
+            off = pts - c
+            _, _, vt = np.linalg.svd(off, full_matrices=False)
             u = vt[0]
         else:
             c, u = pts[0], np.array([1.0, 0.0])
+            off = pts - c
         # The oriented box (centre, u, along range, across range), tol wider.
         v = np.array([-u[1], u[0]])
-        a, b = (pts - c) @ u, (pts - c) @ v
+        a, b = off @ u, off @ v
         box = c, u, (a.min() - tol, a.max() + tol), (b.min() - tol, b.max() + tol)
         area = (box[2][1] - box[2][0]) * (box[3][1] - box[3][0])
         m_box = max(int(_in_box(dst_pts, box).sum()), 1)
