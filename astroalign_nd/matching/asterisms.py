@@ -152,9 +152,8 @@ def build_asterisms(points, *, n_neighbors=4, min_side=1.0):
     pts = check_points(points, "star")
     n_neighbors = check_values(MatchingConfig, {"n_neighbors": n_neighbors})["n_neighbors"]
     n = len(pts)
-    empty = Asterisms(pts, np.empty((0, 3), int), np.empty((0, 2)), np.empty(0), np.empty(0))
     if n < 3:
-        return empty
+        return Asterisms(pts, np.empty((0, 3), int), np.empty((0, 2)), np.empty(0), np.empty(0))
     k = min(n_neighbors + 1, n)
     check_triangle_budget(n, n_neighbors)
     _, nbr = cKDTree(pts).query(pts, k)
@@ -182,9 +181,10 @@ def build_asterisms(points, *, n_neighbors=4, min_side=1.0):
     tri = np.take_along_axis(tri, order, axis=1)
     side = np.take_along_axis(side, order, axis=1)
     keep = side[:, 0] >= min_side
-    tri, side = tri[keep], side[keep]
+    if not keep.all():
+        tri, side = tri[keep], side[keep]
     if len(tri) == 0:
-        return empty
+        return Asterisms(pts, np.empty((0, 3), int), np.empty((0, 2)), np.empty(0), np.empty(0))
     inv = np.column_stack([np.log(side[:, 2] / side[:, 1]), np.log(side[:, 1] / side[:, 0])])
     p = pts[tri]
     cross = ((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])

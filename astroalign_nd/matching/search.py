@@ -357,8 +357,9 @@ class _Hypotheses:
     def __init__(self, src_ast, dst_ast, pairs, s):
         self.src_ast, self._dst_ast, self._all_pairs, self._s = src_ast, dst_ast, pairs, s
         self._used = 0  # triangle pairs turned into hypotheses so far
-        (self.mats, self.tri_rms, self.parity, self.pairs,
-         self.tri_size) = _filter_hypotheses(src_ast, dst_ast, pairs[:0], s)
+        # None yet: `_filter_hypotheses`' columns, empty.
+        self.mats, self.tri_rms, self.parity = np.empty((0, 3, 3)), np.empty(0), np.empty(0)
+        self.pairs, self.tri_size = pairs[:0], np.empty(0)
 
     @property
     def n_pairs(self):
@@ -370,16 +371,17 @@ class _Hypotheses:
 
     def grow(self, n):
         """Make hypotheses until ``n`` are held or every pair is used; return how many are."""
-        parts = [(self.mats, self.tri_rms, self.parity, self.pairs, self.tri_size)]
         have = len(self.mats)
+        parts = [(self.mats, self.tri_rms, self.parity, self.pairs, self.tri_size)] if have else []
         while have < n and self._used < len(self._all_pairs):
             chunk = self._all_pairs[self._used:self._used + max(n - have, 256)]
             self._used += len(chunk)
             parts.append(_filter_hypotheses(self.src_ast, self._dst_ast, chunk, self._s))
             have += len(parts[-1][0])
-        if len(parts) > 1:
+        if parts:  # (one part is held as it is: the first batch's, usually)
             (self.mats, self.tri_rms, self.parity, self.pairs,
-             self.tri_size) = (np.concatenate(col) for col in zip(*parts))
+             self.tri_size) = parts[0] if len(parts) == 1 else (
+                np.concatenate(col) for col in zip(*parts))
         return have
 
 

@@ -5,7 +5,7 @@ import functools
 import numpy as np
 from scipy.special import betainc
 from .._kernels import median as _median
-from ..transforms.linear import AffineTransform
+from ..transforms.linear import AffineTransform, LinearTransform2D
 from ..transforms import apply_matrix
 from ..transforms.fitting import parameter_covariance, checked_weights
 from ..transforms.registry import transform_class, transform_type_of
@@ -147,7 +147,7 @@ def _refine(m0, parity, src_pts, dst_pts, dst_tree, transform_type, tol, min_tol
                         src_err, dst_err, n_iter)
     if last is None:
         return None
-    si, dj, total, _ = last
+    si, dj, total = last[:3]
     if 4.0 * np.sqrt(_median(total)) > tol and len(si) >= 4:
         aff, _ = AffineTransform.fit_matrix(src_pts[si], dst_pts[dj], 1.0 / total, 1)
         r = apply_matrix(aff, src_pts[si]) - dst_pts[dj]
@@ -172,12 +172,15 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
 
     Pairs whose chi-square, counting the current model's own prediction
     variance, is above 16 are rejected, and the matching radius shrinks to
-    5 sigma.  Returns the last fit's ``(si, dj, total variance, radius)``,
-    or None when too few pairs matched.
+    5 sigma.  Returns the last fit's ``(si, dj, total variance, radius,
+    (matrix, design))`` (the fit, for `_final_fit`; None if the type's
+    `fit_matrix` is its own), or None when too few pairs matched.
     """
     need = max(cls.min_points, 3)
     cur_tol = tol
     last = prev = None
+    own_design = cls._linear_fit.__func__ is LinearTransform2D._linear_fit.__func__
+    base_fit = cls.fit_matrix.__func__ is LinearTransform2D.fit_matrix.__func__
     for _ in range(n_iter):
         si, dj = mutual_matches(apply_matrix(m, src_pts), dst_tree, cur_tol)
         if len(si) < need:
@@ -196,7 +199,8 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
         # for the model's error.
         pv = 0.0
         if prev:
-            d_fit = cls._design(prev[0], prev[1], fit_parity)
+            # (The last fit's own design, when it is the type's `_design`.)
+            d_fit = prev[2] if own_design else cls._design(prev[0], prev[1], fit_parity)
             d_all = cls._design(src_pts[si], np.ones(len(si)), fit_parity)
             cov = np.linalg.pinv(d_fit.T @ (d_fit * np.repeat(prev[1], 2)[:, None]))
             rows = d_all.reshape(len(si), 2, -1)
@@ -206,9 +210,10 @@ def _iterate_fit(m, cls, fit_parity, src_pts, dst_pts, dst_tree, tol, min_tol, s
         if keep.sum() >= need:
             si, dj, total = si[keep], dj[keep], total[keep]
         # Matrix-level fit: building astropy models here would dominate.
-        m_new, _ = cls.fit_matrix(src_pts[si], dst_pts[dj], 1.0 / total, fit_parity)
-        prev = (src_pts[si], 1.0 / total)
-        last = (si, dj, total, cur_tol)
+        s_in, w = src_pts[si], 1.0 / total
+        m_new, design = cls.fit_matrix(s_in, dst_pts[dj], w, fit_parity)
+        prev = (s_in, w, design)
+        last = (si, dj, total, cur_tol, (m_new, design) if base_fit else None)
         new_tol = float(min(max(5.0 * np.sqrt(_median(total)), min_tol), tol))  # (np.clip)
         converged = np.max(np.abs(m_new - m)) < 1e-10 and new_tol == cur_tol
         m, cur_tol = m_new, new_tol
@@ -236,6 +241,7 @@ class _Fitted:
     """
 
     __slots__ = ("cls", "values", "matrix")
+    _free = {}  # each class's free parameter names (class attributes: found once)
 
     def __init__(self, cls, matrix):
         self.cls = cls
@@ -249,7 +255,11 @@ class _Fitted:
     @property
     def free(self):
         """The names of the free (fitted) parameters, in the model's order."""
-        return [n for n in self.cls.param_names if not getattr(self.cls, n).fixed]
+        free = self._free.get(self.cls)
+        if free is None:
+            free = self._free[self.cls] = tuple(
+                n for n in self.cls.param_names if not getattr(self.cls, n).fixed)
+        return list(free)
 
     def model(self):
         """The astropy model of these values."""
@@ -264,16 +274,21 @@ def _model_type(model):
 def _final_fit(last, cls, fit_parity, src_pts, dst_pts):
     """The model (a `_Fitted`), with its covariance and residuals, on the last
     fit's pairs; or None."""
-    si, dj, total, used_tol = last
+    si, dj, total, used_tol = last[:4]
     parity = fit_parity if transform_type_of(cls).parity else None
     src, dst = src_pts[si], dst_pts[dj]
     try:
         # The detections' errors are checked against the residuals' scatter:
         # on faint frames they can be wrong, and a few stars claiming tiny
-        # errors would pin the fit.
-        w = checked_weights(src, dst, 1.0 / total, cls, parity=parity)
-        # fit_transform's fit, checks and covariance, on matrices.
-        matrix, design, resid = cls._fit_parts(src, dst, weights=w, parity=parity)
+        # errors would pin the fit (with the refinement's last fit of these
+        # pairs and weights, when the caller has it: the same fit).
+        w = checked_weights(src, dst, 1.0 / total, cls, parity=parity,
+                            fit=last[4] if len(last) > 4 else None)
+        if not np.all(np.isfinite(w)):
+            return None
+        # fit_transform's fit, checks and covariance, on matrices (the pairs
+        # were checked by checked_weights' fit, and w is zero where its weights are).
+        matrix, design, resid = cls._fit_parts(src, dst, weights=w, parity=parity, checked=True)
         fit = _Fitted(cls, matrix)
     except ValueError:  # collinear or coincident stars: no transform to trust
         return None
@@ -441,16 +456,20 @@ def _predicted_error(model, cov, frame):
     corners = apply_matrix(inv, np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]]))
 
     # Finite differences through the model's static ``evaluate`` with perturbed
-    # parameter values (copying an astropy model costs ~2 ms each).
-    def at(vals):
-        return np.array(cls.evaluate(corners[:, 0], corners[:, 1],
-                                     *[vals[n] for n in cls.param_names]), dtype=float)
-
-    base = at(values)
-    jac = np.zeros((2 * len(corners), len(free)))
-    for k, name in enumerate(free):
-        step = 1e-6 * max(1.0, abs(values[name]))
-        jac[:, k] = ((at({**values, name: values[name] + step}) - base) / step).T.ravel()
+    # parameter values (copying an astropy model costs ~2 ms each): every set at once,
+    # as astropy evaluates a model set (a column of values per parameter; row 0 the
+    # values, row 1 + k those with free parameter k stepped: the same numbers).
+    steps = np.array([1e-6 * max(1.0, abs(values[name])) for name in free])
+    sets = []
+    for name in cls.param_names:
+        col = np.full((len(free) + 1, 1), float(values[name]))
+        if name in free:
+            k = free.index(name)
+            col[1 + k] = values[name] + steps[k]
+        sets.append(col)
+    out = np.array(cls.evaluate(corners[:, 0], corners[:, 1], *sets), dtype=float)
+    # (x', y') of each corner, in rows: (2 * corners, free parameters).
+    jac = ((out[:, 1:] - out[:, :1]) / steps[:, None]).transpose(2, 0, 1).reshape(-1, len(free))
     var = np.einsum("ik,kl,il->i", jac, cov, jac).reshape(len(corners), 2)
     return float(np.sqrt(np.max(var.sum(axis=1))))
 
@@ -496,22 +515,25 @@ def _densest_line(pts, half_width, n_lines=600):
     i, j = _line_pairs(n, n_lines)
     centre = pts.mean(axis=0)
     _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
-    starts = np.vstack([pts[i], centre[None]])
-    dirs = np.vstack([pts[j] - pts[i], vt[:1]])
-    length = np.hypot(*dirs.T)
+    # The lines' points and unit normals, coordinate by coordinate (fewer, smaller
+    # NumPy calls than (lines, 2) arrays; the same numbers).
+    x, y = pts[:, 0], pts[:, 1]
+    sx, sy = np.append(x[i], centre[0]), np.append(y[i], centre[1])
+    dx, dy = np.append(x[j] - x[i], vt[0, 0]), np.append(y[j] - y[i], vt[0, 1])
+    length = np.hypot(dx, dy)
     ok = length > 0
-    starts, dirs = starts[ok], dirs[ok] / length[ok, None]
-    normals = np.column_stack([-dirs[:, 1], dirs[:, 0]])
+    if not ok.all():
+        sx, sy, dx, dy, length = sx[ok], sy[ok], dx[ok], dy[ok], length[ok]
+    nx, ny = -(dy / length), dx / length
     # (points, lines) perpendicular distances, written out: einsum does not vectorise this
     # two-term sum and took most of a 300-star match's verification (the same values);
-    # in place, in blocks of lines of about 32,000 distances, which stay in the CPU's caches.
+    # in place, in blocks of lines of about 16,000 distances (blocks of 32,000 took 1.3-2
+    # times as long for 50-100 points, on busy cores; the counts do not depend on it).
     # Points along the first axis: the counts add whole rows (a fast reduction).
     px, py = pts[:, :1], pts[:, 1:]
-    sx, sy = np.ascontiguousarray(starts.T)
-    nx, ny = np.ascontiguousarray(normals.T)
-    counts = np.empty(len(starts), int)
-    block = max(128, 32768 // n)
-    for k in range(0, len(starts), block):
+    counts = np.empty(len(sx), int)
+    block = max(128, 16384 // n)
+    for k in range(0, len(sx), block):
         part = slice(k, k + block)
         dist = px - sx[part]
         dist *= nx[part]
@@ -520,8 +542,7 @@ def _densest_line(pts, half_width, n_lines=600):
         dist += other
         counts[part] = np.count_nonzero(np.abs(dist, out=dist) <= half_width, axis=0)
     best = int(np.argmax(counts))
-    mask = np.abs(normals[best, 0] * (pts[:, 0] - starts[best, 0])
-                  + normals[best, 1] * (pts[:, 1] - starts[best, 1])) <= half_width
+    mask = np.abs(nx[best] * (x - sx[best]) + ny[best] * (y - sy[best])) <= half_width
     # The line through its own stars (principal axis), then its stars again.
     on = pts[mask]
     c = on.mean(axis=0)
@@ -551,7 +572,8 @@ def _on_line(points, matched, tol):
 def _in_box(pts, box):
     centre, u, (a0, a1), (b0, b1) = box
     v = np.array([-u[1], u[0]])
-    a, b = (pts - centre) @ u, (pts - centre) @ v
+    d = pts - centre
+    a, b = d @ u, d @ v
     return (a >= a0) & (a <= a1) & (b >= b0) & (b <= b1)
 
 
@@ -586,13 +608,15 @@ def _local_log_tail(m, src_pts, dst_pts, matched, tol, line=None):
             continue
         if k >= 2:
             c = pts.mean(axis=0)
-            _, _, vt = np.linalg.svd(pts - c, full_matrices=False)
+            off = pts - c
+            _, _, vt = np.linalg.svd(off, full_matrices=False)
             u = vt[0]
         else:
             c, u = pts[0], np.array([1.0, 0.0])
+            off = pts - c
         # The oriented box (centre, u, along range, across range), tol wider.
         v = np.array([-u[1], u[0]])
-        a, b = (pts - c) @ u, (pts - c) @ v
+        a, b = off @ u, off @ v
         box = c, u, (a.min() - tol, a.max() + tol), (b.min() - tol, b.max() + tol)
         area = (box[2][1] - box[2][0]) * (box[3][1] - box[3][0])
         m_box = max(int(_in_box(dst_pts, box).sum()), 1)

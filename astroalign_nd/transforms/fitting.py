@@ -112,7 +112,7 @@ _FLOOR_INTERVAL = 1.0
 def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
                     transform_type: str | type = "similarity", *, parity: int | None = None,
                     degree: int | None = None, crpix: ArrayLike | None = None,
-                    domain: ArrayLike | None = None) -> np.ndarray:
+                    domain: ArrayLike | None = None, fit: tuple | None = None) -> np.ndarray:
     """
     Weights checked against the scatter of the residuals they give.
 
@@ -144,6 +144,12 @@ def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
         stay out of the fit.
     transform_type, parity, degree, crpix, domain
         The model, as for `fit_transform`.
+    fit : tuple, optional
+        For the linear types: ``(matrix, design)`` of
+        `~astroalign_nd.transforms.LinearTransform2D.fit_matrix` on these
+        pairs and weights (at ``parity``, or 1 if it is None), when the caller
+        has made it (the matching's refinement): it is not made again (the
+        pairs are still checked).
 
     Returns
     -------
@@ -181,7 +187,8 @@ def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
     # fit_transform's own checks say what is wrong with bad input.
     if hasattr(cls, "_fit_parts") and degree is None and crpix is None and domain is None:
         # (The linear types: their design and residuals without building a model.)
-        _, design, resid = cls._fit_parts(src, dst, weights=weights, parity=parity)
+        made = None if fit is None else (1 if parity is None else parity, *fit)
+        _, design, resid = cls._fit_parts(src, dst, weights=weights, parity=parity, fit=made)
     else:
         _, design, resid = _fit_design(cls, src, dst, weights, parity, degree, crpix, domain)
     used = w0 > 0

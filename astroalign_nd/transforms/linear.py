@@ -388,21 +388,37 @@ class LinearTransform2D(Model):
         return cls._from_matrix(matrix), design, resid
 
     @classmethod
-    def _fit_parts(cls, src, dst, *, weights=None, parity=None):
-        """`_fit`'s checks and fit, without the model: (matrix, design, residuals)."""
-        src, dst, w = _check_pairs(cls.__name__, src, dst, weights, cls.min_points)
+    def _fit_parts(cls, src, dst, *, weights=None, parity=None, checked=False, fit=None):
+        """
+        `_fit`'s checks and fit, without the model: (matrix, design, residuals).
+
+        ``checked``: ``src``, ``dst`` passed these checks already (another
+        fit of the same pairs), and ``weights`` is a finite float array, zero
+        where those checks' weights were: only the fitted matrix is checked.
+        ``fit``: ``(parity, matrix, design)`` of `fit_matrix` on these pairs
+        and weights, when the caller has it (that parity's fit is not made
+        again; the checks are).
+        """
+        if checked:
+            w = weights
+        else:
+            src, dst, w = _check_pairs(cls.__name__, src, dst, weights, cls.min_points)
         if parity is not None:
             _check_parity(parity)
         parities = [parity] if parity is not None else cls._parities
         best = None
         for p in parities:
-            matrix, design, theta = cls._linear_fit(src, dst, w, p)
+            if fit is not None and fit[0] == p:
+                matrix, design = fit[1:]
+            else:
+                matrix, design, _ = cls._linear_fit(src, dst, w, p)
             resid = apply_matrix(matrix, src) - dst
             sse = float(np.sum(w * np.sum(resid**2, axis=1)))
             if best is None or sse < best[0] - 1e-12 * max(1.0, best[0]):
                 best = (sse, matrix, design, resid)
         sse, matrix, design, resid = best
-        _check_spread(cls, src[w > 0], "src")
+        if not checked:
+            _check_spread(cls, src[w > 0], "src")
         check_invertible(matrix, cls.__name__, fitted=True)
         return matrix, design, resid
 

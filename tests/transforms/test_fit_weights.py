@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from astroalign_nd.matching.verify import _final_fit
-from astroalign_nd.transforms import SimilarityTransform, apply_matrix, checked_weights, \
-    fit_transform
+from astroalign_nd.transforms import AffineTransform, SimilarityTransform, apply_matrix, \
+    checked_weights, fit_transform
 
 TRUTH = SimilarityTransform(scale=1.02, rotation=33.0, translation_x=40.0, translation_y=-25.0)
 CORNERS = np.array([[0.0, 0.0], [1024.0, 0.0], [0.0, 1024.0], [1024.0, 1024.0]])
@@ -163,3 +163,24 @@ def test_leave_one_out_without_numpys_kernel(monkeypatch):
     monkeypatch.setattr(linear, "_LSTSQ", None)
     alone = linear.SimilarityTransform._leave_one_out(src, dst, w, 1)
     assert np.array_equal(stacked, alone)
+
+
+@pytest.mark.parametrize("transform_type, parity", [("similarity", 1), ("similarity", -1),
+                                                    ("affine", None)])
+def test_given_fit_gives_the_same_weights(transform_type, parity):
+    # The matching passes its last fit of the pairs: the weights are those of
+    # checked_weights' own fit, and a fit the pairs do not support is still refused.
+    src, dst, var = sparse_pairs(3, 0.15)
+    if parity == -1:
+        dst = dst * [1.0, -1.0]
+    cls = SimilarityTransform if transform_type == "similarity" else AffineTransform
+    fit = cls.fit_matrix(src, dst, 1.0 / var, parity or 1)
+    own = checked_weights(src, dst, 1.0 / var, transform_type, parity=parity)
+    given = checked_weights(src, dst, 1.0 / var, transform_type, parity=parity, fit=fit)
+    assert np.array_equal(own, given)
+    assert own[-1] / own[0] < 20.0  # the bright stars' claims were not borne out
+    line = np.column_stack([np.arange(24.0), np.zeros(24)])
+    line_fit = cls.fit_matrix(line, line, np.ones(24), parity or 1)
+    with pytest.raises(ValueError, match="coincide|collinear"):
+        checked_weights(line[:1].repeat(24, axis=0), line, np.ones(24), transform_type,
+                        parity=parity, fit=line_fit)
