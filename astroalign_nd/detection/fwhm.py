@@ -3,6 +3,7 @@
 
 import numpy as np
 from .._kernels import adaptive_fwhm as _adaptive_fwhm
+from .._kernels import median as _median
 from .candidates import _as_image, _auto_bin, _binned_candidates, _extract_cutouts, _recenter
 from .background import _bin_mean, _local_background, estimate_noise
 
@@ -72,7 +73,7 @@ def _log_mode(values, width=0.1):
     best = np.flatnonzero(count == count.max())
     centre = lv[best[np.argmin(lv[best])]]
     close = np.abs(lv - centre) <= 1.5 * width
-    return float(10 ** np.median(lv[close])), float(close.mean())
+    return float(10 ** _median(lv[close])), float(close.mean())
 
 
 def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14, gap=True):
