@@ -112,9 +112,15 @@ def _background_map(binned, box):
         rows = wy0[:, None] * b64[ky] + wy1[:, None] * b64[ky + 1]
     if bx == 1:
         return np.broadcast_to(rows[:, :1], (ny, nx)).astype(np.float32), bkg
-    full = wx0 * rows[:, kx]
-    full += wx1 * rows[:, kx + 1]
-    return full.astype(np.float32), bkg
+    # Column by column of blocks (the columns between two block centres):
+    # the sum in float64 cast once to float32, without full-frame float64
+    # temporaries.
+    full = np.empty((ny, nx), np.float32)
+    edges = np.searchsorted(kx, np.arange(1, bx - 1))
+    for j, cols in enumerate(np.split(np.arange(nx), edges)):
+        c = slice(cols[0], cols[-1] + 1)
+        np.add(rows[:, j, None] * wx0[c], rows[:, j + 1, None] * wx1[c], out=full[:, c])
+    return full, bkg
 
 
 def _local_background(cut, bad, r_in, offset=None):
