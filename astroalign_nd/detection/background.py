@@ -40,19 +40,27 @@ def estimate_noise(data, mask=None, *, max_samples=50_000):
     """
     ny, nx = data.shape
     step = max(1, (ny * nx) // max_samples)
-    rows = data[::step]
-    sigma = _diff_sigma(rows, None if mask is None else mask[::step], 1)
+    rows, mrows = data[::step], None if mask is None else mask[::step]
+    sigma, mad = _diff_sigma(rows, mrows, 1)
     if np.isfinite(sigma) and nx > 8:
         # Resampled, drizzled, JPEG-compressed or interpolated frames have
         # correlated noise: neighbouring pixels differ less than the pixels
         # scatter, and the lag-1 figure is too low (too many detections).
         # Differences 3 pixels apart see the full scatter.
-        sigma = max(sigma, _diff_sigma(rows, None if mask is None else mask[::step], 3))
+        sigma = max(sigma, _diff_sigma(rows, mrows, 3, mad)[0])
     return float(sigma)
 
 
-def _diff_sigma(rows, mrows, lag):
-    """Robust sigma of one pixel from differences ``lag`` pixels apart."""
+def _diff_sigma(rows, mrows, lag, bound=None):
+    """
+    Robust sigma of one pixel from differences ``lag`` pixels apart, and the
+    median absolute deviation it comes from (None when it does not: too few
+    differences, or the standard deviation's sigma).
+
+    With ``bound``, a positive median absolute deviation: (0.0, None) when
+    this one is proven positive and at most ``bound`` (its sigma at most
+    ``bound``'s: a count of the deviations instead of their median).
+    """
     with np.errstate(invalid="ignore"):  # inf - inf: filtered just below
         diff = (rows[:, lag:] - rows[:, :-lag]).ravel()
     good = np.isfinite(diff)
@@ -61,14 +69,27 @@ def _diff_sigma(rows, mrows, lag):
     if not good.all():  # (most frames: no copy)
         diff = diff[good]
     if diff.size < 10:
-        return float("nan")
-    med = _median(diff)
+        return float("nan"), None
+
+    def sorted_median(a):  # the same middle values, and their mean as `_median` takes it
+        srt, k = np.sort(a), a.size // 2
+        return srt[k] if a.size % 2 else (srt[k - 1] + srt[k]) / 2
+
+    # Many equal differences (flat or quantised skies): NumPy's partition
+    # slows down on ties (several times), its sort does not.
+    median = sorted_median if np.count_nonzero(diff == 0) > 0.15 * diff.size else _median
+    med = median(diff)
     dev = diff - med
-    sigma = 1.4826 * _median(np.abs(dev, out=dev)) / np.sqrt(2.0)
+    dev = np.abs(dev, out=dev)
+    k = dev.size // 2
+    if bound is not None and np.count_nonzero(dev <= bound) > k and np.count_nonzero(dev == 0) < k:
+        return 0.0, None  # (more than half the deviations at most bound, fewer than half 0)
+    mad = median(dev)
+    sigma = 1.4826 * mad / np.sqrt(2.0)
     if sigma <= 0:
         # Quantised or noiseless images: fall back to the standard deviation.
-        sigma = np.std(diff) / np.sqrt(2.0)
-    return float(sigma)
+        return float(np.std(diff) / np.sqrt(2.0)), None
+    return float(sigma), mad
 
 
 def _interp_weights(n_out, n_blocks, block):
@@ -125,22 +146,48 @@ def _background_map(binned, box):
 
 def _local_background(cut, bad, r_in, offset=None):
     """
-    Median of each cutout's pixels at least ``r_in`` from its centre (less
-    ``offset``, one value per cutout, when given: ``cut - offset`` is not
-    formed for the pixels the median does not read).
+    Median of each cutout's good pixels at least ``r_in`` from its centre
+    (0 for none; less ``offset``, one value per cutout, when given:
+    ``cut - offset`` is not formed for the pixels the median does not
+    read), `_median`'s (and `_median_of_good`'s), bit for bit.
     """
     n, size, _ = cut.shape
     g = np.arange(size) - size // 2
     outer = (g[:, None] ** 2 + g[None, :] ** 2) >= r_in**2
     sel = outer.ravel()
     vals = cut.reshape(n, -1)[:, sel]
-    if offset is not None:
-        vals = vals - offset[:, None]
     badv = bad.reshape(n, -1)[:, sel]
-    bkg = _median(vals, axis=1)  # right for every cutout without bad pixels
-    edge = np.flatnonzero(badv.any(axis=1))  # the few at edges or masks
-    if edge.size:
-        bkg[edge] = _median_of_good(vals[edge], badv[edge])
+    m = vals.shape[1]
+    n_good = m - np.count_nonzero(badv, axis=1)
+    edge = np.flatnonzero(n_good < m)  # the few at edges or masks
+    v32 = vals.astype(np.float32)
+    if (np.array_equal(v32, vals) and np.isfinite(v32).all()
+            and (offset is None or np.isfinite(offset).all())):
+        # Pixels of a float32 image (most frames): the middle values of
+        # each row from one float32 sort (faster than a float64 partition
+        # and its lower half's maximum), bad pixels last; less the offset,
+        # the middle values of ``vals - offset`` (a shift keeps the order).
+        if edge.size:
+            v32[edge] = np.where(badv[edge], np.inf, v32[edge])
+        v32.sort(axis=1)
+        k, rows = n_good // 2, np.arange(n)
+        hi = v32[rows, k.clip(max=m - 1)].astype(float)
+        lo = v32[rows, (k - 1).clip(min=0)].astype(float)
+        if offset is not None:
+            hi, lo = hi - offset, lo - offset
+        # (lo + hi) / 2 in float64, as `_median` (np.mean of the two).
+        bkg = np.where(n_good % 2 == 1, hi, (lo + hi) / 2)
+        bkg[n_good == 0] = 0.0
+        # Which zero (+0 or -0) a partition leaves in the middle is its own.
+        again = np.flatnonzero(((lo == 0) | (hi == 0)) & (n_good > 0))
+    else:
+        bkg, again = np.empty(n), np.arange(n)
+    if again.size:
+        whole, part = again[n_good[again] == m], again[n_good[again] < m]
+        for rows, med in ((whole, lambda v, b: _median(v, axis=1)), (part, _median_of_good)):
+            if rows.size:
+                bkg[rows] = med(vals[rows] if offset is None else vals[rows] - offset[rows, None],
+                                badv[rows])
     return bkg
 
 
