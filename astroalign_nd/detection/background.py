@@ -249,25 +249,27 @@ def _correlated_noise_factor(data, mask, noise, k=2, max_side=256):
     ny, nx = data.shape
     y0, x0 = max(0, (ny - max_side) // 2), max(0, (nx - max_side) // 2)
     crop = np.asarray(data[y0:y0 + max_side, x0:x0 + max_side], dtype=np.float32)
-    bad = ~np.isfinite(crop)
-    if mask is not None:
-        bad |= mask[y0:y0 + max_side, x0:x0 + max_side]
-    if bad.any():
-        crop = np.where(bad, np.nan, crop)
+    if mask is not None:  # (a NaN or infinite pixel's block differences are dropped below)
+        bad = ~np.isfinite(crop) | mask[y0:y0 + max_side, x0:x0 + max_side]
+        if bad.any():
+            crop = np.where(bad, np.nan, crop)
     cy, cx = (crop.shape[0] // k) * k, (crop.shape[1] // k) * k
     if cy < 8 * k or cx < 8 * k or not (np.isfinite(noise) and noise > 0):
         return 1.0
     crop = crop[:cy, :cx]
-    if k == 2 and crop.strides[1] == crop.itemsize and crop.strides[0] >= cx * crop.itemsize:
-        # The sums NumPy's reduction over axes (1, 3) gives for rows laid out
-        # so (each row's pair, then the two rows: the same values), without
-        # its slow casting reduction (7x).
-        c64 = crop.astype(np.float64)
-        blocks = (c64[0::2, 0::2] + c64[0::2, 1::2]) + (c64[1::2, 0::2] + c64[1::2, 1::2])
-    else:
-        blocks = crop.reshape(cy // k, k, cx // k, k).sum(axis=(1, 3), dtype=np.float64)
-    diff = np.diff(blocks, axis=1).ravel()
-    diff = diff[np.isfinite(diff)]
+    with np.errstate(invalid="ignore"):  # (inf - inf: dropped below)
+        if k == 2 and crop.strides[1] == crop.itemsize and crop.strides[0] >= cx * crop.itemsize:
+            # The sums NumPy's reduction over axes (1, 3) gives for rows laid out
+            # so (each row's pair, then the two rows: the same values), without
+            # its slow casting reduction (7x).
+            c64 = crop.astype(np.float64)
+            blocks = (c64[0::2, 0::2] + c64[0::2, 1::2]) + (c64[1::2, 0::2] + c64[1::2, 1::2])
+        else:
+            blocks = crop.reshape(cy // k, k, cx // k, k).sum(axis=(1, 3), dtype=np.float64)
+        diff = np.diff(blocks, axis=1).ravel()
+    finite = np.isfinite(diff)
+    if not finite.all():
+        diff = diff[finite]
     if diff.size < 50:
         return 1.0
     sigma = 1.4826 * _median(np.abs(diff - _median(diff))) / np.sqrt(2.0)
