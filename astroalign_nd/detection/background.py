@@ -161,7 +161,7 @@ def _local_background(cut, bad, r_in, offset=None):
     n_good = m - np.count_nonzero(badv, axis=1)
     edge = np.flatnonzero(n_good < m)  # the few at edges or masks
     v32 = vals.astype(np.float32)
-    if (np.array_equal(v32, vals) and np.isfinite(v32).all()
+    if (vals.dtype == np.float64 and np.array_equal(v32, vals) and np.isfinite(v32).all()
             and (offset is None or np.isfinite(offset).all())):
         # Pixels of a float32 image (most frames): the middle values of
         # each row from one float32 sort (faster than a float64 partition
@@ -181,7 +181,8 @@ def _local_background(cut, bad, r_in, offset=None):
         # Which zero (+0 or -0) a partition leaves in the middle is its own.
         again = np.flatnonzero(((lo == 0) | (hi == 0)) & (n_good > 0))
     else:
-        bkg, again = np.empty(n), np.arange(n)
+        again = np.arange(n)
+        bkg = np.empty(n, vals.dtype if offset is None else np.result_type(vals, offset))
     if again.size:
         whole, part = again[n_good[again] == m], again[n_good[again] < m]
         for rows, med in ((whole, lambda v, b: _median(v, axis=1)), (part, _median_of_good)):

@@ -77,7 +77,7 @@ def _bright_lines(resid, noise):
         lines = resid if axis == 1 else resid.T
         n = lines.shape[1]
         todo = near.view(np.uint8).sum(axis=axis, dtype=np.intp) <= n - n // 2
-        lo, hi = np.full(len(lines), -a), np.full(len(lines), a)
+        lo, hi = np.full(len(lines), -a, resid.dtype), np.full(len(lines), a, resid.dtype)
         known = np.zeros(len(lines), bool)
         while todo.any():  # (none: every excess is at most 2a)
             lo[todo] = hi[todo] = _median(lines[todo], axis=1)
