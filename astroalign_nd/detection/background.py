@@ -1,6 +1,8 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """The sky: noise and background estimates that the detector compares sources with."""
 
+import functools
+
 import numpy as np
 from .._kernels import median as _median
 
@@ -92,20 +94,26 @@ def _diff_sigma(rows, mrows, lag, bound=None):
     return float(sigma), mad
 
 
+@functools.lru_cache(maxsize=32)
 def _interp_weights(n_out, n_blocks, block):
     """
     Bilinear weights from block centres to pixels: for each output pixel,
-    the lower block ``k`` and the weights of blocks ``k`` and ``k + 1``.
+    the lower block ``k`` and the weights of blocks ``k`` and ``k + 1``
+    (read-only: kept for the next frame of this size).
     """
     if n_blocks == 1:
-        return np.zeros(n_out, int), np.ones(n_out), np.zeros(n_out)
-    centres = (np.arange(n_blocks) + 0.5) * block - 0.5
-    # Beyond the outer block centres the sky is extrapolated linearly, so
-    # that a steep gradient leaves no ramp along the frame's edges.
-    pos = np.arange(n_out, dtype=float)
-    k = np.clip(np.searchsorted(centres, pos, side="right") - 1, 0, n_blocks - 2)
-    f = (pos - centres[k]) / (centres[k + 1] - centres[k])
-    return k, 1.0 - f, f
+        out = np.zeros(n_out, int), np.ones(n_out), np.zeros(n_out)
+    else:
+        centres = (np.arange(n_blocks) + 0.5) * block - 0.5
+        # Beyond the outer block centres the sky is extrapolated linearly, so
+        # that a steep gradient leaves no ramp along the frame's edges.
+        pos = np.arange(n_out, dtype=float)
+        k = np.clip(np.searchsorted(centres, pos, side="right") - 1, 0, n_blocks - 2)
+        f = (pos - centres[k]) / (centres[k + 1] - centres[k])
+        out = k, 1.0 - f, f
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def _background_map(binned, box):
@@ -137,9 +145,9 @@ def _background_map(binned, box):
     # the sum in float64 cast once to float32, without full-frame float64
     # temporaries.
     full = np.empty((ny, nx), np.float32)
-    edges = np.searchsorted(kx, np.arange(1, bx - 1))
-    for j, cols in enumerate(np.split(np.arange(nx), edges)):
-        c = slice(cols[0], cols[-1] + 1)
+    cuts = np.searchsorted(kx, np.arange(1, bx - 1)).tolist()
+    for j, (c0, c1) in enumerate(zip([0] + cuts, cuts + [nx])):
+        c = slice(c0, c1)
         np.add(rows[:, j, None] * wx0[c], rows[:, j + 1, None] * wx1[c], out=full[:, c])
     return full, bkg
 
