@@ -270,9 +270,9 @@ def _correlated_noise_factor(data, mask, noise, k=2, max_side=256):
         if k == 2 and crop.strides[1] == crop.itemsize and crop.strides[0] >= cx * crop.itemsize:
             # The sums NumPy's reduction over axes (1, 3) gives for rows laid out
             # so (each row's pair, then the two rows: the same values), without
-            # its slow casting reduction (7x).
-            c64 = crop.astype(np.float64)
-            blocks = (c64[0::2, 0::2] + c64[0::2, 1::2]) + (c64[1::2, 0::2] + c64[1::2, 1::2])
+            # its slow casting reduction (7x), nor a float64 copy of the crop.
+            blocks = np.add(crop[0::2, 0::2], crop[0::2, 1::2], dtype=np.float64)
+            blocks += np.add(crop[1::2, 0::2], crop[1::2, 1::2], dtype=np.float64)
         else:
             blocks = crop.reshape(cy // k, k, cx // k, k).sum(axis=(1, 3), dtype=np.float64)
         diff = np.diff(blocks, axis=1).ravel()
