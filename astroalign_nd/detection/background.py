@@ -164,10 +164,15 @@ def _local_background(cut, bad, r_in, offset=None):
     outer = (g[:, None] ** 2 + g[None, :] ** 2) >= r_in**2
     sel = outer.ravel()
     vals = cut.reshape(n, -1)[:, sel]
-    badv = bad.reshape(n, -1)[:, sel]
     m = vals.shape[1]
-    n_good = m - np.count_nonzero(badv, axis=1)
-    edge = np.flatnonzero(n_good < m)  # the few at edges or masks
+
+    def badv(rows):  # the bad pixels among these cutouts' values
+        return bad.reshape(n, -1)[rows][:, sel]
+
+    # (the bad pixels of the few cutouts with any: at edges or masks)
+    edge = np.flatnonzero(bad.reshape(n, -1).any(axis=1))
+    n_good = np.full(n, m)
+    n_good[edge] -= np.count_nonzero(badv(edge), axis=1)
     v32 = vals.astype(np.float32)
     if (vals.dtype == np.float64 and np.array_equal(v32, vals) and np.isfinite(v32).all()
             and (offset is None or np.isfinite(offset).all())):
@@ -176,7 +181,7 @@ def _local_background(cut, bad, r_in, offset=None):
         # and its lower half's maximum), bad pixels last; less the offset,
         # the middle values of ``vals - offset`` (a shift keeps the order).
         if edge.size:
-            v32[edge] = np.where(badv[edge], np.inf, v32[edge])
+            v32[edge] = np.where(badv(edge), np.inf, v32[edge])
         v32.sort(axis=1)
         k, rows = n_good // 2, np.arange(n)
         hi = v32[rows, k.clip(max=m - 1)].astype(float)
@@ -196,7 +201,7 @@ def _local_background(cut, bad, r_in, offset=None):
         for rows, med in ((whole, lambda v, b: _median(v, axis=1)), (part, _median_of_good)):
             if rows.size:
                 bkg[rows] = med(vals[rows] if offset is None else vals[rows] - offset[rows, None],
-                                badv[rows])
+                                badv(rows))
     return bkg
 
 
