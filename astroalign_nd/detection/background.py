@@ -53,11 +53,11 @@ def estimate_noise(data, mask=None, *, max_samples=50_000):
     return float(sigma)
 
 
-def _diff_sigma(rows, mrows, lag, bound=None):
+def _diff_sigma(rows, mrows, lag, bound=None, min_size=10):
     """
     Robust sigma of one pixel from differences ``lag`` pixels apart, and the
-    median absolute deviation it comes from (None when it does not: too few
-    differences, or the standard deviation's sigma).
+    median absolute deviation it comes from (None when it does not: fewer
+    than ``min_size`` differences, or the standard deviation's sigma).
 
     With ``bound``, a positive median absolute deviation: (0.0, None) when
     this one is proven positive and at most ``bound`` (its sigma at most
@@ -70,7 +70,7 @@ def _diff_sigma(rows, mrows, lag, bound=None):
         good &= ~(mrows[:, lag:] | mrows[:, :-lag]).ravel()
     if not good.all():  # (most frames: no copy)
         diff = diff[good]
-    if diff.size < 10:
+    if diff.size < min_size:
         return float("nan"), None
 
     def sorted_median(a):  # the same middle values, and their mean as `_median` takes it
@@ -280,12 +280,10 @@ def _correlated_noise_factor(data, mask, noise, k=2, max_side=256):
             blocks += np.add(crop[1::2, 0::2], crop[1::2, 1::2], dtype=np.float64)
         else:
             blocks = crop.reshape(cy // k, k, cx // k, k).sum(axis=(1, 3), dtype=np.float64)
-        diff = np.diff(blocks, axis=1).ravel()
-    finite = np.isfinite(diff)
-    if not finite.all():
-        diff = diff[finite]
-    if diff.size < 50:
+    # The sigma of differences of neighbouring block sums (none: too few, or
+    # a median absolute deviation of 0).
+    sigma, mad = _diff_sigma(blocks, None, 1, min_size=50)
+    if mad is None:
         return 1.0
-    sigma = 1.4826 * _median(np.abs(diff - _median(diff))) / np.sqrt(2.0)
     factor = float(sigma / (k * noise))
     return factor if factor > _MIN_CORRELATION else 1.0

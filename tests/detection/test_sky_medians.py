@@ -159,3 +159,40 @@ def test_estimate_noise_as_defined(kind):
     assert estimate_noise(data) == _noise_by_definition(data)
     if kind == "white":
         assert estimate_noise(data) == pytest.approx(10.0, rel=0.05)
+
+
+def _correlation_by_definition(data, noise, k=2, max_side=256):
+    ny, nx = data.shape
+    y0, x0 = max(0, (ny - max_side) // 2), max(0, (nx - max_side) // 2)
+    crop = data[y0:y0 + max_side, x0:x0 + max_side].astype(np.float64)
+    cy, cx = (crop.shape[0] // k) * k, (crop.shape[1] // k) * k
+    with np.errstate(invalid="ignore"):  # (inf - inf: dropped)
+        blocks = crop[:cy, :cx].reshape(cy // k, k, cx // k, k).sum(axis=(1, 3))
+        diff = np.diff(blocks, axis=1).ravel()
+    diff = diff[np.isfinite(diff)]
+    sigma = 1.4826 * np.median(np.abs(diff - np.median(diff))) / np.sqrt(2.0)
+    factor = float(sigma / (k * noise))
+    return factor if factor > 1.08 else 1.0
+
+
+@pytest.mark.parametrize("kind", ["white", "smoothed", "quantised", "holes"])
+def test_correlated_noise_as_defined(kind):
+    from astroalign_nd.detection.background import _correlated_noise_factor
+
+    rng = np.random.default_rng(11)
+    data = rng.normal(200.0, 10.0, (300, 300))
+    if kind == "smoothed":  # resampled: neighbours share their noise
+        data = (data + np.roll(data, 1, axis=0) + np.roll(data, 1, axis=1)) / 3.0
+    elif kind == "quantised":  # many equal block differences
+        data = np.round(data / 15.0)
+    elif kind == "holes":
+        data[rng.random(data.shape) < 0.01] = np.nan
+        data[:40, :40] = np.inf
+    data = data.astype(np.float32)
+    noise = estimate_noise(data)
+    got = _correlated_noise_factor(data, None, noise)
+    assert got == _correlation_by_definition(data, noise)
+    if kind == "white":
+        assert got == 1.0
+    elif kind == "smoothed":
+        assert got > 1.15
