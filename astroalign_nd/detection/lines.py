@@ -73,6 +73,7 @@ def _bright_lines(resid, noise):
     if not 2.0 * float(a) <= limit:
         a = np.nextafter(a, np.float32(0))
     near = np.abs(resid) <= a
+    half = _BINNED_WINDOW // 2
     for axis in (1, 0):
         lines = resid if axis == 1 else resid.T
         n = lines.shape[1]
@@ -82,14 +83,22 @@ def _bright_lines(resid, noise):
         while todo.any():  # (none: every excess is at most 2a)
             lo[todo] = hi[todo] = _median(lines[todo], axis=1)
             known |= todo
+            if not np.isfinite(hi).all():  # (the bounds do not hold: every line's median)
+                level = _median(lines, axis=1)
+                with np.errstate(invalid="ignore"):
+                    if np.any(level - _trend(level, _BINNED_WINDOW) > limit):
+                        return True
+                break
             # A narrow window: a defect stands out from the very next lines,
-            # where smooth structure (clusters, nebulae) does not.
-            with np.errstate(invalid="ignore"):
-                over = hi - _trend(lo, _BINNED_WINDOW) > limit
-            # (a line's window known, its excess is exact; the bounds do not
-            # hold for a NaN or infinite median: then every line's median)
-            todo = ~known if not np.isfinite(hi).all() else (
-                np.convolve(over, np.ones(_BINNED_WINDOW), "same") > 0) & ~known
+            # where smooth structure (clusters, nebulae) does not.  Each
+            # line's window of `_trend` (reflected at the ends) and its
+            # median (an order statistic: the filter's value).
+            m = len(lines)
+            win = np.arange(m)[:, None] + np.arange(-half, half + 1)
+            win = np.where(win < 0, -1 - win, np.where(win >= m, 2 * m - 1 - win, win))
+            over = hi - np.partition(lo[win], half, axis=1)[:, half] > limit
+            # (a line's window known, its excess is exact)
+            todo = (np.convolve(over, np.ones(_BINNED_WINDOW), "same") > 0) & ~known
             if over.any() and not todo.any():
                 return True
     return False
