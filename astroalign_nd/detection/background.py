@@ -1,6 +1,8 @@
 # Licensed under a 3-clause BSD style license - see LICENSE.rst
 """The sky: noise and background estimates that the detector compares sources with."""
 
+import functools
+
 import numpy as np
 from .._kernels import median as _median
 
@@ -40,19 +42,27 @@ def estimate_noise(data, mask=None, *, max_samples=50_000):
     """
     ny, nx = data.shape
     step = max(1, (ny * nx) // max_samples)
-    rows = data[::step]
-    sigma = _diff_sigma(rows, None if mask is None else mask[::step], 1)
+    rows, mrows = data[::step], None if mask is None else mask[::step]
+    sigma, mad = _diff_sigma(rows, mrows, 1)
     if np.isfinite(sigma) and nx > 8:
         # Resampled, drizzled, JPEG-compressed or interpolated frames have
         # correlated noise: neighbouring pixels differ less than the pixels
         # scatter, and the lag-1 figure is too low (too many detections).
         # Differences 3 pixels apart see the full scatter.
-        sigma = max(sigma, _diff_sigma(rows, None if mask is None else mask[::step], 3))
+        sigma = max(sigma, _diff_sigma(rows, mrows, 3, mad)[0])
     return float(sigma)
 
 
-def _diff_sigma(rows, mrows, lag):
-    """Robust sigma of one pixel from differences ``lag`` pixels apart."""
+def _diff_sigma(rows, mrows, lag, bound=None, min_size=10):
+    """
+    Robust sigma of one pixel from differences ``lag`` pixels apart, and the
+    median absolute deviation it comes from (None when it does not: fewer
+    than ``min_size`` differences, or the standard deviation's sigma).
+
+    With ``bound``, a positive median absolute deviation: (0.0, None) when
+    this one is proven positive and at most ``bound`` (its sigma at most
+    ``bound``'s: a count of the deviations instead of their median).
+    """
     with np.errstate(invalid="ignore"):  # inf - inf: filtered just below
         diff = (rows[:, lag:] - rows[:, :-lag]).ravel()
     good = np.isfinite(diff)
@@ -60,31 +70,50 @@ def _diff_sigma(rows, mrows, lag):
         good &= ~(mrows[:, lag:] | mrows[:, :-lag]).ravel()
     if not good.all():  # (most frames: no copy)
         diff = diff[good]
-    if diff.size < 10:
-        return float("nan")
-    med = _median(diff)
+    if diff.size < min_size:
+        return float("nan"), None
+
+    def sorted_median(a):  # the same middle values, and their mean as `_median` takes it
+        srt, k = np.sort(a), a.size // 2
+        return srt[k] if a.size % 2 else (srt[k - 1] + srt[k]) / 2
+
+    # Many equal differences (flat or quantised skies): NumPy's partition
+    # slows down on ties (several times), its sort does not.
+    median = sorted_median if np.count_nonzero(diff == 0) > 0.15 * diff.size else _median
+    med = median(diff)
     dev = diff - med
-    sigma = 1.4826 * _median(np.abs(dev, out=dev)) / np.sqrt(2.0)
+    dev = np.abs(dev, out=dev)
+    k = dev.size // 2
+    if bound is not None and np.count_nonzero(dev <= bound) > k and np.count_nonzero(dev == 0) < k:
+        return 0.0, None  # (more than half the deviations at most bound, fewer than half 0)
+    mad = median(dev)
+    sigma = 1.4826 * mad / np.sqrt(2.0)
     if sigma <= 0:
         # Quantised or noiseless images: fall back to the standard deviation.
-        sigma = np.std(diff) / np.sqrt(2.0)
-    return float(sigma)
+        return float(np.std(diff) / np.sqrt(2.0)), None
+    return float(sigma), mad
 
 
+@functools.lru_cache(maxsize=32)
 def _interp_weights(n_out, n_blocks, block):
     """
     Bilinear weights from block centres to pixels: for each output pixel,
-    the lower block ``k`` and the weights of blocks ``k`` and ``k + 1``.
+    the lower block ``k`` and the weights of blocks ``k`` and ``k + 1``
+    (read-only: kept for the next frame of this size).
     """
     if n_blocks == 1:
-        return np.zeros(n_out, int), np.ones(n_out), np.zeros(n_out)
-    centres = (np.arange(n_blocks) + 0.5) * block - 0.5
-    # Beyond the outer block centres the sky is extrapolated linearly, so
-    # that a steep gradient leaves no ramp along the frame's edges.
-    pos = np.arange(n_out, dtype=float)
-    k = np.clip(np.searchsorted(centres, pos, side="right") - 1, 0, n_blocks - 2)
-    f = (pos - centres[k]) / (centres[k + 1] - centres[k])
-    return k, 1.0 - f, f
+        out = np.zeros(n_out, int), np.ones(n_out), np.zeros(n_out)
+    else:
+        centres = (np.arange(n_blocks) + 0.5) * block - 0.5
+        # Beyond the outer block centres the sky is extrapolated linearly, so
+        # that a steep gradient leaves no ramp along the frame's edges.
+        pos = np.arange(n_out, dtype=float)
+        k = np.clip(np.searchsorted(centres, pos, side="right") - 1, 0, n_blocks - 2)
+        f = (pos - centres[k]) / (centres[k + 1] - centres[k])
+        out = k, 1.0 - f, f
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def _background_map(binned, box):
@@ -112,29 +141,67 @@ def _background_map(binned, box):
         rows = wy0[:, None] * b64[ky] + wy1[:, None] * b64[ky + 1]
     if bx == 1:
         return np.broadcast_to(rows[:, :1], (ny, nx)).astype(np.float32), bkg
-    full = wx0 * rows[:, kx]
-    full += wx1 * rows[:, kx + 1]
-    return full.astype(np.float32), bkg
+    # Column by column of blocks (the columns between two block centres):
+    # the sum in float64 cast once to float32, without full-frame float64
+    # temporaries.
+    full = np.empty((ny, nx), np.float32)
+    cuts = np.searchsorted(kx, np.arange(1, bx - 1)).tolist()
+    for j, (c0, c1) in enumerate(zip([0] + cuts, cuts + [nx])):
+        c = slice(c0, c1)
+        np.add(rows[:, j, None] * wx0[c], rows[:, j + 1, None] * wx1[c], out=full[:, c])
+    return full, bkg
 
 
 def _local_background(cut, bad, r_in, offset=None):
     """
-    Median of each cutout's pixels at least ``r_in`` from its centre (less
-    ``offset``, one value per cutout, when given: ``cut - offset`` is not
-    formed for the pixels the median does not read).
+    Median of each cutout's good pixels at least ``r_in`` from its centre
+    (0 for none; less ``offset``, one value per cutout, when given:
+    ``cut - offset`` is not formed for the pixels the median does not
+    read), `_median`'s (and `_median_of_good`'s), bit for bit.
     """
     n, size, _ = cut.shape
     g = np.arange(size) - size // 2
     outer = (g[:, None] ** 2 + g[None, :] ** 2) >= r_in**2
     sel = outer.ravel()
     vals = cut.reshape(n, -1)[:, sel]
-    if offset is not None:
-        vals = vals - offset[:, None]
-    badv = bad.reshape(n, -1)[:, sel]
-    bkg = _median(vals, axis=1)  # right for every cutout without bad pixels
-    edge = np.flatnonzero(badv.any(axis=1))  # the few at edges or masks
-    if edge.size:
-        bkg[edge] = _median_of_good(vals[edge], badv[edge])
+    m = vals.shape[1]
+
+    def badv(rows):  # the bad pixels among these cutouts' values
+        return bad.reshape(n, -1)[rows][:, sel]
+
+    # (the bad pixels of the few cutouts with any: at edges or masks)
+    edge = np.flatnonzero(bad.reshape(n, -1).any(axis=1))
+    n_good = np.full(n, m)
+    n_good[edge] -= np.count_nonzero(badv(edge), axis=1)
+    v32 = vals.astype(np.float32)
+    if (vals.dtype == np.float64 and np.array_equal(v32, vals) and np.isfinite(v32).all()
+            and (offset is None or np.isfinite(offset).all())):
+        # Pixels of a float32 image (most frames): the middle values of
+        # each row from one float32 sort (faster than a float64 partition
+        # and its lower half's maximum), bad pixels last; less the offset,
+        # the middle values of ``vals - offset`` (a shift keeps the order).
+        if edge.size:
+            v32[edge] = np.where(badv(edge), np.inf, v32[edge])
+        v32.sort(axis=1)
+        k, rows = n_good // 2, np.arange(n)
+        hi = v32[rows, k.clip(max=m - 1)].astype(float)
+        lo = v32[rows, (k - 1).clip(min=0)].astype(float)
+        if offset is not None:
+            hi, lo = hi - offset, lo - offset
+        # (lo + hi) / 2 in float64, as `_median` (np.mean of the two).
+        bkg = np.where(n_good % 2 == 1, hi, (lo + hi) / 2)
+        bkg[n_good == 0] = 0.0
+        # Which zero (+0 or -0) a partition leaves in the middle is its own.
+        again = np.flatnonzero(((lo == 0) | (hi == 0)) & (n_good > 0))
+    else:
+        again = np.arange(n)
+        bkg = np.empty(n, vals.dtype if offset is None else np.result_type(vals, offset))
+    if again.size:
+        whole, part = again[n_good[again] == m], again[n_good[again] < m]
+        for rows, med in ((whole, lambda v, b: _median(v, axis=1)), (part, _median_of_good)):
+            if rows.size:
+                bkg[rows] = med(vals[rows] if offset is None else vals[rows] - offset[rows, None],
+                                badv(rows))
     return bkg
 
 
@@ -196,27 +263,27 @@ def _correlated_noise_factor(data, mask, noise, k=2, max_side=256):
     ny, nx = data.shape
     y0, x0 = max(0, (ny - max_side) // 2), max(0, (nx - max_side) // 2)
     crop = np.asarray(data[y0:y0 + max_side, x0:x0 + max_side], dtype=np.float32)
-    bad = ~np.isfinite(crop)
-    if mask is not None:
-        bad |= mask[y0:y0 + max_side, x0:x0 + max_side]
-    if bad.any():
-        crop = np.where(bad, np.nan, crop)
+    if mask is not None:  # (a NaN or infinite pixel's block differences are dropped below)
+        bad = ~np.isfinite(crop) | mask[y0:y0 + max_side, x0:x0 + max_side]
+        if bad.any():
+            crop = np.where(bad, np.nan, crop)
     cy, cx = (crop.shape[0] // k) * k, (crop.shape[1] // k) * k
     if cy < 8 * k or cx < 8 * k or not (np.isfinite(noise) and noise > 0):
         return 1.0
     crop = crop[:cy, :cx]
-    if k == 2 and crop.strides[1] == crop.itemsize and crop.strides[0] >= cx * crop.itemsize:
-        # The sums NumPy's reduction over axes (1, 3) gives for rows laid out
-        # so (each row's pair, then the two rows: the same values), without
-        # its slow casting reduction (7x).
-        c64 = crop.astype(np.float64)
-        blocks = (c64[0::2, 0::2] + c64[0::2, 1::2]) + (c64[1::2, 0::2] + c64[1::2, 1::2])
-    else:
-        blocks = crop.reshape(cy // k, k, cx // k, k).sum(axis=(1, 3), dtype=np.float64)
-    diff = np.diff(blocks, axis=1).ravel()
-    diff = diff[np.isfinite(diff)]
-    if diff.size < 50:
+    with np.errstate(invalid="ignore"):  # (inf - inf: dropped below)
+        if k == 2 and crop.strides[1] == crop.itemsize and crop.strides[0] >= cx * crop.itemsize:
+            # The sums NumPy's reduction over axes (1, 3) gives for rows laid out
+            # so (each row's pair, then the two rows: the same values), without
+            # its slow casting reduction (7x), nor a float64 copy of the crop.
+            blocks = np.add(crop[0::2, 0::2], crop[0::2, 1::2], dtype=np.float64)
+            blocks += np.add(crop[1::2, 0::2], crop[1::2, 1::2], dtype=np.float64)
+        else:
+            blocks = crop.reshape(cy // k, k, cx // k, k).sum(axis=(1, 3), dtype=np.float64)
+    # The sigma of differences of neighbouring block sums (none: too few, or
+    # a median absolute deviation of 0).
+    sigma, mad = _diff_sigma(blocks, None, 1, min_size=50)
+    if mad is None:
         return 1.0
-    sigma = 1.4826 * _median(np.abs(diff - _median(diff))) / np.sqrt(2.0)
     factor = float(sigma / (k * noise))
     return factor if factor > _MIN_CORRELATION else 1.0

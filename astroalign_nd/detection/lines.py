@@ -58,17 +58,48 @@ def _bright_lines(resid, noise):
     Are there bright or noisy rows or columns in the binned residual image?
 
     ``resid`` is the binned image less its coarse background, ``noise`` its
-    per-pixel noise.
+    per-pixel noise.  The answer of every line's median and their trend,
+    from bounds where they decide it (most frames: no median at all): a
+    line with more than half its pixels within ``+-a`` has its median there
+    too, and a trend is at least the trend of such lower bounds.  Medians
+    are computed for the lines outside the bounds and, where a bound allows
+    an excess, for the lines around it (then exact).
     """
     if min(resid.shape) < 16:
         return False
+    limit = _BINNED_EXCESS * noise
+    # Bounds +-a at most the limit apart (in float32, as the medians).
+    a = np.float32(min(limit / 2, 1e37))
+    if not 2.0 * float(a) <= limit:
+        a = np.nextafter(a, np.float32(0))
+    near = np.abs(resid) <= a
+    half = _BINNED_WINDOW // 2
     for axis in (1, 0):
-        level = _median(resid if axis == 1 else resid.T, axis=1)  # finite: filled
-        # A narrow window: a defect stands out from the very next lines,
-        # where smooth structure (clusters, nebulae) does not.
-        excess = level - _trend(level, _BINNED_WINDOW)
-        with np.errstate(invalid="ignore"):
-            if np.any(excess > _BINNED_EXCESS * noise):
+        lines = resid if axis == 1 else resid.T
+        n = lines.shape[1]
+        todo = near.view(np.uint8).sum(axis=axis, dtype=np.intp) <= n - n // 2
+        lo, hi = np.full(len(lines), -a, resid.dtype), np.full(len(lines), a, resid.dtype)
+        known = np.zeros(len(lines), bool)
+        while todo.any():  # (none: every excess is at most 2a)
+            lo[todo] = hi[todo] = _median(lines[todo], axis=1)
+            known |= todo
+            if not np.isfinite(hi).all():  # (the bounds do not hold: every line's median)
+                level = _median(lines, axis=1)
+                with np.errstate(invalid="ignore"):
+                    if np.any(level - _trend(level, _BINNED_WINDOW) > limit):
+                        return True
+                break
+            # A narrow window: a defect stands out from the very next lines,
+            # where smooth structure (clusters, nebulae) does not.  Each
+            # line's window of `_trend` (reflected at the ends) and its
+            # median (an order statistic: the filter's value).
+            m = len(lines)
+            win = np.arange(m)[:, None] + np.arange(-half, half + 1)
+            win = np.where(win < 0, -1 - win, np.where(win >= m, 2 * m - 1 - win, win))
+            over = hi - np.partition(lo[win], half, axis=1)[:, half] > limit
+            # (a line's window known, its excess is exact)
+            todo = (np.convolve(over, np.ones(_BINNED_WINDOW), "same") > 0) & ~known
+            if over.any() and not todo.any():
                 return True
     return False
 
