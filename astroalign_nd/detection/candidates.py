@@ -194,10 +194,15 @@ def _as_image(data, mask, caller="find_sources"):
         # of their neighbouring-pixel scatter (not so for noiseless frames
         # float32 cannot hold, or a faint signal on a large pedestal).
         rows = arr[:: max(1, arr.shape[0] // 64)]
-        with np.errstate(invalid="ignore"):
+        with np.errstate(invalid="ignore", over="ignore"):
             err = np.abs(rows - rows.astype(np.float32))
             scatter = np.abs(np.diff(rows, axis=1))
-        err, scatter = err[np.isfinite(err)], scatter[np.isfinite(scatter)]
+        finite = np.isfinite(rows)
+        if finite.any() and np.abs(rows[finite]).max() > np.finfo(np.float32).max:
+            raise ValueError("image values reach beyond float32's range (3.4e38), which the "
+                             "detection's binning and sky passes use; pass the image scaled "
+                             "down (e.g. divided by its maximum).")
+        err, scatter = err[finite], scatter[np.isfinite(scatter)]
         single = not err.any() or (scatter.size > 0
                                    and err.max() <= 1e-3 * _median(scatter))
     if arr.dtype != np.float32 and single:

@@ -520,3 +520,9 @@ def test_faint_signal_on_large_pedestal_keeps_float64(frame3):
     assert len(tab) >= 19
     d, _ = _nearest(tab, x, y)
     assert np.median(d) < 0.03
+
+
+def test_values_beyond_float32_range_are_refused_clearly(frame3):
+    img = np.asarray(frame3[0], np.float64) * 1e300
+    with pytest.raises(ValueError, match="float32's range"):
+        find_sources(img, n_sources=10)
