@@ -433,6 +433,69 @@ def finite_sample(const real[:, :] data, const unsigned char[:, :] mask, bint us
     return k
 
 
+
+def extract_cutouts(const real[:, :] data, const unsigned char[:, :] mask, bint use_mask,
+                    const Py_ssize_t[::1] xc, const Py_ssize_t[::1] yc, Py_ssize_t half,
+                    double fill, double[:, :, ::1] cut, unsigned char[:, :, ::1] bad):
+    """
+    The (2 half + 1)^2 cutouts of ``data`` centred on the integer pixels
+    (xc, yc), as float64 into ``cut``; ``bad`` set (and ``cut`` = ``fill``)
+    for pixels beyond the frame, masked (with ``use_mask``) or not finite.
+    `astroalign_nd.detection.candidates._extract_cutouts`' NumPy version
+    gives the same values.
+    """
+    cdef Py_ssize_t n = xc.shape[0], size = 2 * half + 1, ny = data.shape[0], nx = data.shape[1]
+    cdef Py_ssize_t k, i, j, y, x0, j0, j1
+    cdef double v
+    cdef bint b
+    cdef double* c
+    cdef unsigned char* bd
+    cdef const real* row
+    cdef const unsigned char* mrow
+    # Steps along a row, in elements (negative for a reversed view).
+    cdef Py_ssize_t sx = data.strides[1] // <Py_ssize_t>sizeof(real)
+    cdef Py_ssize_t mx = mask.strides[1] if use_mask else 0
+    if (yc.shape[0] != n or cut.shape[0] != n or bad.shape[0] != n or cut.shape[1] != size
+            or cut.shape[2] != size or bad.shape[1] != size or bad.shape[2] != size
+            or (use_mask and (mask.shape[0] != ny or mask.shape[1] != nx))):
+        raise ValueError("cut and bad must be (n, 2 half + 1, 2 half + 1) and mask the data's "
+                         "shape.")
+    with nogil:
+        for k in range(n):
+            x0 = xc[k] - half
+            j0 = 0 if x0 >= 0 else -x0  # the row's part inside the frame: [j0, j1)
+            j1 = size if x0 + size <= nx else nx - x0
+            for i in range(size):
+                y = yc[k] - half + i
+                c = &cut[k, i, 0]
+                bd = &bad[k, i, 0]
+                if y < 0 or y >= ny or j1 <= j0:
+                    for j in range(size):
+                        c[j] = fill
+                        bd[j] = 1
+                    continue
+                for j in range(j0):
+                    c[j] = fill
+                    bd[j] = 1
+                row = &data[y, x0 + j0] - j0 * sx
+                if use_mask:
+                    mrow = &mask[y, x0 + j0] - j0 * mx
+                    for j in range(j0, j1):
+                        v = row[j * sx]
+                        b = not isfinite(v) or mrow[j * mx]
+                        c[j] = fill if b else v
+                        bd[j] = b
+                else:
+                    for j in range(j0, j1):
+                        v = row[j * sx]
+                        b = not isfinite(v)
+                        c[j] = fill if b else v
+                        bd[j] = b
+                for j in range(j1, size):
+                    c[j] = fill
+                    bd[j] = 1
+
+
 # -- matching --------------------------------------------------------------------
 
 def count_inliers_range(const double[:, :, ::1] mats, const double[:, ::1] src,

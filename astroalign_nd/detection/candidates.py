@@ -6,7 +6,7 @@ import functools
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from .._kernels import GAUSS_SIGMA_TO_FWHM as _GAUSS_SIGMA_TO_FWHM
-from .._kernels import bin_despike, finite_sample, peak_candidates
+from .._kernels import bin_despike, compiled_kernels, finite_sample, peak_candidates
 from .._kernels import median as _median
 from .._kernels import windowed_centroid as _windowed_centroid
 from .background import _background_map
@@ -21,6 +21,16 @@ def _extract_cutouts(data, mask, xc, yc, half, fill):
     ny, nx = data.shape
     n = len(xc)
     cut = np.empty((n, size, size))
+    ck = compiled_kernels()
+    if ck is not None and np.isscalar(fill) and data.dtype in (np.float32, np.float64):
+        bad = np.empty((n, size, size), dtype=bool)  # (every pixel written)
+        # One pass, without NumPy's gather of many small windows (a cold
+        # frame's rows read once each).
+        m = np.zeros((1, 1), np.uint8) if mask is None else mask.view(np.uint8)
+        ck.extract_cutouts(data, m, mask is not None, np.asarray(xc, np.intp),
+                           np.asarray(yc, np.intp), int(half), float(fill), cut,
+                           bad.view(np.uint8))
+        return cut, bad
     bad = np.zeros((n, size, size), dtype=bool)
     inner = (xc >= half) & (xc < nx - half) & (yc >= half) & (yc < ny - half)
     if inner.any():
