@@ -98,6 +98,14 @@ def _estimate_fwhm(data, mask, cand, noise=None, n_max=80, half=14, gap=True):
     compact = None
     if vals.size >= 10:
         mode, frac = _log_mode(vals)
+        # Cosmic rays and their smeared copies in a resampled frame spread
+        # over a range of compact widths that can outnumber the stars; the
+        # stars share one width closely.  A much wider cluster that is the
+        # denser one at a narrow window (8 candidates at least) is theirs.
+        tight, tfrac = _log_mode(vals, 0.03)  # (tfrac: within 0.045 dex of it)
+        if (tight > 1.8 * mode and tfrac * vals.size >= 8
+                and tfrac > np.mean(np.abs(np.log10(vals / mode)) <= 0.045)):
+            mode, frac = tight, float(np.mean(np.abs(np.log10(vals / tight)) <= 0.15))
         if frac >= 0.3 and mode < half / 2.0:
             # Enough compact sources share one width: those are the stars,
             # unless the wide ones are stars too (checked below).
