@@ -73,7 +73,6 @@ def _bright_lines(resid, noise):
     if not 2.0 * float(a) <= limit:
         a = np.nextafter(a, np.float32(0))
     near = np.abs(resid) <= a
-    half = _BINNED_WINDOW // 2
     for axis in (1, 0):
         lines = resid if axis == 1 else resid.T
         n = lines.shape[1]
@@ -90,13 +89,9 @@ def _bright_lines(resid, noise):
                         return True
                 break
             # A narrow window: a defect stands out from the very next lines,
-            # where smooth structure (clusters, nebulae) does not.  Each
-            # line's window of `_trend` (reflected at the ends) and its
-            # median (an order statistic: the filter's value).
-            m = len(lines)
-            win = np.arange(m)[:, None] + np.arange(-half, half + 1)
-            win = np.where(win < 0, -1 - win, np.where(win >= m, 2 * m - 1 - win, win))
-            over = hi - np.partition(lo[win], half, axis=1)[:, half] > limit
+            # where smooth structure (clusters, nebulae) does not.  (The
+            # trend of the lower bounds: a line's median is at least its.)
+            over = hi - _trend(lo, _BINNED_WINDOW) > limit
             # (a line's window known, its excess is exact)
             todo = (np.convolve(over, np.ones(_BINNED_WINDOW), "same") > 0) & ~known
             if over.any() and not todo.any():
