@@ -109,6 +109,21 @@ _MIX_GRID = np.concatenate([[0.0], np.logspace(-4.0, 0.0, 33)])
 _FLOOR_INTERVAL = 1.0
 
 
+def _checked_fit(fit, n):
+    """``checked_weights``' ``fit``, checked: (matrix, design) of ``n`` (a 1-tuple) pairs."""
+    n = n[0] if len(n) else 0
+    try:
+        matrix, design = (np.asarray(a, dtype=float) for a in fit)
+    except (TypeError, ValueError):
+        matrix = design = None
+    if (matrix is None or matrix.shape != (3, 3) or design.ndim != 2
+            or design.shape[0] != 2 * n):
+        raise ValueError(f"fit must be (matrix, design) from fit_matrix on these {n} pairs: a "
+                         "3x3 matrix and a design of 2 rows per pair; or None to fit them "
+                         "here.")
+    return matrix, design
+
+
 def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
                     transform_type: str | type = "similarity", *, parity: int | None = None,
                     degree: int | None = None, crpix: ArrayLike | None = None,
@@ -187,7 +202,8 @@ def checked_weights(src: ArrayLike, dst: ArrayLike, weights: ArrayLike,
     # fit_transform's own checks say what is wrong with bad input.
     if hasattr(cls, "_fit_parts") and degree is None and crpix is None and domain is None:
         # (The linear types: their design and residuals without building a model.)
-        made = None if fit is None else (1 if parity is None else parity, *fit)
+        made = None if fit is None else (1 if parity is None else parity,
+                                         *_checked_fit(fit, np.shape(src)[:1]))
         _, design, resid = cls._fit_parts(src, dst, weights=weights, parity=parity, fit=made)
     else:
         _, design, resid = _fit_design(cls, src, dst, weights, parity, degree, crpix, domain)

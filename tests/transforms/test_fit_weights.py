@@ -184,3 +184,12 @@ def test_given_fit_gives_the_same_weights(transform_type, parity):
     with pytest.raises(ValueError, match="coincide|collinear"):
         checked_weights(line[:1].repeat(24, axis=0), line, np.ones(24), transform_type,
                         parity=parity, fit=line_fit)
+
+
+@pytest.mark.parametrize("fit", [(np.eye(3),), "abc", (np.eye(2), np.zeros((40, 4))),
+                                 (np.eye(3), np.zeros((39, 4)))])
+def test_checked_weights_bad_fit_is_refused_clearly(fit):
+    rng = np.random.default_rng(0)
+    src = rng.uniform(0, 100, (20, 2))
+    with pytest.raises(ValueError, match="fit must be"):
+        checked_weights(src, src + 1.0, np.ones(20), fit=fit)
