@@ -196,7 +196,7 @@ def _as_image(data, mask, caller="find_sources"):
         raise TypeError(f"image data must be numeric; got dtype {arr.dtype}.")
     if min(arr.shape) < 8:
         raise ValueError(f"image is too small to detect stars in: shape {arr.shape}.")
-    single = arr.dtype != np.float64
+    single = not (arr.dtype.kind == "f" and arr.dtype.itemsize >= 8)  # (FITS: big-endian)
     if not single:
         # Detection reads single precision at half the memory traffic (most
         # of a small frame's full-frame passes) when float32 keeps the
